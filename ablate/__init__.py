@@ -1,0 +1,1 @@
+"""ablate: architecture ablations of policy-gradient agents."""

@@ -1,0 +1,132 @@
+"""Policy networks: observation in, action logits out (no softmax inside), built from a ``ModelConfig``.
+
+``create_cartpole_model`` and ``create_pong_model`` are the course's names; ``create_model`` picks by env.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from ablate.config import ModelConfig
+
+_ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
+
+
+class Policy(nn.Module):
+    """A network mapping observations of ``observation_shape`` (plus a batch dimension) to logits."""
+
+    def __init__(self, body: nn.Module, observation_shape: tuple[int, ...]) -> None:
+        super().__init__()
+        self.body = body
+        self.observation_shape = tuple(observation_shape)
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        return self.body(observations)
+
+
+def parameter_count(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+def _dense_layers(
+    in_features: int, hidden_sizes: Sequence[int], n_actions: int, activation: str, dropout: float
+) -> list[nn.Module]:
+    layers: list[nn.Module] = []
+    for width in hidden_sizes:
+        layers += [nn.Linear(in_features, width), _ACTIVATIONS[activation]()]
+        if dropout > 0:
+            layers.append(nn.Dropout(dropout))
+        in_features = width
+    layers.append(nn.Linear(in_features, n_actions))
+    return layers
+
+
+def create_cartpole_model(
+    observation_size: int = 4,
+    n_actions: int = 2,
+    hidden_sizes: Sequence[int] = (32,),
+    activation: str = "relu",
+    dropout: float = 0.0,
+    architecture: str = "mlp",
+    history: int = 4,
+    conv_channels: Sequence[int] = (16,),
+    kernel_size: int = 2,
+) -> Policy:
+    """CartPole policy. ``mlp``: input (observation_size,). ``cnn``: input (history, observation_size), a
+    window of recent observations, oldest first; 1-D convolutions run along time with the observation's
+    components as channels, then the dense layers."""
+    if architecture == "mlp":
+        body = nn.Sequential(*_dense_layers(observation_size, hidden_sizes, n_actions, activation, dropout))
+        return Policy(body, (observation_size,))
+    conv: list[nn.Module] = [_TimeAsLength()]
+    channels, length = observation_size, history
+    for out_channels in conv_channels:
+        conv += [nn.Conv1d(channels, out_channels, kernel_size), _ACTIVATIONS[activation]()]
+        channels, length = out_channels, length - kernel_size + 1
+        if length < 1:
+            raise ValueError(
+                f"history {history} is too short for {len(conv_channels)} convolutions of {kernel_size}"
+            )
+    conv.append(nn.Flatten())
+    body = nn.Sequential(
+        *conv, *_dense_layers(channels * length, hidden_sizes, n_actions, activation, dropout)
+    )
+    return Policy(body, (history, observation_size))
+
+
+class _TimeAsLength(nn.Module):
+    """(batch, time, features) -> (batch, features, time): Conv1d wants channels before length."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x.transpose(1, 2)
+
+
+def create_pong_model(
+    n_actions: int = 6,
+    hidden_sizes: Sequence[int] = (64,),
+    activation: str = "relu",
+    dropout: float = 0.0,
+    architecture: str = "cnn",
+) -> Policy:
+    """Pong policy over the (1, 80, 80) difference of pre-processed frames. ``cnn`` is the course's:
+    16 filters 7x7 stride 4, 32 filters 5x5 stride 2, 48 filters 3x3 stride 2, then dense layers.
+    ``mlp`` flattens the 6,400 pixels straight into the dense layers (Karpathy's Pong policy)."""
+    act = _ACTIVATIONS[activation]
+    if architecture == "mlp":
+        body = nn.Sequential(
+            nn.Flatten(), *_dense_layers(80 * 80, hidden_sizes, n_actions, activation, dropout)
+        )
+        return Policy(body, (1, 80, 80))
+    body = nn.Sequential(
+        nn.Conv2d(1, 16, 7, stride=4, padding=3),
+        act(),
+        nn.Conv2d(16, 32, 5, stride=2, padding=2),
+        act(),
+        nn.Conv2d(32, 48, 3, stride=2, padding=1),
+        act(),
+        nn.Flatten(),
+        *_dense_layers(48 * 5 * 5, hidden_sizes, n_actions, activation, dropout),
+    )
+    return Policy(body, (1, 80, 80))
+
+
+def create_model(env_id: str, model: ModelConfig, observation_size: int, n_actions: int) -> Policy:
+    """The policy for ``env_id`` with the knobs of ``model``."""
+    if env_id.startswith("ALE/Pong"):
+        return create_pong_model(
+            n_actions, model.hidden_sizes, model.activation, model.dropout, model.architecture
+        )
+    return create_cartpole_model(
+        observation_size,
+        n_actions,
+        model.hidden_sizes,
+        model.activation,
+        model.dropout,
+        model.architecture,
+        model.history,
+        model.conv_channels,
+        model.kernel_size,
+    )

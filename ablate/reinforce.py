@@ -1,0 +1,143 @@
+"""REINFORCE (vanilla policy gradient), pure: memory, action choice, discounted returns, loss, update.
+
+No I/O, no Ray, no MLflow, no environment: arrays and a torch model in, arrays and numbers out.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+class Memory:
+    """One episode's (or several episodes') observations, actions and rewards, in the order they happened."""
+
+    def __init__(self) -> None:
+        self.clear()
+
+    def clear(self) -> None:
+        self.observations: list[np.ndarray] = []
+        self.actions: list[int] = []
+        self.rewards: list[float] = []
+
+    def add_to_memory(self, observation: np.ndarray, action: int, reward: float) -> None:
+        self.observations.append(np.asarray(observation, dtype=np.float32))
+        self.actions.append(int(action))
+        self.rewards.append(float(reward))
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+
+def choose_action(
+    model: nn.Module,
+    observation: np.ndarray,
+    rng: np.random.Generator | None = None,
+    greedy: bool = False,
+) -> int | np.ndarray:
+    """Sample an action from the softmax of the model's logits (or take the argmax when ``greedy``).
+
+    ``observation`` is one observation (returns an ``int``) or a batch (returns an array of ints).
+    No autograd graph is built: the log-probabilities are recomputed in one batched forward at update
+    time, which is what makes collection cheap.
+    """
+    observation = np.asarray(observation, dtype=np.float32)
+    single = observation.ndim == len(model.observation_shape)
+    batch = observation[None] if single else observation
+    if model.training:
+        model.eval()  # acting is deterministic apart from sampling: no dropout; train_step switches back
+    with torch.inference_mode():
+        logits = model(torch.from_numpy(batch)).numpy()
+    if greedy:
+        actions = logits.argmax(axis=1)
+    else:
+        rng = rng if rng is not None else np.random.default_rng()
+        shifted = np.exp(logits - logits.max(axis=1, keepdims=True))
+        cumulative = np.cumsum(shifted / shifted.sum(axis=1, keepdims=True), axis=1)
+        # Inverse-CDF sampling; the clip guards against the last cumulative value rounding below u.
+        u = rng.random((len(batch), 1))
+        actions = np.minimum((cumulative < u).sum(axis=1), logits.shape[1] - 1)
+    return int(actions[0]) if single else actions.astype(np.int64)
+
+
+def discount_rewards(rewards: np.ndarray, gamma: float, reset_on_nonzero: bool = False) -> np.ndarray:
+    """Discounted return G_t = r_t + gamma * G_{t+1} for one episode, not normalised.
+
+    With ``reset_on_nonzero`` (Pong), the running return restarts at zero at every point scored
+    (reward != 0): each rally is its own game, and a point must not be credited to earlier rallies.
+    """
+    rewards = np.asarray(rewards, dtype=np.float64)
+    returns = np.zeros_like(rewards)
+    running = 0.0
+    for t in range(len(rewards) - 1, -1, -1):
+        if reset_on_nonzero and rewards[t] != 0:
+            running = 0.0
+        running = rewards[t] + gamma * running
+        returns[t] = running
+    return returns
+
+
+def normalize(values: np.ndarray) -> np.ndarray:
+    """Centre on the mean and scale by the standard deviation; a constant vector becomes all zeros."""
+    values = np.asarray(values, dtype=np.float64)
+    centred = values - values.mean()
+    std = values.std()
+    # A constant return vector (every episode identical) carries no signal: all-zero weights, not NaN.
+    return (centred / std if std > 1e-8 else centred).astype(np.float32)
+
+
+def compute_loss(logits: torch.Tensor, actions: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Softmax cross-entropy of the taken actions, weighted by the normalised returns, averaged.
+
+    Cross-entropy of the taken action is -log pi(a|s), so this is the policy-gradient loss
+    ``-(log pi(a|s) * G).mean()``.
+    """
+    return (F.cross_entropy(logits, actions, reduction="none") * weights).mean()
+
+
+def l2_penalty(model: nn.Module) -> torch.Tensor:
+    """Sum of squared weights of every layer, biases excluded (Keras ``regularizers.l2`` semantics)."""
+    return sum(
+        (p.pow(2).sum() for name, p in model.named_parameters() if name.endswith("weight")), torch.zeros(())
+    )
+
+
+class UpdateStats(NamedTuple):
+    loss: float
+    """Policy-gradient loss of the batch, before the step (L2 term excluded)."""
+    entropy: float
+    """Mean entropy (nats) of the policy over the batch's observations, before the step."""
+
+
+def train_step(
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    observations: np.ndarray,
+    actions: np.ndarray,
+    discounted_rewards: np.ndarray,
+    l2: float = 0.0,
+) -> UpdateStats:
+    """One gradient step on a batch: a single forward in training mode (dropout active), backward, step.
+
+    ``discounted_rewards`` are the normalised returns used as weights. L2 regularisation is a loss term,
+    ``l2 * sum(w**2)`` over weight matrices (not biases), rather than Adam's ``weight_decay``: Adam's
+    coupled decay would also shrink biases, and a loss term means the same thing as the course's Keras
+    ``kernel_regularizer=l2(...)``, so a value read in the course transfers unchanged.
+    """
+    model.train()
+    logits = model(torch.as_tensor(observations, dtype=torch.float32))
+    actions_t = torch.as_tensor(actions, dtype=torch.int64)
+    weights = torch.as_tensor(discounted_rewards, dtype=torch.float32)
+    policy_loss = compute_loss(logits, actions_t, weights)
+    loss = policy_loss + l2 * l2_penalty(model) if l2 > 0 else policy_loss
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    with torch.no_grad():
+        log_probs = F.log_softmax(logits, dim=1)
+        entropy = -(log_probs.exp() * log_probs).sum(dim=1).mean()
+    return UpdateStats(loss=float(policy_loss.item()), entropy=float(entropy.item()))

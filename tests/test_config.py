@@ -1,0 +1,125 @@
+"""Config knobs and experiment files: valid values load, bad ones give one actionable line."""
+
+import pytest
+
+from ablate.config import COURSE, DEFAULT, ConfigError, apply_knobs, flatten, load_experiment
+
+
+def test_course_preset_is_the_labs_setting():
+    assert (COURSE.learning_rate, COURSE.episodes_per_update, COURSE.gamma) == (1e-3, 1, 0.95)
+    assert COURSE.model.hidden_sizes == (32,)
+
+
+def test_depth_and_width_expand_to_hidden_sizes():
+    assert apply_knobs(DEFAULT, {"depth": 3, "width": 16}).model.hidden_sizes == (16, 16, 16)
+    assert apply_knobs(DEFAULT, {"depth": 0}).model.hidden_sizes == ()
+    assert apply_knobs(DEFAULT, {"hidden_sizes": [8, 4]}).model.hidden_sizes == (8, 4)
+
+
+@pytest.mark.parametrize(
+    ("knobs", "message"),
+    [
+        ({"env_id": "MountainCar-v0"}, "env_id = 'MountainCar-v0' is invalid; valid: one of CartPole-v0"),
+        ({"gamma": 0.0}, "gamma = 0.0 is invalid; valid: a number in (0, 1]"),
+        ({"gamma": 1.5}, "gamma = 1.5 is invalid"),
+        ({"dropout": 1.0}, "dropout = 1.0 is invalid; valid: a number in [0, 1)"),
+        ({"max_episodes": -5}, "max_episodes = -5 is invalid; valid: an integer in [1, 1000000]"),
+        ({"learning_rate": "fast"}, "learning_rate = 'fast' is invalid"),
+        ({"widht": 3}, "widht: unknown key; valid keys:"),
+        ({"hidden_sizes": [32], "depth": 2}, "either hidden_sizes or depth/width"),
+    ],
+)
+def test_bad_knobs_name_key_value_and_valid_range(knobs, message):
+    with pytest.raises(ConfigError) as error:
+        apply_knobs(DEFAULT, knobs)
+    assert message in str(error.value)
+
+
+def test_flatten_names_every_knob():
+    flat = flatten(DEFAULT)
+    assert flat["model.hidden_sizes"] == (32,) and flat["gamma"] == 0.95 and "model.dropout" in flat
+
+
+def _write(tmp_path, text):
+    path = tmp_path / "exp.toml"
+    path.write_text(text)
+    return path
+
+
+def test_experiment_file_variants_grid_and_seeds(tmp_path):
+    path = _write(
+        tmp_path,
+        """
+name = "demo"
+seeds = 3
+baseline = "course"
+[base]
+env_id = "CartPole-v0"
+max_episodes = 50
+[[variants]]
+name = "course"
+learning_rate = 0.001
+episodes_per_update = 1
+[grid]
+depth = [1, 2]
+dropout = [0.0, 0.2]
+""",
+    )
+    experiment = load_experiment(path)
+    assert experiment.seeds == (0, 1, 2)
+    names = [v.name for v in experiment.variants]
+    assert names == [
+        "course",
+        "depth=1,dropout=0.0",
+        "depth=1,dropout=0.2",
+        "depth=2,dropout=0.0",
+        "depth=2,dropout=0.2",
+    ]
+    deep = experiment.variants[4].config
+    assert deep.model.hidden_sizes == (32, 32) and deep.model.dropout == 0.2 and deep.max_episodes == 50
+    assert experiment.variants[0].config.learning_rate == 0.001
+
+
+BAD_FILES = [
+    ("name = 'x'\n[base\n", "not valid TOML"),
+    ("colour = 'blue'\n[[variants]]\nname='a'\n", "colour: unknown key; valid top-level keys"),
+    ("[[variants]]\nname='a'\nwidht = 3\n", "variants[0].widht: unknown key"),
+    ("[[variants]]\nname='a'\nlearning_rate = 'high'\n", "variants[0].learning_rate = 'high' is invalid"),
+    (
+        "[base]\nenv_id = 'Breakout'\n[[variants]]\nname='a'\n",
+        "base.env_id = 'Breakout' is invalid; valid: one of",
+    ),
+    ("seeds = 2\n", "the grid is empty"),
+    ("[grid]\ndropout = []\n", "grid.dropout = [] is invalid; valid: a non-empty list"),
+    (
+        "[[variants]]\nname='a'\ngamma = 1.2\n",
+        "variants[0].gamma = 1.2 is invalid; valid: a number in (0, 1]",
+    ),
+    (
+        "[[variants]]\nname='a'\ndropout = 1.0\n",
+        "variants[0].dropout = 1.0 is invalid; valid: a number in [0, 1)",
+    ),
+    ("[[variants]]\nname='a'\n[[variants]]\nname='a'\n", "duplicate variant name 'a'"),
+    ("seeds = 0\n[[variants]]\nname='a'\n", "seeds = 0 is invalid"),
+    (
+        "baseline = 'b'\n[[variants]]\nname='a'\n",
+        "baseline = 'b' is invalid; valid: one of the variant names",
+    ),
+    ("[[variants]]\nname='a'\nseed = 1\n", "variants[0].seed: set seeds at the top level"),
+    ("[[variants]]\ndepth = 2\n", "variants[0].name: missing or empty"),
+]
+
+
+@pytest.mark.parametrize(("text", "message"), BAD_FILES)
+def test_bad_experiment_files_name_file_key_and_valid_values(tmp_path, text, message):
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError) as error:
+        load_experiment(path)
+    assert str(path) in str(error.value)
+    assert message in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def test_missing_experiment_file(tmp_path):
+    with pytest.raises(ConfigError, match="no such experiment file"):
+        load_experiment(tmp_path / "nope.toml")

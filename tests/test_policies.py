@@ -1,0 +1,39 @@
+"""Policy networks: shapes, the ablation knobs, logits (no softmax)."""
+
+import torch
+from torch import nn
+
+from ablate.policies import create_cartpole_model, create_pong_model, parameter_count
+
+
+def test_cartpole_mlp_depth_width_dropout():
+    model = create_cartpole_model(hidden_sizes=(64, 32), activation="tanh", dropout=0.1)
+    linears = [m for m in model.modules() if isinstance(m, nn.Linear)]
+    assert [(m.in_features, m.out_features) for m in linears] == [(4, 64), (64, 32), (32, 2)]
+    assert sum(isinstance(m, nn.Dropout) for m in model.modules()) == 2
+    assert sum(isinstance(m, nn.Tanh) for m in model.modules()) == 2
+    assert parameter_count(model) == 4 * 64 + 64 + 64 * 32 + 32 + 32 * 2 + 2
+    assert model(torch.zeros(5, 4)).shape == (5, 2)
+
+
+def test_cartpole_outputs_logits_not_probabilities():
+    torch.manual_seed(0)
+    out = create_cartpole_model()(torch.randn(100, 4) * 10)
+    assert not torch.allclose(out.sum(dim=1), torch.ones(100))
+    assert (out < 0).any()
+
+
+def test_cartpole_cnn_reads_a_window_of_observations():
+    model = create_cartpole_model(architecture="cnn", history=6, conv_channels=(8, 8), kernel_size=3)
+    assert model.observation_shape == (6, 4)
+    assert model(torch.zeros(3, 6, 4)).shape == (3, 2)
+    assert any(isinstance(m, nn.Conv1d) for m in model.modules())
+
+
+def test_pong_models():
+    cnn = create_pong_model()
+    assert cnn(torch.zeros(2, 1, 80, 80)).shape == (2, 6)
+    assert sum(isinstance(m, nn.Conv2d) for m in cnn.modules()) == 3
+    mlp = create_pong_model(architecture="mlp", hidden_sizes=(200,))
+    assert mlp(torch.zeros(2, 1, 80, 80)).shape == (2, 6)
+    assert parameter_count(mlp) == 6400 * 200 + 200 + 200 * 6 + 6

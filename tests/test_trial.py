@@ -1,0 +1,68 @@
+"""One trial end to end: determinism, solving, artifacts, metrics through the callback, faults."""
+
+from dataclasses import replace
+
+import pytest
+
+from ablate.config import DEFAULT, ModelConfig
+from ablate.trial import TrialFailed, run_trial
+
+SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=64, episodes_per_update=8, record_video=False)
+
+
+def test_same_config_and_seed_gives_identical_returns():
+    first = run_trial(replace(SHORT, seed=3))
+    second = run_trial(replace(SHORT, seed=3))
+    assert first.returns == second.returns
+    assert first.returns != run_trial(replace(SHORT, seed=4)).returns
+
+
+def test_callback_sees_every_episode_once_in_order():
+    seen = []
+    result = run_trial(SHORT, on_episodes=seen.extend)
+    assert [m.episode for m in seen] == list(range(1, 65))
+    assert seen == result.episodes
+    assert result.env_steps == sum(m.length for m in seen) == seen[-1].env_steps
+    assert all(m.episode_return == m.length for m in seen)  # CartPole pays 1 per step
+
+
+def test_budget_is_respected_when_not_a_multiple_of_the_batch():
+    result = run_trial(replace(SHORT, max_episodes=13))
+    assert len(result.episodes) == 13 and result.episodes_to_solve is None
+
+
+def test_rolling_mean_and_solve_rule():
+    # A threshold every episode meets: solved exactly when the window first fills.
+    result = run_trial(replace(SHORT, solve_threshold=1.0, solve_window=20))
+    assert result.episodes_to_solve == 20
+    window = result.returns[:20]
+    assert result.episodes[19].rolling_mean == pytest.approx(sum(window) / 20)
+
+
+def test_cnn_variant_trains():
+    config = replace(
+        SHORT, model=ModelConfig(architecture="cnn", history=4, kernel_size=2, hidden_sizes=(16,))
+    )
+    result = run_trial(config)
+    assert len(result.episodes) == 64 and result.parameter_count > 0
+
+
+def test_artifacts_written(tmp_path):
+    result = run_trial(
+        replace(SHORT, max_episodes=16, record_video=True, video_max_frames=40), artifacts_dir=tmp_path
+    )
+    assert {p.name for p in tmp_path.iterdir()} == {"weights.pt", "learning_curve.png", "video.mp4"}
+    assert (tmp_path / "video.mp4").stat().st_size > 1000
+    assert result.greedy_return is not None and 1 <= result.greedy_return <= 39
+
+
+def test_nan_loss_fails_with_an_actionable_message():
+    with pytest.raises(TrialFailed, match="injected fault"):
+        run_trial(replace(SHORT, fault="raise"))
+
+
+@pytest.mark.slow
+def test_default_config_solves_cartpole_v0():
+    result = run_trial(replace(DEFAULT, env_id="CartPole-v0", seed=0, record_video=False))
+    assert result.solved, f"rolling mean only reached {result.episodes[-1].rolling_mean}"
+    assert result.episodes[result.episodes_to_solve - 1].rolling_mean >= 195.0
