@@ -30,9 +30,7 @@ def _sizes(text: str) -> list[int]:
     try:
         return [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not a comma-separated list of integers, e.g. 64,64"
-        ) from None
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers, e.g. 64,64") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,26 +52,18 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--dropout", type=float)
     train.add_argument("--solve-threshold", dest="solve_threshold", type=float)
     train.add_argument("--no-video", dest="record_video", action="store_false", default=None)
-    train.add_argument(
-        "--out", type=Path, default=None, help="output folder (default: outputs/train/<env>-s<seed>)"
-    )
+    train.add_argument("--out", type=Path, default=None, help="output folder (default: outputs/train/<env>-s<seed>)")
 
     run = commands.add_parser("run", help="run an ablation experiment file on Ray, tracked in MLflow")
     run.add_argument("experiment", type=Path, help="e.g. experiments/cartpole.toml")
     run.add_argument("--address", help="join this Ray cluster (default: start a local one)")
-    run.add_argument(
-        "--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)"
-    )
+    run.add_argument("--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
     run.add_argument("--fresh", action="store_true", help="start over under a new parent run")
-    run.add_argument(
-        "--max-concurrent", dest="max_concurrent", type=int, help="trials at once (default: CPUs)"
-    )
+    run.add_argument("--max-concurrent", dest="max_concurrent", type=int, help="trials at once (default: CPUs)")
     run.add_argument("--no-report", dest="report", action="store_false", help="skip the report at the end")
 
     report = commands.add_parser("report", help="write reports/<experiment>/ from the MLflow store")
-    report.add_argument(
-        "experiment", help="experiment file or name, e.g. experiments/cartpole.toml or cartpole"
-    )
+    report.add_argument("experiment", help="experiment file or name, e.g. experiments/cartpole.toml or cartpole")
     report.add_argument("--tracking-uri", dest="tracking_uri")
     report.add_argument("--out", type=Path, default=Path("reports"), help="reports folder (default: reports)")
     return parser

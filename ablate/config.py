@@ -93,11 +93,7 @@ def _is_number(v: Any) -> bool:
 
 
 def _sizes(v: Any, allow_empty: bool) -> bool:
-    return (
-        isinstance(v, list | tuple)
-        and (allow_empty or len(v) > 0)
-        and all(_is_int(x) and 1 <= x <= 4096 for x in v)
-    )
+    return isinstance(v, list | tuple) and (allow_empty or len(v) > 0) and all(_is_int(x) and 1 <= x <= 4096 for x in v)
 
 
 @dataclass(frozen=True)
@@ -123,9 +119,7 @@ KNOBS: dict[str, Knob] = {
     "solve_window": Knob("trial", lambda v: _is_int(v) and 1 <= v <= 10_000, "an integer in [1, 10000]"),
     "seed": Knob("trial", lambda v: _is_int(v) and 0 <= v < 2**31, "an integer in [0, 2**31)"),
     "record_video": Knob("trial", lambda v: isinstance(v, bool), "true or false"),
-    "video_max_frames": Knob(
-        "trial", lambda v: _is_int(v) and 1 <= v <= 100_000, "an integer in [1, 100000]"
-    ),
+    "video_max_frames": Knob("trial", lambda v: _is_int(v) and 1 <= v <= 100_000, "an integer in [1, 100000]"),
     "fault": Knob("trial", lambda v: v in FAULTS, "one of '', 'crash_once', 'raise' (tests only)"),
     "fault_marker": Knob("trial", lambda v: isinstance(v, str), "a file path (tests only)"),
     "architecture": Knob("model", lambda v: v in ARCHITECTURES, f"one of {', '.join(ARCHITECTURES)}"),
@@ -188,11 +182,7 @@ def apply_knobs(base: TrialConfig, knobs: Mapping[str, Any], where: str = "") ->
         model_updates["hidden_sizes"] = (width,) * depth
     model = replace(base.model, **model_updates)
     config = replace(base, model=model, **trial_updates)
-    if (
-        model.architecture == "cnn"
-        and config.env_id.startswith("CartPole")
-        and model.kernel_size > model.history
-    ):
+    if model.architecture == "cnn" and config.env_id.startswith("CartPole") and model.kernel_size > model.history:
         raise ConfigError(
             f"{where}kernel_size = {model.kernel_size} is invalid; valid: at most history ({model.history})"
         )
@@ -213,9 +203,7 @@ def flatten(config: TrialConfig) -> dict[str, Any]:
 
 
 # The MIT 6.S191 lab's own setting: one episode per Adam step at 1e-3, one hidden layer of 32 units.
-COURSE = TrialConfig(
-    learning_rate=1e-3, episodes_per_update=1, gamma=0.95, model=ModelConfig(hidden_sizes=(32,))
-)
+COURSE = TrialConfig(learning_rate=1e-3, episodes_per_update=1, gamma=0.95, model=ModelConfig(hidden_sizes=(32,)))
 # Our default: the same network and gamma; 32 episodes per step from a vectorised env and a 30x larger
 # step size (tuned on CartPole-v1, seeds 0-4: all solve, median under 2 s; see `make bench`).
 DEFAULT = TrialConfig()
@@ -267,9 +255,7 @@ def load_experiment(path: str | Path) -> Experiment:
 def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     for key in data:
         if key not in EXPERIMENT_KEYS:
-            raise ConfigError(
-                f"{source}: {key}: unknown key; valid top-level keys: {', '.join(EXPERIMENT_KEYS)}"
-            )
+            raise ConfigError(f"{source}: {key}: unknown key; valid top-level keys: {', '.join(EXPERIMENT_KEYS)}")
     name = data.get("name", Path(source).stem)
     if not isinstance(name, str) or not name.replace("-", "").replace("_", "").isalnum():
         raise ConfigError(f"{source}: name = {name!r} is invalid; valid: letters, digits, '-' and '_'")
@@ -328,14 +314,10 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         for combo in itertools.product(*(grid[a] for a in axes)):
             knobs = _without_seed(dict(zip(axes, combo, strict=True)), f"{source}: grid.")
             vname = ",".join(f"{a}={_short(v)}" for a, v in knobs.items())
-            variants.append(
-                Variant(vname, tuple(knobs.items()), apply_knobs(base, knobs, f"{source}: grid."))
-            )
+            variants.append(Variant(vname, tuple(knobs.items()), apply_knobs(base, knobs, f"{source}: grid.")))
 
     if not variants:
-        raise ConfigError(
-            f"{source}: the grid is empty; add [[variants]] tables or a [grid] with at least one axis"
-        )
+        raise ConfigError(f"{source}: the grid is empty; add [[variants]] tables or a [grid] with at least one axis")
     seen: set[str] = set()
     for v in variants:
         if v.name in seen:

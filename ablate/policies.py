@@ -67,13 +67,9 @@ def create_cartpole_model(
         conv += [nn.Conv1d(channels, out_channels, kernel_size), _ACTIVATIONS[activation]()]
         channels, length = out_channels, length - kernel_size + 1
         if length < 1:
-            raise ValueError(
-                f"history {history} is too short for {len(conv_channels)} convolutions of {kernel_size}"
-            )
+            raise ValueError(f"history {history} is too short for {len(conv_channels)} convolutions of {kernel_size}")
     conv.append(nn.Flatten())
-    body = nn.Sequential(
-        *conv, *_dense_layers(channels * length, hidden_sizes, n_actions, activation, dropout)
-    )
+    body = nn.Sequential(*conv, *_dense_layers(channels * length, hidden_sizes, n_actions, activation, dropout))
     return Policy(body, (history, observation_size))
 
 
@@ -96,9 +92,7 @@ def create_pong_model(
     ``mlp`` flattens the 6,400 pixels straight into the dense layers (Karpathy's Pong policy)."""
     act = _ACTIVATIONS[activation]
     if architecture == "mlp":
-        body = nn.Sequential(
-            nn.Flatten(), *_dense_layers(80 * 80, hidden_sizes, n_actions, activation, dropout)
-        )
+        body = nn.Sequential(nn.Flatten(), *_dense_layers(80 * 80, hidden_sizes, n_actions, activation, dropout))
         return Policy(body, (1, 80, 80))
     body = nn.Sequential(
         nn.Conv2d(1, 16, 7, stride=4, padding=3),
@@ -116,9 +110,7 @@ def create_pong_model(
 def create_model(env_id: str, model: ModelConfig, observation_size: int, n_actions: int) -> Policy:
     """The policy for ``env_id`` with the knobs of ``model``."""
     if env_id.startswith("ALE/Pong"):
-        return create_pong_model(
-            n_actions, model.hidden_sizes, model.activation, model.dropout, model.architecture
-        )
+        return create_pong_model(n_actions, model.hidden_sizes, model.activation, model.dropout, model.architecture)
     return create_cartpole_model(
         observation_size,
         n_actions,

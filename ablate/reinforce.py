@@ -101,9 +101,7 @@ def compute_loss(logits: torch.Tensor, actions: torch.Tensor, weights: torch.Ten
 
 def l2_penalty(model: nn.Module) -> torch.Tensor:
     """Sum of squared weights of every layer, biases excluded (Keras ``regularizers.l2`` semantics)."""
-    return sum(
-        (p.pow(2).sum() for name, p in model.named_parameters() if name.endswith("weight")), torch.zeros(())
-    )
+    return sum((p.pow(2).sum() for name, p in model.named_parameters() if name.endswith("weight")), torch.zeros(()))
 
 
 class UpdateStats(NamedTuple):

@@ -239,9 +239,7 @@ def run_trial(
     return result
 
 
-def record_greedy_episode(
-    config: TrialConfig, model: Policy, max_frames: int
-) -> tuple[list[np.ndarray], float]:
+def record_greedy_episode(config: TrialConfig, model: Policy, max_frames: int) -> tuple[list[np.ndarray], float]:
     """Frames and return of one greedy (argmax) episode of ``model``, on a seed training never used."""
     env = make_env(config.env_id, render=True)
     adapter = observation_adapter(config.env_id, config.model)

@@ -1,0 +1,197 @@
+"""Run an ablation: experiment file -> grid -> scheduler, every trial event written by the tracker.
+
+The glue of ``ablate run``; it imports neither Ray nor MLflow (``scheduler`` and ``tracking`` do).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ablate.config import ConfigError, Experiment, flatten, load_experiment
+from ablate.grid import GridTrial, expand
+from ablate.progress import ProgressView
+from ablate.scheduler import ClusterOptions, run_trials
+from ablate.tracking import Tracker
+from ablate.trial import EpisodeMetrics
+
+
+@dataclass
+class RunOutcome:
+    experiment: str
+    generation: str
+    launch_run_id: str | None
+    skipped: int
+    """Trials finished by an earlier launch of this generation, not run again."""
+    finished: list[str] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+    killed: list[str] = field(default_factory=list)
+    interrupted: bool = False
+
+    @property
+    def exit_code(self) -> int:
+        if self.interrupted:
+            return 130
+        return 1 if self.failed else 0
+
+
+def git_commit() -> str:
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True)
+        return commit + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
+    """What the report needs to know of the launch without reading the experiment file again."""
+    return {
+        "experiment": experiment.name,
+        "description": experiment.description,
+        "baseline": experiment.baseline,
+        "seeds": list(experiment.seeds),
+        "variants": [{"name": v.name, "overrides": dict(v.overrides)} for v in experiment.variants],
+        "base": {k: list(v) if isinstance(v, tuple) else v for k, v in flatten(experiment.base).items()},
+        "trials": [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in trials],
+    }
+
+
+class _Recorder:
+    """Scheduler events -> tracker writes and the progress view (all on the driver: one MLflow writer)."""
+
+    def __init__(
+        self,
+        tracker: Tracker,
+        launch: str,
+        generation: str,
+        trials: dict[str, GridTrial],
+        commit: str,
+        view: ProgressView,
+        outcome: RunOutcome,
+    ) -> None:
+        self.tracker, self.launch, self.generation = tracker, launch, generation
+        self.trials, self.commit, self.view, self.outcome = trials, commit, view, outcome
+
+    def _open(self, key: str) -> None:
+        if key not in self.tracker.open_runs:
+            trial = self.trials[key]
+            params = {"variant": trial.variant, **flatten(trial.config)}
+            self.tracker.start_trial(self.launch, self.generation, key, trial.variant, trial.seed, params, self.commit)
+
+    def started(self, key: str) -> None:
+        self._open(key)
+        self.view.started(key)
+
+    def episodes(self, key: str, rows: list[EpisodeMetrics]) -> None:
+        self._open(key)
+        self.tracker.log_episodes(key, rows)
+        self.view.episodes(key, max(r.rolling_mean for r in rows))
+
+    def restarted(self, key: str, reason: str) -> None:
+        self.tracker.discard_trial(key, reason)
+
+    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None:
+        self._open(key)
+        self.tracker.finish_trial(key, summary, artifacts)
+        self.outcome.finished.append(key)
+        self.view.finished(key, bool(summary.get("solved")))
+
+    def failed(self, key: str, message: str) -> None:
+        self._open(key)
+        self.tracker.fail_trial(key, message)
+        self.outcome.failed[key] = message
+        self.view.failed(key)
+
+
+def run_experiment(
+    experiment: Experiment,
+    tracking_uri: str | None = None,
+    address: str | None = None,
+    fresh: bool = False,
+    max_concurrent: int | None = None,
+    storage_path: str = "ray_results",
+    show_progress: bool = True,
+    command: str = "",
+) -> RunOutcome:
+    """Run every trial of ``experiment`` that has no finished run in the current generation."""
+    trials = expand(experiment)
+    tracker = Tracker(tracking_uri, experiment.name)
+    generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
+    finished_before = tracker.finished_keys(generation)
+    todo = [t for t in trials if t.key not in finished_before]
+    outcome = RunOutcome(experiment.name, generation, None, skipped=len(trials) - len(todo))
+    if not todo:
+        return outcome
+    commit = git_commit()
+    grid = grid_document(experiment, trials)
+    launch = tracker.start_launch(
+        generation,
+        name=f"{experiment.name} {time.strftime('%Y-%m-%d %H:%M:%S')}",
+        tags={"mlflow.source.git.commit": commit, "ablate.command": command, "ablate.experiment_file": experiment.path},
+        files={"experiment.toml": Path(experiment.path).read_text(), "grid.json": json.dumps(grid, indent=1)},
+    )
+    outcome.launch_run_id = launch
+    view = ProgressView(experiment.name, todo, len(finished_before), enabled=show_progress)
+    recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
+    options = ClusterOptions(address, max_concurrent, experiment.resources_per_trial, storage_path)
+    status = "FINISHED"
+    try:
+        with view:
+            run_trials(todo, recorder, options, run_name=f"{experiment.name}-{launch[:8]}")
+    except KeyboardInterrupt:
+        outcome.interrupted = True
+        outcome.killed = tracker.kill_open_trials()
+        status = "KILLED"
+    finally:
+        tracker.finish_launch(
+            launch,
+            "FAILED" if outcome.failed and status == "FINISHED" else status,
+            {"trials_finished": len(outcome.finished), "trials_failed": len(outcome.failed)},
+        )
+    return outcome
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    experiment = load_experiment(args.experiment)
+    if args.max_concurrent is not None and args.max_concurrent < 1:
+        raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
+    command = " ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]])
+    outcome = run_experiment(
+        experiment,
+        tracking_uri=args.tracking_uri,
+        address=args.address,
+        fresh=args.fresh,
+        max_concurrent=args.max_concurrent,
+        show_progress=True,
+        command=command,
+    )
+    tracker = Tracker(args.tracking_uri, experiment.name)
+    total = len(expand(experiment))
+    if outcome.interrupted:
+        print(
+            f"interrupted: {len(outcome.killed)} running trial(s) marked killed; "
+            f"run the same command again to finish the remaining {total - len(outcome.finished) - outcome.skipped}"
+        )
+    elif outcome.launch_run_id is None:
+        print(f"all {total} trials of {experiment.name} already finished; --fresh starts over")
+    else:
+        print(f"{len(outcome.finished)} finished, {len(outcome.failed)} failed, {outcome.skipped} finished before")
+    for key, message in outcome.failed.items():
+        print(f"  FAILED {key}: {message}")
+    print(f"MLflow runs: {tracker.ui_link()}   (start the UI with: make mlflow-ui)")
+    if not outcome.interrupted and getattr(args, "report", True):
+        from ablate.report import write_report
+
+        path = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+        print(f"report: {path}")
+    os.environ.pop("TUNE_DISABLE_SIGINT_HANDLER", None)
+    return outcome.exit_code

@@ -1,0 +1,264 @@
+"""The only module that talks to MLflow: write launches and trials as runs, read them back.
+
+One writer: the driver process owns every write (trials run elsewhere and send their metrics through
+the scheduler), so an SQLite store never sees two writers; a tracking server works the same way.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
+EPISODE_METRICS = {
+    # metric key: field of trial.EpisodeMetrics
+    "episode/return": "episode_return",
+    "episode/rolling_mean": "rolling_mean",
+    "episode/length": "length",
+    "episode/loss": "loss",
+    "episode/entropy": "entropy",
+    "episode/wall_s": "wall_s",
+}
+TAG_ROLE, TAG_GENERATION, TAG_KEY = "ablate.role", "ablate.generation", "ablate.trial_key"
+TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed", "ablate.error", "ablate.attempt"
+TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
+_BATCH = 1000  # MLflow's limit of metrics per log_batch call
+
+
+def _quiet_mlflow() -> None:
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
+@dataclass
+class TrialRun:
+    """A tracked trial run, as the results module needs it."""
+
+    run_id: str
+    key: str
+    variant: str
+    seed: int
+    status: str
+    """MLflow status: FINISHED, FAILED, KILLED, RUNNING."""
+    params: dict[str, str]
+    metrics: dict[str, float]
+    tags: dict[str, str]
+    start_time_ms: int
+    artifacts: list[str] = field(default_factory=list)
+
+
+def resolve_uri(tracking_uri: str | None) -> str:
+    """Explicit URI, else ``MLFLOW_TRACKING_URI``, else an SQLite file in the current folder."""
+    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
+
+
+class Tracker:
+    """Runs of one MLflow experiment (one per ablation): a parent run per launch, a child run per trial."""
+
+    def __init__(self, tracking_uri: str | None, experiment_name: str) -> None:
+        from mlflow.tracking import MlflowClient
+
+        _quiet_mlflow()
+
+        self.uri = resolve_uri(tracking_uri)
+        self.client = MlflowClient(self.uri)
+        self.experiment_name = experiment_name
+        self._experiment_id: str | None = None
+        self.open_runs: dict[str, str] = {}
+        self.attempts: dict[str, int] = {}
+
+    # --- experiment -------------------------------------------------------------------------------
+    def experiment_id(self, create: bool = True) -> str | None:
+        if self._experiment_id is None:
+            existing = self.client.get_experiment_by_name(self.experiment_name)
+            if existing is not None:
+                self._experiment_id = existing.experiment_id
+            elif create:
+                self._experiment_id = self.client.create_experiment(
+                    self.experiment_name, artifact_location=self._artifact_location()
+                )
+        return self._experiment_id
+
+    def _artifact_location(self) -> str | None:
+        """Beside the SQLite file for a local store; a server chooses its own."""
+        if self.uri.startswith("sqlite:///"):
+            db = Path(self.uri.removeprefix("sqlite:///")).resolve()
+            return (db.parent / "mlartifacts" / self.experiment_name).as_uri()
+        return None
+
+    def ui_link(self, port: int = 5000) -> str:
+        base = self.uri if self.uri.startswith("http") else f"http://127.0.0.1:{port}"
+        return f"{base.rstrip('/')}/#/experiments/{self.experiment_id()}/runs"
+
+    # --- launches ---------------------------------------------------------------------------------
+    def latest_generation(self) -> str | None:
+        """The generation of the newest launch: re-runs continue it, ``--fresh`` starts a new one."""
+        launch = self.latest_launch()
+        return launch.data.tags.get(TAG_GENERATION) if launch else None
+
+    def latest_launch(self) -> Any | None:
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return None
+        runs = self.client.search_runs(
+            [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"], max_results=1
+        )
+        return runs[0] if runs else None
+
+    def finished_keys(self, generation: str) -> set[str]:
+        return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
+
+    def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
+        """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid)."""
+        run = self.client.create_run(
+            self.experiment_id(), run_name=name, tags={TAG_ROLE: "launch", TAG_GENERATION: generation, **tags}
+        )
+        for filename, text in files.items():
+            self.client.log_text(run.info.run_id, text, filename)
+        return run.info.run_id
+
+    def finish_launch(self, run_id: str, status: str, summary: dict[str, float]) -> None:
+        self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
+        self.client.set_terminated(run_id, status)
+
+    # --- trials -----------------------------------------------------------------------------------
+    def start_trial(
+        self, parent_id: str, generation: str, key: str, variant: str, seed: int, params: dict[str, Any], commit: str
+    ) -> str:
+        from mlflow.entities import Param
+
+        self.attempts[key] = self.attempts.get(key, 0) + 1
+        run = self.client.create_run(
+            self.experiment_id(),
+            run_name=key,
+            tags={
+                TAG_PARENT: parent_id,
+                TAG_ROLE: "trial",
+                TAG_GENERATION: generation,
+                TAG_KEY: key,
+                TAG_VARIANT: variant,
+                TAG_SEED: str(seed),
+                TAG_ATTEMPT: str(self.attempts[key]),
+                TAG_COMMIT: commit,
+            },
+        )
+        run_id = run.info.run_id
+        self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
+        self.open_runs[key] = run_id
+        return run_id
+
+    def log_episodes(self, key: str, rows: Sequence[Any]) -> None:
+        """Per-episode metrics with ``step`` = episode, in batches of up to 1,000 values."""
+        self._log_metrics(
+            self.open_runs[key],
+            (
+                (metric, float(getattr(row, attr)), row.episode)
+                for row in rows
+                for metric, attr in EPISODE_METRICS.items()
+            ),
+        )
+
+    def finish_trial(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None:
+        run_id = self.open_runs.pop(key)
+        self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
+        if artifacts is not None:
+            self.client.log_artifacts(run_id, str(artifacts))
+        self.client.set_terminated(run_id, "FINISHED")
+
+    def fail_trial(self, key: str, message: str) -> None:
+        run_id = self.open_runs.pop(key)
+        self.client.set_tag(run_id, TAG_ERROR, message[:5000])
+        self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
+        self.client.set_terminated(run_id, "FAILED")
+
+    def discard_trial(self, key: str, reason: str) -> None:
+        """A trial whose process died restarts from scratch: its partial run is closed and soft-deleted so
+        no metric is counted twice; the restart opens a new run (``ablate.attempt`` counts them)."""
+        run_id = self.open_runs.pop(key, None)
+        if run_id is not None:
+            self.client.set_tag(run_id, TAG_ERROR, f"process died, retried: {reason}"[:5000])
+            self.client.set_terminated(run_id, "KILLED")
+            self.client.delete_run(run_id)
+
+    def kill_open_trials(self) -> list[str]:
+        killed = list(self.open_runs)
+        for key in killed:
+            run_id = self.open_runs.pop(key)
+            self.client.set_tag(run_id, TAG_ERROR, "interrupted (Ctrl-C); a re-run starts it again")
+            self.client.set_terminated(run_id, "KILLED")
+        return killed
+
+    def _log_metrics(self, run_id: str, values: Iterable[tuple[str, float, int]]) -> None:
+        from mlflow.entities import Metric
+
+        now = int(time.time() * 1000)
+        batch: list[Any] = []
+        for key, value, step in values:
+            batch.append(Metric(key, float(value), now, int(step)))
+            if len(batch) == _BATCH:
+                self.client.log_batch(run_id, metrics=batch)
+                batch = []
+        if batch:
+            self.client.log_batch(run_id, metrics=batch)
+
+    # --- reading back -----------------------------------------------------------------------------
+    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
+        """Trial runs of this experiment (of one generation, if given), oldest first."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        query = f"tags.`{TAG_ROLE}` = 'trial'"
+        if generation is not None:
+            query += f" and tags.`{TAG_GENERATION}` = '{generation}'"
+        runs, token = [], None
+        while True:
+            page = self.client.search_runs(
+                [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
+            )
+            runs.extend(page)
+            token = page.token
+            if not token:
+                break
+        return [
+            TrialRun(
+                run_id=r.info.run_id,
+                key=r.data.tags.get(TAG_KEY, ""),
+                variant=r.data.tags.get(TAG_VARIANT, ""),
+                seed=int(r.data.tags.get(TAG_SEED, "-1")),
+                status=r.info.status,
+                params=dict(r.data.params),
+                metrics=dict(r.data.metrics),
+                tags=dict(r.data.tags),
+                start_time_ms=r.info.start_time,
+                artifacts=[a.path for a in self.client.list_artifacts(r.info.run_id)] if with_artifacts else [],
+            )
+            for r in runs
+        ]
+
+    def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:
+        """(step, value) pairs of one metric, by step."""
+        return sorted((m.step, m.value) for m in self.client.get_metric_history(run_id, key))
+
+    def load_text(self, run_id: str, filename: str) -> str:
+        """A small text artifact of a run (a launch's ``grid.json``, say)."""
+        return Path(self.download(run_id, filename)).read_text()
+
+    def download(self, run_id: str, path: str, destination: str | Path | None = None) -> str:
+        import tempfile
+
+        destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
+        return self.client.download_artifacts(run_id, path, str(destination))
+
+
+def _param_text(value: Any) -> str:
+    if isinstance(value, tuple | list):
+        return json.dumps(list(value))
+    return str(value)
