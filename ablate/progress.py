@@ -29,8 +29,8 @@ class ProgressView:
         self.already_done = already_done
         self.pending = set(self.variant_of)
         self.running: set[str] = set()
-        self.done: set[str] = set()
-        self.failed: set[str] = set()
+        self.done_keys: set[str] = set()
+        self.failed_keys: set[str] = set()
         self.best: dict[str, float] = defaultdict(lambda: float("-inf"))
         self.solved: dict[str, int] = defaultdict(int)
         self.durations: list[float] = []
@@ -58,7 +58,7 @@ class ProgressView:
 
     def finished(self, key: str, solved: bool) -> None:
         self.running.discard(key)
-        self.done.add(key)
+        self.done_keys.add(key)
         self.solved[self.variant_of[key]] += int(solved)
         self.durations.append(time.monotonic() - self.started_at.get(key, self.start))
         self.refresh()
@@ -66,7 +66,7 @@ class ProgressView:
     def failed(self, key: str) -> None:
         self.running.discard(key)
         self.pending.discard(key)
-        self.failed.add(key)
+        self.failed_keys.add(key)
         self.refresh()
 
     # --- rendering --------------------------------------------------------------------------------
@@ -79,8 +79,8 @@ class ProgressView:
         else:
             eta = "time left: after the first trial"
         return (
-            f"{self.name}: {len(self.done)} done, {len(self.running)} running, {len(self.pending)} pending, "
-            f"{len(self.failed)} failed (of {self.total}; {self.already_done} finished before) | "
+            f"{self.name}: {len(self.done_keys)} done, {len(self.running)} running, {len(self.pending)} pending, "
+            f"{len(self.failed_keys)} failed (of {self.total}; {self.already_done} finished before) | "
             f"{_clock(elapsed)} elapsed, {eta}"
         )
 
@@ -90,7 +90,7 @@ class ProgressView:
             table.add_column(column, justify="left" if column == "variant" else "right")
         for variant in self.variants:
             keys = [k for k, v in self.variant_of.items() if v == variant]
-            done = sum(k in self.done for k in keys)
+            done = sum(k in self.done_keys for k in keys)
             best = self.best[variant]
             table.add_row(
                 variant,

@@ -1,0 +1,176 @@
+"""A tiny real ablation through real Ray and a real MLflow store: runs, params, metrics, artifacts,
+resume, faults."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ablate.config import load_experiment
+from ablate.grid import expand
+from ablate.runner import run_experiment
+from ablate.tracking import Tracker
+
+TINY = """
+name = "tiny"
+seeds = 2
+[base]
+env_id = "CartPole-v1"
+max_episodes = 20
+episodes_per_update = 10
+video_max_frames = 30
+[[variants]]
+name = "narrow"
+hidden_sizes = [8]
+[[variants]]
+name = "deep"
+hidden_sizes = [16, 16]
+dropout = 0.1
+"""
+
+
+def _experiment(tmp_path, text=TINY, name="exp.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return load_experiment(path)
+
+
+def _run(experiment, tmp_path, tracking_uri, **kwargs):
+    return run_experiment(
+        experiment, tracking_uri=tracking_uri, storage_path=str(tmp_path / "ray"), show_progress=False, **kwargs
+    )
+
+
+def _launches(tracker):
+    return tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")
+
+
+def test_tiny_ablation_is_tracked_exactly(ray_cluster, tmp_path, tracking_uri):
+    experiment = _experiment(tmp_path)
+    outcome = _run(experiment, tmp_path, tracking_uri)
+    assert outcome.exit_code == 0 and len(outcome.finished) == 4 and not outcome.failed
+
+    tracker = Tracker(tracking_uri, "tiny")
+    launches = _launches(tracker)
+    assert len(launches) == 1
+    launch_id = launches[0].info.run_id
+    runs = tracker.trial_runs(with_artifacts=True)
+    assert len(runs) == 4
+    assert {r.key for r in runs} == {t.key for t in expand(experiment)}
+    for run in runs:
+        assert run.status == "FINISHED"
+        assert run.tags["mlflow.parentRunId"] == launch_id
+        assert run.params["variant"] == run.variant
+        assert run.params["seed"] == str(run.seed)
+        assert run.params["max_episodes"] == "20"
+        expected_sizes = "[8]" if run.variant == "narrow" else "[16, 16]"
+        assert run.params["model.hidden_sizes"] == expected_sizes
+        assert run.params["model.dropout"] == ("0.0" if run.variant == "narrow" else "0.1")
+        for metric in ("episode/return", "episode/rolling_mean", "episode/length", "episode/loss", "episode/wall_s"):
+            history = tracker.metric_history(run.run_id, metric)
+            assert [step for step, _ in history] == list(range(1, 21)), metric
+        returns = [v for _, v in tracker.metric_history(run.run_id, "episode/return")]
+        assert run.metrics["env_steps"] == sum(returns)  # CartPole: one reward per step
+        assert run.metrics["episodes_run"] == 20 and run.metrics["solved"] == 0
+        assert set(run.artifacts) == {"weights.pt", "video.mp4", "learning_curve.png"}
+    assert {a.path for a in tracker.client.list_artifacts(launch_id)} == {"experiment.toml", "grid.json"}
+
+    # Running the same experiment again runs nothing and creates no run.
+    again = _run(experiment, tmp_path, tracking_uri)
+    assert again.launch_run_id is None and again.skipped == 4
+    assert len(tracker.trial_runs()) == 4 and len(_launches(tracker)) == 1
+
+    # --fresh starts a new generation under a new parent run.
+    fresh = _run(experiment, tmp_path, tracking_uri, fresh=True)
+    assert len(fresh.finished) == 4 and fresh.generation != outcome.generation
+    assert len(tracker.trial_runs(fresh.generation)) == 4 and len(_launches(tracker)) == 2
+
+
+def test_rerun_after_adding_a_variant_runs_only_the_new_trials(ray_cluster, tmp_path, tracking_uri):
+    _run(_experiment(tmp_path), tmp_path, tracking_uri)
+    bigger = _experiment(tmp_path, TINY + '[[variants]]\nname = "wide"\nhidden_sizes = [64]\n')
+    outcome = _run(bigger, tmp_path, tracking_uri)
+    assert outcome.skipped == 4 and len(outcome.finished) == 2
+    runs = Tracker(tracking_uri, "tiny").trial_runs()
+    assert len(runs) == 6 and len({r.key for r in runs}) == 6
+
+
+def test_crash_is_retried_raise_is_recorded_failed(ray_cluster, tmp_path, tracking_uri):
+    marker = tmp_path / "crashed-once"
+    text = f"""
+name = "faults"
+seeds = [0]
+[base]
+env_id = "CartPole-v1"
+max_episodes = 10
+episodes_per_update = 10
+record_video = false
+[[variants]]
+name = "ok"
+[[variants]]
+name = "crash"
+fault = "crash_once"
+fault_marker = "{marker}"
+[[variants]]
+name = "boom"
+fault = "raise"
+"""
+    outcome = _run(_experiment(tmp_path, text), tmp_path, tracking_uri)
+    assert marker.exists()  # the crash really happened
+    assert sorted(k.split("-")[0] for k in outcome.finished) == ["crash", "ok"]
+    assert list(outcome.failed) == [k for k in outcome.failed if k.startswith("boom")] and len(outcome.failed) == 1
+    assert "injected fault" in next(iter(outcome.failed.values()))
+    assert outcome.exit_code == 1
+
+    runs = {r.variant: r for r in Tracker(tracking_uri, "faults").trial_runs()}
+    assert set(runs) == {"ok", "crash", "boom"}  # the crashed attempt's partial run is not counted
+    assert runs["crash"].status == "FINISHED" and runs["crash"].tags["ablate.attempt"] == "2"
+    assert runs["boom"].status == "FAILED" and "injected fault" in runs["boom"].tags["ablate.error"]
+    assert runs["ok"].status == "FINISHED"
+
+
+def test_ctrl_c_kills_running_trials_and_a_rerun_finishes_the_rest(tmp_path, tracking_uri):
+    text = """
+name = "interrupt"
+seeds = 4
+[base]
+env_id = "CartPole-v1"
+max_episodes = 400
+episodes_per_update = 8
+learning_rate = 0.001
+record_video = false
+[[variants]]
+name = "slow"
+"""
+    path = tmp_path / "interrupt.toml"
+    path.write_text(text)
+    command = [sys.executable, "-m", "ablate.cli", "run", str(path), "--tracking-uri", tracking_uri, "--no-report"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env, text=True)
+    tracker = Tracker(tracking_uri, "interrupt")
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(1)
+        if tracker.experiment_id(create=False) and any(r.status == "FINISHED" for r in tracker.trial_runs()):
+            break
+    assert proc.poll() is None, "the run ended before it could be interrupted: " + proc.stdout.read()
+    proc.send_signal(signal.SIGINT)
+    output, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, output
+    assert "interrupted" in output and "Traceback" not in output
+
+    runs = tracker.trial_runs()
+    statuses = [r.status for r in runs]
+    assert "RUNNING" not in statuses
+    finished_first = {r.key for r in runs if r.status == "FINISHED"}
+    assert 1 <= len(finished_first) < 4
+
+    rerun = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, env=env, timeout=300)
+    assert rerun.returncode == 0, rerun.stdout + rerun.stderr
+    finished = [r.key for r in tracker.trial_runs() if r.status == "FINISHED"]
+    assert len(finished) == 4 and len(set(finished)) == 4  # no finished trial ran twice
+    assert finished_first <= set(finished)
