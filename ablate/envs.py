@@ -51,9 +51,12 @@ def make_env(env_id: str, render: bool = False) -> gym.Env:
 
 def make_vec_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
     """``num_envs`` copies stepped together. CartPole uses Gymnasium's numpy-vectorised implementation
-    (one call steps all of them); Pong steps emulators one after another in this process."""
+    (one call steps all of them, ~70 us whatever their number) from 3 copies up; below that, and for Pong,
+    copies step one after another in this process (~27 us per CartPole copy)."""
     if is_pong(env_id):
         return gym.vector.SyncVectorEnv([lambda: make_env(env_id) for _ in range(num_envs)])
+    if num_envs <= 2:
+        return gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="sync")
     spec = gym.spec(env_id)
     return gym.make_vec(
         env_id,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
 import shlex
 import subprocess
 import sys
@@ -62,6 +63,26 @@ def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
         "variants": [{"name": v.name, "overrides": dict(v.overrides)} for v in experiment.variants],
         "base": {k: list(v) if isinstance(v, tuple) else v for k, v in flatten(experiment.base).items()},
         "trials": [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in trials],
+    }
+
+
+PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", "scipy", "matplotlib", "imageio")
+
+
+def environment_document() -> dict:
+    """Where the launch ran: Python, package versions, machine."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    packages = {}
+    for name in PACKAGES:
+        try:
+            packages[name] = version(name)
+        except PackageNotFoundError:
+            packages[name] = "not installed"
+    return {
+        "python": platform.python_version(),
+        "packages": packages,
+        "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} CPUs ({platform.platform()})",
     }
 
 
@@ -137,7 +158,11 @@ def run_experiment(
         generation,
         name=f"{experiment.name} {time.strftime('%Y-%m-%d %H:%M:%S')}",
         tags={"mlflow.source.git.commit": commit, "ablate.command": command, "ablate.experiment_file": experiment.path},
-        files={"experiment.toml": Path(experiment.path).read_text(), "grid.json": json.dumps(grid, indent=1)},
+        files={
+            "experiment.toml": Path(experiment.path).read_text(),
+            "grid.json": json.dumps(grid, indent=1),
+            "environment.json": json.dumps(environment_document(), indent=1),
+        },
     )
     outcome.launch_run_id = launch
     view = ProgressView(experiment.name, todo, len(finished_before), enabled=show_progress)

@@ -30,9 +30,7 @@ def bench_core(seeds: int = 5) -> None:
     course_sps, ours_sps, ratios = [], [], []
     for seed in range(seeds):
         course = course_loop(replace(COURSE, env_id="CartPole-v1", seed=seed), max_episodes=150)
-        ours = run_trial(
-            replace(DEFAULT, env_id="CartPole-v1", seed=seed, max_episodes=1024, record_video=False)
-        )
+        ours = run_trial(replace(DEFAULT, env_id="CartPole-v1", seed=seed, max_episodes=1024, record_video=False))
         sps = ours.env_steps / ours.wall_s
         course_sps.append(course["steps_per_s"])
         ours_sps.append(sps)

@@ -42,8 +42,12 @@ def test_observation_window_is_oldest_first_and_zero_padded():
 
 def test_vectorised_cartpole_respects_each_versions_time_limit():
     for env_id, limit in (("CartPole-v0", 200), ("CartPole-v1", 500)):
-        env = make_vec_env(env_id, 2)
-        env.reset(seed=0)
         assert env_info(env_id).max_episode_steps == limit
-        assert env.unwrapped.max_episode_steps == limit
-        env.close()
+        numpy_vectorised = make_vec_env(env_id, 8)
+        assert numpy_vectorised.unwrapped.max_episode_steps == limit
+        one_by_one = make_vec_env(env_id, 1)
+        assert one_by_one.envs[0].spec.max_episode_steps == limit
+        for env in (numpy_vectorised, one_by_one):
+            observations, _ = env.reset(seed=0)
+            assert observations.shape == (env.num_envs, 4) and observations.dtype == np.float32
+            env.close()

@@ -45,9 +45,7 @@ def test_discount_rewards_resets_at_every_point_scored():
     # G4 = -1; G3 = 0 + 0.5 * -1 = -0.5; G2 = 1 + 0.5 * -0.5 = 0.75; G1 = 0.375; G0 = 0.1875
     np.testing.assert_allclose(discount_rewards(rewards, gamma=0.5), [0.1875, 0.375, 0.75, -0.5, -1])
     # Pong: the running return restarts at each non-zero reward, scanning backwards
-    np.testing.assert_allclose(
-        discount_rewards(rewards, gamma=0.5, reset_on_nonzero=True), [0.25, 0.5, 1, -0.5, -1]
-    )
+    np.testing.assert_allclose(discount_rewards(rewards, gamma=0.5, reset_on_nonzero=True), [0.25, 0.5, 1, -0.5, -1])
 
 
 def test_normalize_has_zero_mean_unit_std():

@@ -6,9 +6,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
-
-import pytest
 
 from ablate.config import load_experiment
 from ablate.grid import expand

@@ -40,17 +40,13 @@ def test_rolling_mean_and_solve_rule():
 
 
 def test_cnn_variant_trains():
-    config = replace(
-        SHORT, model=ModelConfig(architecture="cnn", history=4, kernel_size=2, hidden_sizes=(16,))
-    )
+    config = replace(SHORT, model=ModelConfig(architecture="cnn", history=4, kernel_size=2, hidden_sizes=(16,)))
     result = run_trial(config)
     assert len(result.episodes) == 64 and result.parameter_count > 0
 
 
 def test_artifacts_written(tmp_path):
-    result = run_trial(
-        replace(SHORT, max_episodes=16, record_video=True, video_max_frames=40), artifacts_dir=tmp_path
-    )
+    result = run_trial(replace(SHORT, max_episodes=16, record_video=True, video_max_frames=40), artifacts_dir=tmp_path)
     assert {p.name for p in tmp_path.iterdir()} == {"weights.pt", "learning_curve.png", "video.mp4"}
     assert (tmp_path / "video.mp4").stat().st_size > 1000
     assert result.greedy_return is not None and 1 <= result.greedy_return <= 39
