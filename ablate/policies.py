@@ -7,12 +7,21 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import nn
 
 from ablate.config import ModelConfig
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
+
+
+_NUMPY_ACTIVATIONS = {
+    nn.ReLU: lambda x: np.maximum(x, 0),
+    nn.Tanh: np.tanh,
+    nn.ELU: lambda x: np.where(x > 0, x, np.expm1(np.minimum(x, 0))),
+    nn.Dropout: lambda x: x,  # acting is in eval mode: dropout is the identity
+}
 
 
 class Policy(nn.Module):
@@ -22,9 +31,35 @@ class Policy(nn.Module):
         super().__init__()
         self.body = body
         self.observation_shape = tuple(observation_shape)
+        self._numpy_layers: list | None = None
+        self._numpy_versions: tuple[int, ...] = ()
+        self._numpy_ok = isinstance(body, nn.Sequential) and all(
+            isinstance(m, nn.Linear) or type(m) in _NUMPY_ACTIVATIONS for m in body
+        )
 
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
         return self.body(observations)
+
+    def act_logits(self, observations: np.ndarray) -> np.ndarray:
+        """Logits for acting: eval mode, no autograd. A dense body runs in numpy on a copy of the weights,
+        refreshed whenever a parameter changes (torch's per-call overhead is most of the cost of a forward
+        through a network this small, once per environment step); any other body runs through torch."""
+        if not self._numpy_ok:
+            with torch.inference_mode():
+                return self.body(torch.from_numpy(observations)).numpy()
+        versions = tuple(p._version for p in self.parameters())
+        if self._numpy_layers is None or versions != self._numpy_versions:
+            self._numpy_layers = [
+                (m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy())
+                if isinstance(m, nn.Linear)
+                else _NUMPY_ACTIVATIONS[type(m)]
+                for m in self.body
+            ]
+            self._numpy_versions = versions
+        x = observations
+        for layer in self._numpy_layers:
+            x = x @ layer[0] + layer[1] if isinstance(layer, tuple) else layer(x)
+        return x
 
 
 def parameter_count(model: nn.Module) -> int:

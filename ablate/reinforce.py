@@ -50,8 +50,11 @@ def choose_action(
     batch = observation[None] if single else observation
     if model.training:
         model.eval()  # acting is deterministic apart from sampling: no dropout; train_step switches back
-    with torch.inference_mode():
-        logits = model(torch.from_numpy(batch)).numpy()
+    if hasattr(model, "act_logits"):
+        logits = model.act_logits(batch)
+    else:
+        with torch.inference_mode():
+            logits = model(torch.from_numpy(batch)).numpy()
     if greedy:
         actions = logits.argmax(axis=1)
     else:

@@ -7,6 +7,7 @@ runner and the report add. `python benchmarks/bench.py [SECTION ...]`; no argume
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import statistics
 import sys
@@ -71,15 +72,179 @@ def bench_core(seeds: int = 5) -> None:
     }
 
 
-SECTIONS = {"core": bench_core}
+class _NullEvents:
+    """Scheduler events that go nowhere: the same trials without any tracking."""
+
+    def started(self, key): ...
+    def episodes(self, key, rows): ...
+    def restarted(self, key, reason): ...
+    def finished(self, key, summary, artifacts): ...
+    def failed(self, key, message): ...
+
+
+def _fixed_work_trials(count: int):
+    """Trials that always run their whole budget (an unreachable threshold): the same work every time."""
+    from ablate.config import ModelConfig
+    from ablate.grid import GridTrial, trial_key
+
+    trials = []
+    for seed in range(count):
+        config = replace(
+            DEFAULT,
+            seed=seed,
+            max_episodes=640,
+            solve_threshold=1e9,
+            record_video=False,
+            model=ModelConfig(hidden_sizes=(32,)),
+        )
+        trials.append(GridTrial(trial_key("bench", config), "bench", seed, config))
+    return trials
+
+
+def bench_runner(repeats: int = 3) -> None:
+    """Parallel speed-up of 2 concurrent trials over the same trials one after another (Ray, no tracking),
+    and the share of wall time spent in MLflow writes when the same trials are tracked."""
+    import tempfile
+
+    from ablate.scheduler import ClusterOptions, ensure_ray, run_trials
+
+    ensure_ray(None)
+    trials = _fixed_work_trials(4)
+    with tempfile.TemporaryDirectory() as folder:
+        run_trials(trials[:2], _NullEvents(), ClusterOptions(max_concurrent=2, storage_path=folder), "warmup")
+        speedups = []
+        for i in range(repeats):
+            times = {}
+            for concurrent in (1, 2):
+                started = time.perf_counter()
+                options = ClusterOptions(max_concurrent=concurrent, storage_path=folder)
+                run_trials(trials, _NullEvents(), options, f"speedup-{i}-{concurrent}")
+                times[concurrent] = time.perf_counter() - started
+            speedups.append(times[1] / times[2])
+            print(
+                f"  4 trials: one at a time {times[1]:.1f} s, two at a time {times[2]:.1f} s, "
+                f"speed-up {speedups[-1]:.2f}x",
+                flush=True,
+            )
+    print(f"runner: parallel speed-up (2 concurrent vs sequential) median {statistics.median(speedups):.2f}x")
+    RESULTS["speedup_median"] = statistics.median(speedups)
+
+
+def _tracked_run(experiment_path: str, folder: Path) -> tuple[float, float, float]:
+    """Run an experiment into a fresh store under ``folder``; return (wall s, s inside MLflow, peak RSS GB)."""
+    import threading
+
+    import psutil
+
+    from ablate.config import load_experiment
+    from ablate.runner import run_experiment
+    from ablate.tracking import Tracker
+
+    in_tracker = [0.0]
+    originals = {}
+    for name in ("start_trial", "log_episodes", "finish_trial", "fail_trial", "start_launch", "finish_launch"):
+        original = getattr(Tracker, name)
+        originals[name] = original
+
+        def timed(self, *args, _original=original, **kwargs):
+            started = time.perf_counter()
+            try:
+                return _original(self, *args, **kwargs)
+            finally:
+                in_tracker[0] += time.perf_counter() - started
+
+        setattr(Tracker, name, timed)
+    peak = [0.0]
+    stop = threading.Event()
+
+    def sample() -> None:
+        # Everything this benchmark runs: the driver, Ray's processes and its workers (children of raylet).
+        me = psutil.Process()
+        while not stop.is_set():
+            total = 0
+            for process in [me, *me.children(recursive=True)]:
+                with contextlib.suppress(psutil.Error):  # a process may end between listing and reading
+                    total += process.memory_info().rss
+            peak[0] = max(peak[0], total)
+            stop.wait(0.5)
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    try:
+        started = time.perf_counter()
+        outcome = run_experiment(
+            load_experiment(experiment_path),
+            tracking_uri=f"sqlite:///{folder / 'mlflow.db'}",
+            storage_path=str(folder / "ray"),
+            show_progress=False,
+        )
+        wall = time.perf_counter() - started
+    finally:
+        stop.set()
+        sampler.join()
+        for name, original in originals.items():
+            setattr(Tracker, name, original)
+    assert outcome.exit_code == 0, outcome.failed
+    return wall, in_tracker[0], peak[0] / 2**30
+
+
+def bench_ablation() -> None:
+    """The default CartPole ablation end to end (a fresh store; Ray already up, as `make ablation-cartpole`
+    pays ~7 s more to start it), its MLflow share, peak memory, then its report."""
+    import shutil
+    import tempfile
+
+    import ray
+
+    from ablate.report import write_report
+    from ablate.scheduler import ensure_ray
+
+    # Ray's own start is part of what a user waits for: start it inside the timed region.
+    if ray.is_initialized():
+        ray.shutdown()
+    folder = Path(tempfile.mkdtemp(prefix="ablate-bench-"))
+    try:
+        started = time.perf_counter()
+        ensure_ray(None)
+        ray_start = time.perf_counter() - started
+        wall, mlflow_s, peak_gb = _tracked_run("experiments/cartpole.toml", folder)
+        total = ray_start + wall
+        print(
+            f"ablation: experiments/cartpole.toml end to end {total:.0f} s ({total / 60:.1f} min; Ray start "
+            f"{ray_start:.1f} s); MLflow writes {mlflow_s:.1f} s = {100 * mlflow_s / wall:.1f}% of wall; "
+            f"peak memory {peak_gb:.2f} GB"
+        )
+        report_times = []
+        for _ in range(3):
+            started = time.perf_counter()
+            write_report("cartpole", tracking_uri=f"sqlite:///{folder / 'mlflow.db'}", out_root=folder / "reports")
+            report_times.append(time.perf_counter() - started)
+        print(
+            f"report: cartpole report generation median {statistics.median(report_times):.1f} s "
+            f"(runs: {', '.join(f'{t:.1f}' for t in report_times)})"
+        )
+        RESULTS["ablation"] = {
+            "wall_s": total,
+            "mlflow_share": mlflow_s / wall,
+            "peak_memory_gb": peak_gb,
+            "report_s_median": statistics.median(report_times),
+        }
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+SECTIONS = {"core": bench_core, "runner": bench_runner, "ablation": bench_ablation}
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("sections", nargs="*", choices=[*SECTIONS, []], help="default: all")
+    parser.add_argument("sections", nargs="*", help=f"any of {', '.join(SECTIONS)} (default: all)")
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args()
     print(f"python {sys.version.split()[0]}, torch {torch.__version__}, {time.strftime('%Y-%m-%d %H:%M')}")
+    unknown = [name for name in args.sections if name not in SECTIONS]
+    if unknown:
+        parser.error(f"unknown section {unknown[0]!r}; valid: {', '.join(SECTIONS)}")
     for name in args.sections or SECTIONS:
         print(f"== {name}", flush=True)
         SECTIONS[name]()

@@ -37,3 +37,25 @@ def test_pong_models():
     mlp = create_pong_model(architecture="mlp", hidden_sizes=(200,))
     assert mlp(torch.zeros(2, 1, 80, 80)).shape == (2, 6)
     assert parameter_count(mlp) == 6400 * 200 + 200 + 200 * 6 + 6
+
+
+def test_numpy_acting_path_matches_torch_and_follows_updates():
+    import numpy as np
+
+    torch.manual_seed(0)
+    for activation in ("relu", "tanh", "elu", "gelu"):
+        model = create_cartpole_model(hidden_sizes=(16, 8), activation=activation, dropout=0.2).eval()
+        x = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
+        with torch.no_grad():
+            expected = model(torch.from_numpy(x)).numpy()
+        np.testing.assert_allclose(model.act_logits(x), expected, rtol=1e-5, atol=1e-6)
+        optimizer = torch.optim.SGD(model.parameters(), lr=0.5)
+        model(torch.from_numpy(x)).sum().backward()
+        optimizer.step()  # the cached weights must not be reused after a step
+        with torch.no_grad():
+            expected = model(torch.from_numpy(x)).numpy()
+        np.testing.assert_allclose(model.act_logits(x), expected, rtol=1e-5, atol=1e-6)
+    cnn = create_cartpole_model(architecture="cnn").eval()
+    window = np.zeros((2, 4, 4), np.float32)
+    with torch.no_grad():
+        np.testing.assert_allclose(cnn.act_logits(window), cnn(torch.from_numpy(window)).numpy())
