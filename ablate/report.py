@@ -57,13 +57,14 @@ def figure_learning_curves(ablation: Ablation, folder: Path) -> tuple[str, str]:
     threshold = _threshold(ablation)
     episode_grid = np.unique(np.linspace(1, budget, 200).astype(int)).astype(float)
     wall_max = float(ablation.curves.wall_s.max()) if len(ablation.curves) else 1.0
-    wall_grid = np.linspace(0, wall_max, 200)
+    wall_min = float(ablation.curves.wall_s[ablation.curves.wall_s > 0].min()) if len(ablation.curves) else 0.01
+    wall_grid = np.geomspace(wall_min, wall_max, 200)
     paths = []
     for x, grid, label, name in (
         ("episode", episode_grid, "episode", "learning_curves_episodes"),
-        ("wall_s", wall_grid, "wall-clock seconds (one CPU per trial)", "learning_curves_wallclock"),
+        ("wall_s", wall_grid, "wall-clock seconds, log scale (one CPU per trial)", "learning_curves_wallclock"),
     ):
-        fig, ax = plt.subplots(figsize=(9, 5.2))
+        fig, ax = plt.subplots(figsize=(10, 5.2))
         for i, variant in enumerate(ablation.variants):
             curves = ablation.curves[ablation.curves.variant == variant]
             if curves.empty:
@@ -75,11 +76,13 @@ def figure_learning_curves(ablation: Ablation, folder: Path) -> tuple[str, str]:
             ax.fill_between(grid, low, high, color=colour, alpha=0.15, linewidth=0)
         if threshold is not None:
             ax.axhline(threshold, color="black", linestyle="--", linewidth=0.8, label=f"solved ({threshold:g})")
+        if x == "wall_s":
+            ax.set_xscale("log")  # variants differ ten-fold in speed: a linear axis hides the fast ones
         ax.set_xlabel(label)
         ax.set_ylabel(f"rolling mean return ({_window(ablation)} episodes)")
         ax.set_title("Learning curves: IQM across seeds, 95% bootstrap band")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, ncol=2, loc="lower right")
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         paths.append(_save(fig, folder, name))
     return paths[0], paths[1]
 
@@ -95,7 +98,7 @@ def figure_episodes_to_solve(ablation: Ablation, folder: Path) -> str:
         y = np.full(len(done), i) + jitter
         ax.scatter(done.censored_episodes[solved], y[solved], color=COLOURS[i % 10], s=36, zorder=3)
         ax.scatter(
-            done.censored_episodes[~solved],
+            done.censored_episodes[~solved] * (1 + rng.uniform(0.005, 0.04, (~solved).sum())),
             y[~solved],
             facecolors="none",
             edgecolors=COLOURS[i % 10],
@@ -152,31 +155,41 @@ def _episodes_cell(row: pd.Series, stat: str) -> str:
 
 
 def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[str]:
-    """Sentences from the statistics, each citing its interval; no claim without one."""
+    """Sentences from the statistics, each citing its interval; no claim without one. Where unsolved seeds
+    are censored the difference is a bound, and the sentence says which way ("at least")."""
     sentences = []
     base = ablation.baseline
     for _, row in compare.iterrows():
         reduction, low, high = row.episodes_reduction, row.episodes_reduction_ci_low, row.episodes_reduction_ci_high
-        censored = " (unsolved seeds counted at the budget, so this is a bound)" if row.censored else ""
+        poi = (
+            f"P(fewer episodes) = {row.p_improvement:.2f} "
+            f"[{row.p_improvement_ci_low:.2f}, {row.p_improvement_ci_high:.2f}]"
+        )
+        auc = (
+            f"area under the learning curve {_signed_pct(row.auc_change)} (95% CI {_signed_pct(row.auc_change_ci_low)}"
+            f" to {_signed_pct(row.auc_change_ci_high)})"
+        )
         if np.isnan(low):
             sentences.append(f"**{row.variant}** vs {base}: too few seeds for an interval; no claim.")
         elif low > 0:
+            # Better. Censoring in the baseline only hides how much slower it is: the gain is a lower bound.
+            bound = "at least " if row.baseline_censored and not row.variant_censored else ""
+            caveat = " (unsolved seeds on both sides counted at the budget)" if row.variant_censored else ""
             sentences.append(
-                f"**{row.variant}** solves in {_pct(reduction)} fewer episodes than {base} (IQM; 95% CI "
-                f"{_pct(low)} to {_pct(high)}){censored}; P(fewer episodes) = {row.p_improvement:.2f} "
-                f"[{row.p_improvement_ci_low:.2f}, {row.p_improvement_ci_high:.2f}]."
+                f"**{row.variant}** solves in {bound}{_pct(reduction)} fewer episodes than {base} (IQM; 95% CI "
+                f"{_pct(low)} to {_pct(high)}){caveat}; {poi}; {auc}."
             )
         elif high < 0:
+            bound = "at least " if row.variant_censored and not row.baseline_censored else ""
+            caveat = " (unsolved seeds on both sides counted at the budget)" if row.baseline_censored else ""
             sentences.append(
-                f"**{row.variant}** needs {_pct(-reduction)} more episodes than {base} (IQM; 95% CI "
-                f"{_pct(-high)} to {_pct(-low)} more){censored}; P(fewer episodes) = {row.p_improvement:.2f} "
-                f"[{row.p_improvement_ci_low:.2f}, {row.p_improvement_ci_high:.2f}]."
+                f"**{row.variant}** needs {bound}{_pct(-reduction)} more episodes than {base} (IQM; 95% CI "
+                f"{_pct(-high)} to {_pct(-low)} more){caveat}; {poi}; {auc}."
             )
         else:
             sentences.append(
-                f"**{row.variant}** vs {base}: the data do not separate them (change in episodes to solve "
-                f"{_pct(-reduction)}, 95% CI {_pct(-high)} to {_pct(-low)}; P(fewer episodes) = "
-                f"{row.p_improvement:.2f} [{row.p_improvement_ci_low:.2f}, {row.p_improvement_ci_high:.2f}])."
+                f"**{row.variant}** vs {base}: the data do not separate them on episodes to solve (change "
+                f"{_signed_pct(-reduction)}, 95% CI {_signed_pct(-high)} to {_signed_pct(-low)}; {poi}); {auc}."
             )
     for _, row in table.iterrows():
         if row.seeds_run and row.solved < row.seeds_run:
@@ -185,6 +198,11 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
                 f"{_fmt(row.budget)} episodes."
             )
     return sentences
+
+
+def _signed_pct(x: float) -> str:
+    value = int(round(100 * x))
+    return f"{value:+d}%" if value else "0%"
 
 
 def _markdown_table(frame: pd.DataFrame) -> str:
@@ -458,6 +476,25 @@ def write_report(name: str, tracking_uri: str | None = None, out_root: Path = Pa
     )
     (folder / "report.html").write_text(_inline(page, folder))
     return folder
+
+
+def terminal_summary(folder: Path) -> str:
+    """The convergence table in a few lines, for the end of ``ablate run``."""
+    path = folder / "tables" / "convergence.csv"
+    if not path.is_file():
+        return (folder / "report.md").read_text().strip().splitlines()[-1]
+    table = pd.read_csv(path)
+    lines = [f"{'variant':<16} {'solved':>7} {'episodes to solve (median)':>28} {'final rolling mean (IQM)':>26}"]
+    for row in table.itertuples():
+        seeds = int(row.seeds_run) if not pd.isna(row.seeds_run) else 0
+        if not seeds:
+            lines.append(f"{row.variant:<16} {'no finished seeds':>7}")
+            continue
+        median = ("≥ " if row.median_censored else "") + _fmt(row.episodes_median)
+        lines.append(
+            f"{row.variant:<16} {int(row.solved):>3}/{seeds:<3} {median:>28} {_fmt(row.final_rolling_mean_iqm, 1):>26}"
+        )
+    return "\n".join(lines)
 
 
 def _write_empty(folder: Path, name: str, reason: str) -> Path:

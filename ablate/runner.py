@@ -214,9 +214,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"  FAILED {key}: {message}")
     print(f"MLflow runs: {tracker.ui_link()}   (start the UI with: make mlflow-ui)")
     if not outcome.interrupted and getattr(args, "report", True):
-        from ablate.report import write_report
+        from ablate.report import terminal_summary, write_report
 
-        path = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
-        print(f"report: {path}")
-    os.environ.pop("TUNE_DISABLE_SIGINT_HANDLER", None)
+        folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+        print(terminal_summary(folder))
+        print(f"report: {folder}/report.md and {folder}/report.html")
     return outcome.exit_code

@@ -108,3 +108,14 @@ def test_censoring_is_counted_not_dropped():
     assert table.loc["b", "seeds_run"] == 4 and table.loc["b", "seeds_failed"] == 1
     assert table.loc["b", "fraction_solved"] == 0.75
     assert table.loc["b", "episodes_median"] == 25 and not table.loc["b", "median_censored"]
+
+
+def test_vectorised_improvement_matches_mann_whitney():
+    from ablate.results import _pairwise_improvement
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x, y = rng.integers(0, 10, 5).astype(float), rng.integers(0, 10, 7).astype(float)
+        assert _pairwise_improvement(x, y) == pytest.approx(probability_of_improvement(x, y))
+    low, high = probability_of_improvement_interval(np.array([1.0, 2, 3, 4]), np.array([3.0, 4, 5, 6]))
+    assert 0 <= low <= probability_of_improvement(np.array([1.0, 2, 3, 4]), np.array([3.0, 4, 5, 6])) <= high <= 1
