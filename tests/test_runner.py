@@ -74,7 +74,8 @@ def test_tiny_ablation_is_tracked_exactly(ray_cluster, tmp_path, tracking_uri):
         assert run.metrics["env_steps"] == sum(returns)  # CartPole: one reward per step
         assert run.metrics["episodes_run"] == 20 and run.metrics["solved"] == 0
         assert set(run.artifacts) == {"weights.pt", "video.mp4", "learning_curve.png"}
-    assert {a.path for a in tracker.client.list_artifacts(launch_id)} == {"experiment.toml", "grid.json"}
+    launch_files = {a.path for a in tracker.client.list_artifacts(launch_id)}
+    assert launch_files == {"experiment.toml", "grid.json", "environment.json"}
 
     # Running the same experiment again runs nothing and creates no run.
     again = _run(experiment, tmp_path, tracking_uri)
