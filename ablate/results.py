@@ -206,6 +206,8 @@ def load_ablation(name: str, tracking_uri: str | None = None) -> Ablation:
                     "wall_s": [wall.get(e, np.nan) for e in episodes],
                 }
             )
+            # the clock is logged when an update ends: each episode gets the time of its update's end
+            curve["wall_s"] = curve["wall_s"].bfill()
             curve["rolling_mean"] = curve["return"].rolling(window, min_periods=1).mean()
             curves.append(curve)
             row["auc"] = area_under_curve(curve.rolling_mean.to_numpy(), budget)

@@ -46,6 +46,8 @@ class EpisodeMetrics(NamedTuple):
     """Environment steps since the trial started, this episode included."""
     wall_s: float
     """Seconds since the trial started, at the end of this episode's update."""
+    update: int
+    """1-based index of the update (Adam step) this episode took part in."""
 
 
 class Episode(NamedTuple):
@@ -170,6 +172,7 @@ def run_trial(
     env_steps = 0
     episodes_to_solve: int | None = None
     reset_seed: int | None = config.seed
+    updates = 0
     try:
         while len(history) < config.max_episodes and episodes_to_solve is None:
             count = min(config.episodes_per_update, config.max_episodes - len(history))
@@ -190,6 +193,7 @@ def run_trial(
                     f"loss became {stats.loss} at episode {len(history) + count}; "
                     f"try a smaller learning_rate (now {config.learning_rate})"
                 )
+            updates += 1
             if config.fault == "raise":
                 raise TrialFailed("injected fault: raise after the first update (tests only)")
             wall_s = time.perf_counter() - started
@@ -209,6 +213,7 @@ def run_trial(
                         rolling,
                         env_steps,
                         wall_s,
+                        updates,
                     )
                 )
                 if (
