@@ -6,7 +6,6 @@ Thin: parse, validate (one clear line and exit 2 on bad input), call the modules
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -96,10 +95,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     progress = _ProgressLine()
     result = run_trial(config, on_episodes=progress.update, artifacts_dir=out)
     progress.close()
-    with open(out / "metrics.csv", "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(result.episodes[0]._fields if result.episodes else [])
-        writer.writerows(result.episodes)
     summary = result.summary()
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     solved = (

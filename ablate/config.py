@@ -71,7 +71,7 @@ class TrialConfig:
     record_video: bool = True
     """Record one greedy episode of the trained agent."""
     video_max_frames: int = 500
-    """Cap on the video's length in frames (50 fps for CartPole)."""
+    """Cap on the video's length in frames (25 fps for CartPole: 500 frames show a whole 1,000-step episode)."""
     fault: str = ""
     """Test-only: ``crash_once`` kills the trial's process the first time, ``raise`` raises after the first
     update. Never set it in a real experiment."""

@@ -20,6 +20,11 @@ class EnvInfo:
     reward_threshold: float | None
     max_episode_steps: int | None
     video_fps: int
+    """Frames per second of a recorded video (real time for CartPole, whose physics step is 20 ms)."""
+    video_stride: int = 1
+    """Record every n-th step: CartPole at 25 fps of its 50 steps a second looks the same and costs half."""
+    video_downscale: int = 1
+    """Keep every n-th pixel: CartPole renders 600x400; 300x200 encodes ~4x faster and plays the same."""
 
 
 def is_pong(env_id: str) -> bool:
@@ -38,7 +43,7 @@ def env_info(env_id: str) -> EnvInfo:
     spec = gym.spec(env_id)
     if is_pong(env_id):
         return EnvInfo(80 * 80, 6, spec.reward_threshold, spec.max_episode_steps, 30)
-    return EnvInfo(4, 2, spec.reward_threshold, spec.max_episode_steps, 50)
+    return EnvInfo(4, 2, spec.reward_threshold, spec.max_episode_steps, 25, video_stride=2, video_downscale=2)
 
 
 def make_env(env_id: str, render: bool = False) -> gym.Env:

@@ -6,6 +6,7 @@ No Ray and no MLflow here: the scheduler and the tracker wrap this.
 
 from __future__ import annotations
 
+import csv
 import math
 import os
 import time
@@ -153,7 +154,7 @@ def run_trial(
     """Train one REINFORCE agent as ``config`` says and return its per-episode metrics and weights.
 
     ``on_episodes`` receives each update's new episodes as they finish. With ``artifacts_dir``, the trial
-    writes ``weights.pt``, ``learning_curve.png`` and (if ``record_video``) ``video.mp4`` there.
+    writes ``episodes.csv``, ``weights.pt``, ``learning_curve.png`` and (if ``record_video``) ``video.mp4``.
     """
     _inject_fault(config)
     started = time.perf_counter()
@@ -247,32 +248,46 @@ def run_trial(
 def record_greedy_episode(
     config: TrialConfig, model: Policy, max_frames: int, on_frame: Callable[[np.ndarray], None]
 ) -> float:
-    """Play one greedy (argmax) episode of ``model`` on a seed training never used, passing each rendered
-    frame to ``on_frame`` as it comes (a 500-frame CartPole episode would hold 360 MB in a list); returns
-    the episode's return."""
+    """Play one greedy (argmax) episode of ``model`` on a seed training never used, passing rendered frames
+    to ``on_frame`` as they come (every ``video_stride``-th step, downscaled; a list of 500 full CartPole
+    frames would hold 360 MB); returns the episode's return."""
+    info = env_info(config.env_id)
     env = make_env(config.env_id, render=True)
     adapter = observation_adapter(config.env_id, config.model)
+    scale = info.video_downscale
+
+    def frame() -> None:
+        on_frame(np.ascontiguousarray(env.render()[::scale, ::scale]))
+
     try:
         raw, _ = env.reset(seed=config.seed + 1_000_003)
         observation = adapter.reset(np.asarray(raw)[None])[0]
-        on_frame(env.render())
-        frames, total, done = 1, 0.0, False
+        frame()
+        frames, steps, total, done = 1, 0, 0.0, False
         while not done and frames < max_frames:
             raw, reward, terminated, truncated, _ = env.step(choose_action(model, observation, greedy=True))
             total += float(reward)
+            steps += 1
             done = terminated or truncated
             observation = adapter.step(np.asarray(raw)[None])[0]
-            on_frame(env.render())
-            frames += 1
+            if steps % info.video_stride == 0 or done:
+                frame()
+                frames += 1
         return total
     finally:
         env.close()
 
 
 def write_artifacts(result: TrialResult, model: Policy, folder: Path) -> None:
-    """Weights, learning curve and (optionally) a video of the greedy agent into ``folder``."""
+    """Per-episode table, weights, learning curve and (optionally) a video of the greedy agent into ``folder``."""
     folder.mkdir(parents=True, exist_ok=True)
     config = result.config
+    table = folder / "episodes.csv"
+    with open(table, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(EpisodeMetrics._fields)
+        writer.writerows(result.episodes)
+    result.artifacts["episodes"] = table
     weights = folder / "weights.pt"
     torch.save(result.state_dict, weights)
     result.artifacts["weights"] = weights
@@ -288,6 +303,14 @@ def write_artifacts(result: TrialResult, model: Policy, folder: Path) -> None:
         video = folder / "video.mp4"
         fps = env_info(config.env_id).video_fps
         # yuv420p H.264 plays in every browser, MLflow's artifact viewer included.
-        with imageio.get_writer(video, fps=fps, codec="libx264", pixelformat="yuv420p", macro_block_size=8) as writer:
+        # One encoder thread: the trial holds one CPU, and its neighbours are training on the others.
+        with imageio.get_writer(
+            video,
+            fps=fps,
+            codec="libx264",
+            pixelformat="yuv420p",
+            macro_block_size=2,
+            output_params=["-threads", "1"],
+        ) as writer:
             result.greedy_return = record_greedy_episode(config, model, config.video_max_frames, writer.append_data)
         result.artifacts["video"] = video

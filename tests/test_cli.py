@@ -63,8 +63,8 @@ def test_train_writes_curve_video_weights_and_metrics(tmp_path, capsys):
     )
     assert code == 0
     names = {p.name for p in out.iterdir()}
-    assert names == {"weights.pt", "learning_curve.png", "video.mp4", "metrics.csv", "summary.json"}
-    lines = (out / "metrics.csv").read_text().splitlines()
+    assert names == {"weights.pt", "learning_curve.png", "video.mp4", "episodes.csv", "summary.json"}
+    lines = (out / "episodes.csv").read_text().splitlines()
     assert len(lines) == 41 and lines[0].startswith("episode,episode_return,length")
     assert "not solved in 40 episodes" in capsys.readouterr().out
 

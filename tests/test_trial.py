@@ -47,9 +47,10 @@ def test_cnn_variant_trains():
 
 def test_artifacts_written(tmp_path):
     result = run_trial(replace(SHORT, max_episodes=16, record_video=True, video_max_frames=40), artifacts_dir=tmp_path)
-    assert {p.name for p in tmp_path.iterdir()} == {"weights.pt", "learning_curve.png", "video.mp4"}
+    assert {p.name for p in tmp_path.iterdir()} == {"episodes.csv", "weights.pt", "learning_curve.png", "video.mp4"}
+    assert len((tmp_path / "episodes.csv").read_text().splitlines()) == 1 + 16
     assert (tmp_path / "video.mp4").stat().st_size > 1000
-    assert result.greedy_return is not None and 1 <= result.greedy_return <= 39
+    assert result.greedy_return is not None and 1 <= result.greedy_return <= 2 * 40  # every 2nd step is a frame
 
 
 def test_nan_loss_fails_with_an_actionable_message():
