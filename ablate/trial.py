@@ -17,13 +17,11 @@ from pathlib import Path
 from typing import NamedTuple
 
 import gymnasium as gym
-import imageio.v2 as imageio
 import numpy as np
 import torch
 
 from ablate.config import TrialConfig
 from ablate.envs import env_info, make_env, make_vec_env, observation_adapter
-from ablate.plots import plot_progress
 from ablate.policies import Policy, create_model, parameter_count
 from ablate.reinforce import choose_action, discount_rewards, normalize, train_step
 
@@ -280,6 +278,11 @@ def record_greedy_episode(
 
 def write_artifacts(result: TrialResult, model: Policy, folder: Path) -> None:
     """Per-episode table, weights, learning curve and (optionally) a video of the greedy agent into ``folder``."""
+    # Imported here: a worker process pays for matplotlib and ffmpeg only when a trial ends.
+    import imageio.v2 as imageio
+
+    from ablate.plots import plot_progress
+
     folder.mkdir(parents=True, exist_ok=True)
     config = result.config
     table = folder / "episodes.csv"
