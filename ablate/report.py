@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from ablate.config import ConfigError, load_experiment  # noqa: E402
+from ablate.config import load_experiment  # noqa: E402
 from ablate.results import (  # noqa: E402
     Ablation,
     NoResults,
@@ -509,10 +509,7 @@ def _write_empty(folder: Path, name: str, reason: str) -> Path:
 def cmd_report(args: argparse.Namespace) -> int:
     name = args.experiment
     if name.endswith(".toml") or "/" in name:
-        try:
-            name = load_experiment(name).name
-        except ConfigError:
-            raise
+        name = load_experiment(name).name  # a bad file is a ConfigError: one line, exit 2
     folder = write_report(name, args.tracking_uri, args.out)
     text = (folder / "report.md").read_text()
     if "**No results to report.**" in text:

@@ -58,6 +58,23 @@ def iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
     return stats.trim_mean(values, 0.25, axis=axis)
 
 
+def _percentile_bootstrap(samples: tuple, statistic, n_resamples: int = N_RESAMPLES):
+    """SciPy's percentile bootstrap, 95%, seeded, vectorised along the last axis; independent samples are
+    resampled independently."""
+    result = stats.bootstrap(
+        samples,
+        statistic,
+        confidence_level=CONFIDENCE,
+        n_resamples=n_resamples,
+        method="percentile",
+        vectorized=True,
+        paired=False,
+        axis=-1,
+        rng=np.random.default_rng(SEED),
+    )
+    return result.confidence_interval.low, result.confidence_interval.high
+
+
 def bootstrap_interval(values: np.ndarray, statistic=iqm) -> tuple[float, float]:
     """Percentile bootstrap 95% interval of ``statistic`` over one sample (NaNs when fewer than 2 values)."""
     values = np.asarray(values, dtype=float)
@@ -65,17 +82,8 @@ def bootstrap_interval(values: np.ndarray, statistic=iqm) -> tuple[float, float]
         return (float("nan"), float("nan"))
     if np.all(values == values[0]):
         return (float(values[0]), float(values[0]))
-    result = stats.bootstrap(
-        (values,),
-        statistic,
-        confidence_level=CONFIDENCE,
-        n_resamples=N_RESAMPLES,
-        method="percentile",
-        vectorized=True,
-        axis=-1,
-        rng=np.random.default_rng(SEED),
-    )
-    return (float(result.confidence_interval.low), float(result.confidence_interval.high))
+    low, high = _percentile_bootstrap((values,), statistic)
+    return (float(low), float(high))
 
 
 def probability_of_improvement(lower_is_better: np.ndarray, reference: np.ndarray) -> float:
@@ -100,18 +108,8 @@ def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[f
         return (float("nan"), float("nan"))
     if np.all(np.concatenate([x, y]) == x[0]):
         return (0.5, 0.5)
-    result = stats.bootstrap(
-        (x, y),
-        _pairwise_improvement,
-        confidence_level=CONFIDENCE,
-        n_resamples=N_RESAMPLES,
-        method="percentile",
-        vectorized=True,
-        paired=False,
-        axis=-1,
-        rng=np.random.default_rng(SEED),
-    )
-    return (float(result.confidence_interval.low), float(result.confidence_interval.high))
+    low, high = _percentile_bootstrap((x, y), _pairwise_improvement)
+    return (float(low), float(high))
 
 
 def relative_reduction(variant: np.ndarray, reference: np.ndarray) -> tuple[float, float, float]:
@@ -127,18 +125,8 @@ def relative_reduction(variant: np.ndarray, reference: np.ndarray) -> tuple[floa
         return point, float("nan"), float("nan")
     if np.all(np.concatenate([variant, reference]) == variant[0]):
         return point, point, point
-    result = stats.bootstrap(
-        (variant, reference),
-        statistic,
-        confidence_level=CONFIDENCE,
-        n_resamples=N_RESAMPLES,
-        method="percentile",
-        vectorized=True,
-        paired=False,
-        axis=-1,
-        rng=np.random.default_rng(SEED),
-    )
-    return point, float(result.confidence_interval.low), float(result.confidence_interval.high)
+    low, high = _percentile_bootstrap((variant, reference), statistic)
+    return point, float(low), float(high)
 
 
 def area_under_curve(rolling_means: np.ndarray, budget: int) -> float:
@@ -345,15 +333,6 @@ def curve_band(curves: pd.DataFrame, x: str, grid: np.ndarray) -> tuple[np.ndarr
     # One vectorised bootstrap over the points where every seed has a value and they are not all equal.
     full = enough & ~np.isnan(matrix).any(axis=1) & (np.ptp(np.nan_to_num(matrix), axis=1) > 0)
     if full.any() and matrix.shape[1] >= 2:
-        result = stats.bootstrap(
-            (matrix[full],),
-            iqm,
-            confidence_level=CONFIDENCE,
-            n_resamples=N_RESAMPLES // 4,
-            method="percentile",
-            vectorized=True,
-            axis=-1,
-            rng=np.random.default_rng(SEED),
-        )
-        low[full], high[full] = result.confidence_interval.low, result.confidence_interval.high
+        band_low, band_high = _percentile_bootstrap((matrix[full],), iqm, n_resamples=N_RESAMPLES // 4)
+        low[full], high[full] = band_low, band_high
     return centre, low, high
