@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--l2", type=float)
     train.add_argument("--episodes-per-update", dest="episodes_per_update", type=int)
     train.add_argument("--max-episodes", dest="max_episodes", type=int, help="episode budget")
-    train.add_argument("--architecture", choices=None)
+    train.add_argument("--architecture", help="mlp or cnn")
     train.add_argument("--hidden-sizes", dest="hidden_sizes", type=_sizes, help="e.g. 64,64")
     train.add_argument("--activation")
     train.add_argument("--dropout", type=float)

@@ -32,6 +32,10 @@ class RunOutcome:
     launch_run_id: str | None
     skipped: int
     """Trials finished by an earlier launch of this generation, not run again."""
+    total: int
+    """Trials in the experiment's grid."""
+    ui_link: str
+    """The MLflow runs table of this experiment."""
     finished: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
     killed: list[str] = field(default_factory=list)
@@ -149,7 +153,9 @@ def run_experiment(
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     finished_before = tracker.finished_keys(generation)
     todo = [t for t in trials if t.key not in finished_before]
-    outcome = RunOutcome(experiment.name, generation, None, skipped=len(trials) - len(todo))
+    outcome = RunOutcome(
+        experiment.name, generation, None, skipped=len(trials) - len(todo), total=len(trials), ui_link=tracker.ui_link()
+    )
     if not todo:
         return outcome
     commit = git_commit()
@@ -199,8 +205,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         show_progress=True,
         command=command,
     )
-    tracker = Tracker(args.tracking_uri, experiment.name)
-    total = len(expand(experiment))
+    total = outcome.total
     if outcome.interrupted:
         print(
             f"interrupted: {len(outcome.killed)} running trial(s) marked killed; "
@@ -212,7 +217,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"{len(outcome.finished)} finished, {len(outcome.failed)} failed, {outcome.skipped} finished before")
     for key, message in outcome.failed.items():
         print(f"  FAILED {key}: {message}")
-    print(f"MLflow runs: {tracker.ui_link()}   (start the UI with: make mlflow-ui)")
+    print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
     if not outcome.interrupted and getattr(args, "report", True):
         from ablate.report import terminal_summary, write_report
 
