@@ -5,7 +5,7 @@ No I/O, no Ray, no MLflow, no environment: arrays and a torch model in, arrays a
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import torch
@@ -107,6 +107,13 @@ def l2_penalty(model: nn.Module) -> torch.Tensor:
     return sum((p.pow(2).sum() for name, p in model.named_parameters() if name.endswith("weight")), torch.zeros(()))
 
 
+class Optimizer(Protocol):
+    """What ``train_step`` needs of an optimizer: ``ablate.optim.Adam`` and any ``torch.optim`` optimizer fit."""
+
+    def zero_grad(self, set_to_none: bool = True) -> None: ...
+    def step(self) -> object: ...
+
+
 class UpdateStats(NamedTuple):
     loss: float
     """Policy-gradient loss of the batch, before the step (L2 term excluded)."""
@@ -116,7 +123,7 @@ class UpdateStats(NamedTuple):
 
 def train_step(
     model: nn.Module,
-    optimizer: torch.optim.Optimizer,
+    optimizer: Optimizer,
     observations: np.ndarray,
     actions: np.ndarray,
     discounted_rewards: np.ndarray,

@@ -22,6 +22,7 @@ import torch
 
 from ablate.config import TrialConfig
 from ablate.envs import env_info, make_env, make_vec_env, observation_adapter
+from ablate.optim import Adam
 from ablate.policies import Policy, create_model, parameter_count
 from ablate.reinforce import choose_action, discount_rewards, normalize, train_step
 
@@ -162,7 +163,7 @@ def run_trial(
     info = env_info(config.env_id)
     threshold = config.solve_threshold if config.solve_threshold is not None else info.reward_threshold
     model = create_model(config.env_id, config.model, info.observation_size, info.n_actions)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    optimizer = Adam(model.parameters(), lr=config.learning_rate)
     env = make_vec_env(config.env_id, config.episodes_per_update)
     adapter = observation_adapter(config.env_id, config.model)
 
