@@ -306,15 +306,16 @@ def write_artifacts(result: TrialResult, model: Policy, folder: Path) -> None:
     if config.record_video:
         video = folder / "video.mp4"
         fps = env_info(config.env_id).video_fps
-        # yuv420p H.264 plays in every browser, MLflow's artifact viewer included.
-        # One encoder thread: the trial holds one CPU, and its neighbours are training on the others.
+        # yuv420p H.264 plays in every browser, MLflow's artifact viewer included. One encoder thread at x264's
+        # fastest preset: ffmpeg runs beside the trial's own process, on CPUs its neighbours are training on
+        # (measured per 250 frames: 0.18 s of CPU vs 0.30 s at the default preset; ~60 KB instead of ~20 KB).
         with imageio.get_writer(
             video,
             fps=fps,
             codec="libx264",
             pixelformat="yuv420p",
             macro_block_size=2,
-            output_params=["-threads", "1"],
+            output_params=["-threads", "1", "-preset", "ultrafast"],
         ) as writer:
             result.greedy_return = record_greedy_episode(config, model, config.video_max_frames, writer.append_data)
         result.artifacts["video"] = video
