@@ -1,4 +1,4 @@
-"""Shared fixtures: one local Ray for the whole session (starting it costs ~7 s)."""
+"""Shared fixtures: one local Ray for the whole session (starting it costs ~7 s), and a quiet way to run on it."""
 
 import pytest
 
@@ -18,3 +18,16 @@ def ray_cluster():
 @pytest.fixture
 def tracking_uri(tmp_path):
     return f"sqlite:///{tmp_path / 'mlflow.db'}"
+
+
+@pytest.fixture(scope="session")
+def run_quiet(ray_cluster):
+    """``run_experiment`` as tests call it: into ``tracking_uri``, Tune's files under ``folder``, no live view."""
+    from ablate.runner import run_experiment
+
+    def run(experiment, folder, tracking_uri, **kwargs):
+        return run_experiment(
+            experiment, tracking_uri=tracking_uri, storage_path=str(folder / "ray"), show_progress=False, **kwargs
+        )
+
+    return run

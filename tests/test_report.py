@@ -13,7 +13,6 @@ from scipy import stats
 
 from ablate.config import load_experiment
 from ablate.report import write_report
-from ablate.runner import run_experiment
 from ablate.tracking import Tracker
 
 ARTIFACTS = Path(__file__).parent / "artifacts"
@@ -38,14 +37,12 @@ hidden_sizes = [64, 64]
 
 
 @pytest.fixture(scope="module")
-def built_report(ray_cluster, tmp_path_factory):
+def built_report(run_quiet, tmp_path_factory):
     folder = tmp_path_factory.mktemp("report")
     uri = f"sqlite:///{folder / 'mlflow.db'}"
     path = folder / "reportable.toml"
     path.write_text(EXPERIMENT)
-    outcome = run_experiment(
-        load_experiment(path), tracking_uri=uri, storage_path=str(folder / "ray"), show_progress=False
-    )
+    outcome = run_quiet(load_experiment(path), folder, uri)
     assert outcome.exit_code == 0
     return write_report("reportable", tracking_uri=uri, out_root=folder / "reports"), uri
 
@@ -173,15 +170,13 @@ def test_report_with_no_runs_says_so(tmp_path, tracking_uri):
     assert "No results to report" in text and "ablate run" in text
 
 
-def test_report_with_only_failed_runs_says_so(ray_cluster, tmp_path, tracking_uri):
+def test_report_with_only_failed_runs_says_so(run_quiet, tmp_path, tracking_uri):
     path = tmp_path / "broken.toml"
     path.write_text(
         'name = "broken"\nseeds = 2\n[base]\nmax_episodes = 8\nepisodes_per_update = 8\nrecord_video = false\n'
         '[[variants]]\nname = "boom"\nfault = "raise"\n'
     )
-    outcome = run_experiment(
-        load_experiment(path), tracking_uri=tracking_uri, storage_path=str(tmp_path / "ray"), show_progress=False
-    )
+    outcome = run_quiet(load_experiment(path), tmp_path, tracking_uri)
     assert outcome.exit_code == 1
     folder = write_report("broken", tracking_uri=tracking_uri, out_root=tmp_path / "reports")
     text = (folder / "report.md").read_text()

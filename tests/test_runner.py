@@ -11,7 +11,6 @@ import pytest
 
 from ablate.config import load_experiment
 from ablate.grid import expand
-from ablate.runner import run_experiment
 from ablate.tracking import Tracker
 
 TINY = """
@@ -38,19 +37,13 @@ def _experiment(tmp_path, text=TINY, name="exp.toml"):
     return load_experiment(path)
 
 
-def _run(experiment, tmp_path, tracking_uri, **kwargs):
-    return run_experiment(
-        experiment, tracking_uri=tracking_uri, storage_path=str(tmp_path / "ray"), show_progress=False, **kwargs
-    )
-
-
 def _launches(tracker):
     return tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")
 
 
-def test_tiny_ablation_is_tracked_exactly(ray_cluster, tmp_path, tracking_uri):
+def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tracking_uri):
     experiment = _experiment(tmp_path)
-    outcome = _run(experiment, tmp_path, tracking_uri)
+    outcome = run_quiet(experiment, tmp_path, tracking_uri)
     assert outcome.exit_code == 0 and len(outcome.finished) == 4 and not outcome.failed
 
     tracker = Tracker(tracking_uri, "tiny")
@@ -86,26 +79,26 @@ def test_tiny_ablation_is_tracked_exactly(ray_cluster, tmp_path, tracking_uri):
     assert launch_files == {"experiment.toml", "grid.json", "environment.json"}
 
     # Running the same experiment again runs nothing and creates no run.
-    again = _run(experiment, tmp_path, tracking_uri)
+    again = run_quiet(experiment, tmp_path, tracking_uri)
     assert again.launch_run_id is None and again.skipped == 4
     assert len(tracker.trial_runs()) == 4 and len(_launches(tracker)) == 1
 
     # --fresh starts a new generation under a new parent run.
-    fresh = _run(experiment, tmp_path, tracking_uri, fresh=True)
+    fresh = run_quiet(experiment, tmp_path, tracking_uri, fresh=True)
     assert len(fresh.finished) == 4 and fresh.generation != outcome.generation
     assert len(tracker.trial_runs(fresh.generation)) == 4 and len(_launches(tracker)) == 2
 
 
-def test_rerun_after_adding_a_variant_runs_only_the_new_trials(ray_cluster, tmp_path, tracking_uri):
-    _run(_experiment(tmp_path), tmp_path, tracking_uri)
+def test_rerun_after_adding_a_variant_runs_only_the_new_trials(run_quiet, tmp_path, tracking_uri):
+    run_quiet(_experiment(tmp_path), tmp_path, tracking_uri)
     bigger = _experiment(tmp_path, TINY + '[[variants]]\nname = "wide"\nhidden_sizes = [64]\n')
-    outcome = _run(bigger, tmp_path, tracking_uri)
+    outcome = run_quiet(bigger, tmp_path, tracking_uri)
     assert outcome.skipped == 4 and len(outcome.finished) == 2
     runs = Tracker(tracking_uri, "tiny").trial_runs()
     assert len(runs) == 6 and len({r.key for r in runs}) == 6
 
 
-def test_crash_is_retried_raise_is_recorded_failed(ray_cluster, tmp_path, tracking_uri):
+def test_crash_is_retried_raise_is_recorded_failed(run_quiet, tmp_path, tracking_uri):
     marker = tmp_path / "crashed-once"
     text = f"""
 name = "faults"
@@ -125,7 +118,7 @@ fault_marker = "{marker}"
 name = "boom"
 fault = "raise"
 """
-    outcome = _run(_experiment(tmp_path, text), tmp_path, tracking_uri)
+    outcome = run_quiet(_experiment(tmp_path, text), tmp_path, tracking_uri)
     assert marker.exists()  # the crash really happened
     assert sorted(k.split("-")[0] for k in outcome.finished) == ["crash", "ok"]
     assert list(outcome.failed) == [k for k in outcome.failed if k.startswith("boom")] and len(outcome.failed) == 1
