@@ -14,7 +14,7 @@ help:
 	@echo "make train              one CartPole trial: curve, video, weights in outputs/train/"
 	@echo "make report             rebuild reports/cartpole/ from the MLflow store"
 	@echo "make mlflow-ui          browse the runs at http://127.0.0.1:$(PORT)"
-	@echo "make bench              speed and memory figures (several minutes)"
+	@echo "make bench              speed and memory figures (~20 min)"
 	@echo "make lint               ruff check and format check"
 
 $(STAMP): pyproject.toml

@@ -18,11 +18,13 @@ from typing import Any
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 # Logged at every episode (step = episode): the curve a reader looks at in the UI.
 EPISODE_METRICS = {"episode/return": "episode_return"}
-# Logged once per update, at the step of its last episode: the update's loss and policy entropy, the
-# rolling mean and the clock when it ends, and its episodes' mean length. MLflow's SQLite store costs
-# ~130 us of the driver's CPU per value, and the driver shares the cores with the trials: logging these
-# for each of an update's 32 episodes would repeat the same values and cost 5x the CPU. The exact
-# per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
+# Logged when an update ends (step = its last episode), at most one point per ``EPISODES_PER_POINT``
+# episodes: the rolling mean and the clock at that episode, the mean loss and policy entropy of the updates
+# since the last point, and the mean length of their episodes. MLflow's SQLite store costs ~110 us of the
+# driver's CPU per value, and the driver shares the cores with the trials: repeating an update's values
+# for each of its 32 episodes cost 5x the CPU, and the course's 1-episode updates would log 6 values per
+# episode. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
+EPISODES_PER_POINT = 8
 UPDATE_METRICS = {
     "episode/rolling_mean": "rolling_mean",
     "episode/loss": "loss",
@@ -78,6 +80,8 @@ class Tracker:
         self._experiment_id: str | None = None
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
+        self._since_point: dict[str, list[Any]] = {}
+        """Per open trial, the episodes (whole updates) since its last point of ``UPDATE_METRICS``."""
 
     # --- experiment -------------------------------------------------------------------------------
     def experiment_id(self, create: bool = True) -> str | None:
@@ -155,30 +159,36 @@ class Tracker:
             },
         )
         run_id = run.info.run_id
+        self._since_point[key] = []
         self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
         return run_id
 
     def log_episodes(self, key: str, rows: Sequence[Any]) -> None:
-        """``EPISODE_METRICS`` for every episode, ``UPDATE_METRICS`` and ``episode/length`` (the mean over
-        the update's episodes) at the last episode of each update; rows hold whole updates."""
+        """``EPISODE_METRICS`` for every episode; ``UPDATE_METRICS`` and ``episode/length`` when an update ends
+        and ``EPISODES_PER_POINT`` episodes have passed since the last point. Rows hold whole updates."""
+        group = self._since_point.setdefault(key, [])
 
         def values():
-            update: list[Any] = []
             for i, row in enumerate(rows):
-                update.append(row)
+                group.append(row)
                 for metric, attr in EPISODE_METRICS.items():
                     yield metric, float(getattr(row, attr)), row.episode
-                if i + 1 == len(rows) or rows[i + 1].update != row.update:
-                    for metric, attr in UPDATE_METRICS.items():
-                        yield metric, float(getattr(row, attr)), row.episode
-                    yield "episode/length", sum(r.length for r in update) / len(update), row.episode
-                    update = []
+                update_ends = i + 1 == len(rows) or rows[i + 1].update != row.update
+                if update_ends and len(group) >= EPISODES_PER_POINT:
+                    yield from _point(group)
+                    group.clear()
 
         self._log_metrics(self.open_runs[key], values())
 
+    def _flush_point(self, key: str, run_id: str) -> None:
+        group = self._since_point.pop(key, [])
+        if group:
+            self._log_metrics(run_id, _point(group))
+
     def finish_trial(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None:
         run_id = self.open_runs.pop(key)
+        self._flush_point(key, run_id)
         self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
         if artifacts is not None:
             self.client.log_artifacts(run_id, str(artifacts))
@@ -186,6 +196,7 @@ class Tracker:
 
     def fail_trial(self, key: str, message: str) -> None:
         run_id = self.open_runs.pop(key)
+        self._flush_point(key, run_id)
         self.client.set_tag(run_id, TAG_ERROR, message[:5000])
         self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
         self.client.set_terminated(run_id, "FAILED")
@@ -194,6 +205,7 @@ class Tracker:
         """A trial whose process died restarts from scratch: its partial run is closed and soft-deleted so
         no metric is counted twice; the restart opens a new run (``ablate.attempt`` counts them)."""
         run_id = self.open_runs.pop(key, None)
+        self._since_point.pop(key, None)
         if run_id is not None:
             self.client.set_tag(run_id, TAG_ERROR, f"process died, retried: {reason}"[:5000])
             self.client.set_terminated(run_id, "KILLED")
@@ -203,6 +215,7 @@ class Tracker:
         killed = list(self.open_runs)
         for key in killed:
             run_id = self.open_runs.pop(key)
+            self._since_point.pop(key, None)
             self.client.set_tag(run_id, TAG_ERROR, "interrupted (Ctrl-C); a re-run starts it again")
             self.client.set_terminated(run_id, "KILLED")
         return killed
@@ -267,6 +280,17 @@ class Tracker:
 
         destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
         return self.client.download_artifacts(run_id, path, str(destination))
+
+
+def _point(group: Sequence[Any]) -> Iterable[tuple[str, float, int]]:
+    """One point of ``UPDATE_METRICS`` and ``episode/length`` for the episodes in ``group`` (whole updates)."""
+    last = group[-1]
+    per_update = {row.update: row for row in group}.values()  # an update's loss and entropy are on each row
+    means = {"loss": sum(r.loss for r in per_update) / len(per_update)}
+    means["entropy"] = sum(r.entropy for r in per_update) / len(per_update)
+    for metric, attr in UPDATE_METRICS.items():
+        yield metric, float(means.get(attr, getattr(last, attr))), last.episode
+    yield "episode/length", sum(r.length for r in group) / len(group), last.episode
 
 
 def _param_text(value: Any) -> str:
