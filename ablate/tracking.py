@@ -25,12 +25,6 @@ EPISODE_METRICS = {"episode/return": "episode_return"}
 # for each of its 32 episodes cost 5x the CPU, and the course's 1-episode updates would log 6 values per
 # episode. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
 EPISODES_PER_POINT = 8
-UPDATE_METRICS = {
-    "episode/rolling_mean": "rolling_mean",
-    "episode/loss": "loss",
-    "episode/entropy": "entropy",
-    "episode/wall_s": "wall_s",
-}
 TAG_ROLE, TAG_GENERATION, TAG_KEY = "ablate.role", "ablate.generation", "ablate.trial_key"
 TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed", "ablate.error", "ablate.attempt"
 TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
@@ -81,7 +75,7 @@ class Tracker:
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
         self._since_point: dict[str, list[Any]] = {}
-        """Per open trial, the episodes (whole updates) since its last point of ``UPDATE_METRICS``."""
+        """Per open trial, the episodes (whole updates) since its last point of the update metrics."""
 
     # --- experiment -------------------------------------------------------------------------------
     def experiment_id(self, create: bool = True) -> str | None:
@@ -165,9 +159,9 @@ class Tracker:
         return run_id
 
     def log_episodes(self, key: str, rows: Sequence[Any]) -> None:
-        """``EPISODE_METRICS`` for every episode; ``UPDATE_METRICS`` and ``episode/length`` when an update ends
+        """``EPISODE_METRICS`` for every episode; a point of the update metrics (``_point``) when an update ends
         and ``EPISODES_PER_POINT`` episodes have passed since the last point. Rows hold whole updates."""
-        group = self._since_point.setdefault(key, [])
+        group = self._since_point[key]
 
         def values():
             for i, row in enumerate(rows):
@@ -283,13 +277,14 @@ class Tracker:
 
 
 def _point(group: Sequence[Any]) -> Iterable[tuple[str, float, int]]:
-    """One point of ``UPDATE_METRICS`` and ``episode/length`` for the episodes in ``group`` (whole updates)."""
+    """The update metrics for the episodes in ``group`` (whole updates), at the step of the last one: the
+    rolling mean and clock there, the mean loss and entropy of the updates, the mean length of the episodes."""
     last = group[-1]
-    per_update = {row.update: row for row in group}.values()  # an update's loss and entropy are on each row
-    means = {"loss": sum(r.loss for r in per_update) / len(per_update)}
-    means["entropy"] = sum(r.entropy for r in per_update) / len(per_update)
-    for metric, attr in UPDATE_METRICS.items():
-        yield metric, float(means.get(attr, getattr(last, attr))), last.episode
+    updates = list({row.update: row for row in group}.values())  # each row carries its update's loss and entropy
+    yield "episode/rolling_mean", float(last.rolling_mean), last.episode
+    yield "episode/loss", sum(u.loss for u in updates) / len(updates), last.episode
+    yield "episode/entropy", sum(u.entropy for u in updates) / len(updates), last.episode
+    yield "episode/wall_s", float(last.wall_s), last.episode
     yield "episode/length", sum(r.length for r in group) / len(group), last.episode
 
 
