@@ -327,6 +327,8 @@ def main() -> int:
     unknown = [name for name in args.sections if name not in SECTIONS]
     if unknown:
         parser.error(f"unknown section {unknown[0]!r}; valid: {', '.join(SECTIONS)}")
+    if args.ablation_repeats < 1:
+        parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
     for name in args.sections or SECTIONS:
         print(f"== {name}", flush=True)
         SECTIONS[name](**({"repeats": args.ablation_repeats} if name == "ablation" else {}))
