@@ -208,7 +208,9 @@ def ensure_ray(address: str | None) -> bool:
     address = address or os.environ.get("RAY_ADDRESS") or None
     if address:
         _check_reachable(address)
-    _loopback_only(not address)
+    # A head on this machine's loopback (``make cluster-up``): Ray would otherwise swap 127.0.0.1 for the
+    # machine's address, where that head does not listen.
+    _loopback_only(not address or _host(address) in ("127.0.0.1", "localhost"))
     try:
         ray.init(
             address=address or "local",
@@ -234,7 +236,7 @@ def _check_reachable(address: str) -> None:
     itself retries an unreachable GCS for many minutes before it says anything."""
     if address == "auto" or address == "local":
         return
-    host, _, port = address.removeprefix("ray://").rpartition(":")
+    host, port = _host(address), address.rpartition(":")[2]
     if not host or not port.isdigit():
         raise ClusterUnavailable(
             f"--address {address!r} is not a Ray address; valid: auto, host:port or ray://host:port"
@@ -245,6 +247,10 @@ def _check_reachable(address: str) -> None:
         raise ClusterUnavailable(
             f"cannot reach the Ray cluster at {address} ({error.strerror or error}); is its head node running?"
         ) from None
+
+
+def _host(address: str) -> str:
+    return address.removeprefix("ray://").rpartition(":")[0]
 
 
 def _loopback_only(enabled: bool) -> None:
