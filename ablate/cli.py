@@ -61,10 +61,26 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--max-concurrent", dest="max_concurrent", type=int, help="trials at once (default: CPUs)")
     run.add_argument("--no-report", dest="report", action="store_false", help="skip the report at the end")
 
-    report = commands.add_parser("report", help="write reports/<experiment>/ from the MLflow store")
+    report = commands.add_parser(
+        "report",
+        help="write reports/<experiment>/ (Markdown, HTML, PDF) from the MLflow store",
+        description="Write reports/<experiment>/ from the MLflow store: report.md, a self-contained report.html, "
+        "report.pdf (headless Chromium), figures, tables and videos; the report is attached to the launch's MLflow "
+        "run. Nothing is written unless the whole report could be built.",
+    )
     report.add_argument("experiment", help="experiment file or name, e.g. experiments/cartpole.toml or cartpole")
-    report.add_argument("--tracking-uri", dest="tracking_uri")
+    report.add_argument(
+        "--tracking-uri", dest="tracking_uri", help="MLflow store to read (default: sqlite:///mlflow.db); never created"
+    )
     report.add_argument("--out", type=Path, default=Path("reports"), help="reports folder (default: reports)")
+    report.add_argument(
+        "--generation",
+        help="report this generation (an id or a unique prefix; default: the newest launch's), e.g. the complete one "
+        "before a --fresh run was interrupted",
+    )
+    report.add_argument("--variants", help="only these variants, comma-separated, e.g. baseline,deep (default: all)")
+    report.add_argument("--baseline", help="the variant the others are compared to (default: the experiment's)")
+    report.add_argument("--no-pdf", dest="pdf", action="store_false", help="skip report.pdf (Chromium not needed)")
     return parser
 
 

@@ -74,7 +74,7 @@ PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", 
 
 
 def environment_document() -> dict:
-    """Where the launch ran: Python, package versions, machine."""
+    """Where the launch ran: Python, package versions, machine, CPU model and the CPU kernels torch uses."""
     from importlib.metadata import PackageNotFoundError, version
 
     packages = {}
@@ -83,10 +83,19 @@ def environment_document() -> dict:
             packages[name] = version(name)
         except PackageNotFoundError:
             packages[name] = "not installed"
+    import torch
+
+    # Float kernels differ by CPU: the model and the kernels torch picks say where the results were produced.
+    cpuinfo = Path("/proc/cpuinfo")
+    lines = cpuinfo.read_text().splitlines() if cpuinfo.is_file() else []
+    models = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
+    cpu_model = models[0] if models else platform.processor() or "unknown"
     return {
         "python": platform.python_version(),
         "packages": packages,
         "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} CPUs ({platform.platform()})",
+        "cpu_model": cpu_model,
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
     }
 
 
@@ -219,9 +228,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"  FAILED {key}: {message}")
     print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
     if not outcome.interrupted and getattr(args, "report", True):
-        from ablate.report import terminal_summary, write_report
+        from ablate.report import NoResults, terminal_summary, write_report
 
-        folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+        try:
+            folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+        except NoResults as error:  # every trial failed: say so, and leave the last good report in place
+            print(f"no report: {error}")
+            return outcome.exit_code
         print(terminal_summary(folder))
-        print(f"report: {folder}/report.md and {folder}/report.html")
+        print(f"report: {folder}/report.md, report.html and report.pdf")
     return outcome.exit_code

@@ -115,6 +115,17 @@ class Tracker:
         )
         return runs[0] if runs else None
 
+    def launches(self) -> list[Any]:
+        """Every launch (parent) run of this experiment, newest first (the report picks a generation from them)."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        return list(
+            self.client.search_runs(
+                [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"]
+            )
+        )
+
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
 
@@ -226,6 +237,15 @@ class Tracker:
                 batch = []
         if batch:
             self.client.log_batch(run_id, metrics=batch)
+
+    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ("videos",)) -> None:
+        """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables) as the ``report/``
+        artifacts of a launch run; ``skip`` leaves out folders already in the trial runs (the videos)."""
+        for path in sorted(Path(folder).iterdir()):
+            if path.is_dir() and path.name not in skip:
+                self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
+            elif path.is_file():
+                self.client.log_artifact(run_id, str(path), "report")
 
     # --- reading back -----------------------------------------------------------------------------
     def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
