@@ -142,7 +142,7 @@ def figure_overview(ablation: Ablation, folder: Path) -> Figure:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     caption = (
-        f"Learning curves of every variant against episodes ({ablation.baseline}, the baseline, in thick grey). "
+        f"Learning curves of every variant against episodes ({_esc(ablation.baseline)}, the baseline, in thick grey). "
         f"Lines: IQM across seeds of the rolling mean return over {ablation_window(ablation)} episodes; no bands "
         "here, so the lines stay readable (Figure {next} shows each variant with its band)."
         + (f" Dashed: the solve threshold ({ablation.threshold:g})." if ablation.threshold is not None else "")
@@ -184,7 +184,7 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     for ax in axes[:, 0]:
         ax.set_ylabel("rolling mean return")
     caption = (
-        f"Each variant (colour) against the baseline {ablation.baseline} (grey), one panel per variant, shared "
+        f"Each variant (colour) against the baseline {_esc(ablation.baseline)} (grey), one panel per variant, shared "
         f"axes. {_band_text(ablation)} A seed that stopped because it solved keeps its last value."
     )
     return Figure(_save(fig, folder, "learning_curves_by_variant"), caption, "Each variant against the baseline")
@@ -285,7 +285,7 @@ def figure_improvement(ablation: Ablation, compare: pd.DataFrame, folder: Path) 
     ax.set_xlabel(f"P(a seed of the variant solves in fewer episodes than a seed of {ablation.baseline})")
     ax.grid(axis="x", alpha=0.3)
     caption = (
-        f"Probability of improvement over {ablation.baseline}: the chance that a random seed of the variant needs "
+        f"Probability of improvement over {_esc(ablation.baseline)}: the chance that a random seed of the variant needs "
         "fewer episodes to solve than a random seed of the baseline (ties, such as two unsolved seeds, count one "
         "half). Dots: the estimate over all seed pairs; bars: 95% percentile bootstrap interval, or, where every "
         "pair is ordered the same way, the exact bound for that many seeds (see the glossary). Dashed: 0.5, no "
