@@ -236,5 +236,6 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"no report: {error}")
             return outcome.exit_code
         print(terminal_summary(folder))
-        print(f"report: {folder}/report.md, report.html and report.pdf")
+        pdf = " and report.pdf" if (folder / "report.pdf").is_file() else ""
+        print(f"report: {folder}/report.md, report.html{pdf}")
     return outcome.exit_code

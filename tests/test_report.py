@@ -289,6 +289,7 @@ def store(tmp_path_factory):
     uri = make_store(folder, "pong", pong, seeds=(0,), budget=60, **options)
     evil = {"base<script>alert(1)</script>": {"curve": rising(5, 30)}, EVIL: {"curve": rising(5, 20)}}
     make_store(folder, "evil", evil, description="<script>alert('description')</script> & more")
+    make_store(folder, "single", {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 12)}}, seeds=(0,))
     make_store(folder, "broken", {"boom": {"curve": rising(5, 10)}}, seeds=(0, 1), failed={"boom-s0", "boom-s1"})
     cartpole = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 25)}, "c": {"curve": rising(5, 12)}}
     make_store(folder, "gens", cartpole, generation="complete1")
@@ -312,6 +313,14 @@ def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monk
     convergence = pd.read_csv(folder / "tables" / "convergence.csv").set_index("variant")
     assert {"return_at_60_iqm", "auc_iqm", "improvement_iqm", "episodes_to_-15_median"} <= set(convergence.columns)
     assert convergence.loc["cnn", "auc_iqm"] > convergence.loc["mlp", "auc_iqm"]
+
+
+def test_report_of_one_seed_with_a_threshold(store, tmp_path, monkeypatch):
+    # issue 9: `ValueError: cannot convert float NaN to integer` with one seed
+    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    _, uri = store
+    text = (write_report("single", tracking_uri=uri, out_root=tmp_path) / "report.md").read_text()
+    assert "[no interval: 1 seed]" in text and "1 seed gives no interval" in text
 
 
 def test_user_text_is_escaped_in_the_html(store, tmp_path, monkeypatch):
