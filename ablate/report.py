@@ -285,8 +285,8 @@ def figure_improvement(ablation: Ablation, compare: pd.DataFrame, folder: Path) 
     ax.set_xlabel(f"P(a seed of the variant solves in fewer episodes than a seed of {ablation.baseline})")
     ax.grid(axis="x", alpha=0.3)
     caption = (
-        f"Probability of improvement over {_esc(ablation.baseline)}: the chance that a random seed of the variant needs "
-        "fewer episodes to solve than a random seed of the baseline (ties, such as two unsolved seeds, count one "
+        f"Probability of improvement over {_esc(ablation.baseline)}: the chance that a random seed of the variant "
+        "needs fewer episodes to solve than a random seed of the baseline (ties, such as two unsolved seeds, count one "
         "half). Dots: the estimate over all seed pairs; bars: 95% percentile bootstrap interval, or, where every "
         "pair is ordered the same way, the exact bound for that many seeds (see the glossary). Dashed: 0.5, no "
         "difference."
