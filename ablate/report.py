@@ -45,7 +45,8 @@ from ablate.results import (  # noqa: E402
 )
 from ablate.tracking import Tracker  # noqa: E402
 
-COLOURS = plt.get_cmap("tab10").colors
+# tab10 without its grey, which is the baseline's
+COLOURS = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7]
 BASELINE_COLOUR = "0.35"
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
@@ -107,6 +108,11 @@ def _colour(ablation: Ablation, variant: str):
     return COLOURS[others.index(variant) % len(COLOURS)]
 
 
+def _reference(ablation: Ablation) -> str:
+    name = _esc(ablation.baseline)
+    return "the baseline" if name == "baseline" else f"the baseline variant, {name}"
+
+
 def _episode_grid(ablation: Ablation) -> np.ndarray:
     budget = int(ablation.finished.budget.max())
     return np.unique(np.linspace(1, budget, 200).astype(int)).astype(float)
@@ -142,7 +148,7 @@ def figure_overview(ablation: Ablation, folder: Path) -> Figure:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     caption = (
-        f"Learning curves of every variant against episodes ({_esc(ablation.baseline)}, the baseline, in thick grey). "
+        f"Learning curves of every variant against episodes; thick grey: {_reference(ablation)}. "
         f"Lines: IQM across seeds of the rolling mean return over {ablation_window(ablation)} episodes; no bands "
         "here, so the lines stay readable (Figure {next} shows each variant with its band)."
         + (f" Dashed: the solve threshold ({ablation.threshold:g})." if ablation.threshold is not None else "")
@@ -184,7 +190,7 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     for ax in axes[:, 0]:
         ax.set_ylabel("rolling mean return")
     caption = (
-        f"Each variant (colour) against the baseline {_esc(ablation.baseline)} (grey), one panel per variant, shared "
+        f"Each variant (colour) against {_reference(ablation)} (grey), one panel per variant, shared "
         f"axes. {_band_text(ablation)} A seed that stopped because it solved keeps its last value."
     )
     return Figure(_save(fig, folder, "learning_curves_by_variant"), caption, "Each variant against the baseline")
@@ -587,24 +593,27 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
         )
         counts = ""
         if unsolved is not None:
-            counts = f" ({unsolved(row.variant)} of {n} and {unsolved(ablation.baseline)} of {m} seeds never solved)"
+            counts = (
+                f"{unsolved(row.variant)} of {n} {_esc(row.variant)} seeds and {unsolved(ablation.baseline)} of {m} "
+                f"{base} seeds never solved"
+            )
         if row.bound == "censored":
             return (
-                f"{name}: cannot separate them: both IQMs count unsolved seeds at the budget{counts}, so both "
-                "are lower bounds; see the returns below."
+                f"{name}: cannot separate them: both IQMs count unsolved seeds as the budget ({counts}), so both are "
+                "lower bounds; see the returns below."
             )
         change = f"IQM {'≥ ' if row.bound and row.verdict == WORSE else ''}{x} vs {y}"
         if row.verdict == BETTER and row.bound:
             return (
-                f"{name}: **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: {base}'s IQM "
-                f"counts unsolved seeds at the budget{counts}, so the true gap is larger; 95% lower bound "
+                f"{name}: **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: {base}'s IQM counts "
+                f"unsolved seeds as the budget ({counts}), so the true gap is larger; 95% lower bound "
                 f"{_pct(row.low)} fewer).{_stability(row)}"
             )
         if row.verdict == WORSE and row.bound:
             return (
-                f"{name}: **at least {_pct(-row.point)} more** than {base} ({change}; a bound: the variant's "
-                f"unsolved seeds count as the budget{counts}; 95% lower bound {_pct(-row.high)} more; no upper "
-                f"bound can be given).{_stability(row)}"
+                f"{name}: **at least {_pct(-row.point)} more** than {base} ({change}; a lower bound, since unsolved "
+                f"seeds count as the budget: {counts}; 95% lower bound {_pct(-row.high)} more; no upper bound can be "
+                f"given).{_stability(row)}"
             )
         if row.verdict == BETTER:
             return (
@@ -616,10 +625,10 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
                 f"{name}: **{_pct(-row.point)} more** than {base} ({change}; 95% CI {_pct(-row.high)} to "
                 f"{_pct(-row.low)} more).{_stability(row)}"
             )
-        bound = " (the variant's IQM is a lower bound)" if row.bound else ""
+        bound = ", the variant's IQM a lower bound" if row.bound else ""
         return (
             f"{name}: not separated ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
-            f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}){counts}."
+            f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''})."
         )
     x, y = _fmt(row.variant_value, 1), _fmt(row.baseline_value, 1)
     interval = f"95% CI {_signed(row.low)} to {_signed(row.high)}"
@@ -674,13 +683,9 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> s
         if len(match):
             first = match.iloc[0]
             if first.verdict in (BETTER, WORSE):
-                fragile = " (fragile)" if first.fragile_seeds else ""
+                notes = (["a bound"] if first.bound else []) + (["fragile"] if first.fragile_seeds else [])
                 word = {BETTER: "better", WORSE: "worse"}[first.verdict]
-                verdict = (
-                    f"{'at least as ' if first.bound else ''}{word}{fragile}"
-                    if not first.bound
-                    else f"{word} (bound){fragile}"
-                )
+                verdict = word + (f" ({'; '.join(notes)})" if notes else "")
             else:
                 verdict = first.verdict
         entry = {"rank": rank, "variant": _esc(row.variant)}
@@ -719,16 +724,15 @@ def limitations(ablation: Ablation, table: pd.DataFrame) -> list[str]:
         + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else "")
     )
     tuned = [k for k in ("learning_rate", "episodes_per_update", "gamma") if k in base]
-    changed = {k for v in variants for k in v["overrides"]}
-    shared = [k for k in tuned if k not in changed]
     touched = [v["name"] for v in variants if any(k in v["overrides"] for k in tuned)]
-    if shared:
-        knobs = ", ".join(f"{k} {base[k]}" for k in shared)
+    architectures = [v for v in variants if "architecture" in _setting_groups(v["overrides"])]
+    if tuned and architectures and len(touched) < len(variants):
+        knobs = ", ".join(f"{k.replace('_', ' ')} {base[k]}" for k in tuned)
         out.append(
             "**One training setting for all architectures.** Every variant"
             + (f" except {', '.join(_esc(t) for t in touched)}" if touched else "")
-            + f" uses the base {knobs}, chosen for the baseline; an architecture that would learn better at its own "
-            "learning rate is judged at the baseline's."
+            + f" trains with the base {knobs}, chosen for the baseline and not tuned per architecture: one that "
+            "would learn better at its own learning rate is judged at the baseline's."
         )
     counts = table.parameter_count.dropna()
     if len(counts) and counts.min() > 0 and counts.max() / counts.min() >= 10:
