@@ -29,9 +29,12 @@ def trial_states(runs: Iterable[TrialRun]) -> dict[str, tuple[str, str]]:
 
 def describe(counts: Counter) -> str:
     """``48 finished, 1 failed`` (states with no trial left out)."""
-    total = sum(counts.values())
     parts = [f"{counts[s]} {s.lower()}" for s in STATES if counts[s]]
-    return f"{total} trial{'s' if total != 1 else ''}" + (f": {', '.join(parts)}" if parts else "")
+    return _count(sum(counts.values()), "trial") + (f": {', '.join(parts)}" if parts else "")
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 'es' if noun.endswith('ch') else 's'}"
 
 
 def _when(ms: int) -> str:
@@ -71,7 +74,9 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     for launch in launches:
         by_generation[launch.generation].append(launch)
     runs = tracker.trial_runs()
-    lines = [f"{name}: {len(launches)} launches in {len(by_generation)} generation(s) (MLflow store: {uri})"]
+    lines = [
+        f"{name}: {_count(len(launches), 'launch')} in {_count(len(by_generation), 'generation')} (MLflow store: {uri})"
+    ]
     newest_generation = launches[-1].generation
     for generation in sorted(by_generation, key=lambda g: by_generation[g][-1].start_time_ms, reverse=True):
         states = trial_states(r for r in runs if r.tags.get("ablate.generation") == generation)
