@@ -210,5 +210,6 @@ def test_progress_view_in_tmux_clock_runs_before_any_trial_ends_and_running_rows
         while time.monotonic() < deadline and "EXIT=" not in (screen := tmux_run("capture-pane", "-p", "-t", "view")):
             time.sleep(0.25)
         assert "EXIT=130" in screen, screen
+        assert re.search(r"^total \d+:\d\d \(until the first trial started \d+:\d\d, trials", screen, re.M), screen
     finally:
         tmux_run("kill-server", check=False)
