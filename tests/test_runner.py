@@ -174,31 +174,40 @@ fault_marker = "{release}"
         preexec_fn=_restore_sigint,
     )
     tracker = Tracker(tracking_uri, "interrupt")
+    try:
 
-    def statuses() -> dict[str, str]:
-        if proc.poll() is not None or not tracker.experiment_id(create=False):
-            return {}
-        return {r.variant: r.status for r in tracker.trial_runs()}
+        def statuses() -> dict[str, str]:
+            if proc.poll() is not None or not tracker.experiment_id(create=False):
+                return {}
+            return {r.variant: r.status for r in tracker.trial_runs()}
 
-    deadline = time.monotonic() + 240
-    seen: dict[str, str] = {}
-    while time.monotonic() < deadline and proc.poll() is None:
-        seen = statuses()
-        if seen == {"quick": "FINISHED", "other": "FINISHED", "blocked": "RUNNING"}:
-            break
-        time.sleep(0.5)
-    assert proc.poll() is None, "the run ended before it could be interrupted: " + proc.stdout.read()
-    assert seen == {"quick": "FINISHED", "other": "FINISHED", "blocked": "RUNNING"}, seen
-    proc.send_signal(signal.SIGINT)
-    output, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 130, output
-    assert "interrupted: 1 running trial(s) marked killed" in output and "Traceback" not in output
+        deadline = time.monotonic() + 240
+        seen: dict[str, str] = {}
+        while time.monotonic() < deadline and proc.poll() is None:
+            seen = statuses()
+            if seen == {"quick": "FINISHED", "other": "FINISHED", "blocked": "RUNNING"}:
+                break
+            time.sleep(0.5)
+        assert proc.poll() is None, "the run ended before it could be interrupted: " + proc.stdout.read()
+        assert seen == {"quick": "FINISHED", "other": "FINISHED", "blocked": "RUNNING"}, seen
+        proc.send_signal(signal.SIGINT)
+        output, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 130, output
+        assert "interrupted: 1 running trial(s) marked killed" in output and "Traceback" not in output
+    finally:  # never leave a blocked child (and its Ray) behind when an assertion fails
+        release.write_text("go\n")
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)  # lets the driver stop the Ray it started
+            try:
+                proc.communicate(timeout=60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
 
     runs = {r.variant: r for r in tracker.trial_runs()}
     assert {v: r.status for v, r in runs.items()} == {"quick": "FINISHED", "other": "FINISHED", "blocked": "KILLED"}
     finished_first = {r.key for r in runs.values() if r.status == "FINISHED"}
 
-    release.write_text("go\n")
     rerun = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, env=env, timeout=300)
     assert rerun.returncode == 0, rerun.stdout + rerun.stderr
     finished = [r.key for r in tracker.trial_runs() if r.status == "FINISHED"]
