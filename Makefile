@@ -5,8 +5,10 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PORT ?= 5000
 TRACKING_URI ?= sqlite:///mlflow.db
+RAY_PORT ?= 6390
+CLUSTER_MLFLOW_PORT ?= 5050
 
-.PHONY: help setup test test-fast lint format bench train ablation-cartpole report mlflow-ui clean
+.PHONY: help setup test test-fast test-cluster cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole report mlflow-ui clean
 
 help: ## this list (generated from the comments after each target's name)
 	@awk '/^[A-Za-z0-9_.-]+:([^=]|$$).*## / {printf "make %-18s %s\n", substr($$0, 1, index($$0, ":") - 1), substr($$0, index($$0, "## ") + 3)}' $(MAKEFILE_LIST)
@@ -26,13 +28,25 @@ test: $(STAMP) ## the whole test suite (a few minutes on 2 cores)
 test-fast: $(STAMP) ## the test suite without the slow learning tests
 	$(BIN)/python -m pytest -q -m "not slow"
 
+test-cluster: $(STAMP) ## two Ray nodes (one sees none of the driver's files), an mlflow server, a lost node (~4 min, root)
+	ABLATE_CLUSTER_TESTS=1 $(BIN)/python -m pytest -q tests/test_cluster.py
+
+cluster-up: $(STAMP) ## a Ray head and an mlflow server on 127.0.0.1 (ports RAY_PORT=6390, CLUSTER_MLFLOW_PORT=5050)
+	$(BIN)/python tools/local_cluster.py up --ray-port $(RAY_PORT) --mlflow-port $(CLUSTER_MLFLOW_PORT)
+
+cluster-down: $(STAMP) ## stop what make cluster-up started
+	$(BIN)/python tools/local_cluster.py down
+
+ablation-cartpole-cluster: $(STAMP) ## experiments/cartpole.toml on the make cluster-up head, tracked on its server
+	$(BIN)/ablate run experiments/cartpole.toml --address 127.0.0.1:$(RAY_PORT) --tracking-uri http://127.0.0.1:$(CLUSTER_MLFLOW_PORT)
+
 lint: $(STAMP) ## ruff check and format check
-	$(BIN)/ruff check ablate tests benchmarks
-	$(BIN)/ruff format --check ablate tests benchmarks
+	$(BIN)/ruff check ablate tests benchmarks tools
+	$(BIN)/ruff format --check ablate tests benchmarks tools
 
 format: $(STAMP) ## ruff format and fix what ruff can
-	$(BIN)/ruff format ablate tests benchmarks
-	$(BIN)/ruff check --fix ablate tests benchmarks
+	$(BIN)/ruff format ablate tests benchmarks tools
+	$(BIN)/ruff check --fix ablate tests benchmarks tools
 
 bench: $(STAMP) ## speed and memory figures (~20 min)
 	$(BIN)/python benchmarks/bench.py

@@ -32,8 +32,9 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def run_node(head: bool, address: str | None, port: int, cpus: float, temp_dir: str | None) -> int:
-    """Start one node bound to 127.0.0.1, print ``ready <node id> <gcs address>``, wait, kill its processes."""
+def run_node(head: bool, address: str | None, port: int, cpus: float, temp_dir: str | None, detached: bool) -> int:
+    """Start one node bound to 127.0.0.1, print ``ready <node id> <gcs address>``, wait for SIGTERM or SIGINT
+    (or, unless ``detached``, the end of stdin: the parent died), then kill the node's processes."""
     import ray._private.ray_constants as ray_constants
 
     # With clusters "disabled" (Ray's macOS default) 127.0.0.1 stays the node's address and every server of
@@ -61,7 +62,8 @@ def run_node(head: bool, address: str | None, port: int, cpus: float, temp_dir: 
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
-    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    if not detached:
+        threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
     print(f"ready {node.node_id} {node.gcs_address}", flush=True)
     stop.wait()
     node.kill_all_processes(check_alive=False, allow_graceful=False)
@@ -108,15 +110,22 @@ def mlflow_server(folder: Path, port: int, backend: str | None = None, log=None)
 
 
 def start_node_process(
-    head: bool, cpus: float, port: int = 0, address: str | None = None, wrap: list[str] | None = None, log=None
+    head: bool,
+    cpus: float,
+    port: int = 0,
+    address: str | None = None,
+    wrap: list[str] | None = None,
+    log=None,
+    detached: bool = False,
 ) -> tuple[subprocess.Popen, str, str]:
     """``node`` in a child process (inside ``wrap``, e.g. an ``unshare`` command); returns it, its node id and
     the cluster's GCS address once the node is up."""
     command = [sys.executable, str(Path(__file__).resolve()), "node", "--cpus", str(cpus)]
     command += ["--head", "--port", str(port)] if head else ["--address", address]
+    command += ["--detached"] if detached else []
     process = subprocess.Popen(
         [*(wrap or []), *command],
-        stdin=subprocess.PIPE,
+        stdin=subprocess.DEVNULL if detached else subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=log,
         text=True,
@@ -148,15 +157,24 @@ def up(ray_port: int, mlflow_port: int, cpus: float) -> int:
     folder.mkdir(exist_ok=True)
     log = open(folder / "cluster.log", "a")  # noqa: SIM115 - stays open in the children
     server = mlflow_server(folder / "mlflow", mlflow_port, log=log)
-    head, node_id, gcs = start_node_process(True, cpus, port=ray_port, log=log)
+    try:
+        head, node_id, gcs = start_node_process(True, cpus, port=ray_port, log=log, detached=True)
+    except RuntimeError as error:
+        stop_process(server)
+        print(f"{error} ({folder}/cluster.log)", file=sys.stderr)
+        return 1
     STATE.write_text(
         json.dumps({"pids": [head.pid, server.pid], "ray": gcs, "mlflow": f"http://127.0.0.1:{mlflow_port}"})
     )
-    wait_http(f"http://127.0.0.1:{mlflow_port}/health", 120, server)
-    head.stdin.close = lambda: None  # the node runs on after this process exits: it stops on SIGTERM
+    try:
+        wait_http(f"http://127.0.0.1:{mlflow_port}/health", 120, server)
+    except (RuntimeError, TimeoutError) as error:
+        down()
+        print(f"mlflow server: {error} (port {mlflow_port} taken? see {folder}/cluster.log)", file=sys.stderr)
+        return 1
     print(f"Ray head {gcs} (node {node_id[:8]}), MLflow http://127.0.0.1:{mlflow_port}; logs in {folder}/cluster.log")
     print(f"  ablate run experiments/cartpole.toml --address {gcs} --tracking-uri http://127.0.0.1:{mlflow_port}")
-    os._exit(0)  # leave the children running (no stdin EOF, no atexit)
+    return 0
 
 
 def down() -> int:
@@ -192,6 +210,7 @@ def main() -> int:
     node.add_argument("--port", type=int, default=0)
     node.add_argument("--cpus", type=float, default=1)
     node.add_argument("--temp-dir")
+    node.add_argument("--detached", action="store_true", help="keep running when stdin ends (make cluster-up)")
     start = commands.add_parser("up")
     start.add_argument("--ray-port", type=int, default=6390)
     start.add_argument("--mlflow-port", type=int, default=5050)
@@ -199,7 +218,7 @@ def main() -> int:
     commands.add_parser("down")
     args = parser.parse_args()
     if args.command == "node":
-        return run_node(args.head, args.address, args.port or free_port(), args.cpus, args.temp_dir)
+        return run_node(args.head, args.address, args.port or free_port(), args.cpus, args.temp_dir, args.detached)
     if args.command == "up":
         return up(args.ray_port, args.mlflow_port, args.cpus)
     return down()
