@@ -169,7 +169,15 @@ def build_parser() -> argparse.ArgumentParser:
         "cluster), track each in MLflow, show a live progress view, and write the report at the end.",
     )
     run.add_argument("experiment", type=Path, help="e.g. experiments/cartpole.toml")
-    run.add_argument("--address", help="join this Ray cluster, e.g. auto (default: start a local one)")
+    run.add_argument(
+        "--address", help="join this Ray cluster, host:port or auto (default: RAY_ADDRESS, else a new local Ray)"
+    )
+    run.add_argument(
+        "--storage-path",
+        dest="storage_path",
+        default="ray_results",
+        help="Tune's bookkeeping folder, on the driver (an NFS path or s3:// if you have one; artifacts never use it)",
+    )
     run.add_argument("--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
     run.add_argument("--fresh", action="store_true", help="start over under a new parent run (a new generation)")
     run.add_argument("--max-concurrent", dest="max_concurrent", type=int, help="trials at once (default: CPUs)")

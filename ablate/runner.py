@@ -242,6 +242,7 @@ def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
             command=command,
             only=chosen,
             started_at=started_at,
+            storage_path=getattr(args, "storage_path", "ray_results"),
         )
     except ClusterUnavailable as error:
         sys.stderr.write(f"ablate run: {error}\n")

@@ -36,6 +36,9 @@ TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed",
 TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
 TAG_NODE = "ablate.node"
 _BATCH = 1000  # MLflow's limit of metrics per log_batch call
+FLUSH_EVERY_S = 10.0
+"""Seconds a trial's curve points wait to be written together: one MLflow call costs ~4 ms plus ~50 us per
+value, so a trial that reports every 2 s is written in a fifth of the calls; a trial's end flushes it."""
 
 
 def _quiet_mlflow() -> None:
@@ -43,6 +46,32 @@ def _quiet_mlflow() -> None:
     os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.WARNING)
+    _sqlite_write_ahead_log()
+
+
+def _sqlite_write_ahead_log() -> None:
+    """SQLite stores in write-ahead-log mode with ``synchronous=NORMAL``: a commit appends to the log instead
+    of syncing the database and its journal to disk, 3-4x less wall time per MLflow call on this machine
+    (``make bench``, section ``tracking``). A crash of the process or the OS loses at most the last commits,
+    never the database's consistency. WAL needs a local disk (not NFS), as SQLite's locking already does."""
+    import sqlite3
+
+    from sqlalchemy import event
+    from sqlalchemy.engine import Engine
+
+    if getattr(_sqlite_write_ahead_log, "installed", False):
+        return
+
+    @event.listens_for(Engine, "connect")
+    def _pragmas(connection: Any, record: Any) -> None:
+        if isinstance(connection, sqlite3.Connection):
+            try:
+                connection.execute("PRAGMA journal_mode=WAL")
+                connection.execute("PRAGMA synchronous=NORMAL")
+            except sqlite3.Error:  # a read-only store keeps its mode; reading needs none of this
+                pass
+
+    _sqlite_write_ahead_log.installed = True
 
 
 @dataclass
@@ -113,6 +142,8 @@ class Tracker:
         self._experiment_id: str | None = None
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
+        self._points: dict[str, tuple[list[Any], float, int]] = {}
+        """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
 
     # --- experiment -------------------------------------------------------------------------------
     def experiment_id(self, create: bool = True) -> str | None:
@@ -203,14 +234,30 @@ class Tracker:
         run_id = run.info.run_id
         self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
+        self._points[key] = ([], time.monotonic(), run.info.start_time)
         return run_id
 
     def log_points(self, key: str, points: Sequence[Any]) -> None:
-        """``POINT_METRICS`` of each curve point (``ablate.curve.CurvePoint``) of an open trial, in one batch."""
-        self._log_metrics(
-            self.open_runs[key],
-            ((metric, float(getattr(p, attr)), p.episode) for p in points for metric, attr in POINT_METRICS.items()),
-        )
+        """``POINT_METRICS`` of each curve point (``ablate.curve.CurvePoint``) of an open trial; written
+        ``FLUSH_EVERY_S`` at a time (and when the trial ends), each point timestamped at its own moment in
+        the trial (run start + the point's ``wall_s``) so MLflow's time axes show the curve."""
+        pending, flushed_at, _ = self._points[key]
+        pending.extend(points)
+        if time.monotonic() - flushed_at >= FLUSH_EVERY_S:
+            self._flush_points(key, self.open_runs[key])
+
+    def _flush_points(self, key: str, run_id: str) -> None:
+        from mlflow.entities import Metric
+
+        pending, _, start_ms = self._points.get(key, ([], 0.0, 0))
+        self._points[key] = ([], time.monotonic(), start_ms)
+        metrics = [
+            Metric(metric, float(getattr(p, attr)), start_ms + int(1000 * p.wall_s), int(p.episode))
+            for p in pending
+            for metric, attr in POINT_METRICS.items()
+        ]
+        for start in range(0, len(metrics), _BATCH):
+            self.client.log_batch(run_id, metrics=metrics[start : start + _BATCH])
 
     def log_checkpoint(self, key: str, blob: bytes) -> None:
         """Keep ``blob`` as the open trial's ``checkpoint.pt`` (replacing the previous one): whatever ends the
@@ -233,16 +280,28 @@ class Tracker:
     def finish_trial(
         self, key: str, summary: dict[str, float], artifacts: Path | None, tags: dict[str, str] | None = None
     ) -> None:
-        run_id = self.open_runs.pop(key)
-        self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
-        for name, value in (tags or {}).items():
-            self.client.set_tag(run_id, name, value)
+        from mlflow.entities import Metric, RunTag
+
+        run_id = self._close(key)
+        now = int(time.time() * 1000)
+        self.client.log_batch(
+            run_id,
+            metrics=[Metric(k, float(v), now, 0) for k, v in summary.items()],
+            tags=[RunTag(k, v) for k, v in (tags or {}).items()],
+        )
         if artifacts is not None:
             self.client.log_artifacts(run_id, str(artifacts))
         self.client.set_terminated(run_id, "FINISHED")
 
-    def fail_trial(self, key: str, message: str) -> None:
+    def _close(self, key: str) -> str:
+        """Write the trial's pending points and forget it as open; its run id."""
         run_id = self.open_runs.pop(key)
+        self._flush_points(key, run_id)
+        self._points.pop(key, None)
+        return run_id
+
+    def fail_trial(self, key: str, message: str) -> None:
+        run_id = self._close(key)
         self.client.set_tag(run_id, TAG_ERROR, message[:5000])
         self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
         self.client.set_terminated(run_id, "FAILED")
@@ -251,6 +310,7 @@ class Tracker:
         """A trial whose process died restarts from scratch: its partial run is closed and soft-deleted so
         no metric is counted twice; the restart opens a new run (``ablate.attempt`` counts them)."""
         run_id = self.open_runs.pop(key, None)
+        self._points.pop(key, None)
         if run_id is not None:
             self.client.set_tag(run_id, TAG_ERROR, f"process died, retried: {reason}"[:5000])
             self.client.set_terminated(run_id, "KILLED")
@@ -259,7 +319,7 @@ class Tracker:
     def kill_open_trials(self) -> list[str]:
         killed = list(self.open_runs)
         for key in killed:
-            run_id = self.open_runs.pop(key)
+            run_id = self._close(key)
             self.client.set_tag(run_id, TAG_ERROR, "interrupted (Ctrl-C); a re-run starts it again")
             self.client.set_terminated(run_id, "KILLED")
         return killed

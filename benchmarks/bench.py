@@ -1,7 +1,9 @@
 """`make bench`: speed and memory figures, measured in one process run, medians over several runs.
 
-Sections: `core` (course-style loop vs our trial, time to solve CartPole-v1), and the sections that the
-runner and the report add. `python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
+Sections: `core` (course-style loop vs our trial, time to solve CartPole-v1), `runner`, `ablation` (the
+default ablation: speed-up, tracking overhead, memory), `tracking` (the single writer with 256 synthetic
+trials), `cluster` (a tiny ablation on the local default vs a joined head and a tracking server).
+`python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
 """
 
 from __future__ import annotations
@@ -84,9 +86,10 @@ class _TimedEvents:
         if self.first_start is None:
             self.first_start = time.perf_counter() - self.created
 
-    def episodes(self, key, rows): ...
+    def episodes(self, key, points): ...
+    def checkpoint(self, key, blob): ...
     def restarted(self, key, reason): ...
-    def finished(self, key, summary, artifacts): ...
+    def finished(self, key, summary, artifacts, node): ...
     def failed(self, key, message):
         raise RuntimeError(f"benchmark trial {key} failed: {message}")
 
@@ -184,7 +187,15 @@ def _tracked_run(experiment_path: str, folder: Path) -> tuple[float, float, floa
 
     in_tracker = [0.0]
     originals = {}
-    for name in ("start_trial", "log_episodes", "finish_trial", "fail_trial", "start_launch", "finish_launch"):
+    for name in (
+        "start_trial",
+        "log_points",
+        "log_checkpoint",
+        "finish_trial",
+        "fail_trial",
+        "start_launch",
+        "finish_launch",
+    ):
         original = getattr(Tracker, name)
         originals[name] = original
 
@@ -312,7 +323,160 @@ def bench_ablation(repeats: int = 1) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-SECTIONS = {"core": bench_core, "runner": bench_runner, "ablation": bench_ablation}
+def _cartpole_stream() -> tuple[list, float, Path]:
+    """One default CartPole-v1 trial's episodes as they came (each update's rows, with its clock), its wall
+    time, and its artifacts folder (a real episodes.csv, weights, curve): what a synthetic trial replays."""
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp(prefix="ablate-bench-artifacts-"))
+    updates: list = []
+    started = time.perf_counter()
+    result = run_trial(
+        replace(DEFAULT, env_id="CartPole-v1", seed=0, solve_threshold=1e9, record_video=False),
+        on_episodes=lambda rows: updates.append((time.perf_counter() - started, list(rows))),
+        artifacts_dir=folder,
+    )
+    return updates, result.wall_s, folder
+
+
+def _writer_run(trials: int, seconds: float, trial_wall: float, reports: list, artifacts: Path, folder: Path) -> dict:
+    """``trials`` synthetic trials at once, each replaying ``reports`` ((s into the trial, curve points)) and
+    ending at ``trial_wall`` (then a new one starts), through the real recorder and tracker on one thread."""
+    import queue
+    import threading
+
+    from ablate.grid import GridTrial
+    from ablate.progress import ProgressView
+    from ablate.runner import RunOutcome, _Recorder
+    from ablate.scheduler import REPORT_EVERY_S
+    from ablate.tracking import Tracker
+
+    tracker = Tracker(f"sqlite:///{folder / 'mlflow.db'}", "bench-tracking")
+    launch = tracker.start_launch("g", "bench", {}, {})
+    config = replace(DEFAULT, env_id="CartPole-v1")
+    summary = {"solved": 0.0, "episodes_run": 1.0, "wall_s": trial_wall}
+    grid: dict[str, GridTrial] = {}
+    schedule = []
+    for i in range(trials):
+        begin = (i / trials) * REPORT_EVERY_S  # staggered, as trials started by Tune are
+        while begin < seconds:
+            key = f"synthetic-{len(grid)}"
+            grid[key] = GridTrial(key, "synthetic", len(grid), config)
+            schedule.append((begin, 0, key, None))
+            schedule += [(begin + at, 1, key, points) for at, points in reports if points]
+            schedule.append((begin + trial_wall, 2, key, None))
+            begin += trial_wall
+    schedule = sorted((e for e in schedule if e[0] < seconds), key=lambda e: e[0])
+    outcome = RunOutcome("bench-tracking", "g", launch, 0, 0, "")
+    recorder = _Recorder(
+        tracker, launch, "g", grid, "commit", ProgressView("b", list(grid.values()), 0, False), outcome
+    )
+    events: queue.Queue = queue.Queue()
+    lags: list[float] = []
+    cpu = [0.0]
+
+    def writer() -> None:
+        while (item := events.get()) is not None:
+            due, kind, key, payload = item
+            began = time.thread_time()
+            if kind == 0:
+                recorder.started(key)
+            elif kind == 1:
+                recorder.episodes(key, payload)
+            else:
+                recorder.finished(key, summary, artifacts, "node")
+            cpu[0] += time.thread_time() - began
+            lags.append(time.perf_counter() - due)
+
+    thread = threading.Thread(target=writer)
+    thread.start()
+    started = time.perf_counter()
+    for at, kind, key, payload in schedule:
+        delay = started + at - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        events.put((started + at, kind, key, payload))
+    wall = time.perf_counter() - started
+    events.put(None)
+    thread.join()
+    lags.sort()
+    return {
+        "writer_cores": cpu[0] / wall,
+        "lag_median_s": lags[len(lags) // 2],
+        "lag_p99_s": lags[int(len(lags) * 0.99)],
+        "backlog_s": time.perf_counter() - started - wall,
+        "trials_finished": len(outcome.finished),
+        "trials_started": sum(1 for e in schedule if e[1] == 0),
+    }
+
+
+def bench_tracking(trials: int = 256, seconds: float = 60.0) -> None:
+    """The single writer (``ablate run``'s recorder and MLflow tracker, on the driver) fed by ``trials``
+    synthetic trials at once, streaming at the measured rate of a real default CartPole trial, into a fresh
+    SQLite store for ``seconds``: (a) long trials (the whole run: ``rate x seconds`` episodes each, reduced
+    in the "worker" to the same <= 100 curve points), the cost per streamed episode; (b) trials exactly as
+    long as the real one, each replaced when it ends, adding each run's start and finish with artifacts.
+    Figures: the writer thread's CPU (cores) and the lag of events behind their schedule (keeping up: the
+    lag stays within a flush interval, no backlog at the end). Tune's own per-result cost is not included."""
+    import shutil
+    import tempfile
+
+    from ablate.curve import CURVE_POINTS, CurvePoint, CurveReducer
+    from ablate.scheduler import REPORT_EVERY_S
+
+    updates, trial_wall, artifacts = _cartpole_stream()
+    episodes = sum(len(rows) for _, rows in updates)
+    rate = episodes / trial_wall
+    reducer = CurveReducer(DEFAULT.max_episodes)
+    real: list[tuple[float, list]] = []  # what the worker sends: every REPORT_EVERY_S, the points so far
+    pending, last = [], 0.0
+    for at, rows in updates:
+        pending += reducer.add(rows)
+        if at - last >= REPORT_EVERY_S:
+            real.append((at, pending))
+            pending, last = [], at
+    real.append((trial_wall, pending + reducer.flush()))
+    print(f"  a default CartPole-v1 trial: {episodes} episodes in {trial_wall:.1f} s ({rate:,.0f} episodes/s)")
+    reports_per_trial = int(seconds / REPORT_EVERY_S)
+    per_report = CURVE_POINTS / reports_per_trial
+    template = real[-1][1][-1]
+    long = [
+        (
+            REPORT_EVERY_S * (r + 1),
+            [template._replace(episode=int(rate * REPORT_EVERY_S * (r + 1)))]
+            * int((r + 1) * per_report - int(r * per_report)),
+        )
+        for r in range(reports_per_trial)
+    ]
+    assert all(isinstance(p, CurvePoint) for _, points in long for p in points)
+    figures = {}
+    try:
+        for name, wall, reports in (("long", seconds + 1, long), ("cartpole-length", trial_wall, real)):
+            folder = Path(tempfile.mkdtemp(prefix="ablate-bench-"))
+            try:
+                figures[name] = run = _writer_run(trials, seconds, wall, reports, artifacts, folder)
+            finally:
+                shutil.rmtree(folder, ignore_errors=True)
+            print(
+                f"  {name} trials: {run['trials_started']} started, {run['trials_finished']} finished in "
+                f"{seconds:.0f} s;"
+                f" writer CPU {run['writer_cores']:.2f} cores; lag median {run['lag_median_s']:.2f} s, p99 "
+                f"{run['lag_p99_s']:.2f} s; backlog at the end {run['backlog_s']:.1f} s",
+                flush=True,
+            )
+    finally:
+        shutil.rmtree(artifacts, ignore_errors=True)
+    long_run, short_run = figures["long"], figures["cartpole-length"]
+    print(
+        f"tracking: {trials} concurrent trials at {rate:,.0f} episodes/s each ({trials * rate:,.0f} episodes/s): "
+        f"long trials, writer {long_run['writer_cores']:.2f} cores (lag p99 {long_run['lag_p99_s']:.2f} s); "
+        f"{trial_wall:.0f}-s trials replaced as they end, writer {short_run['writer_cores']:.2f} cores "
+        f"(backlog {short_run['backlog_s']:.0f} s)"
+    )
+    RESULTS["tracking"] = {"trials": trials, "episodes_per_s_per_trial": rate, **figures}
+
+
+SECTIONS = {"core": bench_core, "runner": bench_runner, "ablation": bench_ablation, "tracking": bench_tracking}
 
 
 def main() -> int:

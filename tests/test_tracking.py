@@ -26,6 +26,9 @@ def test_each_point_logs_every_curve_metric_at_its_last_episode(tracking_uri):
         history = tracker.metric_history(run_id, metric)
         assert history == [(p.episode, pytest.approx(float(getattr(p, attr)))) for p in points], metric
     assert tracker.client.get_run(run_id).data.tags["ablate.node"] == "n1"
+    start_ms = tracker.client.get_run(run_id).info.start_time
+    stamps = [m.timestamp for m in tracker.client.get_metric_history(run_id, "episode/return")]
+    assert stamps == [start_ms + int(1000 * p.wall_s) for p in points]  # each point at its moment in the trial
 
 
 def test_a_killed_run_keeps_its_latest_checkpoint_for_the_next_launch(tracking_uri):
