@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import statistics
 import sys
 import time
@@ -476,7 +477,89 @@ def bench_tracking(trials: int = 256, seconds: float = 60.0) -> None:
     RESULTS["tracking"] = {"trials": trials, "episodes_per_s_per_trial": rate, **figures}
 
 
-SECTIONS = {"core": bench_core, "runner": bench_runner, "ablation": bench_ablation, "tracking": bench_tracking}
+TINY = """
+name = "bench-cluster"
+seeds = 2
+[base]
+env_id = "CartPole-v1"
+max_episodes = 200
+episodes_per_update = 16
+video_max_frames = 100
+[[variants]]
+name = "narrow"
+hidden_sizes = [16]
+[[variants]]
+name = "deep"
+hidden_sizes = [32, 32]
+"""
+
+
+def bench_cluster(repeats: int = 3) -> None:
+    """A tiny ablation (4 trials) end to end, interleaved per repeat: the local default (a fresh local Ray,
+    an SQLite store) vs the cluster path (joining a running head node on 127.0.0.1 with this machine's
+    cores, tracked on an ``mlflow server`` with served artifacts). The head and server are started once,
+    outside the timing, as they are in use; the local default pays Ray's start, as a user does."""
+    import shutil
+    import tempfile
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+    import local_cluster
+
+    from ablate.config import load_experiment
+    from ablate.runner import run_experiment
+
+    folder = Path(tempfile.mkdtemp(prefix="ablate-bench-"))
+    log = open(folder / "cluster.log", "w")  # noqa: SIM115 - closed below
+    port = local_cluster.free_port()
+    server = local_cluster.mlflow_server(folder / "server", port, log=log)
+    head, _, gcs = local_cluster.start_node_process(True, os.cpu_count(), port=local_cluster.free_port(), log=log)
+    try:
+        local_cluster.wait_http(f"http://127.0.0.1:{port}/health", 120, server)
+        (folder / "tiny.toml").write_text(TINY)
+        experiment = load_experiment(folder / "tiny.toml")
+        ratios = []
+        for i in range(repeats):
+            walls = {}
+            for path, uri, address in (
+                ("local", f"sqlite:///{folder / f'local-{i}.db'}", None),
+                ("cluster", f"http://127.0.0.1:{port}", gcs),
+            ):
+                started = time.perf_counter()
+                outcome = run_experiment(
+                    experiment,
+                    tracking_uri=uri,
+                    address=address,
+                    fresh=True,
+                    storage_path=str(folder / "ray"),
+                    show_progress=False,
+                )
+                walls[path] = time.perf_counter() - started
+                assert outcome.exit_code == 0, outcome.failed
+            ratios.append(walls["cluster"] / walls["local"] - 1)
+            print(
+                f"  4 trials: local default {walls['local']:.1f} s, joined head + tracking server "
+                f"{walls['cluster']:.1f} s ({100 * ratios[-1]:+.0f}%)",
+                flush=True,
+            )
+    finally:
+        local_cluster.stop_process(head)
+        local_cluster.stop_process(server)
+        log.close()
+        shutil.rmtree(folder, ignore_errors=True)
+    print(
+        f"cluster: the cluster path vs the local default on a 4-trial ablation, "
+        f"median {100 * statistics.median(ratios):+.0f}%"
+    )
+    RESULTS["cluster"] = {"overhead_median": statistics.median(ratios), "overheads": ratios}
+
+
+SECTIONS = {
+    "core": bench_core,
+    "runner": bench_runner,
+    "ablation": bench_ablation,
+    "tracking": bench_tracking,
+    "cluster": bench_cluster,
+}
 
 
 def main() -> int:

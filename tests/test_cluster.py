@@ -21,13 +21,17 @@ pytestmark = pytest.mark.skipif(
 )
 ROOT = local_cluster.ROOT
 # The worker node's view: empty /tmp, /dev/shm and project folder, except the code a worker needs installed
-# (the virtualenv, ablate/, tools/). The driver's store, Tune's folder and every temp folder are out of sight.
+# (the virtualenv, ablate/, tools/) and the test's control folder (the files that release blocked trials).
+# The server's store, the driver's folders, Tune's and every temp folder are out of its sight.
 PRIVATE_MOUNTS = f"""set -e
+mount -t tmpfs keep /mnt
+for d in .venv ablate tools; do mkdir -p /mnt/$d; mount --bind "{ROOT}/$d" /mnt/$d; done
+mkdir /mnt/control; mount --bind "$CONTROL" /mnt/control
 mount -t tmpfs worker-private /tmp
 mount -t tmpfs worker-private /dev/shm
-for d in .venv ablate tools; do mkdir -p /tmp/.keep/$d; mount --bind "{ROOT}/$d" /tmp/.keep/$d; done
 mount -t tmpfs worker-private "{ROOT}"
-for d in .venv ablate tools; do mkdir "{ROOT}/$d"; mount --move /tmp/.keep/$d "{ROOT}/$d"; done
+for d in .venv ablate tools; do mkdir "{ROOT}/$d"; mount --move /mnt/$d "{ROOT}/$d"; done
+mkdir -p "$CONTROL"; mount --move /mnt/control "$CONTROL"
 test ! -e "$PROBE"
 exec "$@"
 """
@@ -59,9 +63,12 @@ def cluster(tmp_path):
         head, head_id, gcs = local_cluster.start_node_process(True, 1, port=local_cluster.free_port(), log=log)
         processes.append(head)
         probe = tmp_path / "server"  # the tracking server's files: the worker node must not see them
+        control = tmp_path / "control"
+        control.mkdir()
         wrap = [
             "env",
             f"PROBE={probe}",
+            f"CONTROL={control}",
             "unshare",
             "--mount",
             "--propagation",
@@ -82,6 +89,7 @@ def cluster(tmp_path):
             "worker_process": worker,
             "processes": processes,
             "tmp": tmp_path,
+            "control": control,
         }
     finally:
         for process in reversed(processes):
@@ -108,6 +116,13 @@ def _finish(process, timeout_s=240):
     return process.returncode, output
 
 
+def _wait_running(tracker, count, launch, timeout_s=300):
+    deadline = time.monotonic() + timeout_s
+    while sum(r.status == "RUNNING" for r in tracker.trial_runs()) < count:
+        assert launch.poll() is None and time.monotonic() < deadline, _finish(launch)[1]
+        time.sleep(0.5)
+
+
 def _listening(pids):
     """Local addresses of every TCP socket our processes (and their descendants) listen on."""
     family = set()
@@ -127,8 +142,13 @@ def _listening(pids):
 
 
 def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
-    # 1. Trials on both nodes, every run, metric and artifact on the server.
-    code, output = _finish(_ablate(cluster, "spread", episodes=200))
+    # 1. Trials on both nodes (each blocks until both run: one per node, 1 CPU each), every run, metric and
+    #    artifact on the server.
+    marker = cluster["control"] / "release"
+    launch = _ablate(cluster, "spread", episodes=200, extra=f'fault = "block"\nfault_marker = "{marker}"')
+    _wait_running(Tracker(cluster["uri"], "spread"), 2, launch)
+    marker.write_text("go\n")
+    code, output = _finish(launch)
     assert code == 0, output
     tracker = Tracker(cluster["uri"], "spread")
     runs = tracker.trial_runs(with_artifacts=True)
@@ -147,10 +167,7 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     launch = _ablate(cluster, "lost", episodes=20, extra=f'fault = "block"\nfault_marker = "{marker}"')
     try:
         lost = Tracker(cluster["uri"], "lost")
-        deadline = time.monotonic() + 300
-        while sum(r.status == "RUNNING" for r in lost.trial_runs()) < 2:
-            assert launch.poll() is None and time.monotonic() < deadline, _finish(launch)[1]
-            time.sleep(0.5)
+        _wait_running(lost, 2, launch)
         pids = [p.pid for p in cluster["processes"]] + [launch.pid]
         addresses = _listening(pids)
         assert addresses and set(addresses) <= {"127.0.0.1", "[::ffff:127.0.0.1]"}, addresses
