@@ -21,6 +21,7 @@ _NUMPY_ACTIVATIONS = {
     nn.Tanh: np.tanh,
     nn.ELU: lambda x: np.where(x > 0, x, np.expm1(np.minimum(x, 0))),
     nn.Dropout: lambda x: x,  # acting is in eval mode: dropout is the identity
+    nn.Flatten: lambda x: x.reshape(len(x), -1),  # Pong's MLP: (batch, 1, 80, 80) -> (batch, 6400)
 }
 
 
@@ -33,6 +34,7 @@ class Policy(nn.Module):
         self.observation_shape = tuple(observation_shape)
         self._numpy_layers: list | None = None
         self._numpy_versions: tuple[int, ...] = ()
+        self._parameters_list: list[nn.Parameter] | None = None
         self._numpy_ok = isinstance(body, nn.Sequential) and all(
             isinstance(m, nn.Linear) or type(m) in _NUMPY_ACTIVATIONS for m in body
         )
@@ -44,10 +46,15 @@ class Policy(nn.Module):
         """Logits for acting: eval mode, no autograd. A dense body runs in numpy on a copy of the weights,
         refreshed whenever a parameter changes (torch's per-call overhead is most of the cost of a forward
         through a network this small, once per environment step); any other body runs through torch."""
-        if not self._numpy_ok:
+        if self._parameters_list is None:
+            # Cached: walking the module tree for its parameters costs ~70 us, more than the forward itself.
+            self._parameters_list = list(self.parameters())
+        parameters = self._parameters_list
+        if not self._numpy_ok or parameters[0].device.type != "cpu":  # a conv body, or a policy on a GPU
             with torch.inference_mode():
-                return self.body(torch.from_numpy(observations)).numpy()
-        versions = tuple(p._version for p in self.parameters())
+                inputs = torch.from_numpy(observations).to(parameters[0].device, torch.float32)
+                return self.body(inputs).float().cpu().numpy()
+        versions = tuple(p._version for p in parameters)
         if self._numpy_layers is None or versions != self._numpy_versions:
             self._numpy_layers = [
                 (m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy())
@@ -58,8 +65,27 @@ class Policy(nn.Module):
             self._numpy_versions = versions
         x = observations
         for layer in self._numpy_layers:
-            x = x @ layer[0] + layer[1] if isinstance(layer, tuple) else layer(x)
+            if isinstance(layer, tuple):
+                x = _sparse_matmul(x, layer[0]) if x.dtype == np.int8 else x.astype(np.float32, copy=False) @ layer[0]
+                x += layer[1]
+            else:
+                x = layer(x)
         return x
+
+
+def _sparse_matmul(x: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """``x @ weight`` for an int8 batch that is mostly zeros (Pong's frame differences: a few dozen of 6,400
+    pixels change between frames): the sum of the weight rows of the non-zero pixels, ~10x faster than a
+    dense product for a batch of 8. Dense when a quarter or more of ``x`` is non-zero."""
+    rows, columns = np.nonzero(x)
+    if len(rows) * 4 >= x.size:
+        return x.astype(np.float32) @ weight
+    out = np.zeros((len(x), weight.shape[1]), np.float32)
+    if len(rows):
+        contributions = weight[columns] * x[rows, columns].astype(np.float32)[:, None]
+        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+        out[rows[starts]] = np.add.reduceat(contributions, starts, axis=0)
+    return out
 
 
 def parameter_count(model: nn.Module) -> int:
