@@ -6,10 +6,11 @@ STAMP := $(VENV)/.installed
 PORT ?= 5000
 TRACKING_URI ?= sqlite:///mlflow.db
 
-.PHONY: help setup test test-fast lint format bench train ablation-cartpole report mlflow-ui clean
+.PHONY: help setup test test-fast lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
 
 help:
 	@echo "make ablation-cartpole  run experiments/cartpole.toml on a local Ray, track in MLflow, write the report"
+	@echo "make ablation-pong      run experiments/pong.toml (CNN vs MLP on Pong; about an hour on 2 cores)"
 	@echo "make test               the test suite (sets up .venv first)"
 	@echo "make train              one CartPole trial: curve, video, weights in outputs/train/"
 	@echo "make report             rebuild reports/cartpole/ from the MLflow store"
@@ -48,6 +49,9 @@ train: $(STAMP)
 
 ablation-cartpole: $(STAMP)
 	$(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
+
+ablation-pong: $(STAMP)
+	$(BIN)/ablate run experiments/pong.toml --tracking-uri $(TRACKING_URI)
 
 report: $(STAMP)
 	$(BIN)/ablate report experiments/cartpole.toml --tracking-uri $(TRACKING_URI)

@@ -153,7 +153,9 @@ def train_step(
     policy_loss_sum, entropy_sum = 0.0, 0.0
     for start in range(0, max(total, 1), step):
         end = min(start + step, total)
-        chunk = torch.as_tensor(observations[start:end]).to(device, torch.float32)
+        chunk = torch.as_tensor(observations[start:end]).to(device)
+        if chunk.dtype != torch.int8:  # int8 (Pong's frame differences): the policy takes them as they are
+            chunk = chunk.float()
         logits = model(chunk)
         actions_t = torch.as_tensor(actions[start:end], dtype=torch.int64, device=device)
         weights = torch.as_tensor(discounted_rewards[start:end], dtype=torch.float32, device=device)
