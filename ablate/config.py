@@ -16,7 +16,7 @@ from typing import Any
 SUPPORTED_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
 ARCHITECTURES = ("mlp", "cnn")
 ACTIVATIONS = ("relu", "tanh", "elu", "gelu")
-FAULTS = ("", "crash_once", "raise")
+FAULTS = ("", "crash_once", "raise", "block")
 # --- Pong env knobs (issue 9) ---
 PONG_ACTION_SETS = ("all", "move")
 """``all``: Pong's 6 actions; ``move``: only UP and DOWN (ALE actions 2 and 3), as in Karpathy's pg-pong."""
@@ -77,9 +77,9 @@ class TrialConfig:
     """Cap on the video's length in frames (25 fps for CartPole: 500 frames show a whole 1,000-step episode)."""
     fault: str = ""
     """Test-only: ``crash_once`` kills the trial's process the first time, ``raise`` raises after the first
-    update. Never set it in a real experiment."""
+    update, ``block`` waits until ``fault_marker`` exists. Never set it in a real experiment."""
     fault_marker: str = ""
-    """Test-only: a file path ``crash_once`` uses to remember it already crashed."""
+    """Test-only: a file path ``crash_once`` uses to remember it already crashed, ``block`` waits for."""
 
     # --- Pong env, collection, videos and checkpoints (issue 9); CartPole ignores the Pong-only ones ---
     action_set: str = "all"
@@ -152,7 +152,7 @@ KNOBS: dict[str, Knob] = {
     "seed": Knob("trial", lambda v: _is_int(v) and 0 <= v < 2**31, "an integer in [0, 2**31)"),
     "record_video": Knob("trial", lambda v: isinstance(v, bool), "true or false"),
     "video_max_frames": Knob("trial", lambda v: _is_int(v) and 1 <= v <= 100_000, "an integer in [1, 100000]"),
-    "fault": Knob("trial", lambda v: v in FAULTS, "one of '', 'crash_once', 'raise' (tests only)"),
+    "fault": Knob("trial", lambda v: v in FAULTS, "one of '', 'crash_once', 'raise', 'block' (tests only)"),
     "fault_marker": Knob("trial", lambda v: isinstance(v, str), "a file path (tests only)"),
     # --- Pong env, collection, videos and checkpoints (issue 9) ---
     "action_set": Knob("trial", lambda v: v in PONG_ACTION_SETS, "'all' (6 actions) or 'move' (UP and DOWN)"),

@@ -5,12 +5,17 @@ Everything here turns a Gymnasium env into the observations a policy from ``poli
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
 
 from ablate.config import ModelConfig
+
+# Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
+# display and prints "XDG_RUNTIME_DIR is invalid or not set" on a headless machine.
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 
 
 @dataclass(frozen=True)

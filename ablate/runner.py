@@ -14,12 +14,13 @@ import subprocess
 import sys
 import time
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
-from ablate.grid import GridTrial, expand
-from ablate.progress import ProgressView
+from ablate.grid import GridTrial, expand, select
+from ablate.progress import ProgressView, clock, stage
 from ablate.scheduler import ClusterOptions, run_trials
 from ablate.tracking import Tracker
 from ablate.trial import EpisodeMetrics
@@ -40,6 +41,8 @@ class RunOutcome:
     failed: dict[str, str] = field(default_factory=dict)
     killed: list[str] = field(default_factory=list)
     interrupted: bool = False
+    view: ProgressView | None = field(default=None, repr=False)
+    """The launch's progress view (its clock and stage times), when trials ran."""
 
     @property
     def exit_code(self) -> int:
@@ -74,7 +77,7 @@ PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", 
 
 
 def environment_document() -> dict:
-    """Where the launch ran: Python, package versions, machine."""
+    """Where the launch ran: Python, package versions, machine, CPU model and the CPU kernels torch uses."""
     from importlib.metadata import PackageNotFoundError, version
 
     packages = {}
@@ -83,10 +86,19 @@ def environment_document() -> dict:
             packages[name] = version(name)
         except PackageNotFoundError:
             packages[name] = "not installed"
+    import torch
+
+    # Float kernels differ by CPU: the model and the kernels torch picks say where the results were produced.
+    cpuinfo = Path("/proc/cpuinfo")
+    lines = cpuinfo.read_text().splitlines() if cpuinfo.is_file() else []
+    models = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
+    cpu_model = models[0] if models else platform.processor() or "unknown"
     return {
         "python": platform.python_version(),
         "packages": packages,
         "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} CPUs ({platform.platform()})",
+        "cpu_model": cpu_model,
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
     }
 
 
@@ -119,7 +131,7 @@ class _Recorder:
     def episodes(self, key: str, rows: list[EpisodeMetrics]) -> None:
         self._open(key)
         self.tracker.log_episodes(key, rows)
-        self.view.episodes(key, max(r.rolling_mean for r in rows))
+        self.view.episodes(key, rows)
 
     def restarted(self, key: str, reason: str) -> None:
         self.tracker.discard_trial(key, reason)
@@ -146,15 +158,19 @@ def run_experiment(
     storage_path: str = "ray_results",
     show_progress: bool = True,
     command: str = "",
+    only: Sequence[GridTrial] | None = None,
+    started_at: float | None = None,
 ) -> RunOutcome:
-    """Run every trial of ``experiment`` that has no finished run in the current generation."""
+    """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
+    current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock."""
     trials = expand(experiment)
     tracker = Tracker(tracking_uri, experiment.name)
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     finished_before = tracker.finished_keys(generation)
-    todo = [t for t in trials if t.key not in finished_before]
+    chosen = trials if only is None else list(only)
+    todo = [t for t in chosen if t.key not in finished_before]
     outcome = RunOutcome(
-        experiment.name, generation, None, skipped=len(trials) - len(todo), total=len(trials), ui_link=tracker.ui_link()
+        experiment.name, generation, None, skipped=len(chosen) - len(todo), total=len(chosen), ui_link=tracker.ui_link()
     )
     if not todo:
         return outcome
@@ -171,7 +187,9 @@ def run_experiment(
         },
     )
     outcome.launch_run_id = launch
-    view = ProgressView(experiment.name, todo, len(finished_before), enabled=show_progress)
+    slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
+    view = ProgressView(experiment.name, todo, len(finished_before), show_progress, slots, started_at)
+    outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
     options = ClusterOptions(address, max_concurrent, experiment.resources_per_trial, storage_path)
     status = "FINISHED"
@@ -191,8 +209,10 @@ def run_experiment(
     return outcome
 
 
-def cmd_run(args: argparse.Namespace) -> int:
+def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
+    started_at = time.monotonic() if started_at is None else started_at
     experiment = load_experiment(args.experiment)
+    chosen = select(expand(experiment), args.only, args.seeds)
     if args.max_concurrent is not None and args.max_concurrent < 1:
         raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
     command = " ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]])
@@ -204,6 +224,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         max_concurrent=args.max_concurrent,
         show_progress=True,
         command=command,
+        only=chosen,
+        started_at=started_at,
     )
     total = outcome.total
     if outcome.interrupted:
@@ -219,9 +241,19 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"  FAILED {key}: {message}")
     print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
     if not outcome.interrupted and getattr(args, "report", True):
-        from ablate.report import terminal_summary, write_report
+        from ablate.report import NoResults, terminal_summary, write_report
 
-        folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+        try:
+            with stage(f"writing the report into reports/{experiment.name}/") as report_s:
+                folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+        except NoResults as error:  # every trial failed: say so, and leave the last good report in place
+            print(f"no report: {error}")
+            return outcome.exit_code
         print(terminal_summary(folder))
-        print(f"report: {folder}/report.md and {folder}/report.html")
+        pdf = " and report.pdf" if (folder / "report.pdf").is_file() else ""
+        print(f"report: {folder}/report.md, report.html{pdf}")
+    else:
+        report_s = []
+    report_seconds = report_s[0] if report_s else None
+    print(outcome.view.total_line(report_seconds) if outcome.view else f"total {clock(time.monotonic() - started_at)}")
     return outcome.exit_code

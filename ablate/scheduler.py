@@ -131,11 +131,14 @@ def run_trials(trials: Sequence[GridTrial], events: TrialEvents, options: Cluste
 
 
 def ensure_ray(address: str | None) -> bool:
-    """Connect to ``address`` or start a quiet local Ray; returns whether this call started it."""
+    """Join ``address`` (or ``RAY_ADDRESS``), else start a fresh, quiet local Ray; returns whether this call
+    started or joined it. With neither, ``ray.init`` would join the newest cluster started on this machine
+    (``ray start``) and then refuse our CPU count: a local run must never depend on what else runs here."""
     if ray.is_initialized():
         return False
+    address = address or os.environ.get("RAY_ADDRESS") or None
     ray.init(
-        address=address,
+        address=address or "local",
         num_cpus=None if address else os.cpu_count(),
         include_dashboard=False,
         log_to_driver=False,  # workers' prints stay in Ray's log files, not on the progress view

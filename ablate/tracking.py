@@ -55,9 +55,41 @@ class TrialRun:
     artifacts: list[str] = field(default_factory=list)
 
 
+@dataclass
+class LaunchRun:
+    """A tracked launch (one ``ablate run``), as ``ablate status`` needs it."""
+
+    run_id: str
+    generation: str
+    status: str
+    """MLflow status: FINISHED, FAILED, KILLED, RUNNING (still going, or its process died)."""
+    start_time_ms: int
+    command: str
+    """The command line that started it."""
+
+
 def resolve_uri(tracking_uri: str | None) -> str:
     """Explicit URI, else ``MLFLOW_TRACKING_URI``, else an SQLite file in the current folder."""
     return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
+
+
+def store_exists(tracking_uri: str | None) -> bool:
+    """Whether there is a store to read: a local SQLite file must exist (opening one would create it)."""
+    uri = resolve_uri(tracking_uri)
+    return not uri.startswith("sqlite:///") or Path(uri.removeprefix("sqlite:///")).is_file()
+
+
+def ablation_names(tracking_uri: str | None) -> list[str]:
+    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted."""
+    from mlflow.tracking import MlflowClient
+
+    _quiet_mlflow()
+    client = MlflowClient(resolve_uri(tracking_uri))
+    names = []
+    for experiment in client.search_experiments():
+        if client.search_runs([experiment.experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", max_results=1):
+            names.append(experiment.name)
+    return sorted(names)
 
 
 class Tracker:
@@ -114,6 +146,17 @@ class Tracker:
             [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"], max_results=1
         )
         return runs[0] if runs else None
+
+    def launches(self) -> list[Any]:
+        """Every launch (parent) run of this experiment, newest first (the report picks a generation from them)."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        return list(
+            self.client.search_runs(
+                [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"]
+            )
+        )
 
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
@@ -227,6 +270,15 @@ class Tracker:
         if batch:
             self.client.log_batch(run_id, metrics=batch)
 
+    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ("videos",)) -> None:
+        """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables) as the ``report/``
+        artifacts of a launch run; ``skip`` leaves out folders already in the trial runs (the videos)."""
+        for path in sorted(Path(folder).iterdir()):
+            if path.is_dir() and path.name not in skip:
+                self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
+            elif path.is_file():
+                self.client.log_artifact(run_id, str(path), "report")
+
     # --- reading back -----------------------------------------------------------------------------
     def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
         """Trial runs of this experiment (of one generation, if given), oldest first."""
@@ -257,6 +309,25 @@ class Tracker:
                 tags=dict(r.data.tags),
                 start_time_ms=r.info.start_time,
                 artifacts=[a.path for a in self.client.list_artifacts(r.info.run_id)] if with_artifacts else [],
+            )
+            for r in runs
+        ]
+
+    def launch_runs(self) -> list[LaunchRun]:
+        """Every launch of this experiment, oldest first."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        runs = self.client.search_runs(
+            [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time ASC"], max_results=5000
+        )
+        return [
+            LaunchRun(
+                run_id=r.info.run_id,
+                generation=r.data.tags.get(TAG_GENERATION, ""),
+                status=r.info.status,
+                start_time_ms=r.info.start_time,
+                command=r.data.tags.get("ablate.command", ""),
             )
             for r in runs
         ]

@@ -345,6 +345,10 @@ def _inject_fault(config: TrialConfig) -> None:
     if config.fault == "crash_once" and config.fault_marker and not Path(config.fault_marker).exists():
         Path(config.fault_marker).write_text("crashed once\n")
         os._exit(17)  # a hard process death, as an OOM kill or a segfault would be
+    if config.fault == "block":
+        # A trial that is certainly still running when a test interrupts the launch; a file releases it.
+        while not Path(config.fault_marker).exists():
+            time.sleep(0.05)
 
 
 def run_trial(

@@ -18,8 +18,8 @@ def test_pong_ablation_is_cnn_vs_mlp_with_each_knob_and_three_seeds():
         base = variants[arch]
         assert base.model.architecture == arch
         changed = {
-            "deep": lambda c: len(c.model.hidden_sizes) > len(base.model.hidden_sizes),
-            "wide": lambda c: c.model.hidden_sizes[0] > base.model.hidden_sizes[0],
+            "deep": lambda c, base=base: len(c.model.hidden_sizes) > len(base.model.hidden_sizes),
+            "wide": lambda c, base=base: c.model.hidden_sizes[0] > base.model.hidden_sizes[0],
             "dropout": lambda c: c.model.dropout > 0,
             "l2": lambda c: c.l2 > 0,
         }

@@ -132,44 +132,83 @@ fault = "raise"
     assert runs["ok"].status == "FINISHED"
 
 
+def _restore_sigint() -> None:
+    # A child started from a background job (``nohup ... &``) inherits SIGINT ignored and would never see Ctrl-C.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_kills_running_trials_and_a_rerun_finishes_the_rest(tmp_path, tracking_uri):
-    text = """
+    # Deterministic by construction: two quick trials finish while a third blocks until a file exists, so
+    # at the signal (sent once both are seen FINISHED and the third RUNNING) exactly one trial is running.
+    release = tmp_path / "release"
+    text = f"""
 name = "interrupt"
-seeds = 4
+seeds = 1
 [base]
 env_id = "CartPole-v1"
-max_episodes = 400
-episodes_per_update = 8
-learning_rate = 0.001
+max_episodes = 20
+episodes_per_update = 10
 record_video = false
 [[variants]]
-name = "slow"
+name = "quick"
+[[variants]]
+name = "other"
+hidden_sizes = [8]
+[[variants]]
+name = "blocked"
+fault = "block"
+fault_marker = "{release}"
 """
     path = tmp_path / "interrupt.toml"
     path.write_text(text)
     command = [sys.executable, "-m", "ablate.cli", "run", str(path), "--tracking-uri", tracking_uri, "--no-report"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env, text=True)
+    proc = subprocess.Popen(
+        command,
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env=env,
+        text=True,
+        preexec_fn=_restore_sigint,
+    )
     tracker = Tracker(tracking_uri, "interrupt")
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(1)
-        if tracker.experiment_id(create=False) and any(r.status == "FINISHED" for r in tracker.trial_runs()):
-            break
-    assert proc.poll() is None, "the run ended before it could be interrupted: " + proc.stdout.read()
-    proc.send_signal(signal.SIGINT)
-    output, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 130, output
-    assert "interrupted" in output and "Traceback" not in output
+    try:
 
-    runs = tracker.trial_runs()
-    statuses = [r.status for r in runs]
-    assert "RUNNING" not in statuses
-    finished_first = {r.key for r in runs if r.status == "FINISHED"}
-    assert 1 <= len(finished_first) < 4
+        def statuses() -> dict[str, str]:
+            if proc.poll() is not None or not tracker.experiment_id(create=False):
+                return {}
+            return {r.variant: r.status for r in tracker.trial_runs()}
+
+        deadline = time.monotonic() + 240
+        seen: dict[str, str] = {}
+        while time.monotonic() < deadline and proc.poll() is None:
+            seen = statuses()
+            if seen == {"quick": "FINISHED", "other": "FINISHED", "blocked": "RUNNING"}:
+                break
+            time.sleep(0.5)
+        assert proc.poll() is None, "the run ended before it could be interrupted: " + proc.stdout.read()
+        assert seen == {"quick": "FINISHED", "other": "FINISHED", "blocked": "RUNNING"}, seen
+        proc.send_signal(signal.SIGINT)
+        output, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 130, output
+        assert "interrupted: 1 running trial(s) marked killed" in output and "Traceback" not in output
+    finally:  # never leave a blocked child (and its Ray) behind when an assertion fails
+        release.write_text("go\n")
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)  # lets the driver stop the Ray it started
+            try:
+                proc.communicate(timeout=60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
+
+    runs = {r.variant: r for r in tracker.trial_runs()}
+    assert {v: r.status for v, r in runs.items()} == {"quick": "FINISHED", "other": "FINISHED", "blocked": "KILLED"}
+    finished_first = {r.key for r in runs.values() if r.status == "FINISHED"}
 
     rerun = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, env=env, timeout=300)
     assert rerun.returncode == 0, rerun.stdout + rerun.stderr
     finished = [r.key for r in tracker.trial_runs() if r.status == "FINISHED"]
-    assert len(finished) == 4 and len(set(finished)) == 4  # no finished trial ran twice
+    assert len(finished) == 3 and len(set(finished)) == 3  # no finished trial ran twice
     assert finished_first <= set(finished)
