@@ -8,7 +8,7 @@ TRACKING_URI ?= sqlite:///mlflow.db
 RAY_PORT ?= 6390
 CLUSTER_MLFLOW_PORT ?= 5050
 
-.PHONY: help setup test test-fast test-cluster cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole report mlflow-ui clean
+.PHONY: help setup test test-fast test-cluster cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
 
 help: ## this list (generated from the comments after each target's name)
 	@awk '/^[A-Za-z0-9_.-]+:([^=]|$$).*## / {printf "make %-18s %s\n", substr($$0, 1, index($$0, ":") - 1), substr($$0, index($$0, "## ") + 3)}' $(MAKEFILE_LIST)
@@ -56,6 +56,9 @@ train: $(STAMP) ## one CartPole trial: curve, video, weights in outputs/train/ (
 
 ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray, track in MLflow, write the report
 	$(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
+
+ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, 30 trials (about an hour on 2 cores)
+	$(BIN)/ablate run experiments/pong.toml --tracking-uri $(TRACKING_URI)
 
 report: $(STAMP) ## rebuild reports/cartpole/ from the MLflow store
 	$(BIN)/ablate report experiments/cartpole.toml --tracking-uri $(TRACKING_URI)

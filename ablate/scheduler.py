@@ -19,7 +19,6 @@ driver; a user with NFS or ``s3://`` can still point it there.
 
 from __future__ import annotations
 
-import inspect
 import logging
 import os
 import shutil
@@ -45,7 +44,6 @@ MAX_PROCESS_FAILURES = 2
 """Times a trial whose process died (OOM kill, segfault, lost node) is restarted before it counts as failed."""
 CONNECT_TIMEOUT_S = 10.0
 """Seconds to reach a cluster's address before ``ablate run`` gives up (Ray itself retries for minutes)."""
-_RESUMABLE = "on_checkpoint" in inspect.signature(run_trial).parameters
 
 
 class ClusterUnavailable(RuntimeError):
@@ -125,9 +123,7 @@ def _train(params: dict[str, Any], trials: dict[str, GridTrial], checkpoints: An
     def on_checkpoint(blob: bytes) -> None:
         report("running", ablate_checkpoint=blob)  # the points up to the checkpoint go with it
 
-    resume = {}
-    if _RESUMABLE:
-        resume = {"resume_from": ray.get(checkpoints.get.remote(trial.key)), "on_checkpoint": on_checkpoint}
+    resume = {"resume_from": ray.get(checkpoints.get.remote(trial.key)), "on_checkpoint": on_checkpoint}
     with tempfile.TemporaryDirectory(prefix="ablate-") as folder:
         try:
             result = run_trial(trial.config, on_episodes=on_episodes, artifacts_dir=folder, **resume)

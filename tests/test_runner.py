@@ -10,6 +10,8 @@ import time
 
 import pandas as pd
 import pytest
+import torch
+from mlflow.entities import ViewType
 
 from ablate.config import load_experiment
 from ablate.grid import expand
@@ -213,3 +215,44 @@ fault_marker = "{release}"
     finished = [r.key for r in tracker.trial_runs() if r.status == "FINISHED"]
     assert len(finished) == 3 and len(set(finished)) == 3  # no finished trial ran twice
     assert finished_first <= set(finished)
+
+
+RESUMABLE = """
+name = "resumable"
+seeds = 1
+[base]
+env_id = "CartPole-v1"
+max_episodes = 48
+episodes_per_update = 8
+checkpoint_every = 16
+record_video = false
+fault = "crash_after_checkpoint"
+fault_marker = "{marker}"
+[[variants]]
+name = "narrow"
+hidden_sizes = [8]
+"""
+
+
+def test_a_trial_whose_process_died_resumes_from_its_checkpoint_in_one_continuous_run(
+    run_quiet, tmp_path, tracking_uri
+):
+    experiment = _experiment(tmp_path, RESUMABLE.format(marker=tmp_path / "crashed"))
+    outcome = run_quiet(experiment, tmp_path, tracking_uri)
+    assert outcome.exit_code == 0 and len(outcome.finished) == 1
+    tracker = Tracker(tracking_uri, "resumable")
+    (run,) = tracker.trial_runs(with_artifacts=True)
+    assert run.status == "FINISHED" and run.tags["ablate.attempt"] == "2"  # the process died once
+    wall = tracker.metric_history(run.run_id, "episode/wall_s")
+    assert [step for step, _ in wall] == list(range(1, 49))  # one curve, every episode once
+    # The retry resumed: its episodes 1-16 carry the dead attempt's own clock, as in the checkpoint the dead
+    # attempt left on its (deleted) run, which a restart from scratch could not reproduce.
+    (dead,) = tracker.client.search_runs(
+        [tracker.experiment_id()], "tags.`ablate.attempt` = '1'", run_view_type=ViewType.DELETED_ONLY
+    )
+    saved = torch.load(tracker.download(dead.info.run_id, "checkpoint.pt"), weights_only=False)
+    assert len(saved["history"]) == 16
+    with tempfile.TemporaryDirectory() as folder:
+        table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
+    assert list(table["wall_s"][:16]) == [row[7] for row in saved["history"]]
+    assert "checkpoint.pt" in run.artifacts  # the latest checkpoint stays with the run
