@@ -58,7 +58,9 @@ def cluster(tmp_path):
     processes = []
     try:
         port = local_cluster.free_port()
-        server = local_cluster.mlflow_server(tmp_path / "server", port, log=log)
+        # ABLATE_TEST_BACKEND=postgresql://...: the server's store in PostgreSQL instead of an SQLite file
+        backend = os.environ.get("ABLATE_TEST_BACKEND")
+        server = local_cluster.mlflow_server(tmp_path / "server", port, backend=backend, log=log)
         processes.append(server)
         head, head_id, gcs = local_cluster.start_node_process(True, 1, port=local_cluster.free_port(), log=log)
         processes.append(head)
