@@ -180,7 +180,7 @@ def run_experiment(
         return outcome
     started_ray = ensure_ray(address)  # an unreachable cluster fails here, in seconds, before a launch is recorded
     # Trials a killed launch left with a checkpoint continue from it.
-    resume = {t.key: blob for t in todo if (blob := tracker.latest_checkpoint(generation, t.key)) is not None}
+    resume = tracker.latest_checkpoints(generation, (t.key for t in todo))
     commit = git_commit()
     grid = grid_document(experiment, trials)
     launch = tracker.start_launch(

@@ -269,13 +269,17 @@ class Tracker:
             path.write_bytes(blob)
             self.client.log_artifact(self.open_runs[key], str(path))
 
-    def latest_checkpoint(self, generation: str, key: str) -> bytes | None:
-        """The checkpoint of the newest interrupted (KILLED) run of ``key`` in ``generation``, if it has one."""
-        runs = [r for r in self.trial_runs(generation) if r.key == key and r.status == "KILLED"]
+    def latest_checkpoints(self, generation: str, keys: Iterable[str]) -> dict[str, bytes]:
+        """Per key, the checkpoint of its newest interrupted (KILLED) run in ``generation`` that has one."""
+        wanted = set(keys)
+        runs = [r for r in self.trial_runs(generation) if r.key in wanted and r.status == "KILLED"]
+        found: dict[str, bytes] = {}
         for run in sorted(runs, key=lambda r: r.start_time_ms, reverse=True):
-            if any(a.path == CHECKPOINT_ARTIFACT for a in self.client.list_artifacts(run.run_id)):
-                return Path(self.download(run.run_id, CHECKPOINT_ARTIFACT)).read_bytes()
-        return None
+            if run.key not in found and any(
+                a.path == CHECKPOINT_ARTIFACT for a in self.client.list_artifacts(run.run_id)
+            ):
+                found[run.key] = Path(self.download(run.run_id, CHECKPOINT_ARTIFACT)).read_bytes()
+        return found
 
     def finish_trial(
         self, key: str, summary: dict[str, float], artifacts: Path | None, tags: dict[str, str] | None = None

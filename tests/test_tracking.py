@@ -35,7 +35,7 @@ def test_a_killed_run_keeps_its_latest_checkpoint_for_the_next_launch(tracking_u
     tracker, run_id = _track(tracking_uri, [], status="RUNNING")
     tracker.log_checkpoint("t-s0-abc", b"first")
     tracker.log_checkpoint("t-s0-abc", b"second")  # replaces the first
-    assert tracker.latest_checkpoint("g", "t-s0-abc") is None  # still running: not a checkpoint to resume
+    assert tracker.latest_checkpoints("g", ["t-s0-abc"]) == {}  # still running: not a checkpoint to resume
     tracker.kill_open_trials()
-    assert Tracker(tracking_uri, "layout").latest_checkpoint("g", "t-s0-abc") == b"second"
-    assert tracker.latest_checkpoint("other-generation", "t-s0-abc") is None
+    assert Tracker(tracking_uri, "layout").latest_checkpoints("g", ["t-s0-abc", "x"]) == {"t-s0-abc": b"second"}
+    assert tracker.latest_checkpoints("other-generation", ["t-s0-abc"]) == {}
