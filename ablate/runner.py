@@ -14,15 +14,16 @@ import subprocess
 import sys
 import time
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
-from ablate.grid import GridTrial, expand
-from ablate.progress import ProgressView
-from ablate.scheduler import ClusterOptions, run_trials
-from ablate.tracking import Tracker
-from ablate.trial import EpisodeMetrics
+from ablate.curve import CurvePoint
+from ablate.grid import GridTrial, expand, select
+from ablate.progress import ProgressView, clock, stage
+from ablate.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, run_trials, stop_ray
+from ablate.tracking import TAG_NODE, Tracker
 
 
 @dataclass
@@ -40,6 +41,8 @@ class RunOutcome:
     failed: dict[str, str] = field(default_factory=dict)
     killed: list[str] = field(default_factory=list)
     interrupted: bool = False
+    view: ProgressView | None = field(default=None, repr=False)
+    """The launch's progress view (its clock and stage times), when trials ran."""
 
     @property
     def exit_code(self) -> int:
@@ -125,17 +128,21 @@ class _Recorder:
         self._open(key)
         self.view.started(key)
 
-    def episodes(self, key: str, rows: list[EpisodeMetrics]) -> None:
+    def episodes(self, key: str, points: list[CurvePoint]) -> None:
         self._open(key)
-        self.tracker.log_episodes(key, rows)
-        self.view.episodes(key, max(r.rolling_mean for r in rows))
+        self.tracker.log_points(key, points)
+        self.view.episodes(key, points)
+
+    def checkpoint(self, key: str, blob: bytes) -> None:
+        self._open(key)
+        self.tracker.log_checkpoint(key, blob)
 
     def restarted(self, key: str, reason: str) -> None:
         self.tracker.discard_trial(key, reason)
 
-    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None:
+    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None, node: str) -> None:
         self._open(key)
-        self.tracker.finish_trial(key, summary, artifacts)
+        self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
         self.outcome.finished.append(key)
         self.view.finished(key, bool(summary.get("solved")))
 
@@ -155,18 +162,25 @@ def run_experiment(
     storage_path: str = "ray_results",
     show_progress: bool = True,
     command: str = "",
+    only: Sequence[GridTrial] | None = None,
+    started_at: float | None = None,
 ) -> RunOutcome:
-    """Run every trial of ``experiment`` that has no finished run in the current generation."""
+    """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
+    current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock."""
     trials = expand(experiment)
     tracker = Tracker(tracking_uri, experiment.name)
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     finished_before = tracker.finished_keys(generation)
-    todo = [t for t in trials if t.key not in finished_before]
+    chosen = trials if only is None else list(only)
+    todo = [t for t in chosen if t.key not in finished_before]
     outcome = RunOutcome(
-        experiment.name, generation, None, skipped=len(trials) - len(todo), total=len(trials), ui_link=tracker.ui_link()
+        experiment.name, generation, None, skipped=len(chosen) - len(todo), total=len(chosen), ui_link=tracker.ui_link()
     )
     if not todo:
         return outcome
+    started_ray = ensure_ray(address)  # an unreachable cluster fails here, in seconds, before a launch is recorded
+    # Trials a killed launch left with a checkpoint continue from it.
+    resume = {t.key: blob for t in todo if (blob := tracker.latest_checkpoint(generation, t.key)) is not None}
     commit = git_commit()
     grid = grid_document(experiment, trials)
     launch = tracker.start_launch(
@@ -180,13 +194,21 @@ def run_experiment(
         },
     )
     outcome.launch_run_id = launch
-    view = ProgressView(experiment.name, todo, len(finished_before), enabled=show_progress)
+    slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
+    view = ProgressView(experiment.name, todo, len(finished_before), show_progress, slots, started_at)
+    outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
-    options = ClusterOptions(address, max_concurrent, experiment.resources_per_trial, storage_path)
+    options = ClusterOptions(
+        address,
+        max_concurrent,
+        experiment.resources_per_trial,
+        getattr(experiment, "gpus_per_trial", 0.0),
+        storage_path,
+    )
     status = "FINISHED"
     try:
         with view:
-            run_trials(todo, recorder, options, run_name=f"{experiment.name}-{launch[:8]}")
+            run_trials(todo, recorder, options, run_name=f"{experiment.name}-{launch[:8]}", resume=resume)
     except KeyboardInterrupt:
         outcome.interrupted = True
         outcome.killed = tracker.kill_open_trials()
@@ -197,23 +219,33 @@ def run_experiment(
             "FAILED" if outcome.failed and status == "FINISHED" else status,
             {"trials_finished": len(outcome.finished), "trials_failed": len(outcome.failed)},
         )
+        if started_ray:
+            stop_ray()
     return outcome
 
 
-def cmd_run(args: argparse.Namespace) -> int:
+def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
+    started_at = time.monotonic() if started_at is None else started_at
     experiment = load_experiment(args.experiment)
+    chosen = select(expand(experiment), args.only, args.seeds)
     if args.max_concurrent is not None and args.max_concurrent < 1:
         raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
     command = " ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]])
-    outcome = run_experiment(
-        experiment,
-        tracking_uri=args.tracking_uri,
-        address=args.address,
-        fresh=args.fresh,
-        max_concurrent=args.max_concurrent,
-        show_progress=True,
-        command=command,
-    )
+    try:
+        outcome = run_experiment(
+            experiment,
+            tracking_uri=args.tracking_uri,
+            address=args.address,
+            fresh=args.fresh,
+            max_concurrent=args.max_concurrent,
+            show_progress=True,
+            command=command,
+            only=chosen,
+            started_at=started_at,
+        )
+    except ClusterUnavailable as error:
+        sys.stderr.write(f"ablate run: {error}\n")
+        return 1
     total = outcome.total
     if outcome.interrupted:
         print(
@@ -231,11 +263,16 @@ def cmd_run(args: argparse.Namespace) -> int:
         from ablate.report import NoResults, terminal_summary, write_report
 
         try:
-            folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+            with stage(f"writing the report into reports/{experiment.name}/") as report_s:
+                folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
         except NoResults as error:  # every trial failed: say so, and leave the last good report in place
             print(f"no report: {error}")
             return outcome.exit_code
         print(terminal_summary(folder))
         pdf = " and report.pdf" if (folder / "report.pdf").is_file() else ""
         print(f"report: {folder}/report.md, report.html{pdf}")
+    else:
+        report_s = []
+    report_seconds = report_s[0] if report_s else None
+    print(outcome.view.total_line(report_seconds) if outcome.view else f"total {clock(time.monotonic() - started_at)}")
     return outcome.exit_code

@@ -7,6 +7,7 @@ import json
 import re
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -17,6 +18,7 @@ from scipy import stats
 
 from ablate.cli import main
 from ablate.config import load_experiment
+from ablate.curve import CurveReducer
 from ablate.report import chromium_flags, write_report
 from ablate.tracking import Tracker
 
@@ -242,10 +244,12 @@ def make_store(folder: Path, name: str, variants: dict[str, dict], seeds=(0, 1, 
                 entropy=0.5,
                 wall_s=0.01 * (i + 1),
                 length=10,
+                env_steps=10 * (i + 1),
             )
             for i, r in enumerate(returns)
         ]
-        tracker.log_episodes(trial["key"], rows)
+        reducer = CurveReducer(budget)
+        tracker.log_points(trial["key"], reducer.add(rows) + reducer.flush())
         if trial["key"] in options.get("failed", ()):
             tracker.fail_trial(trial["key"], "injected fault <b>boom</b>")
             continue
@@ -255,10 +259,9 @@ def make_store(folder: Path, name: str, variants: dict[str, dict], seeds=(0, 1, 
         summary["parameter_count"] = float(spec.get("parameters", 58))
         if hits:
             summary |= {"episodes_to_solve": hits[0], "env_steps_to_solve": 10.0 * hits[0], "wall_s_to_solve": 0.1}
-        artifacts = None
+        artifacts = Path(tempfile.mkdtemp(prefix="artifacts-", dir=folder))
+        pd.DataFrame([vars(row) for row in rows]).to_csv(artifacts / "episodes.csv", index=False)  # what it reads
         if options.get("observation"):
-            artifacts = folder / f"artifacts-{name}-{trial['key']}"
-            artifacts.mkdir()
             (artifacts / "observation.png").write_bytes(ARTIFACT_PNG)
         tracker.finish_trial(trial["key"], summary, artifacts)
     tracker.finish_launch(launch, "FINISHED", {})
