@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -358,10 +359,12 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
         row |= {k: run.metrics.get(k, np.nan) for k in SUMMARY_COLUMNS}
         if run.status == "FINISHED":
             params.setdefault(trial["variant"], run.params)
-            # Two metric reads per run (each read costs ~40 ms on SQLite); the rolling mean is recomputed
-            # from the returns with the trial's own window, exactly as the trial computed it.
-            returns = dict(tracker.metric_history(run.run_id, "episode/return"))
-            wall = dict(tracker.metric_history(run.run_id, "episode/wall_s"))
+            # The exact per-episode table is the run's episodes.csv (MLflow holds a bounded curve); the rolling
+            # mean is recomputed from the returns with the trial's own window, exactly as the trial computed it.
+            with tempfile.TemporaryDirectory(prefix="ablate-episodes-") as folder:
+                table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
+            returns = dict(zip(table["episode"], table["episode_return"], strict=True))
+            wall = dict(zip(table["episode"], table["wall_s"], strict=True))
             episodes = sorted(returns)
             window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
             curve = pd.DataFrame(

@@ -19,11 +19,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
+from ablate.curve import CurvePoint
 from ablate.grid import GridTrial, expand, select
 from ablate.progress import ProgressView, clock, stage
-from ablate.scheduler import ClusterOptions, run_trials
-from ablate.tracking import Tracker
-from ablate.trial import EpisodeMetrics
+from ablate.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, run_trials, stop_ray
+from ablate.tracking import TAG_NODE, Tracker
 
 
 @dataclass
@@ -128,17 +128,21 @@ class _Recorder:
         self._open(key)
         self.view.started(key)
 
-    def episodes(self, key: str, rows: list[EpisodeMetrics]) -> None:
+    def episodes(self, key: str, points: list[CurvePoint]) -> None:
         self._open(key)
-        self.tracker.log_episodes(key, rows)
-        self.view.episodes(key, rows)
+        self.tracker.log_points(key, points)
+        self.view.episodes(key, points)
+
+    def checkpoint(self, key: str, blob: bytes) -> None:
+        self._open(key)
+        self.tracker.log_checkpoint(key, blob)
 
     def restarted(self, key: str, reason: str) -> None:
         self.tracker.discard_trial(key, reason)
 
-    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None:
+    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None, node: str) -> None:
         self._open(key)
-        self.tracker.finish_trial(key, summary, artifacts)
+        self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
         self.outcome.finished.append(key)
         self.view.finished(key, bool(summary.get("solved")))
 
@@ -174,6 +178,9 @@ def run_experiment(
     )
     if not todo:
         return outcome
+    started_ray = ensure_ray(address)  # an unreachable cluster fails here, in seconds, before a launch is recorded
+    # Trials a killed launch left with a checkpoint continue from it.
+    resume = {t.key: blob for t in todo if (blob := tracker.latest_checkpoint(generation, t.key)) is not None}
     commit = git_commit()
     grid = grid_document(experiment, trials)
     launch = tracker.start_launch(
@@ -191,11 +198,17 @@ def run_experiment(
     view = ProgressView(experiment.name, todo, len(finished_before), show_progress, slots, started_at)
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
-    options = ClusterOptions(address, max_concurrent, experiment.resources_per_trial, storage_path)
+    options = ClusterOptions(
+        address,
+        max_concurrent,
+        experiment.resources_per_trial,
+        getattr(experiment, "gpus_per_trial", 0.0),
+        storage_path,
+    )
     status = "FINISHED"
     try:
         with view:
-            run_trials(todo, recorder, options, run_name=f"{experiment.name}-{launch[:8]}")
+            run_trials(todo, recorder, options, run_name=f"{experiment.name}-{launch[:8]}", resume=resume)
     except KeyboardInterrupt:
         outcome.interrupted = True
         outcome.killed = tracker.kill_open_trials()
@@ -206,6 +219,8 @@ def run_experiment(
             "FAILED" if outcome.failed and status == "FINISHED" else status,
             {"trials_finished": len(outcome.finished), "trials_failed": len(outcome.failed)},
         )
+        if started_ray:
+            stop_ray()
     return outcome
 
 
@@ -216,17 +231,21 @@ def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
     if args.max_concurrent is not None and args.max_concurrent < 1:
         raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
     command = " ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]])
-    outcome = run_experiment(
-        experiment,
-        tracking_uri=args.tracking_uri,
-        address=args.address,
-        fresh=args.fresh,
-        max_concurrent=args.max_concurrent,
-        show_progress=True,
-        command=command,
-        only=chosen,
-        started_at=started_at,
-    )
+    try:
+        outcome = run_experiment(
+            experiment,
+            tracking_uri=args.tracking_uri,
+            address=args.address,
+            fresh=args.fresh,
+            max_concurrent=args.max_concurrent,
+            show_progress=True,
+            command=command,
+            only=chosen,
+            started_at=started_at,
+        )
+    except ClusterUnavailable as error:
+        sys.stderr.write(f"ablate run: {error}\n")
+        return 1
     total = outcome.total
     if outcome.interrupted:
         print(

@@ -16,18 +16,25 @@ from pathlib import Path
 from typing import Any
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
-# Logged at every episode (step = episode): the curve a reader looks at in the UI.
-EPISODE_METRICS = {"episode/return": "episode_return"}
-# Logged when an update ends (step = its last episode), at most one point per ``EPISODES_PER_POINT``
-# episodes: the rolling mean and the clock at that episode, the mean loss and policy entropy of the updates
-# since the last point, and the mean length of their episodes. MLflow's SQLite store costs ~110 us of the
-# driver's CPU per value, and the driver shares the cores with the trials: repeating an update's values
-# for each of its 32 episodes cost 5x the CPU, and the course's 1-episode updates would log 6 values per
-# episode. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
-EPISODES_PER_POINT = 8
+# A trial's curve: one point per bin of episodes (``ablate.curve``: at most ~100 points however many episodes
+# run), step = the bin's last episode. MLflow's SQLite store costs ~4 ms per call plus ~55 us per value of
+# the writer's CPU, and one writer serves every trial: a value per episode capped it at ~10 concurrent
+# trials. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
+POINT_METRICS = {
+    "episode/return": "episode_return",  # mean over the bin
+    "episode/rolling_mean": "rolling_mean",  # at the bin's last episode
+    "episode/loss": "loss",  # mean over the bin's updates
+    "episode/entropy": "entropy",
+    "episode/length": "length",  # mean over the bin
+    "episode/wall_s": "wall_s",
+    "episode/env_steps": "env_steps",
+}
+CHECKPOINT_ARTIFACT = "checkpoint.pt"
+"""A trial's latest checkpoint blob, kept on its run so a killed launch's next launch resumes from it."""
 TAG_ROLE, TAG_GENERATION, TAG_KEY = "ablate.role", "ablate.generation", "ablate.trial_key"
 TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed", "ablate.error", "ablate.attempt"
 TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
+TAG_NODE = "ablate.node"
 _BATCH = 1000  # MLflow's limit of metrics per log_batch call
 
 
@@ -106,8 +113,6 @@ class Tracker:
         self._experiment_id: str | None = None
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
-        self._since_point: dict[str, list[Any]] = {}
-        """Per open trial, the episodes (whole updates) since its last point of the update metrics."""
 
     # --- experiment -------------------------------------------------------------------------------
     def experiment_id(self, create: bool = True) -> str | None:
@@ -196,44 +201,48 @@ class Tracker:
             },
         )
         run_id = run.info.run_id
-        self._since_point[key] = []
         self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
         return run_id
 
-    def log_episodes(self, key: str, rows: Sequence[Any]) -> None:
-        """``EPISODE_METRICS`` for every episode; a point of the update metrics (``_point``) when an update ends
-        and ``EPISODES_PER_POINT`` episodes have passed since the last point. Rows hold whole updates."""
-        group = self._since_point[key]
+    def log_points(self, key: str, points: Sequence[Any]) -> None:
+        """``POINT_METRICS`` of each curve point (``ablate.curve.CurvePoint``) of an open trial, in one batch."""
+        self._log_metrics(
+            self.open_runs[key],
+            ((metric, float(getattr(p, attr)), p.episode) for p in points for metric, attr in POINT_METRICS.items()),
+        )
 
-        def values():
-            for i, row in enumerate(rows):
-                group.append(row)
-                for metric, attr in EPISODE_METRICS.items():
-                    yield metric, float(getattr(row, attr)), row.episode
-                update_ends = i + 1 == len(rows) or rows[i + 1].update != row.update
-                if update_ends and len(group) >= EPISODES_PER_POINT:
-                    yield from _point(group)
-                    group.clear()
+    def log_checkpoint(self, key: str, blob: bytes) -> None:
+        """Keep ``blob`` as the open trial's ``checkpoint.pt`` (replacing the previous one): whatever ends the
+        launch (Ctrl-C, a killed driver), the next launch finds the latest one (``latest_checkpoint``)."""
+        import tempfile
 
-        self._log_metrics(self.open_runs[key], values())
+        with tempfile.TemporaryDirectory(prefix="ablate-checkpoint-") as folder:
+            path = Path(folder) / CHECKPOINT_ARTIFACT
+            path.write_bytes(blob)
+            self.client.log_artifact(self.open_runs[key], str(path))
 
-    def _flush_point(self, key: str, run_id: str) -> None:
-        group = self._since_point.pop(key, [])
-        if group:
-            self._log_metrics(run_id, _point(group))
+    def latest_checkpoint(self, generation: str, key: str) -> bytes | None:
+        """The checkpoint of the newest interrupted (KILLED) run of ``key`` in ``generation``, if it has one."""
+        runs = [r for r in self.trial_runs(generation) if r.key == key and r.status == "KILLED"]
+        for run in sorted(runs, key=lambda r: r.start_time_ms, reverse=True):
+            if any(a.path == CHECKPOINT_ARTIFACT for a in self.client.list_artifacts(run.run_id)):
+                return Path(self.download(run.run_id, CHECKPOINT_ARTIFACT)).read_bytes()
+        return None
 
-    def finish_trial(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None:
+    def finish_trial(
+        self, key: str, summary: dict[str, float], artifacts: Path | None, tags: dict[str, str] | None = None
+    ) -> None:
         run_id = self.open_runs.pop(key)
-        self._flush_point(key, run_id)
         self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
+        for name, value in (tags or {}).items():
+            self.client.set_tag(run_id, name, value)
         if artifacts is not None:
             self.client.log_artifacts(run_id, str(artifacts))
         self.client.set_terminated(run_id, "FINISHED")
 
     def fail_trial(self, key: str, message: str) -> None:
         run_id = self.open_runs.pop(key)
-        self._flush_point(key, run_id)
         self.client.set_tag(run_id, TAG_ERROR, message[:5000])
         self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
         self.client.set_terminated(run_id, "FAILED")
@@ -242,7 +251,6 @@ class Tracker:
         """A trial whose process died restarts from scratch: its partial run is closed and soft-deleted so
         no metric is counted twice; the restart opens a new run (``ablate.attempt`` counts them)."""
         run_id = self.open_runs.pop(key, None)
-        self._since_point.pop(key, None)
         if run_id is not None:
             self.client.set_tag(run_id, TAG_ERROR, f"process died, retried: {reason}"[:5000])
             self.client.set_terminated(run_id, "KILLED")
@@ -252,7 +260,6 @@ class Tracker:
         killed = list(self.open_runs)
         for key in killed:
             run_id = self.open_runs.pop(key)
-            self._since_point.pop(key, None)
             self.client.set_tag(run_id, TAG_ERROR, "interrupted (Ctrl-C); a re-run starts it again")
             self.client.set_terminated(run_id, "KILLED")
         return killed
@@ -345,18 +352,6 @@ class Tracker:
 
         destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
         return self.client.download_artifacts(run_id, path, str(destination))
-
-
-def _point(group: Sequence[Any]) -> Iterable[tuple[str, float, int]]:
-    """The update metrics for the episodes in ``group`` (whole updates), at the step of the last one: the
-    rolling mean and clock there, the mean loss and entropy of the updates, the mean length of the episodes."""
-    last = group[-1]
-    updates = list({row.update: row for row in group}.values())  # each row carries its update's loss and entropy
-    yield "episode/rolling_mean", float(last.rolling_mean), last.episode
-    yield "episode/loss", sum(u.loss for u in updates) / len(updates), last.episode
-    yield "episode/entropy", sum(u.entropy for u in updates) / len(updates), last.episode
-    yield "episode/wall_s", float(last.wall_s), last.episode
-    yield "episode/length", sum(r.length for r in group) / len(group), last.episode
 
 
 def _param_text(value: Any) -> str:
