@@ -120,7 +120,13 @@ def add_knob_flags(parser: argparse.ArgumentParser) -> None:
                 parser.add_argument("--no-video", dest=name, action="store_false", help="same as --no-record-video")
         else:
             convert = (
-                _sizes if kind.startswith("tuple") else float if "float" in kind else int if kind == "int" else str
+                _sizes
+                if kind.startswith("tuple")
+                else float
+                if "float" in kind
+                else int
+                if kind.startswith("int")
+                else str
             )
             metavar = {_sizes: "N,N", float: "X", int: "N", str: "NAME"}[convert]
             parser.add_argument(*flags, dest=name, type=convert, metavar=metavar, help=help_text)
