@@ -47,7 +47,7 @@ train: $(STAMP)
 	$(BIN)/ablate train $(ARGS)
 
 ablation-cartpole: $(STAMP)
-	$(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
+	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
 
 report: $(STAMP)
 	$(BIN)/ablate report experiments/cartpole.toml --tracking-uri $(TRACKING_URI)

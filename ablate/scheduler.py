@@ -9,7 +9,9 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+import signal
 import tempfile
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -137,6 +139,9 @@ def ensure_ray(address: str | None) -> bool:
     if ray.is_initialized():
         return False
     address = address or os.environ.get("RAY_ADDRESS") or None
+    # ray.init installs a SIGTERM handler that calls sys.exit() wherever the driver is, which skips the
+    # caller's cleanup and ends in a C++ abort (exit 134); the caller's own handler stays.
+    sigterm = signal.getsignal(signal.SIGTERM)
     ray.init(
         address=address or "local",
         num_cpus=None if address else os.cpu_count(),
@@ -145,6 +150,8 @@ def ensure_ray(address: str | None) -> bool:
         logging_level=logging.ERROR,
         configure_logging=True,
     )
+    if callable(sigterm) and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, sigterm)
     return True
 
 
