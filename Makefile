@@ -6,16 +6,10 @@ STAMP := $(VENV)/.installed
 PORT ?= 5000
 TRACKING_URI ?= sqlite:///mlflow.db
 
-.PHONY: help setup test test-fast lint format bench train ablation-cartpole report mlflow-ui clean
+.PHONY: help setup test test-fast lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
 
-help:
-	@echo "make ablation-cartpole  run experiments/cartpole.toml on a local Ray, track in MLflow, write the report"
-	@echo "make test               the test suite (sets up .venv first)"
-	@echo "make train              one CartPole trial: curve, video, weights in outputs/train/"
-	@echo "make report             rebuild reports/cartpole/ from the MLflow store"
-	@echo "make mlflow-ui          browse the runs at http://127.0.0.1:$(PORT)"
-	@echo "make bench              speed and memory figures (~20 min)"
-	@echo "make lint               ruff check and format check"
+help: ## this list (generated from the comments after each target's name)
+	@awk '/^[A-Za-z0-9_.-]+:([^=]|$$).*## / {printf "make %-18s %s\n", substr($$0, 1, index($$0, ":") - 1), substr($$0, index($$0, "## ") + 3)}' $(MAKEFILE_LIST)
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), "ablate needs Python 3.11, found " + sys.version.split()[0]'
@@ -24,36 +18,39 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-setup: $(STAMP)
+setup: $(STAMP) ## build .venv from pyproject.toml (every target does this first when needed)
 
-test: $(STAMP)
+test: $(STAMP) ## the whole test suite (a few minutes on 2 cores)
 	$(BIN)/python -m pytest -q
 
-test-fast: $(STAMP)
+test-fast: $(STAMP) ## the test suite without the slow learning tests
 	$(BIN)/python -m pytest -q -m "not slow"
 
-lint: $(STAMP)
+lint: $(STAMP) ## ruff check and format check
 	$(BIN)/ruff check ablate tests benchmarks
 	$(BIN)/ruff format --check ablate tests benchmarks
 
-format: $(STAMP)
+format: $(STAMP) ## ruff format and fix what ruff can
 	$(BIN)/ruff format ablate tests benchmarks
 	$(BIN)/ruff check --fix ablate tests benchmarks
 
-bench: $(STAMP)
+bench: $(STAMP) ## speed and memory figures (~20 min)
 	$(BIN)/python benchmarks/bench.py
 
-train: $(STAMP)
+train: $(STAMP) ## one CartPole trial: curve, video, weights in outputs/train/ (ARGS="--preset course", ...)
 	$(BIN)/ablate train $(ARGS)
 
-ablation-cartpole: $(STAMP)
+ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray, track in MLflow, write the report
 	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
 
-report: $(STAMP)
+ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, 30 trials (about an hour on 2 cores)
+	$(BIN)/ablate run experiments/pong.toml --tracking-uri $(TRACKING_URI)
+
+report: $(STAMP) ## rebuild reports/cartpole/ from the MLflow store
 	$(BIN)/ablate report experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
 
-mlflow-ui: $(STAMP)
+mlflow-ui: $(STAMP) ## serve the MLflow UI at http://127.0.0.1:5000 (PORT=... for another port)
 	$(BIN)/mlflow ui --backend-store-uri $(TRACKING_URI) --host 127.0.0.1 --port $(PORT)
 
-clean:
+clean: ## remove outputs/ and the pytest and ruff caches
 	rm -rf outputs .pytest_cache .ruff_cache

@@ -1,4 +1,4 @@
-"""Command line: ``ablate train`` (one trial), ``ablate run`` (an ablation), ``ablate report``.
+"""Command line: ``ablate train`` (one trial), ``ablate run`` (an ablation), ``ablate status``, ``ablate report``.
 
 Thin: parse, validate (one clear line and exit 2 on bad input), call the modules that do the work.
 """
@@ -6,17 +6,48 @@ Thin: parse, validate (one clear line and exit 2 on bad input), call the modules
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
+import inspect
+import itertools
 import json
 import sys
 import time
 from pathlib import Path
 from typing import Any, NoReturn
 
-from ablate.config import PRESETS, ConfigError, apply_knobs
+from ablate import config as config_module
+from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, Experiment, ModelConfig, TrialConfig, apply_knobs
+from ablate.grid import GridTrial, expand, select
 from ablate.lock import LaunchLocked
 from ablate.tracking import TrackingError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+DESCRIPTION = """\
+ablate: architecture ablations of REINFORCE (vanilla policy gradient) agents on CartPole and Pong.
+An experiment file names the variants (depth, width, dropout, L2, CNN vs MLP, ...) and the seeds; ablate
+runs every trial on Ray (a local one by default), tracks each in MLflow, and writes a report with
+convergence tables, intervals over seeds, learning curves and videos."""
+
+EPILOG = """\
+examples:
+  ablate run experiments/cartpole.toml           run the ablation (a re-run finishes what is missing)
+  ablate run experiments/cartpole.toml --only deep,wide --seeds 0,1 --dry-run
+                                                 list the trials a run of part of it would start
+  ablate status                                  the ablations, launches and trials in the MLflow store
+  ablate report experiments/cartpole.toml        rebuild reports/cartpole/ from the MLflow store
+  ablate train --preset course                   one trial here, without Ray or MLflow
+  ablate train --from experiments/cartpole.toml --variant deep --seed 3
+                                                 one trial of an experiment, same key and config
+
+Every command has its own --help. MLflow store: sqlite:///mlflow.db in this folder unless --tracking-uri
+or MLFLOW_TRACKING_URI says otherwise."""
+
+TEST_ONLY_KNOBS = ("fault", "fault_marker")
+"""Knobs for injecting faults in tests: no flag for them."""
+NOT_IN_KEY_KNOBS = ("record_video", "video_max_frames")
+"""Knobs that change what a trial records, not what it learns: allowed with ``train --from``."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -28,69 +59,219 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _sizes(text: str) -> list[int]:
+    if text.strip().lower() in ("", "linear", "none"):
+        return []
     try:
         return [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers, e.g. 64,64") from None
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a comma-separated list of integers, e.g. 64,64 (or 'linear' for none)"
+        ) from None
+
+
+def _seed_list(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of seeds, e.g. 0,1") from None
+
+
+def field_docs() -> dict[str, str]:
+    """The docstring under each field of ``TrialConfig`` and ``ModelConfig`` (the flags' help), one line each."""
+    docs: dict[str, str] = {}
+    for node in ast.parse(inspect.getsource(config_module)).body:
+        if not (isinstance(node, ast.ClassDef) and node.name in (TrialConfig.__name__, ModelConfig.__name__)):
+            continue
+        for field_node, doc in itertools.pairwise(node.body):
+            if (
+                isinstance(field_node, ast.AnnAssign)
+                and isinstance(field_node.target, ast.Name)
+                and isinstance(doc, ast.Expr)
+                and isinstance(doc.value, ast.Constant)
+                and isinstance(doc.value.value, str)
+            ):
+                docs[field_node.target.id] = " ".join(doc.value.value.replace("``", "").split())
+    return docs
+
+
+def _field_types() -> dict[str, str]:
+    return {f.name: str(f.type) for cls in (TrialConfig, ModelConfig) for f in dataclasses.fields(cls)}
+
+
+TRAIN_KNOBS = tuple(k for k in KNOBS if k not in TEST_ONLY_KNOBS) + tuple(SHORTHANDS)
+"""The knobs ``ablate train`` has a flag for (each flag's dest is the knob's name)."""
+
+
+def add_knob_flags(parser: argparse.ArgumentParser) -> None:
+    """A flag per knob of ``config.KNOBS`` (and the depth/width shorthands), typed from the config dataclasses,
+    with the field's docstring and the valid values as help."""
+    docs, types = field_docs(), _field_types()
+    for name, knob in KNOBS.items():
+        if name in TEST_ONLY_KNOBS:
+            continue
+        flags = [f"--{name.replace('_', '-')}"] + (["--env"] if name == "env_id" else [])
+        kind = types[name]
+        doc = docs.get(name, "")
+        help_text = doc if kind == "bool" else f"{doc} Valid: {knob.valid}."
+        if name == "seed":
+            help_text += " With --from: one of the experiment's seeds."
+        help_text = help_text.replace("%", "%%")
+        if kind == "bool":
+            parser.add_argument(*flags, dest=name, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+            if name == "record_video":
+                parser.add_argument("--no-video", dest=name, action="store_false", help="same as --no-record-video")
+        else:
+            convert = (
+                _sizes if kind.startswith("tuple") else float if "float" in kind else int if kind == "int" else str
+            )
+            metavar = {_sizes: "N,N", float: "X", int: "N", str: "NAME"}[convert]
+            parser.add_argument(*flags, dest=name, type=convert, metavar=metavar, help=help_text)
+    for name, (valid, _) in SHORTHANDS.items():
+        other = "width" if name == "depth" else "depth"
+        parser.add_argument(
+            f"--{name}",
+            type=int,
+            help=f"shorthand with --{other} for --hidden-sizes: --depth layers of --width units. Valid: {valid}.",
+        )
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="ablate", description=__doc__)
-    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser = _Parser(
+        prog="ablate", description=DESCRIPTION, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
 
-    train = commands.add_parser("train", help="train one agent and save its curve, video and weights")
-    train.add_argument("--preset", choices=sorted(PRESETS), default="default", help="starting config")
-    train.add_argument("--env", dest="env_id", help="CartPole-v0, CartPole-v1 or ALE/Pong-v5")
-    train.add_argument("--seed", type=int)
-    train.add_argument("--learning-rate", dest="learning_rate", type=float)
-    train.add_argument("--gamma", type=float)
-    train.add_argument("--l2", type=float)
-    train.add_argument("--episodes-per-update", dest="episodes_per_update", type=int)
-    train.add_argument("--max-episodes", dest="max_episodes", type=int, help="episode budget")
-    train.add_argument("--architecture", help="mlp or cnn")
-    train.add_argument("--hidden-sizes", dest="hidden_sizes", type=_sizes, help="e.g. 64,64")
-    train.add_argument("--activation")
-    train.add_argument("--dropout", type=float)
-    train.add_argument("--solve-threshold", dest="solve_threshold", type=float)
-    train.add_argument("--no-video", dest="record_video", action="store_false", default=None)
-    train.add_argument("--out", type=Path, default=None, help="output folder (default: outputs/train/<env>-s<seed>)")
+    train = commands.add_parser(
+        "train",
+        help="train one agent here (no Ray, no MLflow) and save its curve, video and weights",
+        description="Train one agent in this process and write its learning curve, video, weights, per-episode "
+        "table and summary. Start from a preset and override any knob, or take one trial of an experiment "
+        "file with --from, --variant and --seed (the same key and config as in `ablate run`).",
+    )
+    train.add_argument(
+        "--preset", choices=sorted(PRESETS), default="default", help="starting config (default: default)"
+    )
+    train.add_argument(
+        "--from",
+        dest="from_experiment",
+        type=Path,
+        metavar="EXPERIMENT",
+        help="an experiment file: train its trial of --variant and --seed instead of a preset",
+    )
+    train.add_argument("--variant", help="with --from: the variant's name, as in the experiment file")
+    add_knob_flags(train)
+    train.add_argument(
+        "--out", type=Path, default=None, help="output folder (default: outputs/train/<env>-s<seed>, or the trial key)"
+    )
 
-    run = commands.add_parser("run", help="run an ablation experiment file on Ray, tracked in MLflow")
+    run = commands.add_parser(
+        "run",
+        help="run an ablation experiment file on Ray, tracked in MLflow",
+        description="Run every trial of an experiment file that has no finished run yet, on a local Ray (or a "
+        "cluster), track each in MLflow, show a live progress view, and write the report at the end.",
+    )
     run.add_argument("experiment", type=Path, help="e.g. experiments/cartpole.toml")
-    run.add_argument("--address", help="join this Ray cluster (default: start a local one)")
+    run.add_argument("--address", help="join this Ray cluster, e.g. auto (default: start a local one)")
     run.add_argument("--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
-    run.add_argument("--fresh", action="store_true", help="start over under a new parent run")
+    run.add_argument("--fresh", action="store_true", help="start over under a new parent run (a new generation)")
     run.add_argument("--max-concurrent", dest="max_concurrent", type=int, help="trials at once (default: CPUs)")
     run.add_argument("--no-report", dest="report", action="store_false", help="skip the report at the end")
+    run.add_argument(
+        "--only",
+        action="append",
+        metavar="VARIANT[,VARIANT...]",
+        help="run only these variants (repeatable; grid variant names may themselves contain commas)",
+    )
+    run.add_argument("--seeds", type=_seed_list, metavar="SEED[,SEED...]", help="run only these seeds, e.g. 0,1")
+    run.add_argument(
+        "--dry-run",
+        dest="dry_run",
+        action="store_true",
+        help="list the trials (variant, seed, key) and exit: starts no Ray, writes nothing",
+    )
 
-    report = commands.add_parser("report", help="write reports/<experiment>/ from the MLflow store")
+    status = commands.add_parser(
+        "status",
+        help="what the MLflow store holds: ablations, launches, generations, trials by state",
+        description="Without EXPERIMENT: one line per ablation in the MLflow store. With it: its generations, "
+        "their launches and trials by state, and the newest generation per variant (with an experiment file, "
+        "its trials that have no run yet count as pending). Reads only.",
+    )
+    status.add_argument(
+        "experiment",
+        nargs="?",
+        help="an ablation's name or experiment file, e.g. cartpole or experiments/cartpole.toml",
+    )
+    status.add_argument(
+        "--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)"
+    )
+
+    report = commands.add_parser(
+        "report",
+        help="write reports/<experiment>/ (Markdown, HTML, PDF) from the MLflow store",
+        description="Write reports/<experiment>/ from the MLflow store: report.md, a self-contained report.html, "
+        "report.pdf (headless Chromium), figures, tables and videos; the report is attached to the launch's MLflow "
+        "run. Nothing is written unless the whole report could be built.",
+    )
     report.add_argument("experiment", help="experiment file or name, e.g. experiments/cartpole.toml or cartpole")
-    report.add_argument("--tracking-uri", dest="tracking_uri")
+    report.add_argument(
+        "--tracking-uri", dest="tracking_uri", help="MLflow store to read (default: sqlite:///mlflow.db); never created"
+    )
     report.add_argument("--out", type=Path, default=Path("reports"), help="reports folder (default: reports)")
+    report.add_argument(
+        "--generation",
+        help="report this generation (an id or a unique prefix; default: the newest launch's), e.g. the complete one "
+        "before a --fresh run was interrupted",
+    )
+    report.add_argument("--variants", help="only these variants, comma-separated, e.g. baseline,deep (default: all)")
+    report.add_argument("--baseline", help="the variant the others are compared to (default: the experiment's)")
+    report.add_argument("--no-pdf", dest="pdf", action="store_false", help="skip report.pdf (Chromium not needed)")
     return parser
 
 
-TRAIN_KNOBS = (
-    "env_id",
-    "seed",
-    "learning_rate",
-    "gamma",
-    "l2",
-    "episodes_per_update",
-    "max_episodes",
-    "architecture",
-    "hidden_sizes",
-    "activation",
-    "dropout",
-    "solve_threshold",
-    "record_video",
-)
+def trial_from(args: argparse.Namespace, knobs: dict[str, Any]) -> tuple[TrialConfig, GridTrial]:
+    """The trial ``--from EXPERIMENT --variant V --seed S`` names, with only the knobs that leave its key alone."""
+    from ablate.config import load_experiment
+
+    experiment = load_experiment(args.from_experiment)
+    trials = expand(experiment)
+    variants = ", ".join(dict.fromkeys(t.variant for t in trials))
+    seeds = ", ".join(str(s) for s in experiment.seeds)
+    if args.variant is None or args.seed is None:
+        raise ConfigError(
+            f"--from {args.from_experiment} needs --variant (one of {variants}) and --seed (one of {seeds})"
+        )
+    changed = sorted(k for k in knobs if k not in (*NOT_IN_KEY_KNOBS, "seed"))
+    if changed or args.preset != "default":
+        flags = ", ".join(f"--{k.replace('_', '-')}" for k in changed) or "--preset"
+        raise ConfigError(
+            f"{flags}: not with --from, which trains the experiment's trial as it is (its key names its config); "
+            f"valid with --from: --no-video, --video-max-frames, --out"
+        )
+    trial = next((t for t in trials if t.variant == args.variant and t.seed == args.seed), None)
+    if trial is None:
+        if args.variant not in variants.split(", "):
+            raise ConfigError(
+                f"--variant {args.variant!r} is not a variant of {args.from_experiment}; valid: {variants}"
+            )
+        raise ConfigError(f"--seed {args.seed} is not a seed of {args.from_experiment}; valid: {seeds}")
+    extra = {k: v for k, v in knobs.items() if k in NOT_IN_KEY_KNOBS}
+    return apply_knobs(trial.config, extra), trial
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     knobs = {k: getattr(args, k) for k in TRAIN_KNOBS if getattr(args, k) is not None}
-    config = apply_knobs(PRESETS[args.preset], knobs)  # ConfigError before anything is written
-    out = args.out or Path("outputs/train") / f"{config.env_id.replace('/', '_')}-s{config.seed}"
+    trial = None
+    if args.from_experiment is not None:
+        config, trial = trial_from(args, knobs)
+    elif args.variant is not None:
+        raise ConfigError("--variant: only with --from EXPERIMENT (a preset has no variants)")
+    else:
+        config = apply_knobs(PRESETS[args.preset], knobs)  # ConfigError before anything is written
+    name = trial.key if trial else f"{config.env_id.replace('/', '_')}-s{config.seed}"
+    out = args.out or Path("outputs/train") / name
+    if trial:
+        print(f"trial {trial.key}: variant {trial.variant}, seed {trial.seed} of {args.from_experiment}")
 
     from ablate.trial import run_trial  # heavy imports only once the input is known to be good
 
@@ -98,6 +279,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     result = run_trial(config, on_episodes=progress.update, artifacts_dir=out)
     progress.close()
     summary = result.summary()
+    if trial:
+        summary = {"trial_key": trial.key, "experiment_file": str(args.from_experiment), **summary}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     solved = (
         f"solved at episode {result.episodes_to_solve}"
@@ -136,15 +319,57 @@ class _ProgressLine:
             print()
 
 
+def cmd_status(args: argparse.Namespace) -> int:
+    from ablate.status import detail, overview
+
+    if args.experiment is None:
+        print(overview(args.tracking_uri))
+        return EXIT_OK
+    experiment = None
+    name = args.experiment
+    if name.endswith(".toml") or "/" in name:
+        from ablate.config import load_experiment
+
+        experiment = load_experiment(name)  # a bad file is a ConfigError: one line, exit 2
+        name = experiment.name
+    print(detail(args.tracking_uri, name, experiment))
+    return EXIT_OK
+
+
+def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
+    """``ablate run --dry-run``: the trials a run would consider, and nothing started or written."""
+    overrides = {v.name: ", ".join(f"{k}={json.dumps(x)}" for k, x in v.overrides) for v in experiment.variants}
+    total = len(expand(experiment))
+    print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
+    rows = [("variant", "seed", "key", "overrides")] + [
+        (t.variant, str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials
+    ]
+    widths = [max(len(r[i]) for r in rows) for i in range(3)]
+    for row in rows:
+        print("  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3])
+    print("a real run skips the trials already finished in the newest generation (see: ablate status)")
+    return EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
+    started_at = time.monotonic()
     args = build_parser().parse_args(argv)
     try:
         if args.command == "train":
             return cmd_train(args)
+        if args.command == "status":
+            return cmd_status(args)
         if args.command == "run":
+            from ablate.config import load_experiment
+
+            experiment = load_experiment(args.experiment)  # bad input: one line, before Ray or MLflow is imported
+            trials = select(expand(experiment), args.only, args.seeds)
+            if args.dry_run:
+                return dry_run(experiment, trials)
+            print(f"ablate run {experiment.name}: {len(trials)} trials; starting MLflow and Ray ...", flush=True)
             from ablate.runner import cmd_run
 
-            return cmd_run(args)
+            return cmd_run(args, started_at)
         from ablate.report import cmd_report
 
         return cmd_report(args)

@@ -26,6 +26,9 @@ MAX_VARIANT_NAME_LENGTH = 200
 MAX_TRIALS = 10_000
 """Trials (variants x seeds) one experiment may hold: more is a typo in a ``[grid]`` far more often than an
 intent, and expanding it would take minutes and gigabytes before the first trial starts."""
+# --- Pong env knobs (issue 9) ---
+PONG_ACTION_SETS = ("all", "move")
+"""``all``: Pong's 6 actions; ``move``: only UP and DOWN (ALE actions 2 and 3), as in Karpathy's pg-pong."""
 
 
 class ConfigError(ValueError):
@@ -87,6 +90,35 @@ class TrialConfig:
     fault_marker: str = ""
     """Test-only: a file path ``crash_once`` uses to remember it already crashed, ``block`` waits for."""
 
+    # --- Pong env, collection, videos and checkpoints (issue 9); CartPole ignores the Pong-only ones ---
+    action_set: str = "all"
+    """Pong only: ``all`` (the 6 actions) or ``move`` (UP and DOWN only, as in Karpathy's pg-pong)."""
+    frameskip: int = 4
+    """Pong only: emulator frames per agent step (the action repeats), ALE/Pong-v5's default 4."""
+    repeat_action_probability: float = 0.25
+    """Pong only: sticky actions, the chance the emulator repeats the previous action in a frame (v5: 0.25)."""
+    max_episode_steps: int = 0
+    """Agent steps after which an episode is cut short (truncated); 0: the env's own limit. For smoke runs."""
+    num_envs: int = 0
+    """Pong only: sub-envs stepped together, acting in one batched forward; finished ones start a new episode
+    at once, so an update's episodes may begin under the previous weights. 0: ``episodes_per_update``."""
+    video_every: int = 0
+    """Pong only: every this many episodes, record the next episode of sub-env 0 as the *sampling* policy
+    plays it during training (up to ``video_max_frames`` frames) into ``videos/``; 0: none."""
+    checkpoint_every: int | None = None
+    """Episodes between trial checkpoints (weights, optimizer, RNGs, envs, history); 0: never;
+    ``None``: 50 for Pong, never for CartPole (its trials last seconds)."""
+
+    @property
+    def checkpoint_interval(self) -> int:
+        if self.checkpoint_every is not None:
+            return self.checkpoint_every
+        return 50 if self.reset_on_score else 0
+
+    @property
+    def vector_envs(self) -> int:
+        return self.num_envs or self.episodes_per_update
+
     @property
     def reset_on_score(self) -> bool:
         """Pong's return restarts at every point scored."""
@@ -133,6 +165,20 @@ KNOBS: dict[str, Knob] = {
     "video_max_frames": Knob("trial", lambda v: _is_int(v) and 1 <= v <= 100_000, "an integer in [1, 100000]"),
     "fault": Knob("trial", lambda v: v in FAULTS, "one of '', 'crash_once', 'raise', 'block' (tests only)"),
     "fault_marker": Knob("trial", lambda v: isinstance(v, str), "a file path (tests only)"),
+    # --- Pong env, collection, videos and checkpoints (issue 9) ---
+    "action_set": Knob("trial", lambda v: v in PONG_ACTION_SETS, "'all' (6 actions) or 'move' (UP and DOWN)"),
+    "frameskip": Knob("trial", lambda v: _is_int(v) and 1 <= v <= 16, "an integer in [1, 16]"),
+    "repeat_action_probability": Knob("trial", lambda v: _is_number(v) and 0 <= v <= 1, "a number in [0, 1]", float),
+    "max_episode_steps": Knob(
+        "trial", lambda v: _is_int(v) and 0 <= v <= 1_000_000, "an integer in [0, 1000000] (0: the env's limit)"
+    ),
+    "num_envs": Knob(
+        "trial", lambda v: _is_int(v) and 0 <= v <= 256, "an integer in [0, 256] (0: episodes_per_update)"
+    ),
+    "video_every": Knob("trial", lambda v: _is_int(v) and 0 <= v <= 1_000_000, "an integer in [0, 1000000] (0: off)"),
+    "checkpoint_every": Knob(
+        "trial", lambda v: _is_int(v) and 0 <= v <= 1_000_000, "an integer in [0, 1000000] (0: never)"
+    ),
     "architecture": Knob("model", lambda v: v in ARCHITECTURES, f"one of {', '.join(ARCHITECTURES)}"),
     "hidden_sizes": Knob(
         "model",
@@ -244,9 +290,22 @@ class Experiment:
     baseline: str
     resources_per_trial: float = 1.0
     """CPUs Ray reserves per trial; fractions allowed (e.g. 0.5 packs two trials per core)."""
+    gpus_per_trial: float = 0.0
+    """GPUs Ray reserves per trial; fractions allowed (0.25 packs four trials per GPU). A trial puts its policy
+    on CUDA whenever torch sees one."""
 
 
-EXPERIMENT_KEYS = ("name", "description", "seeds", "baseline", "cpus_per_trial", "base", "variants", "grid")
+EXPERIMENT_KEYS = (
+    "name",
+    "description",
+    "seeds",
+    "baseline",
+    "cpus_per_trial",
+    "gpus_per_trial",
+    "base",
+    "variants",
+    "grid",
+)
 
 
 def load_experiment(path: str | Path) -> Experiment:
@@ -303,6 +362,10 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     cpus = data.get("cpus_per_trial", 1.0)
     if not (_is_number(cpus) and 0 < cpus <= 64):
         raise ConfigError(f"{source}: cpus_per_trial = {cpus!r} is invalid; valid: a number in (0, 64]")
+
+    gpus = data.get("gpus_per_trial", 0.0)
+    if not (_is_number(gpus) and 0 <= gpus <= 16):
+        raise ConfigError(f"{source}: gpus_per_trial = {gpus!r} is invalid; valid: a number in [0, 16]")
 
     base_table = data.get("base", {})
     if not isinstance(base_table, dict):
@@ -365,7 +428,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         raise ConfigError(
             f"{source}: baseline = {baseline!r} is invalid; valid: one of the variant names {sorted(seen)}"
         )
-    return Experiment(name, source, description, base, tuple(variants), seeds, baseline, float(cpus))
+    return Experiment(name, source, description, base, tuple(variants), seeds, baseline, float(cpus), float(gpus))
 
 
 def _without_seed(table: Mapping[str, Any], where: str) -> dict[str, Any]:

@@ -59,3 +59,40 @@ def expand(experiment: Experiment) -> list[GridTrial]:
             config = replace(variant.config, seed=seed)
             trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
     return trials
+
+
+def split_variants(text: str, names: list[str]) -> list[str]:
+    """``--only a,b`` into variant names. Grid variants carry commas in their names (``depth=1,dropout=0.2``),
+    so the longest run of comma-separated parts that is a known name wins; an unknown part is an error."""
+    parts = [p.strip() for p in text.split(",")]
+    chosen, i = [], 0
+    while i < len(parts):
+        for j in range(len(parts), i, -1):
+            candidate = ",".join(parts[i:j])
+            if candidate in names:
+                chosen.append(candidate)
+                i = j
+                break
+        else:
+            raise ConfigError(f"--only: {parts[i]!r} is not a variant; valid: {', '.join(names)}")
+    return chosen
+
+
+def select(trials: list[GridTrial], only: list[str] | None, seeds: list[int] | None) -> list[GridTrial]:
+    """The trials of the ``only`` variants (each a comma-separated list, see ``split_variants``) and ``seeds``;
+    ``None`` keeps all. A variant or seed not in the experiment is a ``ConfigError`` naming the valid ones."""
+    names = list(dict.fromkeys(t.variant for t in trials))
+    all_seeds = list(dict.fromkeys(t.seed for t in trials))
+    wanted = None if only is None else {name for text in only for name in split_variants(text, names)}
+    for seed in seeds or []:
+        if seed not in all_seeds:
+            raise ConfigError(f"--seeds: {seed} is not a seed of this experiment; valid: {_ranges(all_seeds)}")
+    return [t for t in trials if (wanted is None or t.variant in wanted) and (seeds is None or t.seed in seeds)]
+
+
+def _ranges(seeds: list[int]) -> str:
+    return (
+        ", ".join(str(s) for s in seeds)
+        if len(seeds) <= 12
+        else f"{len(seeds)} seeds from {min(seeds)} to {max(seeds)}"
+    )

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -34,6 +35,29 @@ def plot_progress(
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def plot_pong_observation(previous: np.ndarray, frame: np.ndarray, path: str | Path) -> Path:
+    """One Pong observation three ways, side by side: the raw RGB frame, ``pre_process``-ed (80x80, 0/1),
+    and the frame difference the policy sees (current - previous pre-processed frame: -1/0/+1)."""
+    from ablate.envs import frame_difference, pre_process
+
+    path = Path(path)
+    fig, axes = plt.subplots(1, 3, figsize=(9, 3.4), dpi=100)
+    panels = [
+        (frame, "raw frame 210x160x3", {}),
+        (pre_process(frame), "pre_process: 80x80, 0/1", {"cmap": "gray", "vmin": 0, "vmax": 1}),
+        (frame_difference(frame, previous), "frame difference: -1/0/+1", {"cmap": "coolwarm", "vmin": -1, "vmax": 1}),
+    ]
+    for ax, (image, title, style) in zip(axes, panels, strict=True):
+        ax.imshow(image, interpolation="nearest", **style)
+        ax.set_title(title, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

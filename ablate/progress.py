@@ -1,12 +1,21 @@
-"""The live terminal view of an ablation: trials done / running / pending / failed, best rolling mean per
-variant, elapsed and estimated time left. A refreshing panel on a terminal, a line every 10 s otherwise."""
+"""The live terminal view of an ablation: a running clock from the command's start, the time left from the
+expected cost of every trial still to run, a row per running trial, per-variant figures over seeds.
+
+A panel redrawn four times a second on a terminal (the clock runs while Ray starts); a line every 10 s otherwise.
+"""
 
 from __future__ import annotations
 
+import heapq
+import statistics
 import sys
+import threading
 import time
-from collections import defaultdict
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -14,111 +23,304 @@ from rich.table import Table
 
 from ablate.grid import GridTrial
 
+RATE_REPORTS = 4
+"""Reports (one per ~2 s per trial) that a running trial's recent pace is measured over."""
+MAX_RUNNING_ROWS = 16
+"""Rows of running trials shown; more are summarised in one line."""
 
-def _clock(seconds: float) -> str:
+
+def clock(seconds: float) -> str:
+    """``m:ss`` (``h:mm:ss`` past an hour)."""
     seconds = int(max(seconds, 0))
+    hours, rest = divmod(seconds, 3600)
+    if hours:
+        return f"{hours}:{rest // 60:02d}:{rest % 60:02d}"
     return f"{seconds // 60}:{seconds % 60:02d}"
 
 
+@dataclass
+class _Trial:
+    trial: GridTrial
+    started_at: float | None = None
+    ended_at: float | None = None
+    episode: int = 0
+    """Last episode reported."""
+    rolling_mean: float | None = None
+    """Rolling mean at the last episode reported (the final one once finished)."""
+    state: str = "pending"
+    """pending, running, done, failed."""
+    solved: bool = False
+    reports: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=RATE_REPORTS))
+    """(time, episode) of the newest reports: the recent pace, which slows as a CartPole agent's episodes grow."""
+
+    @property
+    def budget(self) -> int:
+        return self.trial.config.max_episodes
+
+    def seconds_per_episode(self, now: float) -> float | None:
+        """Over the newest reports when there are two, else since the trial started."""
+        if len(self.reports) >= 2 and self.reports[-1][1] > self.reports[0][1]:
+            (t0, e0), (t1, e1) = self.reports[0], self.reports[-1]
+            return (t1 - t0) / (e1 - e0)
+        if self.started_at is None or not self.episode:
+            return None
+        return ((self.ended_at or now) - self.started_at) / self.episode
+
+
+def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], slots: int) -> float:
+    """Seconds until the last trial ends when ``pending_cost_s`` (in scheduling order) each take the next free
+    one of ``slots`` trial slots, the running trials holding theirs for ``running_left_s``: a long trial
+    that starts last runs alone, which a mean cost over the remaining count would not see."""
+    free_at = sorted([max(s, 0.0) for s in running_left_s] + [0.0] * max(slots - len(running_left_s), 0))
+    if not free_at:
+        free_at = [0.0]
+    heapq.heapify(free_at)
+    for cost in pending_cost_s:
+        heapq.heappush(free_at, heapq.heappop(free_at) + cost)
+    return max(free_at)
+
+
 class ProgressView:
-    def __init__(self, name: str, trials: Sequence[GridTrial], already_done: int, enabled: bool = True) -> None:
+    """Events in (``started``, ``episodes``, ``finished``, ``failed``), a panel out. Events come on the driver's
+    main thread, the panel is drawn on rich's refresh thread: a lock keeps them apart."""
+
+    def __init__(
+        self,
+        name: str,
+        trials: Sequence[GridTrial],
+        already_done: int,
+        enabled: bool = True,
+        slots: int | None = None,
+        start: float | None = None,
+    ) -> None:
+        """``slots``: trials that can run at once (``None``: the most seen running at once). ``start``: the
+        ``time.monotonic()`` the command started at, so the clock includes imports and Ray's start."""
         self.name = name
-        self.variant_of = {t.key: t.variant for t in trials}
+        self.trials = {t.key: _Trial(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
-        self.total = len(trials)
         self.already_done = already_done
-        self.pending = set(self.variant_of)
-        self.running: set[str] = set()
-        self.done_keys: set[str] = set()
-        self.failed_keys: set[str] = set()
-        self.best: dict[str, float] = defaultdict(lambda: float("-inf"))
-        self.solved: dict[str, int] = defaultdict(int)
-        self.durations: list[float] = []
-        self.started_at: dict[str, float] = {}
-        self.start = time.monotonic()
-        self.max_running = 1
+        self.slots = slots
+        self.start = time.monotonic() if start is None else start
+        self.first_start: float | None = None
+        self.trials_end: float | None = None
+        self.max_running = 0
         self.enabled = enabled
         self.tty = sys.stdout.isatty()
         self.console = Console()
         self.live: Live | None = None
         self.last_line = 0.0
+        self.lock = threading.Lock()
 
     # --- events -----------------------------------------------------------------------------------
     def started(self, key: str) -> None:
-        self.pending.discard(key)
-        self.running.add(key)
-        self.started_at.setdefault(key, time.monotonic())
-        self.max_running = max(self.max_running, len(self.running))
+        with self.lock:
+            now = time.monotonic()
+            trial = self.trials[key]
+            trial.state, trial.started_at, trial.episode, trial.rolling_mean = "running", now, 0, None
+            trial.reports.clear()
+            self.first_start = self.first_start or now
+            self.max_running = max(self.max_running, self._count("running"))
         self.refresh()
 
-    def episodes(self, key: str, rolling_mean: float) -> None:
-        variant = self.variant_of[key]
-        self.best[variant] = max(self.best[variant], rolling_mean)
+    def episodes(self, key: str, rows: Sequence[Any]) -> None:
+        """``rows``: the trial's newest episodes (``EpisodeMetrics``), oldest first."""
+        if not rows:
+            return
+        with self.lock:
+            trial = self.trials[key]
+            trial.episode, trial.rolling_mean = rows[-1].episode, rows[-1].rolling_mean
+            trial.reports.append((time.monotonic(), trial.episode))
         self.refresh()
 
     def finished(self, key: str, solved: bool) -> None:
-        self.running.discard(key)
-        self.done_keys.add(key)
-        self.solved[self.variant_of[key]] += int(solved)
-        self.durations.append(time.monotonic() - self.started_at.get(key, self.start))
-        self.refresh()
+        self._end(key, "done", solved)
 
     def failed(self, key: str) -> None:
-        self.running.discard(key)
-        self.pending.discard(key)
-        self.failed_keys.add(key)
+        self._end(key, "failed", False)
+
+    def _end(self, key: str, state: str, solved: bool) -> None:
+        with self.lock:
+            trial = self.trials[key]
+            trial.state, trial.solved, trial.ended_at = state, solved, time.monotonic()
+            if not self._count("pending") and not self._count("running"):
+                self.trials_end = trial.ended_at
         self.refresh()
+
+    def _count(self, state: str) -> int:
+        return sum(t.state == state for t in self.trials.values())
+
+    # --- the estimate -----------------------------------------------------------------------------
+    def _seconds_per_episode(self, variant: str | None, now: float) -> float | None:
+        """The mean pace (wall seconds per episode) of this variant's trials so far (every variant's when
+        ``None``): recent for running trials, whole for ended ones."""
+        rates = [
+            rate
+            for t in self.trials.values()
+            if variant is None or t.trial.variant == variant
+            if (rate := t.seconds_per_episode(now)) is not None
+        ]
+        return statistics.fmean(rates) if rates else None
+
+    def expected_cost(self, variant: str, now: float | None = None) -> float | None:
+        """Expected seconds of a trial of ``variant`` that has not started: the mean of its finished trials;
+        before one has finished, its whole episode budget at the seconds per episode seen so far (the
+        variant's own, else every variant's); ``None`` before any trial has reported an episode."""
+        now = time.monotonic() if now is None else now
+        done = [t for t in self.trials.values() if t.trial.variant == variant and t.state == "done"]
+        if done:
+            return statistics.fmean(t.ended_at - t.started_at for t in done if t.started_at and t.ended_at)
+        rate = self._seconds_per_episode(variant, now) or self._seconds_per_episode(None, now)
+        if rate is None:
+            return None
+        budget = next(t.budget for t in self.trials.values() if t.trial.variant == variant)
+        return rate * budget
+
+    def _left_of_running(self, trial: _Trial, now: float) -> float | None:
+        elapsed = now - (trial.started_at or now)
+        expected = self.expected_cost(trial.trial.variant, now)
+        if (
+            expected is not None
+            and expected > elapsed
+            and any(t.state == "done" for t in self.trials.values() if t.trial.variant == trial.trial.variant)
+        ):
+            return expected - elapsed
+        rate = trial.seconds_per_episode(now) or self._seconds_per_episode(None, now)
+        if rate is None:
+            return None
+        return rate * max(trial.budget - trial.episode, 0)
+
+    def seconds_left(self, now: float | None = None) -> float | None:
+        """Seconds until the last trial ends, or ``None`` while nothing is known of any trial's cost."""
+        now = time.monotonic() if now is None else now
+        running = [t for t in self.trials.values() if t.state == "running"]
+        pending = [t for t in self.trials.values() if t.state == "pending"]
+        if not running and not pending:
+            return 0.0
+        running_left = [self._left_of_running(t, now) for t in running]
+        costs = {v: self.expected_cost(v, now) for v in {t.trial.variant for t in pending}}
+        if any(x is None for x in running_left) or any(c is None for c in costs.values()):
+            return None
+        slots = self.slots or max(self.max_running, 1)
+        return makespan(running_left, [costs[t.trial.variant] for t in pending], slots)  # type: ignore[misc]
 
     # --- rendering --------------------------------------------------------------------------------
     def headline(self) -> str:
-        elapsed = time.monotonic() - self.start
-        remaining = len(self.pending) + len(self.running)
-        if self.durations:
-            mean = sum(self.durations) / len(self.durations)
-            eta = f"~{_clock(mean * remaining / self.max_running)} left"
+        now = time.monotonic()
+        counts = {s: self._count(s) for s in ("done", "running", "pending", "failed")}
+        if self.first_start is None:
+            state = "starting Ray (its workers import torch before the first trial starts)"
+        elif self.trials_end is not None:
+            state = "all trials ended"
         else:
-            eta = "time left: after the first trial"
+            left = self.seconds_left(now)
+            state = f"~{clock(left)} left" if left is not None else "time left: once a trial reports its episodes"
         return (
-            f"{self.name}: {len(self.done_keys)} done, {len(self.running)} running, {len(self.pending)} pending, "
-            f"{len(self.failed_keys)} failed (of {self.total}; {self.already_done} finished before) | "
-            f"{_clock(elapsed)} elapsed, {eta}"
+            f"{self.name}: {counts['done']} done, {counts['running']} running, {counts['pending']} pending, "
+            f"{counts['failed']} failed (of {len(self.trials)}; {self.already_done} finished before) | "
+            f"{clock(now - self.start)} elapsed, {state}"
         )
 
-    def render(self) -> Group:
+    def _running_table(self, now: float) -> Table | str:
+        running = sorted((t for t in self.trials.values() if t.state == "running"), key=lambda t: t.started_at or 0)
+        if not running:
+            return ""
+        table = Table(box=None, pad_edge=False, title="running", title_justify="left")
+        for column in ("variant", "seed", "episode", "rolling mean", "running for"):
+            table.add_column(column, justify="left" if column == "variant" else "right")
+        for t in running[:MAX_RUNNING_ROWS]:
+            table.add_row(
+                t.trial.variant,
+                str(t.trial.seed),
+                f"{t.episode:,}/{t.budget:,}" if t.episode else f"-/{t.budget:,}",
+                "-" if t.rolling_mean is None else f"{t.rolling_mean:.1f}",
+                clock(now - (t.started_at or now)),
+            )
+        if len(running) > MAX_RUNNING_ROWS:
+            table.add_row(f"... and {len(running) - MAX_RUNNING_ROWS} more", "", "", "", "")
+        return table
+
+    def _variant_table(self) -> Table:
         table = Table(box=None, pad_edge=False)
-        for column in ("variant", "done", "solved", "best rolling mean"):
+        columns = ("variant", "done", "running", "solved", "seeds reporting", "rolling mean: median of seeds", "range")
+        for column in columns:
             table.add_column(column, justify="left" if column == "variant" else "right")
         for variant in self.variants:
-            keys = [k for k, v in self.variant_of.items() if v == variant]
-            done = sum(k in self.done_keys for k in keys)
-            best = self.best[variant]
+            trials = [t for t in self.trials.values() if t.trial.variant == variant]
+            means = sorted(t.rolling_mean for t in trials if t.rolling_mean is not None and t.state != "failed")
             table.add_row(
                 variant,
-                f"{done}/{len(keys)}",
-                str(self.solved[variant]),
-                "-" if best == float("-inf") else f"{best:.1f}",
+                f"{sum(t.state == 'done' for t in trials)}/{len(trials)}",
+                str(sum(t.state == "running" for t in trials)),
+                str(sum(t.solved for t in trials)),
+                str(len(means)),
+                f"{statistics.median(means):.1f}" if means else "-",
+                f"{means[0]:.1f} to {means[-1]:.1f}" if len(means) > 1 else "-",
             )
-        return Group(self.headline(), table)
+        return table
+
+    def render(self) -> Group:
+        with self.lock:
+            now = time.monotonic()
+            return Group(self.headline(), self._running_table(now), self._variant_table())
 
     def refresh(self) -> None:
-        if not self.enabled:
-            return
-        if self.live is not None:
-            self.live.update(self.render())
-        elif time.monotonic() - self.last_line >= 10:
+        if not self.enabled or self.live is not None:
+            return  # the live panel redraws itself four times a second
+        if time.monotonic() - self.last_line >= 10:
             self.last_line = time.monotonic()
-            print(self.headline(), flush=True)
+            with self.lock:
+                line = self.headline()
+            print(line, flush=True)
+
+    def total_line(self, report_s: float | None = None) -> str:
+        """The whole command's time, split into its stages."""
+        now = time.monotonic()
+        parts = []
+        if self.first_start is not None:
+            parts.append(f"until the first trial started {clock(self.first_start - self.start)}")
+            parts.append(f"trials {clock((self.trials_end or now) - self.first_start)}")
+        if report_s is not None:
+            parts.append(f"report {clock(report_s)}")
+        return f"total {clock(now - self.start)}" + (f" ({', '.join(parts)})" if parts else "")
 
     def __enter__(self) -> ProgressView:
         if self.enabled and self.tty:
-            self.live = Live(self.render(), console=self.console, refresh_per_second=4, transient=False)
+            self.live = Live(
+                console=self.console, get_renderable=self.render, refresh_per_second=4, redirect_stderr=False
+            )
             self.live.__enter__()
+        elif self.enabled:
+            self.refresh()
         return self
 
     def __exit__(self, *exc: object) -> None:
         if self.live is not None:
-            self.live.update(self.render())
+            self.live.refresh()
             self.live.__exit__(None, None, None)
             self.live = None
         elif self.enabled:
-            print(self.headline(), flush=True)
+            with self.lock:
+                line = self.headline()
+            print(line, flush=True)
+
+
+@contextmanager
+def stage(text: str, enabled: bool = True) -> Iterator[list[float]]:
+    """A line with a running clock while a slow step runs (``text ... 0:04``), then ``text: done in 6.8 s``.
+    Yields a list that holds the step's seconds once it ends."""
+    began = time.monotonic()
+    seconds: list[float] = []
+    live = None
+    if enabled and sys.stdout.isatty():
+        live = Live(get_renderable=lambda: f"{text} ... {clock(time.monotonic() - began)}", transient=True)
+        live.__enter__()
+    elif enabled:
+        print(f"{text} ...", flush=True)
+    try:
+        yield seconds
+    finally:
+        seconds.append(time.monotonic() - began)
+        if live is not None:
+            live.__exit__(None, None, None)
+        if enabled:
+            print(f"{text}: done in {seconds[0]:.1f} s", flush=True)

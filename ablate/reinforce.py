@@ -45,7 +45,9 @@ def choose_action(
     No autograd graph is built: the log-probabilities are recomputed in one batched forward at update
     time, which is what makes collection cheap.
     """
-    observation = np.asarray(observation, dtype=np.float32)
+    observation = np.asarray(observation)
+    if observation.dtype != np.int8:  # int8: Pong's frame differences, which the policies take as they are
+        observation = observation.astype(np.float32, copy=False)
     single = observation.ndim == len(model.observation_shape)
     batch = observation[None] if single else observation
     if model.training:
@@ -104,7 +106,8 @@ def compute_loss(logits: torch.Tensor, actions: torch.Tensor, weights: torch.Ten
 
 def l2_penalty(model: nn.Module) -> torch.Tensor:
     """Sum of squared weights of every layer, biases excluded (Keras ``regularizers.l2`` semantics)."""
-    return sum((p.pow(2).sum() for name, p in model.named_parameters() if name.endswith("weight")), torch.zeros(()))
+    weights = [p for name, p in model.named_parameters() if name.endswith("weight")]
+    return sum((p.pow(2).sum() for p in weights), torch.zeros((), device=weights[0].device if weights else None))
 
 
 class Optimizer(Protocol):
@@ -128,6 +131,7 @@ def train_step(
     actions: np.ndarray,
     discounted_rewards: np.ndarray,
     l2: float = 0.0,
+    chunk_size: int | None = None,
 ) -> UpdateStats:
     """One gradient step on a batch: a single forward in training mode (dropout active), backward, step.
 
@@ -135,17 +139,33 @@ def train_step(
     ``l2 * sum(w**2)`` over weight matrices (not biases), rather than Adam's ``weight_decay``: Adam's
     coupled decay would also shrink biases, and a loss term means the same thing as the course's Keras
     ``kernel_regularizer=l2(...)``, so a value read in the course transfers unchanged.
+
+    ``chunk_size``: forward and backward at most this many observations at a time, summing gradients (the
+    same gradient as one pass, in bounded memory: a Pong batch of 8,000 frames is GBs of activations).
+    Observations may be int8 (Pong's frame differences); they become float32 chunk by chunk, on the
+    model's device.
     """
     model.train()
-    logits = model(torch.as_tensor(observations, dtype=torch.float32))
-    actions_t = torch.as_tensor(actions, dtype=torch.int64)
-    weights = torch.as_tensor(discounted_rewards, dtype=torch.float32)
-    policy_loss = compute_loss(logits, actions_t, weights)
-    loss = policy_loss + l2 * l2_penalty(model) if l2 > 0 else policy_loss
+    device = next(model.parameters()).device
+    total = len(actions)
+    step = chunk_size or max(total, 1)
     optimizer.zero_grad(set_to_none=True)
-    loss.backward()
+    policy_loss_sum, entropy_sum = 0.0, 0.0
+    for start in range(0, max(total, 1), step):
+        end = min(start + step, total)
+        chunk = torch.as_tensor(observations[start:end]).to(device)
+        if chunk.dtype != torch.int8:  # int8 (Pong's frame differences): the policy takes them as they are
+            chunk = chunk.float()
+        logits = model(chunk)
+        actions_t = torch.as_tensor(actions[start:end], dtype=torch.int64, device=device)
+        weights = torch.as_tensor(discounted_rewards[start:end], dtype=torch.float32, device=device)
+        # compute_loss is a mean over the chunk; scaled, the chunks' losses sum to the whole batch's mean.
+        policy_loss = compute_loss(logits, actions_t, weights) * ((end - start) / total)
+        loss = policy_loss + l2 * l2_penalty(model) if l2 > 0 and start == 0 else policy_loss
+        loss.backward()
+        policy_loss_sum += float(policy_loss.item())
+        with torch.no_grad():
+            log_probs = F.log_softmax(logits, dim=1)
+            entropy_sum += float(-(log_probs.exp() * log_probs).sum(dim=1).sum().item())
     optimizer.step()
-    with torch.no_grad():
-        log_probs = F.log_softmax(logits, dim=1)
-        entropy = -(log_probs.exp() * log_probs).sum(dim=1).mean()
-    return UpdateStats(loss=float(policy_loss.item()), entropy=float(entropy.item()))
+    return UpdateStats(loss=policy_loss_sum, entropy=entropy_sum / max(total, 1))

@@ -1,6 +1,7 @@
-"""Write ``reports/<experiment>/``: report.md, a self-contained report.html, figures, tables and videos.
+"""Write ``reports/<experiment>/``: report.md, a self-contained report.html, report.pdf, figures, tables, videos.
 
-Reads only from the tracking store (through ``results``), so it works from any machine that reaches it.
+Reads only from the tracking store (through ``results``), so it works from any machine that reaches it. A
+report is built in a temporary folder and swapped in whole: a failed build never replaces a good report.
 """
 
 from __future__ import annotations
@@ -10,251 +11,177 @@ import base64
 import html
 import re
 import shutil
+import subprocess
+import sys
+import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+import markdown
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import markdown  # noqa: E402
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from ablate.config import load_experiment  # noqa: E402
-from ablate.results import (  # noqa: E402
+from ablate.config import ConfigError, load_experiment
+from ablate.figures import (
+    Figure,
+    ablation_window,
+    figure_improvement,
+    figure_observation,
+    figure_overview,
+    figure_parameters,
+    figure_per_seed,
+    figure_small_multiples,
+    figure_wallclock,
+)
+from ablate.figures import esc as _esc
+from ablate.figures import fmt as _fmt
+from ablate.results import (
+    BETTER,
+    CONFIDENCE,
+    INITIAL_EPISODES,
+    N_RESAMPLES,
+    NO_CLAIM,
+    WORSE,
     Ablation,
     NoResults,
     comparisons,
     convergence_table,
-    curve_band,
     load_ablation,
+    select,
+    smallest_p_value,
 )
-from ablate.tracking import Tracker  # noqa: E402
+from ablate.tracking import Tracker
 
-COLOURS = plt.get_cmap("tab10").colors
+# Knobs that together make one architecture: a variant changing several of them changes one thing.
+ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
 
 
 def _pct(x: float) -> str:
     return f"{int(round(100 * x))}%"
 
 
-def _fmt(x: float, digits: int = 0) -> str:
-    return "–" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:,.{digits}f}"
-
-
-# --- figures -------------------------------------------------------------------------------------------
-def _save(fig, folder: Path, name: str) -> str:
-    fig.tight_layout()
-    for ext in ("png", "svg"):
-        fig.savefig(folder / f"{name}.{ext}", dpi=110)
-    plt.close(fig)
-    return f"figures/{name}.png"
-
-
-def figure_learning_curves(ablation: Ablation, folder: Path) -> tuple[str, str]:
-    budget = int(ablation.finished.budget.max())
-    threshold = _threshold(ablation)
-    episode_grid = np.unique(np.linspace(1, budget, 200).astype(int)).astype(float)
-    wall_max = float(ablation.curves.wall_s.max()) if len(ablation.curves) else 1.0
-    wall_min = float(ablation.curves.wall_s[ablation.curves.wall_s > 0].min()) if len(ablation.curves) else 0.01
-    wall_grid = np.geomspace(wall_min, wall_max, 200)
-    paths = []
-    for x, grid, label, name in (
-        ("episode", episode_grid, "episode", "learning_curves_episodes"),
-        ("wall_s", wall_grid, "wall-clock seconds, log scale (one CPU per trial)", "learning_curves_wallclock"),
-    ):
-        fig, ax = plt.subplots(figsize=(10, 5.2))
-        for i, variant in enumerate(ablation.variants):
-            curves = ablation.curves[ablation.curves.variant == variant]
-            if curves.empty:
-                continue
-            centre, low, high = curve_band(curves, x, grid)
-            colour = COLOURS[i % len(COLOURS)]
-            width = 2.6 if variant == ablation.baseline else 1.4
-            ax.plot(grid, centre, color=colour, linewidth=width, label=variant)
-            ax.fill_between(grid, low, high, color=colour, alpha=0.15, linewidth=0)
-        if threshold is not None:
-            ax.axhline(threshold, color="black", linestyle="--", linewidth=0.8, label=f"solved ({threshold:g})")
-        if x == "wall_s":
-            ax.set_xscale("log")  # variants differ ten-fold in speed: a linear axis hides the fast ones
-        ax.set_xlabel(label)
-        ax.set_ylabel(f"rolling mean return ({_window(ablation)} episodes)")
-        ax.set_title("Learning curves: IQM across seeds, 95% bootstrap band")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-        paths.append(_save(fig, folder, name))
-    return paths[0], paths[1]
-
-
-def figure_episodes_to_solve(ablation: Ablation, folder: Path) -> str:
-    fig, ax = plt.subplots(figsize=(9, 0.45 * len(ablation.variants) + 1.5))
-    rng = np.random.default_rng(0)
-    budget = ablation.finished.budget.max()
-    for i, variant in enumerate(ablation.variants):
-        done = ablation.finished[ablation.finished.variant == variant]
-        jitter = rng.uniform(-0.15, 0.15, len(done))
-        solved = done.solved.to_numpy() == 1
-        y = np.full(len(done), i) + jitter
-        ax.scatter(done.censored_episodes[solved], y[solved], color=COLOURS[i % 10], s=36, zorder=3)
-        ax.scatter(
-            done.censored_episodes[~solved] * (1 + rng.uniform(0.005, 0.04, (~solved).sum())),
-            y[~solved],
-            facecolors="none",
-            edgecolors=COLOURS[i % 10],
-            s=36,
-            zorder=3,
-            marker="s",
-        )
-        if len(done):
-            ax.plot([np.median(done.censored_episodes)] * 2, [i - 0.3, i + 0.3], color="black", linewidth=1.5)
-    ax.axvline(budget, color="grey", linestyle=":", linewidth=1)
-    ax.text(budget, len(ablation.variants) - 0.4, " budget", color="grey", fontsize=8, va="bottom")
-    ax.set_yticks(range(len(ablation.variants)), ablation.variants)
-    ax.invert_yaxis()
-    ax.set_xlabel("episodes to solve (every seed; hollow squares: unsolved, censored at the budget; bar: median)")
-    ax.grid(axis="x", alpha=0.3)
-    return _save(fig, folder, "episodes_to_solve")
-
-
-def figure_improvement(ablation: Ablation, table: pd.DataFrame, folder: Path) -> str | None:
-    if table.empty:
-        return None
-    fig, ax = plt.subplots(figsize=(8, 0.45 * len(table) + 1.5))
-    y = np.arange(len(table))
-    low = table.p_improvement - table.p_improvement_ci_low
-    high = table.p_improvement_ci_high - table.p_improvement
-    ax.errorbar(table.p_improvement, y, xerr=[low, high], fmt="o", color="tab:blue", capsize=3)
-    ax.axvline(0.5, color="black", linestyle="--", linewidth=0.8)
-    ax.set_yticks(y, table.variant)
-    ax.invert_yaxis()
-    ax.set_xlim(-0.02, 1.02)
-    ax.set_xlabel(f"P(variant solves in fewer episodes than {ablation.baseline}), 95% bootstrap CI")
-    ax.grid(axis="x", alpha=0.3)
-    return _save(fig, folder, "probability_of_improvement")
-
-
-# --- text ------------------------------------------------------------------------------------------------
-def _threshold(ablation: Ablation) -> float | None:
-    for params in ablation.params.values():
-        value = params.get("solve_threshold", "None")
-        if value not in ("None", ""):
-            return float(value)
-    env = ablation.grid["base"].get("env_id", "")
-    return {"CartPole-v0": 195.0, "CartPole-v1": 475.0}.get(env)
-
-
-def _window(ablation: Ablation) -> int:
-    return int(ablation.grid["base"].get("solve_window", 100))
-
-
-def _episodes_cell(row: pd.Series, stat: str) -> str:
-    value, low, high = row[f"episodes_{stat}"], row[f"episodes_{stat}_ci_low"], row[f"episodes_{stat}_ci_high"]
-    bound = "≥ " if row[f"{stat}_censored"] else ""
-    return f"{bound}{_fmt(value)} [{_fmt(low)}, {_fmt(high)}]"
-
-
-def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[str]:
-    """Sentences from the statistics, each citing its interval; no claim without one. Where unsolved seeds
-    are censored the difference is a bound, and the sentence says which way ("at least")."""
-    sentences = []
-    base = ablation.baseline
-    for _, row in compare.iterrows():
-        reduction, low, high = row.episodes_reduction, row.episodes_reduction_ci_low, row.episodes_reduction_ci_high
-        poi = (
-            f"P(fewer episodes) = {row.p_improvement:.2f} "
-            f"[{row.p_improvement_ci_low:.2f}, {row.p_improvement_ci_high:.2f}]"
-        )
-        auc = (
-            f"area under the learning curve {_signed_pct(row.auc_change)} (95% CI {_signed_pct(row.auc_change_ci_low)}"
-            f" to {_signed_pct(row.auc_change_ci_high)})"
-        )
-        if np.isnan(low):
-            sentences.append(f"**{row.variant}** vs {base}: too few seeds for an interval; no claim.")
-        elif low > 0:
-            # Better. Censoring in the baseline only hides how much slower it is: the gain is a lower bound.
-            bound = "at least " if row.baseline_censored and not row.variant_censored else ""
-            caveat = " (unsolved seeds on both sides counted at the budget)" if row.variant_censored else ""
-            sentences.append(
-                f"**{row.variant}** solves in {bound}{_pct(reduction)} fewer episodes than {base} (IQM; 95% CI "
-                f"{_pct(low)} to {_pct(high)}){caveat}; {poi}; {auc}."
-            )
-        elif high < 0:
-            bound = "at least " if row.variant_censored and not row.baseline_censored else ""
-            caveat = " (unsolved seeds on both sides counted at the budget)" if row.baseline_censored else ""
-            sentences.append(
-                f"**{row.variant}** needs {bound}{_pct(-reduction)} more episodes than {base} (IQM; 95% CI "
-                f"{_pct(-high)} to {_pct(-low)} more){caveat}; {poi}; {auc}."
-            )
-        else:
-            sentences.append(
-                f"**{row.variant}** vs {base}: the data do not separate them on episodes to solve (change "
-                f"{_signed_pct(-reduction)}, 95% CI {_signed_pct(-high)} to {_signed_pct(-low)}; {poi}); {auc}."
-            )
-    for _, row in table.iterrows():
-        if row.seeds_run and row.solved < row.seeds_run:
-            sentences.append(
-                f"**{row.variant}**: {row.seeds_run - row.solved} of {row.seeds_run} seeds did not solve within "
-                f"{_fmt(row.budget)} episodes."
-            )
-    return sentences
+def _signed(x: float, digits: int = 1) -> str:
+    return "–" if pd.isna(x) else f"{x:+,.{digits}f}"
 
 
 def _signed_pct(x: float) -> str:
+    if pd.isna(x):
+        return "–"
     value = int(round(100 * x))
     return f"{value:+d}%" if value else "0%"
 
 
+def _interval(low: float, high: float, digits: int = 0, n: int | None = None) -> str:
+    if pd.isna(low) or pd.isna(high):
+        return "[no interval: 1 seed]" if n == 1 else "[no interval]"
+    return f"[{_fmt(low, digits)}, {_fmt(high, digits)}]"
+
+
+# --- text ------------------------------------------------------------------------------------------------
+def _is_text(values) -> bool:
+    """A column of words (left-aligned) rather than of numbers, intervals and counts (right-aligned)."""
+    return any(re.search(r"[A-Za-z]", re.sub(r"\[[^\]]*\]|\([^)]*\)", "", str(v))) for v in values)
+
+
 def _markdown_table(frame: pd.DataFrame) -> str:
+    """A Markdown table: text columns left-aligned, numbers right-aligned."""
     header = "| " + " | ".join(frame.columns) + " |"
-    rule = "| " + " | ".join("---" for _ in frame.columns) + " |"
+    rule = "| " + " | ".join(":---" if _is_text(frame[c]) else "---:" for c in frame.columns) + " |"
     rows = ["| " + " | ".join(str(v) for v in row) + " |" for row in frame.itertuples(index=False)]
     return "\n".join([header, rule, *rows])
 
 
-def _architecture(params: dict[str, str]) -> str:
-    sizes = params.get("model.hidden_sizes", "[]")
-    text = f"{params.get('model.architecture', 'mlp')} hidden {sizes} {params.get('model.activation', '')}"
-    if params.get("model.architecture") == "cnn":
-        conv, kernel, history = (params.get(f"model.{k}") for k in ("conv_channels", "kernel_size", "history"))
-        text += f", conv {conv} k={kernel} over {history} obs"
-    if float(params.get("model.dropout", 0)) > 0:
-        text += f", dropout {params['model.dropout']}"
-    if float(params.get("l2", 0)) > 0:
-        text += f", L2 {params['l2']}"
+def _sizes(params: dict[str, str], key: str = "model.hidden_sizes") -> list[int]:
+    text = params.get(key, "[]").strip("[]() ")
+    return [int(x) for x in text.replace(",", " ").split()]
+
+
+def architecture(params: dict[str, str], env_id: str) -> str:
+    """The policy in words, as ``policies.py`` builds it for ``env_id``."""
+    arch = params.get("model.architecture", "mlp")
+    activation = params.get("model.activation", "relu")
+    hidden = _sizes(params)
+    dense = f"dense {' → '.join(map(str, hidden))} ({activation})" if hidden else "no hidden layer"
+    if env_id.startswith("ALE/Pong"):
+        if arch == "cnn":
+            text = (
+                f"2-D CNN over the 80×80 frame difference: conv 16@7×7 stride 4, 32@5×5 stride 2, "
+                f"48@3×3 stride 2 ({activation}), then {dense}"
+            )
+        elif hidden:
+            text = f"MLP over the 6,400 pixels of the 80×80 frame difference: {dense}"
+        else:
+            text = "linear policy over the 6,400 pixels of the 80×80 frame difference (no hidden layer)"
+    elif arch == "cnn":
+        conv = _sizes(params, "model.conv_channels")
+        text = (
+            f"1-D CNN over the last {params.get('model.history')} observations: conv "
+            f"{', '.join(map(str, conv))} channels, kernel {params.get('model.kernel_size')} along time "
+            f"({activation}), then {dense}"
+        )
+    else:
+        text = f"MLP, {dense}" if hidden else "linear policy: observation → action logits, no hidden layer"
+    if float(params.get("model.dropout", 0) or 0) > 0:
+        text += f"; dropout {params['model.dropout']}"
+    if float(params.get("l2", 0) or 0) > 0:
+        text += f"; L2 {params['l2']}"
     return text
+
+
+def _setting_groups(overrides: dict) -> list[str]:
+    """The separate settings a variant changes (an architecture's knobs count as one)."""
+    groups = sorted({"architecture" if k in ARCHITECTURE_KNOBS else k for k in overrides})
+    return groups
 
 
 def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     base = ablation.grid["base"]
-    threshold = _threshold(ablation)
+    threshold = ablation.threshold
     seeds = ablation.grid["seeds"]
+    budget = int(base.get("max_episodes", 0))
+    if threshold is not None:
+        env = (
+            f"**Environment.** `{_esc(base['env_id'])}`. Solved when the mean return over "
+            f"{ablation_window(ablation)} consecutive episodes reaches {threshold:g}; a trial stops then, or at "
+            f"its budget of {budget:,} episodes."
+        )
+    else:
+        env = (
+            f"**Environment.** `{_esc(base['env_id'])}`. No solve threshold: every trial runs its whole budget of "
+            f"{budget:,} episodes, and variants are compared on their returns (area under the curve, the return "
+            "after fixed budgets, episodes to reach return levels, the improvement over the untrained policy)."
+        )
+    reset = (
+        " Pong's discounted return restarts at every point scored." if ablation.env_id.startswith("ALE/Pong") else ""
+    )
     lines = [
-        f"**Environment.** `{base['env_id']}`. Solved when the mean return over {_window(ablation)} consecutive "
-        f"episodes reaches {threshold:g}; a trial stops then, or at its budget of {base['max_episodes']:,} episodes.",
+        env,
         "",
-        "**Algorithm.** REINFORCE (vanilla policy gradient): actions sampled from the softmax of the policy's "
-        "logits; each episode's rewards discounted, the returns normalised by mean and standard deviation "
-        "across the update's batch; loss = softmax cross-entropy of the taken actions weighted by those returns; "
-        "one Adam step per update. L2 is a loss term over weight matrices.",
+        "**Algorithm.** REINFORCE (Williams, 1992), the vanilla policy gradient: actions sampled from the softmax "
+        "of the policy's logits; each episode's rewards discounted (gamma "
+        f"{base.get('gamma', '?')}), the returns normalised by mean and standard deviation across the update's "
+        "batch; loss = softmax cross-entropy of the taken actions weighted by those returns; one Adam step per "
+        f"update of {base.get('episodes_per_update', '?')} episodes. L2 is a loss term over weight matrices; "
+        f"dropout is active in updates and off while acting.{reset}",
         "",
         f"**Seeds.** {len(seeds)} per variant ({', '.join(map(str, seeds))}): each seeds torch, the action sampler "
         "and the environment.",
         "",
-        "**Variants** (each changes the listed knobs over the base; hyper-parameters are those of the base unless "
-        "listed):",
+        "**Variants.** Each changes the listed knobs over the base; every other knob is the base's.",
         "",
     ]
     rows = []
     for variant in ablation.grid["variants"]:
         params = ablation.params.get(variant["name"], {})
         count = table.loc[table.variant == variant["name"], "parameter_count"]
-        overrides = ", ".join(f"{k} = {v}" for k, v in variant["overrides"].items()) or "(the base)"
+        overrides = ", ".join(f"{k} = {v}" for k, v in variant["overrides"].items()) or "nothing (the base)"
         rows.append(
             {
-                "variant": variant["name"] + (" (baseline)" if variant["name"] == ablation.baseline else ""),
-                "changes": overrides,
-                "architecture": _architecture(params) if params else "–",
+                "variant": _esc(variant["name"]),
+                "role": "baseline (reference)" if variant["name"] == ablation.baseline else "",
+                "changes": _esc(overrides),
+                "policy": _esc(architecture(params, ablation.env_id)) if params else "–",
                 "parameters": _fmt(count.iloc[0]) if len(count) and not pd.isna(count.iloc[0]) else "–",
             }
         )
@@ -262,160 +189,609 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     lines += ["", "**Base hyper-parameters.**", ""]
     keep = ("learning_rate", "gamma", "episodes_per_update", "max_episodes", "solve_window", "l2")
     lines.append(_markdown_table(pd.DataFrame([{k: base[k] for k in keep if k in base}])))
+    lines += [
+        "",
+        "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
+        f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, never "
+        "dropped: a statistic that uses one is a lower bound, marked ≥. The glossary at the end defines each term.",
+    ]
     return "\n".join(lines)
 
 
-def _convergence_markdown(table: pd.DataFrame) -> str:
-    rows = []
-    for _, row in table.iterrows():
-        if not row.seeds_run:
-            rows.append({"variant": row.variant, "seeds": 0})
-            continue
-        rows.append(
+def _episodes_cell(row: pd.Series, stat: str) -> str:
+    value, low, high = row[f"episodes_{stat}"], row[f"episodes_{stat}_ci_low"], row[f"episodes_{stat}_ci_high"]
+    bound = "≥ " if row[f"{stat}_censored"] else ""
+    return f"{bound}{_fmt(value)} {_interval(low, high, 0, int(row.seeds_run))}"
+
+
+def _stat_cell(row: pd.Series, prefix: str, digits: int = 1, low_key: str = "", high_key: str = "") -> str:
+    low = row.get(low_key or f"{prefix}_ci_low", np.nan)
+    high = row.get(high_key or f"{prefix}_ci_high", np.nan)
+    return f"{_fmt(row.get(prefix, np.nan), digits)} {_interval(low, high, digits, int(row.seeds_run))}"
+
+
+def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
+    parts = []
+    ran = table[table.seeds_run > 0]
+    if ablation.threshold is not None and len(ran):
+        rows = [
             {
-                "variant": row.variant,
+                "variant": _esc(row.variant),
                 "seeds": int(row.seeds_run),
                 "solved": f"{int(row.solved)}/{int(row.seeds_run)}",
                 "episodes to solve, median [95% CI]": _episodes_cell(row, "median"),
                 "episodes to solve, IQM [95% CI]": _episodes_cell(row, "iqm"),
-                "env steps to solve (median, solved)": _fmt(row.env_steps_to_solve_median),
-                "seconds to solve (median, solved)": _fmt(row.wall_s_to_solve_median, 1),
-                "final rolling return (IQM)": _fmt(row.final_rolling_mean_iqm, 1),
-                "AUC (IQM) [95% CI]": f"{_fmt(row.auc_iqm, 1)} [{_fmt(row.auc_ci_low, 1)}, {_fmt(row.auc_ci_high, 1)}]",
+                "env steps to solve (median of solved)": _fmt(row.env_steps_to_solve_median),
+                "seconds to solve (median of solved)": _fmt(row.wall_s_to_solve_median, 1),
             }
+            for _, row in ran.iterrows()
+        ]
+        parts += [
+            "**Episodes to solve.** Unsolved seeds count as the budget (censored); a statistic that uses such a "
+            "value is a lower bound, marked ≥, and its interval's upper end is no bound at all. Steps and "
+            "seconds are over solved seeds only (– where none solved); seconds come from CPUs the trials shared.",
+            "",
+            _markdown_table(pd.DataFrame(rows)),
+            "",
+        ]
+    budgets = ablation.budgets
+    rows = []
+    for _, row in ran.iterrows():
+        entry = {
+            "variant": _esc(row.variant),
+            f"untrained (first {INITIAL_EPISODES} episodes)": _fmt(row.get("initial_return_iqm", np.nan), 1),
+        }
+        for episodes in budgets:
+            entry[f"after {episodes:,} episodes [95% CI]"] = _stat_cell(row, f"return_at_{episodes}_iqm")
+        entry["improvement over untrained [95% CI]"] = _stat_cell(row, "improvement_iqm")
+        entry["AUC [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
+        rows.append(entry)
+    parts += [
+        f"**Returns.** IQM over seeds of the rolling mean return ({ablation_window(ablation)} episodes) of the "
+        f"untrained policy, after fixed episode budgets (a seed that stopped because it solved keeps its last value), "
+        "the improvement over the untrained policy, and the area under the learning curve (AUC: the mean rolling "
+        "return over the whole budget, which rewards learning early).",
+        "",
+        _markdown_table(pd.DataFrame(rows)),
+        "",
+    ]
+    if ablation.levels and len(ran):
+        rows = []
+        for _, row in ran.iterrows():
+            entry = {"variant": _esc(row.variant)}
+            for level in ablation.levels:
+                key = f"episodes_to_{level:g}"
+                if f"{key}_median" not in row or pd.isna(row[f"{key}_median"]):
+                    entry[f"episodes to reach {level:g}"] = "–"
+                    continue
+                bound = "≥ " if row[f"{key}_median_censored"] else ""
+                entry[f"episodes to reach {level:g} (median; seeds that reached it)"] = (
+                    f"{bound}{_fmt(row[f'{key}_median'])} ({int(row[f'{key}_reached'])}/{int(row.seeds_run)})"
+                )
+            rows.append(entry)
+        parts += [
+            "**Episodes to reach a return level.** The first episode at which the rolling mean return reaches the "
+            "level; a seed that never does counts as the budget (censored, ≥).",
+            "",
+            _markdown_table(pd.DataFrame(rows)),
+            "",
+        ]
+    return "\n".join(parts)
+
+
+METRIC_NAMES = {"episodes_to_solve": "episodes to solve", "auc": "area under the curve (AUC)"}
+
+
+def _metric_name(metric: str) -> str:
+    if metric.startswith("return_at_"):
+        return f"return after {int(metric.removeprefix('return_at_')):,} episodes"
+    if metric.startswith("episodes_to_") and metric != "episodes_to_solve":
+        return f"episodes to reach a rolling return of {metric.removeprefix('episodes_to_')}"
+    return METRIC_NAMES.get(metric, metric)
+
+
+def _no_claim_reason(n: int, m: int) -> str:
+    if min(n, m) < 2:
+        return f"{min(n, m)} seed{'s give' if min(n, m) != 1 else ' gives'} no interval"
+    return (
+        f"with {n} and {m} seeds no ordering of the seeds can reach 95% confidence (smallest possible "
+        f"p = {smallest_p_value(n, m):.2f})"
+    )
+
+
+def _stability(row: pd.Series) -> str:
+    if row.verdict not in (BETTER, WORSE):
+        return ""
+    if row.fragile_seeds:
+        seeds = str(row.fragile_seeds).split()
+        return (
+            f" **Fragile:** the claim does not survive leaving out seed{'s' if len(seeds) > 1 else ''} "
+            f"{', '.join(seeds)}."
         )
-    return _markdown_table(pd.DataFrame(rows).fillna("–"))
+    return " Holds leaving out any one seed."
+
+
+def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
+    """One metric's comparison in words: what may be claimed, sized as an estimate or as a bound, with its
+    interval and whether it survives leaving out any one seed."""
+    base, metric, name = _esc(ablation.baseline), row.metric, _metric_name(row.metric)
+    n, m = int(row.n_variant), int(row.n_baseline)
+    if row.verdict == NO_CLAIM:
+        return f"{name}: no claim; {_no_claim_reason(n, m)}."
+    if metric.startswith("episodes_to_"):
+        x, y = _fmt(row.variant_value), _fmt(row.baseline_value)
+        unsolved = (
+            (lambda v: int(table.loc[table.variant == v, "unsolved_censored"].iloc[0]))
+            if metric == "episodes_to_solve"
+            else None
+        )
+        counts = ""
+        if unsolved is not None:
+            counts = (
+                f"{unsolved(row.variant)} of {n} {_esc(row.variant)} seeds and {unsolved(ablation.baseline)} of {m} "
+                f"{base} seeds never solved"
+            )
+        if row.bound == "censored":
+            return (
+                f"{name}: cannot separate them: both IQMs count unsolved seeds as the budget ({counts}), so both are "
+                "lower bounds; see the returns below."
+            )
+        change = f"IQM {'≥ ' if row.bound and row.verdict == WORSE else ''}{x} vs {y}"
+        if row.verdict == BETTER and row.bound:
+            return (
+                f"{name}: **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: {base}'s IQM counts "
+                f"unsolved seeds as the budget ({counts}), so the true gap is larger; 95% lower bound "
+                f"{_pct(row.low)} fewer).{_stability(row)}"
+            )
+        if row.verdict == WORSE and row.bound:
+            return (
+                f"{name}: **at least {_pct(-row.point)} more** than {base} ({change}; a lower bound, since unsolved "
+                f"seeds count as the budget: {counts}; 95% lower bound {_pct(-row.high)} more; no upper bound can be "
+                f"given).{_stability(row)}"
+            )
+        if row.verdict == BETTER:
+            return (
+                f"{name}: **{_pct(row.point)} fewer** than {base} ({change}; 95% CI {_pct(row.low)} to "
+                f"{_pct(row.high)} fewer).{_stability(row)}"
+            )
+        if row.verdict == WORSE:
+            return (
+                f"{name}: **{_pct(-row.point)} more** than {base} ({change}; 95% CI {_pct(-row.high)} to "
+                f"{_pct(-row.low)} more).{_stability(row)}"
+            )
+        bound = ", the variant's IQM a lower bound" if row.bound else ""
+        return (
+            f"{name}: not separated ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
+            f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''})."
+        )
+    x, y = _fmt(row.variant_value, 1), _fmt(row.baseline_value, 1)
+    interval = f"95% CI {_signed(row.low)} to {_signed(row.high)}"
+    if row.verdict == BETTER:
+        return f"{name}: **higher**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
+    if row.verdict == WORSE:
+        return f"{name}: **lower**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
+    return f"{name}: not separated, {x} vs {y} ({_signed(row.point)}; {interval})."
+
+
+def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[str]:
+    """Per variant, one line per metric; no claim without an interval, bounds worded as bounds."""
+    lines = []
+    for variant in ablation.variants:
+        rows = compare[compare.variant == variant] if len(compare) else compare
+        if rows.empty:
+            continue
+        lines.append(f"- **{_esc(variant)}** vs {_esc(ablation.baseline)}:")
+        for _, row in rows.iterrows():
+            text = finding(row, ablation, table)
+            if row.metric == "episodes_to_solve" and not pd.isna(row.p_improvement):
+                text += (
+                    f" P(fewer episodes) = {row.p_improvement:.2f} "
+                    f"{_interval(row.p_improvement_ci_low, row.p_improvement_ci_high, 2)}."
+                )
+            lines.append(f"    - {text}")
+    for _, row in table.iterrows():
+        if row.seeds_run and ablation.threshold is not None and row.solved < row.seeds_run:
+            lines.append(
+                f"- **{_esc(row.variant)}**: {int(row.seeds_run - row.solved)} of {int(row.seeds_run)} seeds did "
+                f"not solve within {_fmt(row.budget)} episodes."
+            )
+    return lines
+
+
+def _rank_key(ablation: Ablation, row: pd.Series) -> tuple:
+    if ablation.any_solved:
+        return (row.episodes_iqm, -row.auc_iqm)
+    return (-row.auc_iqm if not pd.isna(row.auc_iqm) else np.inf,)
+
+
+def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> str:
+    """Variants ranked on the primary metric (episodes to solve where seeds solved, else AUC), with intervals
+    and the verdict against the baseline."""
+    ran = table[table.seeds_run > 0]
+    ranked = sorted(ran.iterrows(), key=lambda item: _rank_key(ablation, item[1]))
+    primary = "episodes_to_solve" if ablation.any_solved else "auc"
+    rows = []
+    for rank, (_, row) in enumerate(ranked, 1):
+        verdict = "reference" if row.variant == ablation.baseline else "–"
+        match = compare[(compare.variant == row.variant) & (compare.metric == primary)] if len(compare) else compare
+        if len(match):
+            first = match.iloc[0]
+            if first.verdict in (BETTER, WORSE):
+                notes = (["a bound"] if first.bound else []) + (["fragile"] if first.fragile_seeds else [])
+                word = {BETTER: "better", WORSE: "worse"}[first.verdict]
+                verdict = word + (f" ({'; '.join(notes)})" if notes else "")
+            else:
+                verdict = first.verdict
+        entry = {"rank": rank, "variant": _esc(row.variant)}
+        if ablation.threshold is not None:
+            entry["solved"] = f"{int(row.solved)}/{int(row.seeds_run)}"
+        if ablation.any_solved:
+            entry["episodes to solve, IQM [95% CI]"] = _episodes_cell(row, "iqm")
+        entry["AUC, IQM [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
+        entry[f"vs {_esc(ablation.baseline)} on {_metric_name(primary)}"] = verdict
+        rows.append(entry)
+    how = (
+        "fewest episodes to solve (IQM, censored), ties by AUC"
+        if ablation.any_solved
+        else "highest area under the learning curve (IQM)"
+    )
+    return "\n".join(
+        [
+            f"Variants ranked by {how}. A rank orders point estimates only: where intervals overlap, the seeds do not "
+            "separate the variants, and the last column says what the data support against the baseline (Findings "
+            "gives each comparison with its interval).",
+            "",
+            _markdown_table(pd.DataFrame(rows)),
+        ]
+    )
+
+
+def limitations(ablation: Ablation, table: pd.DataFrame) -> list[str]:
+    """What the experiment's design itself limits, read off the grid and the results."""
+    base, variants = ablation.grid["base"], ablation.grid["variants"]
+    out = []
+    seeds = len(ablation.grid["seeds"])
+    out.append(
+        f"**{seeds} seed{'s' if seeds != 1 else ''} per variant.** Percentile bootstrap intervals over so few seeds "
+        "are too narrow more often than 5% of the time, and one unusual seed can move an IQM; each finding says "
+        "whether it survives leaving out any one seed."
+        + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else "")
+    )
+    tuned = [k for k in ("learning_rate", "episodes_per_update", "gamma") if k in base]
+    touched = [v["name"] for v in variants if any(k in v["overrides"] for k in tuned)]
+    architectures = [v for v in variants if "architecture" in _setting_groups(v["overrides"])]
+    if tuned and architectures and len(touched) < len(variants):
+        knobs = ", ".join(f"{k.replace('_', ' ')} {base[k]}" for k in tuned)
+        out.append(
+            "**One training setting for all architectures.** Every variant"
+            + (f" except {', '.join(_esc(t) for t in touched)}" if touched else "")
+            + f" trains with the base {knobs}, chosen for the baseline and not tuned per architecture: one that "
+            "would learn better at its own learning rate is judged at the baseline's."
+        )
+    counts = table.parameter_count.dropna()
+    if len(counts) and counts.min() > 0 and counts.max() / counts.min() >= 10:
+        out.append(
+            f"**Parameter counts span {_fmt(counts.min())} to {_fmt(counts.max())}** "
+            f"({counts.max() / counts.min():,.0f}x): a difference between architectures mixes capacity with "
+            "optimisation (one learning rate moves small and large networks differently); Figure "
+            "{parameters} plots performance against size."
+        )
+    for variant in variants:
+        groups = _setting_groups(variant["overrides"])
+        if len(groups) > 1:
+            out.append(
+                f"**{_esc(variant['name'])} changes {len(groups)} settings at once** ({', '.join(groups)}): its "
+                "difference from the baseline cannot be attributed to any one of them."
+            )
+    finished = ablation.finished
+    if ablation.threshold is not None and len(finished) and (finished.solved != 1).any():
+        unsolved = int((finished.solved != 1).sum())
+        out.append(
+            f"**Censoring.** {unsolved} of {len(finished)} trials did not solve within the budget; for them episodes "
+            "to solve is only known to exceed it, so statistics that use them are bounds, and a longer budget could "
+            "reorder those variants."
+        )
+    if ablation.threshold is None:
+        out.append(
+            "**No solve threshold.** No trial stops early; comparisons rest on returns within this budget, and a "
+            "longer budget could reorder variants that are still improving."
+        )
+    out.append(
+        "**Wall-clock times come from contended CPUs.** Trials ran several at a time on "
+        f"{_esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
+        "its tracking; seconds move between runs and machines. Compare variants on episodes; read seconds as rough "
+        "cost."
+    )
+    out.append(
+        "**Videos show one greedy episode** per chosen seed (the most likely action at every step, after "
+        "training): a single episode, not an average, and not the sampling policy that was trained."
+    )
+    out.append(
+        f"**One environment and budget** ({_esc(ablation.env_id)}, {_fmt(base.get('max_episodes'))} "
+        "episodes): the findings say nothing about other tasks or longer training."
+    )
+    return out
+
+
+GLOSSARY = [
+    ("Return", "The sum of an episode's rewards (CartPole: steps balanced; Pong: points won minus points lost)."),
+    ("Rolling mean return", "The mean return of the last W episodes (W = the solve window); learning curves plot it."),
+    (
+        "Solved; episodes to solve",
+        "The first episode at which the rolling mean over a full window reaches the threshold; the trial stops there.",
+    ),
+    (
+        "Censored (≥)",
+        "A seed that never solved has an episodes-to-solve value only known to exceed the budget; it "
+        "is counted as the budget. A median or IQM that uses such a value is a lower bound, written ≥, and the upper "
+        "end of its interval is no bound on the truth.",
+    ),
+    (
+        "At least",
+        "A difference sized by a bound: censoring can only make the true gap larger, so the report gives "
+        "its lower end (and the 95% lower bound of that), never an upper end.",
+    ),
+    (
+        "IQM (interquartile mean)",
+        "The mean of the middle 50% of the seeds' values (25% trimmed from each end): "
+        "less sensitive to one outlying seed than the mean, more efficient than the median (Agarwal et al., 2021).",
+    ),
+    (
+        "95% CI (percentile bootstrap)",
+        f"Resample the seeds with replacement {N_RESAMPLES:,} times (seeded), "
+        "recompute the statistic each time, and take the 2.5th and 97.5th percentiles. Two variants are resampled "
+        "independently. With few seeds these intervals are optimistic.",
+    ),
+    (
+        "AUC (area under the curve)",
+        "The mean rolling return over the whole budget; a trial that stopped because it "
+        "solved keeps its last value. Higher is better; it rewards learning early and separates variants that never "
+        "solve.",
+    ),
+    (
+        "Return after E episodes",
+        "The rolling mean return at episode E, compared at the same budgets for every variant.",
+    ),
+    (
+        "Improvement over the untrained policy",
+        f"Final rolling mean return minus the mean return of the first "
+        f"{INITIAL_EPISODES} episodes (before the policy has learnt much).",
+    ),
+    (
+        "Probability of improvement",
+        "P(X < Y) + P(X = Y)/2 for X a random seed of the variant and Y one of the "
+        "baseline, on episodes to solve (Agarwal et al., 2021); 0.5 means no difference. Where every pair is ordered "
+        "the same way the bootstrap collapses to a point (1.00 [1.00, 1.00]), which only says the sample has no other "
+        "pair; there the interval is the exact Clopper-Pearson bound for min(n, m) successes in min(n, m) trials.",
+    ),
+    (
+        "No claim",
+        "When a rank test could not reach 95% confidence even with the seeds perfectly ordered "
+        f"(smallest two-sided p = 2 / C(n+m, n) > {1 - CONFIDENCE:.2f}, e.g. 3 seeds against 3), or one side has one "
+        "seed, the report makes no claim.",
+    ),
+    (
+        "Leave-one-seed-out",
+        "Each claim is recomputed with every seed in turn removed from all variants; a claim "
+        "that disappears for some seed is marked fragile.",
+    ),
+]
+
+REFERENCES = [
+    "Williams, R. J. (1992). Simple statistical gradient-following algorithms for connectionist reinforcement "
+    "learning. *Machine Learning*, 8(3-4), 229-256. (REINFORCE.)",
+    "Agarwal, R., Schwarzer, M., Castro, P. S., Courville, A., & Bellemare, M. G. (2021). Deep reinforcement "
+    "learning at the edge of the statistical precipice. *Advances in Neural Information Processing Systems 34*. "
+    "(IQM, bootstrap intervals, probability of improvement.)",
+    "Efron, B., & Tibshirani, R. J. (1993). *An Introduction to the Bootstrap*. Chapman & Hall. (Percentile "
+    "intervals.)",
+    "Mnih, V., et al. (2015). Human-level control through deep reinforcement learning. *Nature*, 518, 529-533. "
+    "(Atari pre-processing and frame-based policies.)",
+]
+
+
+def _video_picks(ablation: Ablation, done: pd.DataFrame) -> list[tuple[pd.Series, str]]:
+    """The best and the median seed, with why each was chosen."""
+    if ablation.any_solved:
+        ordered = done.sort_values(["censored_episodes", "final_rolling_mean"], ascending=[True, False])
+        why_best, why_median = "fewest episodes to solve", "median seed by episodes to solve"
+    else:
+        ordered = done.sort_values(["auc"], ascending=False)
+        why_best, why_median = "highest AUC", "median seed by AUC"
+    picks = [(ordered.iloc[0], f"the seed with the {why_best} of {len(done)}")]
+    median = ordered.iloc[(len(ordered) - 1) // 2]
+    if median.run_id != picks[0][0].run_id:
+        picks.append((median, f"the {why_median}"))
+    return picks
 
 
 def _videos(ablation: Ablation, tracker: Tracker, folder: Path) -> list[dict[str, str]]:
-    """Best and median seed of each variant (by episodes to solve, then final rolling mean)."""
     chosen = []
     folder.mkdir(parents=True, exist_ok=True)
     for variant in ablation.variants:
-        done = ablation.finished[ablation.finished.variant == variant].sort_values(
-            ["censored_episodes", "final_rolling_mean"], ascending=[True, False]
-        )
+        done = ablation.finished[ablation.finished.variant == variant]
         if done.empty:
             continue
-        picks = {"best": done.iloc[0], "median": done.iloc[(len(done) - 1) // 2]}
-        for label, row in picks.items():
-            if label == "median" and row.run_id == picks["best"].run_id and len(done) > 1:
-                continue
-            target = folder / f"{variant}-{label}-seed{row.seed}.mp4"
+        for row, why in _video_picks(ablation, done):
+            safe = re.sub(r"[^A-Za-z0-9_.,=-]", "_", variant)
+            target = folder / f"{safe}-seed{row.seed}.mp4"
             try:
                 downloaded = tracker.download(row.run_id, "video.mp4")
             except Exception:  # noqa: BLE001 - a run without a video (record_video = false)
                 continue
             shutil.copyfile(downloaded, target)
+            outcome = (
+                f"solved at episode {int(row.episodes_to_solve)}"
+                if row.solved == 1
+                else f"not solved after {int(row.episodes_run)} episodes"
+                if ablation.threshold is not None
+                else f"{int(row.episodes_run)} episodes, final rolling return {row.final_rolling_mean:.1f}"
+            )
+            greedy = (
+                f"; greedy return {row.greedy_return:.0f} in this one episode" if not pd.isna(row.greedy_return) else ""
+            )
             chosen.append(
                 {
                     "variant": variant,
-                    "label": label,
-                    "seed": str(row.seed),
                     "path": f"videos/{target.name}",
-                    "caption": f"{variant}, {label} seed ({row.seed}): "
-                    + (
-                        f"solved at episode {int(row.episodes_to_solve)}"
-                        if row.solved == 1
-                        else f"unsolved after {int(row.episodes_run)} episodes"
-                    )
-                    + (f", greedy return {row.greedy_return:.0f}" if not pd.isna(row.greedy_return) else ""),
+                    "caption": f"{variant}, seed {row.seed}: {why}; {outcome}{greedy}",
                 }
             )
     return chosen
 
 
-def _reproducibility(ablation: Ablation) -> str:
+def _reproducibility(ablation: Ablation, command: str) -> str:
     tags = ablation.launch["tags"]
     environment = ablation.launch["environment"]
     versions = environment.get("packages", {})
+    cpu = environment.get("cpu_model", "not recorded")
+    capability = environment.get("torch_cpu_capability", "not recorded")
     lines = [
-        f"- Command: `{tags.get('ablate.command') or 'ablate run ' + tags.get('ablate.experiment_file', '')}`",
-        f"- Code version (git commit): `{tags.get('mlflow.source.git.commit', 'unknown')}`",
-        f"- Machine: {environment.get('machine', 'unknown')}",
-        f"- Python {environment.get('python', '?')}; " + ", ".join(f"{k} {v}" for k, v in versions.items()),
-        f"- MLflow launch run: `{ablation.launch['run_id']}` (generation `{tags.get('ablate.generation', '')}`)",
+        f"- Command: <code>{_esc(tags.get('ablate.command') or 'ablate run ' + tags.get('ablate.experiment_file', ''))}"
+        "</code>",
+        f"- Code version (git commit): <code>{_esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>",
+        f"- Machine: {_esc(environment.get('machine', 'unknown'))}; CPU model: {_esc(cpu)}; torch CPU capability "
+        f"(the vector kernels torch picked): {_esc(capability)}",
+        f"- Python {_esc(environment.get('python', '?'))}; "
+        + ", ".join(f"{_esc(k)} {_esc(v)}" for k, v in versions.items()),
+        f"- MLflow launch run: <code>{_esc(ablation.launch['run_id'])}</code> (generation "
+        f"<code>{_esc(tags.get('ablate.generation', ''))}</code>); this report is attached to it as artifacts.",
         f"- Report written {time.strftime('%Y-%m-%d %H:%M')}, from the tracking store only: "
-        f"`ablate report {ablation.name}`",
+        f"<code>{_esc(command)}</code>",
+        "",
+        '**What "the same results" means here.** A trial is deterministic given its config and seed on one '
+        "machine: the test suite runs a trial twice and checks identical returns. Nothing else was verified. Float "
+        "kernels differ between CPU models and torch CPU capabilities, so on a machine other than the one above "
+        f"(CPU model {_esc(cpu)}, capability {_esc(capability)}, the package versions above) a seed can follow "
+        "another trajectory and the numbers here will differ; the leave-one-seed-out check in the findings shows how "
+        "much each conclusion depends on any one seed.",
     ]
     return "\n".join(lines)
 
 
+def _generation_note(ablation: Ablation) -> str:
+    generations = ablation.launch.get("generations", [])
+    current = ablation.launch["tags"].get("ablate.generation", "")
+    total = len(ablation.grid["trials"])
+    done = len(ablation.finished)
+    if done >= total:
+        return ""
+    others = [g for g in generations if g["generation"] != current and g["finished"] > done]
+    note = f"> This report covers generation {_esc(current)}, where {done} of {total} trials finished."
+    if others:
+        note += (
+            f" Generation {_esc(others[0]['generation'])} has {others[0]['finished']} finished trials: "
+            f"<code>ablate report {_esc(ablation.name)} --generation {_esc(others[0]['generation'])}</code> reports it."
+        )
+    return note
+
+
 def build_markdown(
     ablation: Ablation,
-    figures: dict[str, str | None],
+    figures: list[Figure],
     videos: list[dict[str, str]],
     table: pd.DataFrame,
     compare: pd.DataFrame,
+    command: str = "",
 ) -> tuple[str, str]:
-    """The report in Markdown, and the same with a ``<video>`` block in place of the video links (for HTML)."""
+    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks)."""
     description = ablation.grid.get("description") or ""
     failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
-    parts = [f"# Ablation report: {ablation.name}", "", description, ""]
+    numbers = {Path(f.path).stem: f.number for f in figures}
+    parts = [f"# Ablation report: {_esc(ablation.name)}", "", _esc(description), ""]
+    note = _generation_note(ablation)
+    if note:
+        parts += [note, ""]
     if len(failed):
         parts += [
             f"> {len(failed)} of {len(ablation.trials)} trials did not finish (failed, killed or not run); "
             "they are left out of the statistics and listed at the end.",
             "",
         ]
+    parts += ["## Summary", "", summary(ablation, table, compare), ""]
     parts += ["## Method", "", _method(ablation, table), ""]
     parts += [
-        "## Convergence",
+        "## Results",
         "",
-        "Episodes to solve: unsolved seeds are **censored at the budget** (counted as the budget, a lower bound); "
-        "a statistic that uses a censored value is marked ≥. Intervals are 95% percentile bootstrap intervals "
-        "over seeds (SciPy). AUC is the mean rolling return over the whole budget (a solved trial keeps its last "
-        "value).",
-        "",
-        _convergence_markdown(table),
-        "",
-        "Tables as CSV: `tables/convergence.csv`, `tables/comparisons.csv`, `tables/trials.csv`.",
+        _convergence_markdown(ablation, table),
+        "Tables as CSV: tables/convergence.csv, tables/comparisons.csv, tables/trials.csv.",
         "",
         "## Findings",
         "",
-        *[f"- {s}" for s in findings(ablation, table, compare)],
+        f"Each variant against {_esc(ablation.baseline)}, on "
+        + ", ".join(_metric_name(m) for m in dict.fromkeys(compare.metric) if isinstance(m, str))
+        + ". Episodes: the relative change of the IQM; returns: the difference of the IQMs; each with its 95% "
+        "interval, sized as a bound where censoring makes it one, and checked by leaving out each seed in turn.",
+        "",
+        *findings(ablation, table, compare),
         "",
         "## Figures",
         "",
-        f"![Learning curves against episodes]({figures['curves_episodes']})",
+    ]
+    for f in figures:
+        parts += [f"FIGURE:{f.number}", ""]
+    parts += [
+        "## Videos of the greedy agent",
         "",
-        f"![Learning curves against wall-clock time]({figures['curves_wall']})",
+        "Each video is one greedy episode (the most likely action at every step) of a trained agent, for two "
+        "seeds per variant chosen as the captions say.",
         "",
-        f"![Episodes to solve per seed]({figures['spread']})",
+        "VIDEOS_PLACEHOLDER",
         "",
     ]
-    if figures.get("improvement"):
-        parts += [f"![Probability of improvement over {ablation.baseline}]({figures['improvement']})", ""]
-    parts += ["## Videos of the greedy agent", "", "VIDEOS_PLACEHOLDER", ""]
     if len(failed):
         parts += ["## Trials that did not finish", ""]
         parts += [
-            f"- `{r.key}`: {r.status}{(' — ' + str(r.error)) if isinstance(r.error, str) and r.error else ''}"
+            f"- {_esc(r.key)}: {r.status}{(' — ' + _esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
             for r in failed.itertuples()
         ]
         parts.append("")
-    parts += ["## Reproducibility", "", _reproducibility(ablation), ""]
-    text = "\n".join(parts)
-    links = "\n".join(f"- [{v['caption']}]({v['path']})" for v in videos) or "No videos were recorded."
+    parts += ["## Limitations", "", *[f"- {line}" for line in limitations(ablation, table)], ""]
+    parts += ["## Reproducibility", "", _reproducibility(ablation, command), ""]
+    parts += ["## Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
+    parts += ["## References", "", *[f"- {ref}" for ref in REFERENCES], ""]
+    text = "\n".join(parts).replace("Figure {parameters}", f"Figure {numbers.get('performance_vs_parameters', '–')}")
+    md_text, html_text = text, text
+    for f in figures:
+        md_text = md_text.replace(
+            f"FIGURE:{f.number}\n", f"![{f.alt}]({f.path})\n\n*Figure {f.number}. {f.caption}*\n", 1
+        )
+        html_text = html_text.replace(
+            f"FIGURE:{f.number}\n",
+            f'<figure id="figure-{f.number}"><img src="{f.path}" alt="{html.escape(f.alt)}">'
+            f"<figcaption><strong>Figure {f.number}.</strong> {f.caption}</figcaption></figure>\n",
+            1,
+        )
+    links = "\n".join(f"- [{_esc(v['caption'])}]({v['path']})" for v in videos) or "No videos were recorded."
     blocks = "\n".join(
-        f'<figure class="video"><video controls muted loop preload="metadata" src="{v["path"]}"></video>'
-        f"<figcaption>{html.escape(v['caption'])}</figcaption></figure>"
+        f'<figure class="video"><video controls muted loop preload="metadata" src="{html.escape(v["path"])}">'
+        f"</video><figcaption>{html.escape(v['caption'])}</figcaption></figure>"
         for v in videos
     )
-    html_md = text.replace("VIDEOS_PLACEHOLDER", f'<div class="videos">\n{blocks}\n</div>' if videos else links)
-    return text.replace("VIDEOS_PLACEHOLDER", links), html_md
+    html_text = html_text.replace("VIDEOS_PLACEHOLDER", f'<div class="videos">\n{blocks}\n</div>' if videos else links)
+    return md_text.replace("VIDEOS_PLACEHOLDER", links), html_text
 
 
 CSS = """
-body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
+body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222;
+       line-height: 1.45; }
 table { border-collapse: collapse; font-size: 0.85em; margin: 1em 0; }
-th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: right; }
-th:first-child, td:first-child { text-align: left; }
+th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: left; vertical-align: top; }
 img { max-width: 100%; }
+figure { margin: 1.5em 0; break-inside: avoid; }
+figcaption { font-size: 0.9em; color: #333; margin-top: 0.3em; }
 .videos { display: flex; flex-wrap: wrap; gap: 12px; }
 figure.video { margin: 0; width: 260px; font-size: 0.8em; }
 figure.video video { width: 260px; }
 blockquote { background: #fff4e0; border-left: 4px solid #f0a000; margin: 1em 0; padding: 0.5em 1em; }
+@media print {
+  body { max-width: none; margin: 0; font-size: 10pt; }
+  video { display: none; }
+  figure.video { width: 45%; }
+  table { font-size: 8pt; }
+  h2 { break-after: avoid; }
+  tr { break-inside: avoid; }
+}
 """
 
 
@@ -424,7 +800,7 @@ def _inline(html_text: str, folder: Path) -> str:
     mime = {".png": "image/png", ".svg": "image/svg+xml", ".mp4": "video/mp4"}
 
     def replace(match: re.Match) -> str:
-        path = folder / match.group(2)
+        path = folder / html.unescape(match.group(2))
         if not path.is_file():
             return match.group(0)
         data = base64.b64encode(path.read_bytes()).decode()
@@ -433,56 +809,188 @@ def _inline(html_text: str, folder: Path) -> str:
     return re.sub(r'(src)="((?:figures|videos)/[^"]+)"', replace, html_text)
 
 
-def write_report(name: str, tracking_uri: str | None = None, out_root: Path = Path("reports")) -> Path:
-    """Build the report of experiment ``name`` into ``out_root/name/`` and return that folder."""
-    folder = out_root / name
-    try:
-        ablation = load_ablation(name, tracking_uri)
-    except NoResults as error:
-        return _write_empty(folder, name, str(error))
-    if ablation.finished.empty:
-        return _write_empty(
-            folder,
-            name,
-            f"all {len(ablation.trials)} trials of the newest launch failed or did not run; see the MLflow runs "
-            "for their errors:\n\n"
-            + "\n".join(
-                f"- `{r.key}`: {r.status} {r.error if isinstance(r.error, str) else ''}"
-                for r in ablation.trials.itertuples()
-            ),
+def find_chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        found = shutil.which(name)
+        if found:
+            return found
+    return None
+
+
+def chromium_flags(profile: Path) -> list[str]:
+    return [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={profile}",
+    ]
+
+
+def print_pdf(html_path: Path, pdf_path: Path, timeout_s: float = 180) -> str | None:
+    """Print ``html_path`` to ``pdf_path`` with headless Chromium; the reason it could not, or None."""
+    browser = find_chromium()
+    if browser is None:
+        return "no PDF: Chromium not found (Debian: apt-get install chromium)"
+    with tempfile.TemporaryDirectory(prefix="ablate-chromium-") as profile:
+        try:
+            subprocess.run(
+                [
+                    browser,
+                    *chromium_flags(Path(profile)),
+                    "--no-pdf-header-footer",
+                    f"--print-to-pdf={pdf_path}",
+                    html_path.resolve().as_uri(),
+                ],
+                capture_output=True,
+                timeout=timeout_s,
+                check=False,
+            )
+        except (OSError, subprocess.TimeoutExpired) as error:
+            return f"no PDF: Chromium failed ({error})"
+    if not pdf_path.is_file() or pdf_path.stat().st_size == 0:
+        return "no PDF: Chromium wrote nothing"
+    return None
+
+
+def report_folder(name: str, out_root: Path) -> Path:
+    """``out_root/name``, refusing any name that is not one plain folder name inside ``out_root``."""
+    if not name or name in (".", "..") or "/" in name or "\\" in name or name.startswith(".") or "\0" in name:
+        raise ConfigError(
+            f"experiment name {name!r} is invalid; valid: letters, digits, '-' and '_' (a folder in {out_root}/)"
         )
+    folder = out_root / name
+    if folder.resolve().parent != out_root.resolve():
+        raise ConfigError(f"experiment name {name!r} is invalid: {folder} is outside {out_root}/")
+    return folder
+
+
+@dataclass
+class ReportResult:
+    folder: Path
+    pdf_note: str | None
+    """Why no PDF was written (None when it was)."""
+    attach_note: str | None
+    """Why the report was not attached to the launch run (None when it was)."""
+    generation_note: str
+
+
+def write_report(
+    name: str,
+    tracking_uri: str | None = None,
+    out_root: Path = Path("reports"),
+    generation: str | None = None,
+    variants: list[str] | None = None,
+    baseline: str | None = None,
+    pdf: bool = True,
+    attach: bool = True,
+    command: str = "",
+) -> Path:
+    """Build the report of experiment ``name`` into ``out_root/name/`` and return that folder. Raises
+    ``ConfigError`` (bad name, store, generation, variant) or ``NoResults`` before anything is written."""
+    return build_report(name, tracking_uri, out_root, generation, variants, baseline, pdf, attach, command).folder
+
+
+def build_report(
+    name: str,
+    tracking_uri: str | None = None,
+    out_root: Path = Path("reports"),
+    generation: str | None = None,
+    variants: list[str] | None = None,
+    baseline: str | None = None,
+    pdf: bool = True,
+    attach: bool = True,
+    command: str = "",
+) -> ReportResult:
+    folder = report_folder(name, Path(out_root))
+    ablation = select(load_ablation(name, tracking_uri, generation), variants, baseline)
+    if ablation.finished.empty:
+        raise NoResults(
+            f"none of the {len(ablation.trials)} trials of generation "
+            f"{ablation.launch['tags'].get('ablate.generation')}"
+            " finished ("
+            + ", ".join(
+                f"{r.key}: {r.status} {r.error if isinstance(r.error, str) else ''}".strip()
+                for r in ablation.trials.head(3).itertuples()
+            )
+            + (", ..." if len(ablation.trials) > 3 else "")
+            + "); see the MLflow runs for their errors"
+        )
+    command = command or f"ablate report {name}"
+    Path(out_root).mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}.new-", dir=out_root))
+    try:
+        tracker = Tracker(tracking_uri, name)
+        pdf_note = _build(ablation, tracker, staging, pdf, command)
+        _swap(staging, folder)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    attach_note = None
+    if attach:
+        try:
+            tracker.attach_report(ablation.launch["run_id"], folder)
+        except Exception as error:  # noqa: BLE001 - a read-only or remote store: the report on disk stands
+            attach_note = f"not attached to the launch run: {str(error).splitlines()[0][:200]}"
+    return ReportResult(folder, pdf_note, attach_note, _generation_note(ablation))
+
+
+def _swap(staging: Path, folder: Path) -> None:
+    """Replace ``folder`` by ``staging`` with two renames, so a reader never sees a half-written report."""
+    old = None
+    if folder.exists():
+        old = folder.parent / f".{folder.name}.old-{time.time_ns()}"
+        folder.rename(old)
+    staging.rename(folder)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _build(ablation: Ablation, tracker: Tracker, folder: Path, pdf: bool, command: str) -> str | None:
     for sub in ("figures", "tables", "videos"):
-        shutil.rmtree(folder / sub, ignore_errors=True)
         (folder / sub).mkdir(parents=True, exist_ok=True)
     table = convergence_table(ablation)
     compare = comparisons(ablation)
     table.to_csv(folder / "tables" / "convergence.csv", index=False)
     compare.to_csv(folder / "tables" / "comparisons.csv", index=False)
     ablation.trials.to_csv(folder / "tables" / "trials.csv", index=False)
-    curves_episodes, curves_wall = figure_learning_curves(ablation, folder / "figures")
-    figures = {
-        "curves_episodes": curves_episodes,
-        "curves_wall": curves_wall,
-        "spread": figure_episodes_to_solve(ablation, folder / "figures"),
-        "improvement": figure_improvement(ablation, compare, folder / "figures"),
-    }
-    videos = _videos(ablation, Tracker(tracking_uri, name), folder / "videos")
-    text, html_md = build_markdown(ablation, figures, videos, table, compare)
+    figures_folder = folder / "figures"
+    candidates = [
+        figure_overview(ablation, figures_folder),
+        figure_small_multiples(ablation, figures_folder),
+        figure_wallclock(ablation, figures_folder),
+        figure_per_seed(ablation, figures_folder),
+        figure_improvement(ablation, compare, figures_folder),
+        figure_parameters(ablation, table, figures_folder),
+        figure_observation(ablation, tracker, figures_folder),
+    ]
+    figures = [f for f in candidates if f is not None]
+    for number, figure in enumerate(figures, 1):
+        figure.number = number
+        figure.caption = figure.caption.replace("{next}", str(number + 1))
+        figure.caption = figure.caption.replace("Figures 1-2", f"Figures 1-{min(2, len(figures))}")
+    videos = _videos(ablation, tracker, folder / "videos")
+    text, html_md = build_markdown(ablation, figures, videos, table, compare, command)
     (folder / "report.md").write_text(text)
     body = markdown.markdown(html_md, extensions=["tables"])
     page = (
-        f"<!doctype html><html><head><meta charset='utf-8'><title>Ablation report: {html.escape(name)}</title>"
-        f"<style>{CSS}</style></head><body>{body}</body></html>"
+        f"<!doctype html><html><head><meta charset='utf-8'><title>Ablation report: {html.escape(ablation.name)}"
+        f"</title><style>{CSS}</style></head><body>{body}</body></html>"
     )
     (folder / "report.html").write_text(_inline(page, folder))
-    return folder
+    if not pdf:
+        return "no PDF (--no-pdf)"
+    return print_pdf(folder / "report.html", folder / "report.pdf")
 
 
 def terminal_summary(folder: Path) -> str:
     """The convergence table in a few lines, for the end of ``ablate run``."""
     path = folder / "tables" / "convergence.csv"
     if not path.is_file():
-        return (folder / "report.md").read_text().strip().splitlines()[-1]
+        return f"no report in {folder}"
     table = pd.read_csv(path)
     lines = [f"{'variant':<16} {'solved':>7} {'episodes to solve (median)':>28} {'final rolling mean (IQM)':>26}"]
     for row in table.itertuples():
@@ -497,24 +1005,39 @@ def terminal_summary(folder: Path) -> str:
     return "\n".join(lines)
 
 
-def _write_empty(folder: Path, name: str, reason: str) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    text = f"# Ablation report: {name}\n\n**No results to report.** {reason}\n"
-    (folder / "report.md").write_text(text)
-    page = f"<!doctype html><html><head><meta charset='utf-8'></head><body>{markdown.markdown(text)}</body></html>"
-    (folder / "report.html").write_text(page)
-    return folder
+def _names(text: str | None) -> list[str] | None:
+    return [v.strip() for v in text.split(",") if v.strip()] if text else None
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    """``ablate report``: exit 0 with the report written; 1 with nothing to report; 2 for bad input. Nothing
+    is written (and no store created) unless the whole report could be built."""
     name = args.experiment
-    if name.endswith(".toml") or "/" in name:
+    if name.endswith(".toml"):
         name = load_experiment(name).name  # a bad file is a ConfigError: one line, exit 2
-    folder = write_report(name, args.tracking_uri, args.out)
-    text = (folder / "report.md").read_text()
-    if "**No results to report.**" in text:
-        print(text.split("**No results to report.**", 1)[1].strip().splitlines()[0])
-        print(f"wrote {folder}/report.md (empty report)")
+    command = "ablate report " + " ".join(
+        [name]
+        + ([f"--generation {args.generation}"] if getattr(args, "generation", None) else [])
+        + ([f"--variants {args.variants}"] if getattr(args, "variants", None) else [])
+        + ([f"--baseline {args.baseline}"] if getattr(args, "baseline", None) else [])
+    )
+    try:
+        result = build_report(
+            name,
+            args.tracking_uri,
+            args.out,
+            generation=getattr(args, "generation", None),
+            variants=_names(getattr(args, "variants", None)),
+            baseline=getattr(args, "baseline", None),
+            pdf=getattr(args, "pdf", True),
+            command=command,
+        )
+    except NoResults as error:
+        sys.stderr.write(f"ablate report: nothing to report: {error}; nothing written\n")
         return 1
-    print(f"wrote {folder}/report.md and report.html")
+    written = "report.md, report.html" + ("" if result.pdf_note else " and report.pdf")
+    print(f"wrote {result.folder}/: {written}")
+    for note in (result.generation_note, result.pdf_note, result.attach_note):
+        if note and note != "no PDF (--no-pdf)":
+            print(re.sub(r"</?code>|^> ", "", html.unescape(note)))
     return 0

@@ -7,18 +7,26 @@ Statistics use SciPy: ``trim_mean`` for the interquartile mean (IQM), ``bootstra
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+import math
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 
+from ablate.config import ConfigError
 from ablate.tracking import Tracker
 
 CONFIDENCE = 0.95
 N_RESAMPLES = 2000
 SEED = 12345  # bootstrap resampling is seeded: the same runs give the same report
+INITIAL_EPISODES = 10
+"""The untrained policy's return: the mean of a trial's first 10 episodes."""
+RETURN_LEVELS = {"ALE/Pong-v5": (-15.0, -10.0)}
+"""Return levels whose first crossing (rolling mean) is timed, for envs where few seeds reach a threshold."""
 
 
 class NoResults(LookupError):
@@ -32,9 +40,11 @@ class Ablation:
     name: str
     grid: dict[str, Any]
     launch: dict[str, Any]
-    """Tags and files of the newest launch: command, commit, environment."""
+    """Tags and files of the reported launch: command, commit, environment; ``generations``: every
+    generation of the experiment, newest first, with its trial counts."""
     trials: pd.DataFrame
-    """One row per trial of the grid: variant, seed, status, summary metrics, ``censored_episodes``."""
+    """One row per trial of the grid: variant, seed, status, summary metrics, ``censored_episodes``, ``auc``,
+    ``initial_return``, ``improvement``, ``return_at_<E>``, ``episodes_to_<L>`` (and ``reached_<L>``)."""
     curves: pd.DataFrame
     """Long form: variant, seed, episode, return, rolling_mean, wall_s (finished trials only)."""
     params: dict[str, dict[str, str]] = field(default_factory=dict)
@@ -51,6 +61,39 @@ class Ablation:
     @property
     def finished(self) -> pd.DataFrame:
         return self.trials[self.trials.status == "FINISHED"]
+
+    @property
+    def env_id(self) -> str:
+        return str(self.grid.get("base", {}).get("env_id", ""))
+
+    @property
+    def threshold(self) -> float | None:
+        """The solve threshold the trials used: the file's, else the env's; None (Pong) when there is none."""
+        for params in self.params.values():
+            value = params.get("solve_threshold", "None")
+            if value not in ("None", ""):
+                return float(value)
+        value = self.grid.get("base", {}).get("solve_threshold")
+        if value is not None:
+            return float(value)
+        return {"CartPole-v0": 195.0, "CartPole-v1": 475.0}.get(self.env_id)
+
+    @property
+    def any_solved(self) -> bool:
+        return self.threshold is not None and bool((self.finished.solved == 1).any())
+
+    @property
+    def budgets(self) -> list[int]:
+        """Fixed episode budgets at which every variant's return is compared: a quarter, half and all of it."""
+        return fixed_budgets(int(self.finished.budget.max())) if len(self.finished) else []
+
+    @property
+    def levels(self) -> tuple[float, ...]:
+        return RETURN_LEVELS.get(self.env_id, ())
+
+
+def fixed_budgets(budget: int) -> list[int]:
+    return sorted({max(1, budget // 4), max(1, budget // 2), budget})
 
 
 def iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -76,8 +119,10 @@ def _percentile_bootstrap(samples: tuple, statistic, n_resamples: int = N_RESAMP
 
 
 def bootstrap_interval(values: np.ndarray, statistic=iqm) -> tuple[float, float]:
-    """Percentile bootstrap 95% interval of ``statistic`` over one sample (NaNs when fewer than 2 values)."""
+    """Percentile bootstrap 95% interval of ``statistic`` over one sample (NaNs when fewer than 2 values:
+    no interval can be computed from one seed)."""
     values = np.asarray(values, dtype=float)
+    values = values[~np.isnan(values)]
     if len(values) < 2:
         return (float("nan"), float("nan"))
     if np.all(values == values[0]):
@@ -103,13 +148,32 @@ def _pairwise_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.nd
 
 
 def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """95% interval of P(X < Y) + P(X = Y) / 2. The percentile bootstrap collapses to a point when every
+    pair is ordered the same way (5 seeds each give "1.00 [1.00, 1.00]"), which only says the sample has no
+    other pair to resample; there the interval is the exact Clopper-Pearson one for ``min(n, m)`` successes
+    in ``min(n, m)`` independent comparisons, as if only that many pairs carried information."""
     x, y = np.asarray(x, float), np.asarray(y, float)
     if len(x) < 2 or len(y) < 2:
         return (float("nan"), float("nan"))
+    point = _pairwise_improvement(x, y)
     if np.all(np.concatenate([x, y]) == x[0]):
         return (0.5, 0.5)
     low, high = _percentile_bootstrap((x, y), _pairwise_improvement)
+    n = min(len(x), len(y))
+    edge = (1 - CONFIDENCE) / 2
+    if point >= 1.0 or high - low < 1e-12 and point > 0.5:
+        low, high = edge ** (1 / n), 1.0
+    elif point <= 0.0 or high - low < 1e-12 and point < 0.5:
+        low, high = 0.0, 1 - edge ** (1 / n)
     return (float(low), float(high))
+
+
+def smallest_p_value(n: int, m: int) -> float:
+    """The smallest two-sided p-value a rank test can give with ``n`` and ``m`` seeds (complete separation):
+    above 0.05, no ordering of the seeds can support a claim at 95%."""
+    if n < 1 or m < 1:
+        return 1.0
+    return min(1.0, 2 / math.comb(n + m, n))
 
 
 def relative_reduction(variant: np.ndarray, reference: np.ndarray) -> tuple[float, float, float]:
@@ -129,6 +193,23 @@ def relative_reduction(variant: np.ndarray, reference: np.ndarray) -> tuple[floa
     return point, float(low), float(high)
 
 
+def iqm_difference(variant: np.ndarray, reference: np.ndarray) -> tuple[float, float, float]:
+    """IQM(variant) - IQM(reference), with a 95% bootstrap interval: for returns, which can be negative
+    (Pong), where a ratio means nothing."""
+    variant, reference = np.asarray(variant, float), np.asarray(reference, float)
+
+    def statistic(a, b, axis=-1):
+        return iqm(a, axis=axis) - iqm(b, axis=axis)
+
+    point = float(statistic(variant, reference))
+    if len(variant) < 2 or len(reference) < 2:
+        return point, float("nan"), float("nan")
+    if np.all(variant == variant[0]) and np.all(reference == reference[0]):
+        return point, point, point
+    low, high = _percentile_bootstrap((variant, reference), statistic)
+    return point, float(low), float(high)
+
+
 def area_under_curve(rolling_means: np.ndarray, budget: int) -> float:
     """Mean rolling return over the whole budget; a trial that stopped when solved keeps its last value
     (the stop rule assumes a solved agent stays solved). Higher is better; it rewards learning early."""
@@ -139,16 +220,117 @@ def area_under_curve(rolling_means: np.ndarray, budget: int) -> float:
     return float(padded.mean())
 
 
-def load_ablation(name: str, tracking_uri: str | None = None) -> Ablation:
-    """The newest launch's grid, and for every trial of it the run that answers it."""
-    tracker = Tracker(tracking_uri, name)
+def is_censored_statistic(n_censored: int, n: int, statistic: str) -> bool:
+    """Does the median or IQM of ``n`` values use one of the ``n_censored`` largest (censored) ones? Then it
+    is a lower bound, not an estimate. The median uses the middle one or two; the IQM the middle 50%
+    (SciPy's ``trim_mean`` cuts ``int(0.25 n)`` from each end)."""
+    if n == 0:
+        return False
+    if statistic == "median":
+        return n_censored >= n - n // 2
+    return n_censored > int(np.floor(0.25 * n))
+
+
+def trial_measures(curve: pd.DataFrame, budget: int, levels: tuple[float, ...], window: int) -> dict[str, float]:
+    """What one trial's curve says beyond its summary metrics: AUC, the untrained return, the improvement
+    over it, the rolling return after each fixed budget, and the first episode the rolling mean (over a full
+    window, or a quarter of the budget if shorter) reaches each return level (censored at the budget)."""
+    rolling = curve.rolling_mean.to_numpy(float)
+    returns = curve["return"].to_numpy(float)
+    measures: dict[str, float] = {"auc": area_under_curve(rolling, budget)}
+    if len(returns) == 0:
+        return measures
+    initial = float(returns[: min(INITIAL_EPISODES, len(returns))].mean())
+    measures["initial_return"] = initial
+    measures["improvement"] = float(rolling[-1]) - initial
+    for episodes in fixed_budgets(budget):
+        measures[f"return_at_{episodes}"] = float(rolling[min(episodes, len(rolling)) - 1])
+    full = curve["return"].rolling(min(window, max(1, budget // 4)), min_periods=min(window, max(1, budget // 4)))
+    full_mean = full.mean().to_numpy(float)
+    episodes_axis = curve.episode.to_numpy(int)
+    for level in levels:
+        hits = np.flatnonzero(full_mean >= level)
+        measures[f"reached_{level:g}"] = float(len(hits) > 0)
+        measures[f"episodes_to_{level:g}"] = float(episodes_axis[hits[0]]) if len(hits) else float(budget)
+    return measures
+
+
+def _launches(tracker: Tracker) -> list[Any]:
+    return tracker.launches()
+
+
+def _generation_summary(tracker: Tracker, launches: list[Any]) -> list[dict[str, Any]]:
+    """Every generation, newest first: its id, when it started, trials in its grid, trials finished."""
+    runs = tracker.trial_runs()
+    finished: dict[str, set[str]] = {}
+    for run in runs:
+        if run.status == "FINISHED":
+            finished.setdefault(run.tags.get("ablate.generation", ""), set()).add(run.key)
+    seen, out = set(), []
+    for launch in launches:
+        generation = launch.data.tags.get("ablate.generation", "")
+        if generation in seen:
+            continue
+        seen.add(generation)
+        out.append(
+            {
+                "generation": generation,
+                "started_ms": launch.info.start_time,
+                "launch_run_id": launch.info.run_id,
+                "finished": len(finished.get(generation, set())),
+            }
+        )
+    return out
+
+
+def check_store(tracking_uri: str | None) -> str:
+    """The store's URI; a local store (SQLite file or folder) that does not exist is a ``ConfigError``, so
+    that reading never creates an empty database where a user mistyped a path."""
+    from ablate.tracking import resolve_uri
+
+    uri = resolve_uri(tracking_uri)
+    if uri.startswith("sqlite:///"):
+        path = Path(uri.removeprefix("sqlite:///"))
+    elif uri.startswith("file:"):
+        path = Path(uri.removeprefix("file://").removeprefix("file:"))
+    elif "://" not in uri:
+        path = Path(uri)
+    else:
+        return uri
+    if not path.exists():
+        raise ConfigError(f"--tracking-uri {uri}: no MLflow store at {path}; valid: the store `ablate run` wrote")
+    return uri
+
+
+def load_ablation(name: str, tracking_uri: str | None = None, generation: str | None = None) -> Ablation:
+    """The grid of one generation (default: the newest launch's), and for every trial of it the run that
+    answers it. Reads only; a missing store is a ``ConfigError``, a store without the experiment, its launches
+    or the asked-for generation is ``NoResults``."""
+    uri = check_store(tracking_uri)
+    tracker = Tracker(uri, name)
     if tracker.experiment_id(create=False) is None:
         raise NoResults(
             f"no MLflow experiment named {name!r} at {tracker.uri}; run `ablate run experiments/{name}.toml` first"
         )
-    launch = tracker.latest_launch()
-    if launch is None:
+    launches = _launches(tracker)
+    if not launches:
         raise NoResults(f"experiment {name!r} at {tracker.uri} has no launches; run `ablate run` first")
+    generations = _generation_summary(tracker, launches)
+    if generation is None:
+        launch = launches[0]
+    else:
+        matching = [g for g in generations if g["generation"].startswith(generation)]
+        if len(matching) != 1:
+            known = ", ".join(f"{g['generation']} ({g['finished']} trials finished)" for g in generations)
+            raise ConfigError(
+                f"--generation {generation}: {'no' if not matching else 'more than one'} generation of "
+                f"{name!r} matches; valid: {known}"
+            )
+        launch = next(run for run in launches if run.data.tags.get("ablate.generation") == matching[0]["generation"])
+    return _read_launch(tracker, name, launch, generations)
+
+
+def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dict[str, Any]]) -> Ablation:
     launch_id = launch.info.run_id
     grid = json.loads(tracker.load_text(launch_id, "grid.json"))
     try:
@@ -163,9 +345,9 @@ def load_ablation(name: str, tracking_uri: str | None = None) -> Ablation:
         current = best_run.get(run.key)
         if current is None or run.status == "FINISHED" or current.status != "FINISHED":
             best_run[run.key] = run
+    levels = RETURN_LEVELS.get(str(grid.get("base", {}).get("env_id", "")), ())
 
     rows, curves, params = [], [], {}
-    budget_of: dict[str, int] = {}
     for trial in grid["trials"]:
         run = best_run.get(trial["key"])
         row = {"key": trial["key"], "variant": trial["variant"], "seed": trial["seed"]}
@@ -173,15 +355,16 @@ def load_ablation(name: str, tracking_uri: str | None = None) -> Ablation:
             rows.append(row | {"status": "NOT RUN"})
             continue
         budget = int(run.params.get("max_episodes", grid["base"].get("max_episodes", 0)))
-        budget_of[trial["variant"]] = budget
         row |= {"status": run.status, "run_id": run.run_id, "budget": budget, "error": run.tags.get("ablate.error", "")}
         row |= {k: run.metrics.get(k, np.nan) for k in SUMMARY_COLUMNS}
         if run.status == "FINISHED":
             params.setdefault(trial["variant"], run.params)
-            # Two metric reads per run (each read costs ~40 ms on SQLite); the rolling mean is recomputed
-            # from the returns with the trial's own window, exactly as the trial computed it.
-            returns = dict(tracker.metric_history(run.run_id, "episode/return"))
-            wall = dict(tracker.metric_history(run.run_id, "episode/wall_s"))
+            # The exact per-episode table is the run's episodes.csv (MLflow holds a bounded curve); the rolling
+            # mean is recomputed from the returns with the trial's own window, exactly as the trial computed it.
+            with tempfile.TemporaryDirectory(prefix="ablate-episodes-") as folder:
+                table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
+            returns = dict(zip(table["episode"], table["episode_return"], strict=True))
+            wall = dict(zip(table["episode"], table["wall_s"], strict=True))
             episodes = sorted(returns)
             window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
             curve = pd.DataFrame(
@@ -198,10 +381,19 @@ def load_ablation(name: str, tracking_uri: str | None = None) -> Ablation:
             curve["wall_s"] = curve["wall_s"].bfill()
             curve["rolling_mean"] = curve["return"].rolling(window, min_periods=1).mean()
             curves.append(curve)
-            row["auc"] = area_under_curve(curve.rolling_mean.to_numpy(), budget)
+            row |= trial_measures(curve, budget, levels, window)
         rows.append(row)
-    trials = pd.DataFrame(rows)
-    for column in (*SUMMARY_COLUMNS, "auc", "budget", "run_id", "error"):
+    launch_info = {
+        "run_id": launch_id,
+        "tags": dict(launch.data.tags),
+        "environment": environment,
+        "generations": generations,
+    }
+    return _ablation(name, grid, launch_info, pd.DataFrame(rows), curves, params)
+
+
+def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.DataFrame], params) -> Ablation:
+    for column in (*SUMMARY_COLUMNS, "auc", "budget", "run_id", "error", "initial_return", "improvement"):
         if column not in trials:
             trials[column] = np.nan
     solved = trials["solved"] == 1
@@ -211,8 +403,30 @@ def load_ablation(name: str, tracking_uri: str | None = None) -> Ablation:
         if curves
         else pd.DataFrame(columns=["variant", "seed", "solved", "episode", "return", "rolling_mean", "wall_s"])
     )
-    launch_info = {"run_id": launch_id, "tags": dict(launch.data.tags), "environment": environment}
     return Ablation(name, grid, launch_info, trials, curves_frame, params)
+
+
+def select(ablation: Ablation, variants: list[str] | None = None, baseline: str | None = None) -> Ablation:
+    """The ablation restricted to ``variants`` (in that order), compared to ``baseline``. Unknown names are a
+    ``ConfigError`` naming what is valid."""
+    known = ablation.variants
+    chosen = variants or known
+    unknown = [v for v in chosen if v not in known]
+    if unknown:
+        raise ConfigError(f"--variants: unknown variant {unknown[0]!r}; valid: {', '.join(known)}")
+    base = baseline or ablation.baseline
+    if base not in known:
+        raise ConfigError(f"--baseline {base!r}: unknown variant; valid: {', '.join(known)}")
+    if base not in chosen:
+        chosen = [base, *chosen]
+    by_name = {v["name"]: v for v in ablation.grid["variants"]}
+    grid = ablation.grid | {"variants": [by_name[v] for v in chosen], "baseline": base}
+    keep = ablation.trials.variant.isin(chosen)
+    curves = ablation.curves[ablation.curves.variant.isin(chosen)] if len(ablation.curves) else ablation.curves
+    params = {k: v for k, v in ablation.params.items() if k in chosen}
+    return replace(
+        ablation, grid=grid, trials=ablation.trials[keep].reset_index(drop=True), curves=curves, params=params
+    )
 
 
 SUMMARY_COLUMNS = (
@@ -230,10 +444,19 @@ SUMMARY_COLUMNS = (
 )
 
 
+def _with_interval(row: dict[str, Any], prefix: str, values: np.ndarray) -> None:
+    values = np.asarray(values, float)
+    values = values[~np.isnan(values)]
+    row[prefix] = float(iqm(values)) if len(values) else np.nan
+    row[f"{prefix}_ci_low"], row[f"{prefix}_ci_high"] = bootstrap_interval(values)
+
+
 def convergence_table(ablation: Ablation) -> pd.DataFrame:
     """One row per variant: seeds, fraction solved, episodes-to-solve (median, IQM, 95% CIs, censored at the
-    budget), env steps and seconds to solve (solved seeds), final rolling mean, AUC."""
+    budget), env steps and seconds to solve (solved seeds), final rolling mean, AUC, the return after fixed
+    budgets, the improvement over the untrained policy and episodes to reach return levels (censored)."""
     rows = []
+    budgets = ablation.budgets
     for variant in ablation.variants:
         group = ablation.trials[ablation.trials.variant == variant]
         done = group[group.status == "FINISHED"]
@@ -250,33 +473,183 @@ def convergence_table(ablation: Ablation) -> pd.DataFrame:
             "budget": int(done.budget.max()) if len(done) else np.nan,
         }
         if len(done):
-            median = float(np.median(episodes))
-            row["episodes_median"] = median
+            row["episodes_median"] = float(np.median(episodes))
             row["episodes_median_ci_low"], row["episodes_median_ci_high"] = bootstrap_interval(episodes, _median)
             row["episodes_iqm"] = float(iqm(episodes))
             row["episodes_iqm_ci_low"], row["episodes_iqm_ci_high"] = bootstrap_interval(episodes)
-            # a statistic is censored (a lower bound) when unsolved seeds reach into the values it uses
-            # A statistic is a lower bound (censored) when it uses an unsolved seed's value. Unsolved seeds
-            # sort last (at the budget); the median uses the middle one or two, IQM the middle 50%.
-            row["median_censored"] = n_censored >= len(done) - len(done) // 2
-            row["iqm_censored"] = n_censored > int(np.floor(0.25 * len(done)))
+            row["median_censored"] = is_censored_statistic(n_censored, len(done), "median")
+            row["iqm_censored"] = is_censored_statistic(n_censored, len(done), "iqm")
             row["env_steps_to_solve_median"] = float(solved.env_steps_to_solve.median()) if len(solved) else np.nan
             row["wall_s_to_solve_median"] = float(solved.wall_s_to_solve.median()) if len(solved) else np.nan
             row["final_rolling_mean_iqm"] = float(iqm(done.final_rolling_mean.to_numpy(float)))
-            row["auc_iqm"] = float(iqm(done.auc.to_numpy(float)))
-            row["auc_ci_low"], row["auc_ci_high"] = bootstrap_interval(done.auc.to_numpy(float))
-            row["parameter_count"] = int(done.parameter_count.iloc[0])
+            _with_interval(row, "auc_iqm", _values(done, "auc"))
+            row["auc_ci_low"], row["auc_ci_high"] = row.pop("auc_iqm_ci_low"), row.pop("auc_iqm_ci_high")
+            _with_interval(row, "improvement_iqm", _values(done, "improvement"))
+            initial = _values(done, "initial_return")
+            row["initial_return_iqm"] = float(iqm(initial)) if not np.isnan(initial).all() else np.nan
+            for episodes_budget in budgets:
+                column = f"return_at_{episodes_budget}"
+                if column in done:
+                    _with_interval(row, f"{column}_iqm", done[column].to_numpy(float))
+            for level in ablation.levels:
+                column = f"episodes_to_{level:g}"
+                if column in done:
+                    values = done[column].to_numpy(float)
+                    unreached = int((done[f"reached_{level:g}"] != 1).sum())
+                    row[f"{column}_median"] = float(np.median(values))
+                    row[f"{column}_reached"] = len(done) - unreached
+                    row[f"{column}_median_censored"] = is_censored_statistic(unreached, len(done), "median")
+            row["parameter_count"] = (
+                int(done.parameter_count.iloc[0]) if not pd.isna(done.parameter_count.iloc[0]) else np.nan
+            )
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _values(frame: pd.DataFrame, column: str) -> np.ndarray:
+    """A column as floats; NaNs where the frame lacks it (a trial table built by hand, an older store)."""
+    return frame[column].to_numpy(float) if column in frame else np.full(len(frame), np.nan)
 
 
 def _median(values: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.median(values, axis=axis)
 
 
-def comparisons(ablation: Ablation) -> pd.DataFrame:
-    """Each variant against the baseline, on episodes-to-solve (censored): probability of improvement and
-    the relative reduction of the IQM, each with its 95% interval."""
+# --- comparisons --------------------------------------------------------------------------------------------
+BETTER, WORSE, UNSEPARATED, NO_CLAIM = "better", "worse", "not separated", "no claim"
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """One variant against the baseline on one metric: the estimate, its 95% interval, what may be claimed
+    and whether the claim survives leaving out any one seed."""
+
+    variant: str
+    metric: str
+    """``episodes_to_solve``, ``auc``, ``return_at_<E>``, ``episodes_to_<L>``."""
+    point: float
+    """Episodes metrics: 1 - IQM(variant) / IQM(baseline) (positive: fewer episodes). Return metrics:
+    IQM(variant) - IQM(baseline) (positive: higher return)."""
+    low: float
+    high: float
+    verdict: str
+    """``better``, ``worse``, ``not separated`` or ``no claim``."""
+    bound: str
+    """``""`` (an estimate), ``"at least"`` (censoring makes the point a bound on the size of the
+    difference) or ``"censored"`` (both sides censored: episodes cannot separate them)."""
+    variant_value: float
+    baseline_value: float
+    fragile_seeds: tuple[int, ...] = ()
+    """Seeds whose removal changes the verdict (empty: the verdict holds leaving out any one seed)."""
+    n_variant: int = 0
+    n_baseline: int = 0
+
+
+def _verdict(low: float, high: float) -> str:
+    if np.isnan(low) or np.isnan(high):
+        return NO_CLAIM
+    if low > 0:
+        return BETTER
+    if high < 0:
+        return WORSE
+    return UNSEPARATED
+
+
+def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cens: np.ndarray):
+    """Episodes (lower is better) censored at the budget. Returns (point, low, high, verdict, bound). The
+    IQM of a sample whose IQM uses a censored value is a lower bound on the true IQM: with only the variant
+    censored, the variant is at least as slow as measured (a claim "worse" holds, sized "at least"); with only
+    the baseline censored, a claim "better" holds the same way; with both, episodes say nothing."""
+    point, low, high = relative_reduction(x, y)
+    x_bound = is_censored_statistic(int(x_cens.sum()), len(x), "iqm")
+    y_bound = is_censored_statistic(int(y_cens.sum()), len(y), "iqm")
+    verdict = _verdict(low, high)
+    if verdict == NO_CLAIM or min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
+        return point, low, high, NO_CLAIM, ""
+    if x_bound and y_bound:
+        return point, low, high, UNSEPARATED, "censored"
+    if x_bound:  # the variant's true IQM is larger: "worse" can only grow; "better" is not supported
+        return point, low, high, (WORSE if verdict == WORSE else UNSEPARATED), "at least"
+    if y_bound:
+        return point, low, high, (BETTER if verdict == BETTER else UNSEPARATED), "at least"
+    return point, low, high, verdict, ""
+
+
+def _return_comparison(x: np.ndarray, y: np.ndarray):
+    point, low, high = iqm_difference(x, y)
+    if min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
+        return point, low, high, NO_CLAIM, ""
+    return point, low, high, _verdict(low, high), ""
+
+
+def compare_metric(ablation: Ablation, variant: str, metric: str, stability: bool = True) -> Comparison:
+    """``variant`` against the baseline on ``metric``, with a leave-one-seed-out check of the verdict."""
+    done = ablation.finished
+
+    def samples(frame: pd.DataFrame):
+        v, b = frame[frame.variant == variant], frame[frame.variant == ablation.baseline]
+        if metric == "episodes_to_solve":
+            return (
+                v.censored_episodes.to_numpy(float),
+                b.censored_episodes.to_numpy(float),
+                (v.solved != 1).to_numpy(),
+                (b.solved != 1).to_numpy(),
+            )
+        if metric.startswith("episodes_to_"):
+            level = metric.removeprefix("episodes_to_")
+            return (
+                v[metric].to_numpy(float),
+                b[metric].to_numpy(float),
+                (v[f"reached_{level}"] != 1).to_numpy(),
+                (b[f"reached_{level}"] != 1).to_numpy(),
+            )
+        return v[metric].to_numpy(float), b[metric].to_numpy(float), None, None
+
+    def judge(frame: pd.DataFrame):
+        x, y, x_cens, y_cens = samples(frame)
+        if x_cens is not None:
+            return _episodes_comparison(x, y, x_cens, y_cens)
+        return _return_comparison(x, y)
+
+    x, y, _, _ = samples(done)
+    point, low, high, verdict, bound = judge(done)
+    fragile: list[int] = []
+    if stability and verdict in (BETTER, WORSE):
+        for seed in sorted(set(done.seed)):
+            if judge(done[done.seed != seed])[3] != verdict:
+                fragile.append(int(seed))
+    return Comparison(
+        variant,
+        metric,
+        point,
+        low,
+        high,
+        verdict,
+        bound,
+        float(iqm(x)) if len(x) else np.nan,
+        float(iqm(y)) if len(y) else np.nan,
+        tuple(fragile),
+        len(x),
+        len(y),
+    )
+
+
+def comparison_metrics(ablation: Ablation) -> list[str]:
+    """Which metrics the findings rest on: episodes to solve where a threshold exists and some seed solved;
+    always the area under the curve and the return after the whole budget; episodes to reach the env's
+    return levels where no seed solved."""
+    metrics = ["episodes_to_solve"] if ablation.any_solved else []
+    metrics.append("auc")
+    if ablation.budgets:
+        metrics.append(f"return_at_{ablation.budgets[-1]}")
+    if not ablation.any_solved:
+        metrics += [f"episodes_to_{level:g}" for level in ablation.levels]
+    return [m for m in metrics if m == "episodes_to_solve" or m in ablation.trials]
+
+
+def comparisons(ablation: Ablation, stability: bool = True) -> pd.DataFrame:
+    """Each variant against the baseline on each metric of ``comparison_metrics``, plus the probability of
+    improvement on episodes to solve (censored): one row per (variant, metric)."""
     done = ablation.finished
     reference = done[done.variant == ablation.baseline].censored_episodes.to_numpy(float)
     rows = []
@@ -286,36 +659,35 @@ def comparisons(ablation: Ablation) -> pd.DataFrame:
         sample = done[done.variant == variant].censored_episodes.to_numpy(float)
         if len(sample) == 0 or len(reference) == 0:
             continue
-        poi = probability_of_improvement(sample, reference)
-        poi_low, poi_high = probability_of_improvement_interval(sample, reference)
-        reduction, low, high = relative_reduction(sample, reference)
-        auc_sample = done[done.variant == variant].auc.to_numpy(float)
-        auc_reference = done[done.variant == ablation.baseline].auc.to_numpy(float)
-        auc_drop, auc_low, auc_high = relative_reduction(auc_sample, auc_reference)
-        rows.append(
-            {
-                "variant": variant,
-                "baseline": ablation.baseline,
-                "p_improvement": poi,
-                "p_improvement_ci_low": poi_low,
-                "p_improvement_ci_high": poi_high,
-                "episodes_reduction": reduction,
-                "episodes_reduction_ci_low": low,
-                "episodes_reduction_ci_high": high,
-                "variant_censored": bool((done[done.variant == variant].solved != 1).any()),
-                "baseline_censored": bool((done[done.variant == ablation.baseline].solved != 1).any()),
-                "auc_change": -auc_drop,
-                "auc_change_ci_low": -auc_high,
-                "auc_change_ci_high": -auc_low,
-            }
-        )
-    return pd.DataFrame(rows)
+        for metric in comparison_metrics(ablation):
+            c = compare_metric(ablation, variant, metric, stability)
+            row = {k: getattr(c, k) for k in Comparison.__dataclass_fields__}
+            row["fragile_seeds"] = " ".join(map(str, c.fragile_seeds))
+            row["baseline"] = ablation.baseline
+            if metric == "episodes_to_solve":
+                row["p_improvement"] = probability_of_improvement(sample, reference)
+                row["p_improvement_ci_low"], row["p_improvement_ci_high"] = probability_of_improvement_interval(
+                    sample, reference
+                )
+            rows.append(row)
+    columns = [
+        *Comparison.__dataclass_fields__,
+        "baseline",
+        "p_improvement",
+        "p_improvement_ci_low",
+        "p_improvement_ci_high",
+    ]
+    frame = pd.DataFrame(rows)
+    for column in columns:
+        if column not in frame:
+            frame[column] = np.nan if column.startswith("p_") else ""
+    return frame
 
 
 def curve_band(curves: pd.DataFrame, x: str, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """IQM across seeds of the rolling mean at each point of ``grid`` (of column ``x``), with a 95% bootstrap
     band. A seed that stopped because it solved carries its last value forward; one that ran out of budget
-    ends there. Where fewer than half the seeds have a value, the curve stops."""
+    ends there. Where fewer than half the seeds have a value, the curve stops. One seed: no band."""
     per_seed = []
     for _, seed_curve in curves.groupby("seed"):
         seed_curve = seed_curve.sort_values(x)

@@ -18,17 +18,17 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
-from ablate.grid import GridTrial, expand
+from ablate.curve import CurvePoint
+from ablate.grid import GridTrial, expand, select
 from ablate.lock import launch_lock
-from ablate.progress import ProgressView
-from ablate.scheduler import ClusterOptions, run_trials
-from ablate.tracking import TAG_HOST, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
-from ablate.trial import EpisodeMetrics
+from ablate.progress import ProgressView, clock, stage
+from ablate.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, run_trials, stop_ray
+from ablate.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
 
 
 class Interrupted(KeyboardInterrupt):
@@ -84,6 +84,8 @@ class RunOutcome:
     """Why the scheduler stopped before the grid was done (a Ray error, say): the launch is FAILED."""
     reaped: int = 0
     """Runs a dead launch (kill -9, power loss) left RUNNING, marked KILLED by this one."""
+    view: ProgressView | None = field(default=None, repr=False)
+    """The launch's progress view (its clock and stage times), when trials ran."""
 
     @property
     def exit_code(self) -> int:
@@ -152,7 +154,7 @@ PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", 
 
 
 def environment_document() -> dict:
-    """Where the launch ran: Python, package versions, machine."""
+    """Where the launch ran: Python, package versions, machine, CPU model and the CPU kernels torch uses."""
     from importlib.metadata import PackageNotFoundError, version
 
     packages = {}
@@ -161,10 +163,19 @@ def environment_document() -> dict:
             packages[name] = version(name)
         except PackageNotFoundError:
             packages[name] = "not installed"
+    import torch
+
+    # Float kernels differ by CPU: the model and the kernels torch picks say where the results were produced.
+    cpuinfo = Path("/proc/cpuinfo")
+    lines = cpuinfo.read_text().splitlines() if cpuinfo.is_file() else []
+    models = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
+    cpu_model = models[0] if models else platform.processor() or "unknown"
     return {
         "python": platform.python_version(),
         "packages": packages,
         "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} CPUs ({platform.platform()})",
+        "cpu_model": cpu_model,
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
     }
 
 
@@ -200,20 +211,25 @@ class _Recorder:
         if self._open(key):
             self.view.started(key)
 
-    def episodes(self, key: str, rows: list[EpisodeMetrics]) -> None:
+    def episodes(self, key: str, points: list[CurvePoint]) -> None:
         if not self._open(key):
             return
-        self.tracker.log_episodes(key, rows)
-        self.view.episodes(key, max(r.rolling_mean for r in rows))
+        self.tracker.log_points(key, points)
+        self.view.episodes(key, points)
+
+    def checkpoint(self, key: str, blob: bytes) -> None:
+        if not self._open(key):
+            return
+        self.tracker.log_checkpoint(key, blob)
 
     def restarted(self, key: str, reason: str) -> None:
         if not self.closed:
             self.tracker.discard_trial(key, reason)
 
-    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None:
+    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None, node: str) -> None:
         if not self._open(key):
             return
-        self.tracker.finish_trial(key, summary, artifacts)
+        self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
         self.outcome.finished.append(key)
         self.view.finished(key, bool(summary.get("solved")))
 
@@ -282,8 +298,11 @@ def run_experiment(
     storage_path: str = "ray_results",
     show_progress: bool = True,
     command: str = "",
+    only: Sequence[GridTrial] | None = None,
+    started_at: float | None = None,
 ) -> RunOutcome:
-    """Run every trial of ``experiment`` that has no finished run in the current generation.
+    """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
+    current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock.
 
     Every check that can fail without Ray (the grid, the CPUs, the store, another launch) fails first. Holds
     the experiment's launch lock throughout (``LaunchLocked`` if another launch has it)."""
@@ -293,7 +312,17 @@ def run_experiment(
     with launch_lock(tracker.lock_path(), f"experiment {experiment.name!r}", command):
         reaped = reap_stale_runs(tracker, storage_path)
         outcome = _run_locked(
-            experiment, trials, tracker, address, fresh, max_concurrent, storage_path, show_progress, command
+            experiment,
+            trials,
+            tracker,
+            address,
+            fresh,
+            max_concurrent,
+            storage_path,
+            show_progress,
+            command,
+            only,
+            started_at,
         )
         outcome.reaped = reaped
         return outcome
@@ -309,20 +338,26 @@ def _run_locked(
     storage_path: str,
     show_progress: bool,
     command: str,
+    only: Sequence[GridTrial] | None,
+    started_at: float | None,
 ) -> RunOutcome:
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     finished_before = tracker.finished_keys(generation)
-    todo = [t for t in trials if t.key not in finished_before]
+    chosen = trials if only is None else list(only)
+    todo = [t for t in chosen if t.key not in finished_before]
     outcome = RunOutcome(
         experiment.name,
         generation,
         None,
-        skipped=len(trials) - len(todo),
-        total=len(trials),
+        skipped=len(chosen) - len(todo),
+        total=len(chosen),
         ui_link=tracker.ui_link(ui_port()),
     )
     if not todo:
         return outcome
+    started_ray = ensure_ray(address)  # an unreachable cluster fails here, in seconds, before a launch is recorded
+    # Trials a killed launch left with a checkpoint continue from it.
+    resume = {t.key: blob for t in todo if (blob := tracker.latest_checkpoint(generation, t.key)) is not None}
     commit = git_commit()
     grid = grid_document(experiment, trials)
     launch = tracker.start_launch(
@@ -342,12 +377,20 @@ def _run_locked(
         },
     )
     outcome.launch_run_id = launch
-    view = ProgressView(experiment.name, todo, len(finished_before), enabled=show_progress)
+    slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
+    view = ProgressView(experiment.name, todo, len(finished_before), show_progress, slots, started_at)
+    outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
-    options = ClusterOptions(address, max_concurrent, experiment.resources_per_trial, storage_path)
+    options = ClusterOptions(
+        address,
+        max_concurrent,
+        experiment.resources_per_trial,
+        getattr(experiment, "gpus_per_trial", 0.0),
+        storage_path,
+    )
     try:
         with view:
-            run_trials(todo, recorder, options, run_name=tune_run_name(experiment.name, launch))
+            run_trials(todo, recorder, options, run_name=tune_run_name(experiment.name, launch), resume=resume)
     except KeyboardInterrupt as interrupt:
         outcome.interrupted = True
         signum = getattr(interrupt, "signum", None) or (_signals_received[-1] if _signals_received else signal.SIGINT)
@@ -380,35 +423,45 @@ def _run_locked(
                 },
                 note=outcome.note(),
             )
+            if started_ray:
+                stop_ray()
     return outcome
 
 
-def cmd_run(args: argparse.Namespace) -> int:
+def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
     # SIGTERM (a supervisor, `kill`, a CI timeout) stops the launch as Ctrl-C does, with exit code 143 (the
     # shell's 128 + 15, so a supervisor sees which signal ended it). The scheduler keeps this handler across
     # ray.init, which would install one that exits mid-call and aborts in C++.
     previous = signal.signal(signal.SIGTERM, _raise_interrupted)
     _signals_received.clear()
     try:
-        return _cmd_run(args)
+        return _cmd_run(args, started_at)
     finally:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
+def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
+    started_at = time.monotonic() if started_at is None else started_at
     experiment = load_experiment(args.experiment)
+    chosen = select(expand(experiment), args.only, args.seeds)
     if args.max_concurrent is not None and args.max_concurrent < 1:
         raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
     command = " ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]])
-    outcome = run_experiment(
-        experiment,
-        tracking_uri=args.tracking_uri,
-        address=args.address,
-        fresh=args.fresh,
-        max_concurrent=args.max_concurrent,
-        show_progress=True,
-        command=command,
-    )
+    try:
+        outcome = run_experiment(
+            experiment,
+            tracking_uri=args.tracking_uri,
+            address=args.address,
+            fresh=args.fresh,
+            max_concurrent=args.max_concurrent,
+            show_progress=True,
+            command=command,
+            only=chosen,
+            started_at=started_at,
+        )
+    except ClusterUnavailable as error:
+        sys.stderr.write(f"ablate run: {error}\n")
+        return 1
     total = outcome.total
     if outcome.reaped:
         print(f"marked {outcome.reaped} run(s) KILLED that a launch which died had left RUNNING")
@@ -430,9 +483,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"  FAILED {key}: {message}")
     print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
     if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
-        from ablate.report import terminal_summary, write_report
+        from ablate.report import NoResults, terminal_summary, write_report
 
-        folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+        try:
+            with stage(f"writing the report into reports/{experiment.name}/") as report_s:
+                folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
+        except NoResults as error:  # every trial failed: say so, and leave the last good report in place
+            print(f"no report: {error}")
+            return outcome.exit_code
         print(terminal_summary(folder))
-        print(f"report: {folder}/report.md and {folder}/report.html")
+        pdf = " and report.pdf" if (folder / "report.pdf").is_file() else ""
+        print(f"report: {folder}/report.md, report.html{pdf}")
+    else:
+        report_s = []
+    report_seconds = report_s[0] if report_s else None
+    print(outcome.view.total_line(report_seconds) if outcome.view else f"total {clock(time.monotonic() - started_at)}")
     return outcome.exit_code

@@ -1,96 +1,155 @@
-"""The only module that talks to Ray: run a list of trials with Ray Tune, locally or on a cluster.
+"""The only module that talks to Ray: run a list of trials with Ray Tune, locally or on any Ray cluster.
 
-Trials run in Ray workers and report metrics in chunks; events reach the caller on the driver process
-(one writer for the tracker), through the ``TrialEvents`` it passes in.
+Trials run in Ray workers; events reach the caller on the driver process (the single tracking writer)
+through the ``TrialEvents`` it passes in. Nothing assumes a disk that two machines share: everything a
+trial produces travels inside Ray's own results, through the object store, to the driver:
+
+- its curve, reduced in the worker to a bounded number of points (``ablate.curve``), every few seconds;
+- its artifacts (``episodes.csv``, weights, curve, videos), as file bytes in its last result;
+- its checkpoints (an opaque blob from ``run_trial``'s ``on_checkpoint``), as they are taken. The driver
+  keeps the latest one per trial in a small actor on its own node, where a retried trial fetches it.
+
+Why through Ray rather than straight from workers to the tracking store: the driver already is the one
+writer (an SQLite store must never see two), so the path is the same for ``sqlite:///`` and a tracking
+server; workers need neither the store's address nor its credentials; and a trial that dies mid-way
+leaves nothing half-written in the store. The cost is that artifacts cross the driver once: they are
+small here (tens of KB to a few MB per trial). ``storage_path`` is Tune's own bookkeeping, kept on the
+driver; a user with NFS or ``s3://`` can still point it there.
 """
 
 from __future__ import annotations
 
+import inspect
 import logging
 import os
 import shutil
 import signal
+import socket
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import ray
 from ray import tune
+from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
+from ablate.curve import CurvePoint, CurveReducer
 from ablate.grid import GridTrial
-from ablate.trial import EpisodeMetrics, run_trial
+from ablate.trial import run_trial
 
 REPORT_EVERY_S = 2.0
 """Seconds between metric reports from a trial: each ``tune.report`` costs ~2 ms, so never per episode."""
 MAX_PROCESS_FAILURES = 2
 """Times a trial whose process died (OOM kill, segfault, lost node) is restarted before it counts as failed."""
+CONNECT_TIMEOUT_S = 10.0
+"""Seconds to reach a cluster's address before ``ablate run`` gives up (Ray itself retries for minutes)."""
+_RESUMABLE = "on_checkpoint" in inspect.signature(run_trial).parameters
+
+
+class ClusterUnavailable(RuntimeError):
+    """The Ray cluster named by ``--address`` or ``RAY_ADDRESS`` cannot be reached (one line, exit 1)."""
 
 
 class TrialEvents(Protocol):
     """What the scheduler tells its caller, on the driver, in order per trial."""
 
     def started(self, key: str) -> None: ...
-    def episodes(self, key: str, rows: list[EpisodeMetrics]) -> None: ...
+    def episodes(self, key: str, points: list[CurvePoint]) -> None: ...
+    def checkpoint(self, key: str, blob: bytes) -> None: ...
     def restarted(self, key: str, reason: str) -> None: ...
-    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None: ...
+    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None, node: str) -> None: ...
     def failed(self, key: str, message: str) -> None: ...
 
 
 @dataclass(frozen=True)
 class ClusterOptions:
     address: str | None = None
-    """``None``: start a local Ray with this machine's cores. Else ``auto`` or ``ray://host:port``."""
+    """``None``: ``RAY_ADDRESS`` if set, else a fresh local Ray with this machine's cores. Else ``auto``,
+    ``host:port`` of a head node's GCS, or ``ray://host:port``."""
     max_concurrent: int | None = None
     """Trials at once; ``None``: as many as the cluster's CPUs allow."""
     cpus_per_trial: float = 1.0
+    gpus_per_trial: float = 0.0
+    """GPUs Ray reserves per trial (fractions pack trials on one GPU); 0: none."""
     storage_path: str = "ray_results"
-    """Where Tune keeps trial state and the checkpoints that carry artifacts back (shared storage on a
-    multi-node cluster)."""
+    """Tune's bookkeeping, on the driver; artifacts and checkpoints never go through it."""
 
 
-def _train(params: dict[str, Any], trials: dict[str, GridTrial]) -> None:
-    """The Tune trainable: runs in a Ray worker. Exceptions become a ``failed`` report, not a retry:
-    a seeded trial that raises would raise again. Only a dead process is retried (``MAX_PROCESS_FAILURES``)."""
+@ray.remote(num_cpus=0, max_restarts=0)
+class _Checkpoints:
+    """The latest checkpoint blob per trial key, on the driver's node: a retried trial resumes from it."""
+
+    def __init__(self, blobs: Mapping[str, bytes]) -> None:
+        self.blobs = dict(blobs)
+
+    def put(self, key: str, blob: bytes) -> None:
+        self.blobs[key] = blob
+
+    def get(self, key: str) -> bytes | None:
+        return self.blobs.get(key)
+
+
+def _read_folder(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _write_folder(files: Mapping[str, bytes], folder: Path) -> None:
+    for name, data in files.items():
+        path = folder / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+
+
+def _train(params: dict[str, Any], trials: dict[str, GridTrial], checkpoints: Any) -> None:
+    """The Tune trainable: runs in a Ray worker, on any node. Exceptions become a ``failed`` report, not a
+    retry: a seeded trial that raises would raise again. Only a dead process is retried."""
     trial = trials[params["key"]]
-    pending: list[EpisodeMetrics] = []
+    reducer = CurveReducer(trial.config.max_episodes)
+    pending: list[CurvePoint] = []
     last = time.monotonic()
+    node = ray.get_runtime_context().get_node_id()
 
-    def on_episodes(rows: list[EpisodeMetrics]) -> None:
+    def report(status: str, **extra: Any) -> None:
         nonlocal last
-        pending.extend(rows)
-        if time.monotonic() - last >= REPORT_EVERY_S:
-            tune.report({"ablate_status": "running", "ablate_episodes": [tuple(r) for r in pending]})
-            pending.clear()
-            last = time.monotonic()
+        tune.report({"ablate_status": status, "ablate_points": list(pending), "ablate_node": node, **extra})
+        pending.clear()
+        last = time.monotonic()
 
+    def on_episodes(rows: list) -> None:
+        pending.extend(reducer.add(rows))
+        if time.monotonic() - last >= REPORT_EVERY_S:
+            report("running")
+
+    def on_checkpoint(blob: bytes) -> None:
+        report("running", ablate_checkpoint=blob)  # the points up to the checkpoint go with it
+
+    resume = {}
+    if _RESUMABLE:
+        resume = {"resume_from": ray.get(checkpoints.get.remote(trial.key)), "on_checkpoint": on_checkpoint}
     with tempfile.TemporaryDirectory(prefix="ablate-") as folder:
         try:
-            result = run_trial(trial.config, on_episodes=on_episodes, artifacts_dir=folder)
+            result = run_trial(trial.config, on_episodes=on_episodes, artifacts_dir=folder, **resume)
         except Exception as error:  # noqa: BLE001 - every error is recorded on the run, with its type
-            tune.report(
-                {
-                    "ablate_status": "failed",
-                    "ablate_error": f"{type(error).__name__}: {error}",
-                    "ablate_episodes": [tuple(r) for r in pending],
-                }
-            )
+            pending.extend(reducer.flush())
+            report("failed", ablate_error=f"{type(error).__name__}: {error}")
             return
-        tune.report(
-            {
-                "ablate_status": "finished",
-                "ablate_episodes": [tuple(r) for r in pending],
-                "ablate_summary": result.summary(),
-            },
-            checkpoint=tune.Checkpoint.from_directory(folder),
-        )
+        pending.extend(reducer.flush())
+        report("finished", ablate_summary=result.summary(), ablate_artifacts=_read_folder(Path(folder)))
 
 
-def run_trials(trials: Sequence[GridTrial], events: TrialEvents, options: ClusterOptions, run_name: str) -> None:
+def run_trials(
+    trials: Sequence[GridTrial],
+    events: TrialEvents,
+    options: ClusterOptions,
+    run_name: str,
+    resume: Mapping[str, bytes] | None = None,
+) -> None:
     """Run ``trials`` to completion with Ray Tune, calling ``events`` on this process as they progress.
+    ``resume``: checkpoint blobs by trial key (from a killed launch); those trials continue from them.
 
     Raises ``KeyboardInterrupt`` on Ctrl-C after Ray's workers are stopped.
     """
@@ -101,10 +160,18 @@ def run_trials(trials: Sequence[GridTrial], events: TrialEvents, options: Cluste
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     started_here = ensure_ray(options.address)
     by_key = {t.key: t for t in trials}
-    bridge = _Bridge(events)
-    storage = Path(options.storage_path).resolve()
+    # On the driver's node (a worker node may die), holding no CPU.
+    here = ray.get_runtime_context().get_node_id()
+    checkpoints = _Checkpoints.options(scheduling_strategy=NodeAffinitySchedulingStrategy(here, soft=False)).remote(
+        dict(resume or {})
+    )
+    bridge = _Bridge(events, checkpoints)
+    storage = Path(options.storage_path).resolve() if "://" not in options.storage_path else None
+    resources = {"cpu": options.cpus_per_trial}
+    if options.gpus_per_trial:
+        resources["gpu"] = options.gpus_per_trial
     tuner = tune.Tuner(
-        tune.with_resources(tune.with_parameters(_train, trials=by_key), {"cpu": options.cpus_per_trial}),
+        tune.with_resources(tune.with_parameters(_train, trials=by_key, checkpoints=checkpoints), resources),
         param_space={"key": tune.grid_search(list(by_key))},
         tune_config=tune.TuneConfig(
             reuse_actors=True,  # ~0.5 s per trial instead of ~2 s for a fresh worker process
@@ -114,7 +181,7 @@ def run_trials(trials: Sequence[GridTrial], events: TrialEvents, options: Cluste
         ),
         run_config=tune.RunConfig(
             name=run_name,
-            storage_path=str(storage),
+            storage_path=str(storage) if storage else options.storage_path,
             failure_config=tune.FailureConfig(max_failures=MAX_PROCESS_FAILURES),
             callbacks=[bridge],
             verbose=0,
@@ -127,72 +194,132 @@ def run_trials(trials: Sequence[GridTrial], events: TrialEvents, options: Cluste
         ray.shutdown()  # stops the workers now; the caller marks their runs killed
         raise
     finally:
-        shutil.rmtree(storage / run_name, ignore_errors=True)  # artifacts are in the tracker by now
+        if storage is not None:
+            shutil.rmtree(storage / run_name, ignore_errors=True)  # everything is in the tracker by now
         if started_here and ray.is_initialized():
             ray.shutdown()
 
 
 def ensure_ray(address: str | None) -> bool:
-    """Join ``address`` (or ``RAY_ADDRESS``), else start a fresh, quiet local Ray; returns whether this call
-    started or joined it. With neither, ``ray.init`` would join the newest cluster started on this machine
-    (``ray start``) and then refuse our CPU count: a local run must never depend on what else runs here."""
+    """Join ``address`` (or ``RAY_ADDRESS``), else start a fresh, quiet local Ray that listens on 127.0.0.1
+    only; returns whether this call started or joined it. With neither, ``ray.init`` would join the newest
+    cluster started on this machine (``ray start``) and then refuse our CPU count: a local run must never
+    depend on what else runs here. Raises ``ClusterUnavailable`` when the address cannot be reached."""
     if ray.is_initialized():
         return False
     address = address or os.environ.get("RAY_ADDRESS") or None
+    if address:
+        _check_reachable(address)
+    # A head on this machine's loopback (``make cluster-up``): Ray would otherwise swap 127.0.0.1 for the
+    # machine's address, where that head does not listen.
+    _loopback_only(not address or _host(address) in ("127.0.0.1", "localhost"))
     # ray.init installs a SIGTERM handler that calls sys.exit() wherever the driver is, which skips the
     # caller's cleanup and ends in a C++ abort (exit 134); the caller's own handler stays.
     sigterm = signal.getsignal(signal.SIGTERM)
-    ray.init(
-        address=address or "local",
-        num_cpus=None if address else os.cpu_count(),
-        include_dashboard=False,
-        log_to_driver=False,  # workers' prints stay in Ray's log files, not on the progress view
-        logging_level=logging.ERROR,
-        configure_logging=True,
-    )
+    try:
+        ray.init(
+            address=address or "local",
+            num_cpus=None if address else os.cpu_count(),
+            include_dashboard=False,
+            log_to_driver=False,  # workers' prints stay in Ray's log files, not on the progress view
+            logging_level=logging.ERROR,
+            configure_logging=True,
+        )
+    except ConnectionError as error:
+        raise ClusterUnavailable(f"cannot join the Ray cluster at {address}: {error}".splitlines()[0]) from None
     if callable(sigterm) and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, sigterm)
     return True
 
 
+def stop_ray() -> None:
+    """Stop the local Ray this process started, or leave the cluster it joined."""
+    if ray.is_initialized():
+        ray.shutdown()
+
+
+def _check_reachable(address: str) -> None:
+    """``host:port`` (GCS) or ``ray://host:port`` must accept a connection within ``CONNECT_TIMEOUT_S``: Ray
+    itself retries an unreachable GCS for many minutes before it says anything."""
+    if address == "auto" or address == "local":
+        return
+    host, port = _host(address), address.rpartition(":")[2]
+    if not host or not port.isdigit():
+        raise ClusterUnavailable(
+            f"--address {address!r} is not a Ray address; valid: auto, host:port or ray://host:port"
+        )
+    try:
+        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as error:
+        raise ClusterUnavailable(
+            f"cannot reach the Ray cluster at {address} ({error.strerror or error}); is its head node running?"
+        ) from None
+
+
+def _host(address: str) -> str:
+    return address.removeprefix("ray://").rpartition(":")[0]
+
+
+def _loopback_only(enabled: bool) -> None:
+    """A local Ray takes this machine's network address, and its gcs_server, raylet and workers listen on
+    every interface without authentication. Ray (2.60) has no bind option, but with clusters disabled (its
+    macOS/Windows default) a new node's address is 127.0.0.1 and every server binds to it alone. Only read
+    when this process starts a node: joined clusters and ``ray start`` are unaffected; restored for a join."""
+    import ray._private.ray_constants as ray_constants
+
+    global _CLUSTERS_DEFAULT
+    if _CLUSTERS_DEFAULT is None:
+        _CLUSTERS_DEFAULT = ray_constants.ENABLE_RAY_CLUSTER
+    ray_constants.ENABLE_RAY_CLUSTER = False if enabled else _CLUSTERS_DEFAULT
+
+
+_CLUSTERS_DEFAULT: bool | None = None
+
+
 class _Bridge(tune.Callback):
     """A Tune callback (runs on the driver) that turns Tune's trial lifecycle into ``TrialEvents``."""
 
-    def __init__(self, events: TrialEvents) -> None:
+    def __init__(self, events: TrialEvents, checkpoints: Any) -> None:
         self.events = events
-        self.summaries: dict[str, dict[str, float]] = {}
+        self.checkpoints = checkpoints
+        self.summaries: dict[str, tuple[dict[str, float], dict[str, bytes], str]] = {}
 
     def __getstate__(self) -> dict:
         # Tune pickles its callbacks into its experiment state; the events (an MLflow client, a terminal
         # view) belong to this process and are no part of that state.
-        return {"events": None, "summaries": {}}
+        return {"events": None, "checkpoints": None, "summaries": {}}
 
     def on_trial_start(self, iteration, trials, trial, **info):
         self.events.started(trial.config["key"])
 
     def on_trial_result(self, iteration, trials, trial, result, **info):
         key = trial.config["key"]
-        rows = [EpisodeMetrics(*row) for row in result.get("ablate_episodes", [])]
-        if rows:
-            self.events.episodes(key, rows)
+        # Popped: Tune keeps the last result of every trial in memory and in its experiment state.
+        points = [CurvePoint(*p) for p in result.pop("ablate_points", [])]
+        if points:
+            self.events.episodes(key, points)
+        blob = result.pop("ablate_checkpoint", None)
+        if blob is not None:
+            self.checkpoints.put.remote(key, blob)
+            self.events.checkpoint(key, blob)
+        artifacts = result.pop("ablate_artifacts", None)
         status = result.get("ablate_status")
         if status == "failed":
             self.events.failed(key, result.get("ablate_error", "unknown error"))
         elif status == "finished":
-            self.summaries[key] = dict(result["ablate_summary"])
+            self.summaries[key] = (dict(result["ablate_summary"]), artifacts or {}, result.get("ablate_node", ""))
 
     def on_trial_complete(self, iteration, trials, trial, **info):
         key = trial.config["key"]
         if key not in self.summaries:
             return  # a trial that reported "failed" has been recorded already
-        summary = self.summaries.pop(key)
-        checkpoint = trial.checkpoint
-        if checkpoint is None:
-            self.events.finished(key, summary, None)
+        summary, files, node = self.summaries.pop(key)
+        if not files:
+            self.events.finished(key, summary, None, node)
             return
-        with checkpoint.as_directory() as folder:
-            self.events.finished(key, summary, Path(folder))
-        shutil.rmtree(checkpoint.path, ignore_errors=True)
+        with tempfile.TemporaryDirectory(prefix="ablate-artifacts-") as folder:
+            _write_folder(files, Path(folder))
+            self.events.finished(key, summary, Path(folder), node)
 
     def on_trial_recover(self, iteration, trials, trial, **info):
         self.events.restarted(trial.config["key"], _error_text(trial))

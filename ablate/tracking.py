@@ -20,19 +20,26 @@ from typing import Any
 from urllib.parse import urlparse
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
-# Logged at every episode (step = episode): the curve a reader looks at in the UI.
-EPISODE_METRICS = {"episode/return": "episode_return"}
-# Logged when an update ends (step = its last episode), at most one point per ``EPISODES_PER_POINT``
-# episodes: the rolling mean and the clock at that episode, the mean loss and policy entropy of the updates
-# since the last point, and the mean length of their episodes. MLflow's SQLite store costs ~110 us of the
-# driver's CPU per value, and the driver shares the cores with the trials: repeating an update's values
-# for each of its 32 episodes cost 5x the CPU, and the course's 1-episode updates would log 6 values per
-# episode. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
-EPISODES_PER_POINT = 8
+# A trial's curve: one point per bin of episodes (``ablate.curve``: at most ~100 points however many episodes
+# run), step = the bin's last episode. MLflow's SQLite store costs ~4 ms per call plus ~55 us per value of
+# the writer's CPU, and one writer serves every trial: a value per episode capped it at ~10 concurrent
+# trials. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
+POINT_METRICS = {
+    "episode/return": "episode_return",  # mean over the bin
+    "episode/rolling_mean": "rolling_mean",  # at the bin's last episode
+    "episode/loss": "loss",  # mean over the bin's updates
+    "episode/entropy": "entropy",
+    "episode/length": "length",  # mean over the bin
+    "episode/wall_s": "wall_s",
+    "episode/env_steps": "env_steps",
+}
+CHECKPOINT_ARTIFACT = "checkpoint.pt"
+"""A trial's latest checkpoint blob, kept on its run so a killed launch's next launch resumes from it."""
 TAG_ROLE, TAG_GENERATION, TAG_KEY = "ablate.role", "ablate.generation", "ablate.trial_key"
 TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed", "ablate.error", "ablate.attempt"
 TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
 TAG_HOST, TAG_PID = "ablate.host", "ablate.pid"
+TAG_NODE = "ablate.node"
 _BATCH = 1000  # MLflow's limit of metrics per log_batch call
 SCHEMES = ("sqlite", "http", "https", "file", "postgresql", "mysql", "mssql", "databricks")
 """URI schemes MLflow can track to (``file`` and a bare path: its folder store)."""
@@ -73,6 +80,19 @@ class TrialRun:
     tags: dict[str, str]
     start_time_ms: int
     artifacts: list[str] = field(default_factory=list)
+
+
+@dataclass
+class LaunchRun:
+    """A tracked launch (one ``ablate run``), as ``ablate status`` needs it."""
+
+    run_id: str
+    generation: str
+    status: str
+    """MLflow status: FINISHED, FAILED, KILLED, RUNNING (still going, or its process died)."""
+    start_time_ms: int
+    command: str
+    """The command line that started it."""
 
 
 def resolve_uri(tracking_uri: str | None) -> str:
@@ -177,6 +197,25 @@ def _first_line(error: BaseException) -> str:
     return text[:300]
 
 
+def store_exists(tracking_uri: str | None) -> bool:
+    """Whether there is a store to read: a local SQLite file must exist (opening one would create it)."""
+    uri = resolve_uri(tracking_uri)
+    return not uri.startswith("sqlite:///") or Path(uri.removeprefix("sqlite:///")).is_file()
+
+
+def ablation_names(tracking_uri: str | None) -> list[str]:
+    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted."""
+    from mlflow.tracking import MlflowClient
+
+    _quiet_mlflow()
+    client = MlflowClient(resolve_uri(tracking_uri))
+    names = []
+    for experiment in client.search_experiments():
+        if client.search_runs([experiment.experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", max_results=1):
+            names.append(experiment.name)
+    return sorted(names)
+
+
 class Tracker:
     """Runs of one MLflow experiment (one per ablation): a parent run per launch, a child run per trial."""
 
@@ -212,10 +251,8 @@ class Tracker:
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
         self._started_ms: dict[str, int] = {}
-        """Per open trial, its run's start (ms): metric points are stamped start + the episode's ``wall_s``, so
+        """Per open trial, its run's start (ms): metric points are stamped start + the point's ``wall_s``, so
         MLflow's time axes show when each happened, not when the driver wrote a batch."""
-        self._since_point: dict[str, list[Any]] = {}
-        """Per open trial, the episodes (whole updates) since its last point of the update metrics."""
 
     # --- experiment -------------------------------------------------------------------------------
     def _store_problem(self, error: BaseException) -> str:
@@ -279,6 +316,17 @@ class Tracker:
         )
         return runs[0] if runs else None
 
+    def launches(self) -> list[Any]:
+        """Every launch (parent) run of this experiment, newest first (the report picks a generation from them)."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        return list(
+            self.client.search_runs(
+                [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"]
+            )
+        )
+
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
 
@@ -322,49 +370,54 @@ class Tracker:
             },
         )
         run_id = run.info.run_id
-        self._since_point[key] = []
         self._started_ms[key] = run.info.start_time
         self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
         return run_id
 
-    def log_episodes(self, key: str, rows: Sequence[Any]) -> None:
-        """``EPISODE_METRICS`` for every episode; a point of the update metrics (``_point``) when an update ends
-        and ``EPISODES_PER_POINT`` episodes have passed since the last point. Rows hold whole updates."""
-        group = self._since_point[key]
+    def log_points(self, key: str, points: Sequence[Any]) -> None:
+        """``POINT_METRICS`` of each curve point (``ablate.curve.CurvePoint``) of an open trial, in one batch."""
         start_ms = self._started_ms.get(key, int(time.time() * 1000))
+        self._log_metrics(
+            self.open_runs[key],
+            (
+                (metric, float(getattr(p, attr)), p.episode, start_ms + int(p.wall_s * 1000))
+                for p in points
+                for metric, attr in POINT_METRICS.items()
+            ),
+        )
 
-        def values():
-            for i, row in enumerate(rows):
-                group.append(row)
-                at_ms = start_ms + int(row.wall_s * 1000)
-                for metric, attr in EPISODE_METRICS.items():
-                    yield metric, float(getattr(row, attr)), row.episode, at_ms
-                update_ends = i + 1 == len(rows) or rows[i + 1].update != row.update
-                if update_ends and len(group) >= EPISODES_PER_POINT:
-                    yield from ((*value, at_ms) for value in _point(group))
-                    group.clear()
+    def log_checkpoint(self, key: str, blob: bytes) -> None:
+        """Keep ``blob`` as the open trial's ``checkpoint.pt`` (replacing the previous one): whatever ends the
+        launch (Ctrl-C, a killed driver), the next launch finds the latest one (``latest_checkpoint``)."""
+        import tempfile
 
-        self._log_metrics(self.open_runs[key], values())
+        with tempfile.TemporaryDirectory(prefix="ablate-checkpoint-") as folder:
+            path = Path(folder) / CHECKPOINT_ARTIFACT
+            path.write_bytes(blob)
+            self.client.log_artifact(self.open_runs[key], str(path))
 
-    def _flush_point(self, key: str, run_id: str) -> None:
-        group = self._since_point.pop(key, [])
-        start_ms = self._started_ms.pop(key, int(time.time() * 1000))
-        if group:
-            at_ms = start_ms + int(group[-1].wall_s * 1000)
-            self._log_metrics(run_id, ((*value, at_ms) for value in _point(group)))
+    def latest_checkpoint(self, generation: str, key: str) -> bytes | None:
+        """The checkpoint of the newest interrupted (KILLED) run of ``key`` in ``generation``, if it has one."""
+        runs = [r for r in self.trial_runs(generation) if r.key == key and r.status == "KILLED"]
+        for run in sorted(runs, key=lambda r: r.start_time_ms, reverse=True):
+            if any(a.path == CHECKPOINT_ARTIFACT for a in self.client.list_artifacts(run.run_id)):
+                return Path(self.download(run.run_id, CHECKPOINT_ARTIFACT)).read_bytes()
+        return None
 
-    def finish_trial(self, key: str, summary: dict[str, float], artifacts: Path | None) -> None:
+    def finish_trial(
+        self, key: str, summary: dict[str, float], artifacts: Path | None, tags: dict[str, str] | None = None
+    ) -> None:
         run_id = self.open_runs.pop(key)
-        self._flush_point(key, run_id)
         self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
+        for name, value in (tags or {}).items():
+            self.client.set_tag(run_id, name, value)
         if artifacts is not None:
             self.client.log_artifacts(run_id, str(artifacts))
         self.client.set_terminated(run_id, "FINISHED")
 
     def fail_trial(self, key: str, message: str) -> None:
         run_id = self.open_runs.pop(key)
-        self._flush_point(key, run_id)
         self.client.set_tag(run_id, TAG_ERROR, message[:5000])
         self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
         self.client.set_terminated(run_id, "FAILED")
@@ -373,7 +426,6 @@ class Tracker:
         """A trial whose process died restarts from scratch: its partial run is closed and soft-deleted so
         no metric is counted twice; the restart opens a new run (``ablate.attempt`` counts them)."""
         run_id = self.open_runs.pop(key, None)
-        self._since_point.pop(key, None)
         if run_id is not None:
             self.client.set_tag(run_id, TAG_ERROR, f"process died, retried: {reason}"[:5000])
             self.client.set_terminated(run_id, "KILLED")
@@ -384,10 +436,18 @@ class Tracker:
         from the store, not from ``open_runs``: an interrupt can land between MLflow creating a run and this
         object recording it, and such a run must not stay RUNNING."""
         self.open_runs.clear()
-        self._since_point.clear()
+        self._started_ms.clear()
         runs = self.running_runs(f" and tags.`{TAG_PARENT}` = '{launch_id}'")
         self.kill_runs([r.info.run_id for r in runs], reason)
         return [r.data.tags.get(TAG_KEY, r.info.run_id) for r in runs]
+
+    def kill_open_trials(self) -> list[str]:
+        killed = list(self.open_runs)
+        for key in killed:
+            run_id = self.open_runs.pop(key)
+            self.client.set_tag(run_id, TAG_ERROR, "interrupted (Ctrl-C); a re-run starts it again")
+            self.client.set_terminated(run_id, "KILLED")
+        return killed
 
     def running_runs(self, query: str = "") -> list[Any]:
         """Runs of this experiment MLflow has as RUNNING (``query``: more of a filter, `` and ...``)."""
@@ -424,6 +484,15 @@ class Tracker:
         if batch:
             self.client.log_batch(run_id, metrics=batch)
 
+    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ("videos",)) -> None:
+        """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables) as the ``report/``
+        artifacts of a launch run; ``skip`` leaves out folders already in the trial runs (the videos)."""
+        for path in sorted(Path(folder).iterdir()):
+            if path.is_dir() and path.name not in skip:
+                self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
+            elif path.is_file():
+                self.client.log_artifact(run_id, str(path), "report")
+
     # --- reading back -----------------------------------------------------------------------------
     def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
         """Trial runs of this experiment (of one generation, if given), oldest first."""
@@ -458,6 +527,25 @@ class Tracker:
             for r in runs
         ]
 
+    def launch_runs(self) -> list[LaunchRun]:
+        """Every launch of this experiment, oldest first."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        runs = self.client.search_runs(
+            [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time ASC"], max_results=5000
+        )
+        return [
+            LaunchRun(
+                run_id=r.info.run_id,
+                generation=r.data.tags.get(TAG_GENERATION, ""),
+                status=r.info.status,
+                start_time_ms=r.info.start_time,
+                command=r.data.tags.get("ablate.command", ""),
+            )
+            for r in runs
+        ]
+
     def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:
         """(step, value) pairs of one metric, by step."""
         return sorted((m.step, m.value) for m in self.client.get_metric_history(run_id, key))
@@ -471,18 +559,6 @@ class Tracker:
 
         destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
         return self.client.download_artifacts(run_id, path, str(destination))
-
-
-def _point(group: Sequence[Any]) -> Iterable[tuple[str, float, int]]:
-    """The update metrics for the episodes in ``group`` (whole updates), at the step of the last one: the
-    rolling mean and clock there, the mean loss and entropy of the updates, the mean length of the episodes."""
-    last = group[-1]
-    updates = list({row.update: row for row in group}.values())  # each row carries its update's loss and entropy
-    yield "episode/rolling_mean", float(last.rolling_mean), last.episode
-    yield "episode/loss", sum(u.loss for u in updates) / len(updates), last.episode
-    yield "episode/entropy", sum(u.entropy for u in updates) / len(updates), last.episode
-    yield "episode/wall_s", float(last.wall_s), last.episode
-    yield "episode/length", sum(r.length for r in group) / len(group), last.episode
 
 
 def _param_text(value: Any) -> str:

@@ -312,7 +312,104 @@ def bench_ablation(repeats: int = 1) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-SECTIONS = {"core": bench_core, "runner": bench_runner, "ablation": bench_ablation}
+# --- Pong (issue 9) ---
+PONG_EXPERIMENT = "experiments/pong.toml"
+
+
+def _pong_config(variant: str, **overrides):
+    """The trial config of ``variant`` in experiments/pong.toml, seed 0, with ``overrides``."""
+    from ablate.config import load_experiment
+
+    config = next(v.config for v in load_experiment(PONG_EXPERIMENT).variants if v.name == variant)
+    return replace(config, record_video=False, video_every=0, checkpoint_every=0, **overrides)
+
+
+def _raw_pong_steps_per_cpu_s(steps: int = 4000) -> float:
+    """Agent steps per CPU second of the raw emulator: ``gym.make("ALE/Pong-v5")`` (frameskip 4, sticky
+    actions, RGB observations) stepped with uniformly random actions, nothing else."""
+    import gymnasium as gym
+    import numpy as np
+
+    from ablate.envs import _register_ale
+
+    _register_ale()
+    env = gym.make("ALE/Pong-v5")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    actions = rng.integers(0, 6, steps)
+    started = time.process_time()
+    for action in actions:
+        _, _, terminated, truncated, _ = env.step(int(action))
+        if terminated or truncated:
+            env.reset()
+    spent = time.process_time() - started
+    env.close()
+    return steps / spent
+
+
+def bench_pong(repeats: int = 3) -> None:
+    """Agent steps per CPU second (= per core: one thread each) of the raw ALE/Pong-v5 emulator, and of whole
+    Pong trials (acting, pre-processing, updates; setup included) of the pong.toml `mlp` and `cnn` variants,
+    interleaved in one process; ratios per repeat, medians. CPU time, not wall: on a machine shared with
+    other work, wall time measures the neighbours."""
+    torch.set_num_threads(1)
+    rows: dict[str, list[float]] = {"raw": [], "mlp": [], "cnn": [], "mlp_ratio": [], "cnn_ratio": []}
+    for i in range(repeats):
+        raw = _raw_pong_steps_per_cpu_s()
+        rows["raw"].append(raw)
+        for variant, episodes in (("mlp", 24), ("cnn", 12)):
+            started = time.process_time()
+            result = run_trial(_pong_config(variant, max_episodes=episodes, seed=i))
+            sps = result.env_steps / (time.process_time() - started)
+            rows[variant].append(sps)
+            rows[f"{variant}_ratio"].append(sps / raw)
+        print(
+            f"  repeat {i}: raw emulator {raw:,.0f} steps/s/core | mlp trial {rows['mlp'][-1]:,.0f} "
+            f"({rows['mlp_ratio'][-1]:.2f}x) | cnn trial {rows['cnn'][-1]:,.0f} ({rows['cnn_ratio'][-1]:.2f}x)",
+            flush=True,
+        )
+    medians = {k: statistics.median(v) for k, v in rows.items()}
+    print(
+        f"pong: raw ALE/Pong-v5 median {medians['raw']:,.0f} agent steps/s/core; mlp trial "
+        f"{medians['mlp']:,.0f} ({medians['mlp_ratio']:.2f}x raw); cnn trial {medians['cnn']:,.0f} "
+        f"({medians['cnn_ratio']:.2f}x raw)"
+    )
+    RESULTS["pong"] = {"medians": medians, "runs": rows}
+
+
+def bench_pong_memory(episodes: int = 1000, variant: str = "cnn") -> None:
+    """Resident memory of one Pong trial at pong.toml's settings (the `cnn` variant, seed 0) over ``episodes``
+    episodes (~20 min of CPU for 1,000): RSS after episode 100, every 100 after, and the process's peak."""
+    import resource
+
+    import psutil
+
+    process = psutil.Process()
+    samples: dict[int, float] = {}
+
+    def sample(rows) -> None:
+        for row in rows:
+            if row.episode % 100 == 0:
+                samples[row.episode] = process.memory_info().rss / 2**20
+                print(f"  episode {row.episode}: RSS {samples[row.episode]:,.0f} MB", flush=True)
+
+    run_trial(_pong_config(variant, max_episodes=episodes), on_episodes=sample)
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    first, last = samples.get(100, float("nan")), samples.get(episodes, float("nan"))
+    print(
+        f"pong-memory: {variant} trial, {episodes} episodes: RSS {first:,.0f} MB at episode 100, {last:,.0f} MB at "
+        f"episode {episodes}; peak RSS {peak_mb:,.0f} MB"
+    )
+    RESULTS["pong-memory"] = {"variant": variant, "rss_mb": samples, "peak_rss_mb": peak_mb}
+
+
+SECTIONS = {
+    "core": bench_core,
+    "runner": bench_runner,
+    "ablation": bench_ablation,
+    "pong": bench_pong,
+    "pong-memory": bench_pong_memory,
+}
 
 
 def main() -> int:

@@ -1,11 +1,16 @@
 """`ablate train` from the command line: bad input is one line and exit 2; good input writes its outputs."""
 
+import json
+import os
+import re
+import shlex
 import subprocess
 import sys
 
 import pytest
 
 from ablate.cli import main
+from ablate.config import load_experiment
 
 
 @pytest.mark.parametrize(
@@ -113,3 +118,173 @@ def test_missing_experiment_file_and_bad_concurrency(tmp_path):
     )
     assert proc.returncode == 2 and "--max-concurrent = 0 is invalid; valid: an integer >= 1" in proc.stderr
     assert not (tmp_path / "mlflow.db").exists()
+
+
+# --- help, flags, run --only/--seeds/--dry-run, train --from -------------------------------------------
+
+
+def _subparsers(parser):
+    import argparse
+
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return action.choices
+
+
+def test_every_option_of_every_command_has_a_help_text():
+    from ablate.cli import build_parser
+
+    parser = build_parser()
+    missing = []
+    for name, sub in _subparsers(parser).items():
+        for action in sub._actions:
+            if not action.help or not action.help.strip():
+                missing.append(f"ablate {name} {'/'.join(action.option_strings) or action.dest}")
+    assert not missing, missing
+
+
+def test_top_level_help_describes_the_tool_not_the_module():
+    proc = subprocess.run([sys.executable, "-m", "ablate.cli", "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0
+    assert "architecture ablations of REINFORCE" in proc.stdout and "examples:" in proc.stdout
+    for command in ("train", "run", "status", "report"):
+        assert re.search(rf"^\s+{command}\s+\S", proc.stdout, re.M), command
+    assert "Thin: parse" not in proc.stdout and "``" not in proc.stdout
+
+
+def test_train_has_a_flag_for_every_knob_and_each_reaches_the_config():
+    from ablate.cli import TEST_ONLY_KNOBS, TRAIN_KNOBS, build_parser
+    from ablate.config import DEFAULT, KNOBS, SHORTHANDS, apply_knobs, flatten
+
+    train = _subparsers(build_parser())["train"]
+    dests = {a.dest for a in train._actions}
+    assert set(KNOBS) - set(TEST_ONLY_KNOBS) | set(SHORTHANDS) <= dests
+    argv = shlex.split(
+        "--env-id CartPole-v0 --learning-rate 0.5 --gamma 0.9 --l2 0.01 --episodes-per-update 4 --max-episodes 7 "
+        "--solve-threshold 150 --solve-window 20 --seed 3 --no-record-video --video-max-frames 9 --architecture cnn "
+        "--hidden-sizes 5,6 --activation tanh --dropout 0.25 --history 6 --conv-channels 3,4 --kernel-size 3"
+    )
+    args = train.parse_args(argv)
+    knobs = {k: getattr(args, k) for k in TRAIN_KNOBS if getattr(args, k) is not None}
+    flat = flatten(apply_knobs(DEFAULT, knobs))
+    changed = {k.removeprefix("model."): v for k, v in flat.items() if v != flatten(DEFAULT)[k]}
+    assert set(changed) == set(KNOBS) - set(TEST_ONLY_KNOBS)  # every knob set by its flag
+    assert changed["hidden_sizes"] == (5, 6) and changed["record_video"] is False and changed["gamma"] == 0.9
+    depth = train.parse_args(["--depth", "3", "--width", "7", "--env", "CartPole-v0"])
+    assert apply_knobs(DEFAULT, {"depth": depth.depth, "width": depth.width}).model.hidden_sizes == (7, 7, 7)
+    assert train.parse_args(["--hidden-sizes", "linear"]).hidden_sizes == []
+
+
+TINY = """
+name = "tiny"
+seeds = [0, 1, 2]
+[base]
+env_id = "CartPole-v1"
+max_episodes = 16
+episodes_per_update = 8
+video_max_frames = 20
+[[variants]]
+name = "narrow"
+hidden_sizes = [8]
+[[variants]]
+name = "depth=2,width=8"
+hidden_sizes = [8, 8]
+[[variants]]
+name = "wide"
+hidden_sizes = [64]
+"""
+
+
+def test_run_dry_run_lists_the_chosen_trials_and_starts_nothing(tmp_path):
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    code = (
+        "import sys; from ablate.cli import main; "
+        f"rc = main(['run', {str(path)!r}, '--only', 'depth=2,width=8,wide', '--seeds', '0,2', '--dry-run']); "
+        "print('RAY IMPORTED' if 'ray' in sys.modules else 'NO RAY', 'MLFLOW IMPORTED' if 'mlflow' in sys.modules "
+        "else 'NO MLFLOW'); sys.exit(rc)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0] == "tiny: 4 of 9 trials (dry run: nothing started or written)"
+    from ablate.grid import expand
+
+    expected = [t for t in expand(load_experiment(path)) if t.variant != "narrow" and t.seed in (0, 2)]
+    rows = [line.split() for line in lines[2:6]]
+    assert [(r[0], int(r[1]), r[2]) for r in rows] == [(t.variant, t.seed, t.key) for t in expected]
+    assert rows[0][3:] == ["hidden_sizes=[8,", "8]"]
+    assert lines[-1] == "NO RAY NO MLFLOW"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny.toml"]  # no mlflow.db, no ray_results
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--only", "narow"], "--only: 'narow' is not a variant; valid: narrow, depth=2,width=8, wide"),
+        (["--seeds", "0,5"], "--seeds: 5 is not a seed of this experiment; valid: 0, 1, 2"),
+        (["--seeds", "a"], "argument --seeds: 'a' is not a comma-separated list of seeds, e.g. 0,1"),
+    ],
+)
+def test_run_bad_only_or_seeds_is_exit_2(tmp_path, capsys, argv, message):
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    with pytest.raises(SystemExit) as exit_info:
+        raise SystemExit(main(["run", str(path), *argv, "--dry-run"]))
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny.toml"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([], "needs --variant (one of narrow, depth=2,width=8, wide) and --seed (one of 0, 1, 2)"),
+        (["--variant", "wide"], "needs --variant"),
+        (["--variant", "wid", "--seed", "0"], "--variant 'wid' is not a variant of"),
+        (["--variant", "wide", "--seed", "7"], "--seed 7 is not a seed of"),
+        (["--variant", "wide", "--seed", "0", "--dropout", "0.1"], "--dropout: not with --from"),
+        (["--variant", "wide", "--seed", "0", "--preset", "course"], "--preset: not with --from"),
+    ],
+)
+def test_train_from_bad_input_is_exit_2(tmp_path, capsys, argv, message):
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    out = tmp_path / "out"
+    assert main(["train", "--from", str(path), *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not out.exists()
+    assert main(["train", "--variant", "wide"]) == 2
+    assert "--variant: only with --from" in capsys.readouterr().err
+
+
+def test_train_from_runs_that_trial_with_its_key_and_config_and_no_sdl_noise(tmp_path):
+    import csv
+
+    from ablate.grid import expand
+    from ablate.trial import run_trial
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    out = tmp_path / "out"
+    env = {k: v for k, v in os.environ.items() if k not in ("XDG_RUNTIME_DIR", "SDL_VIDEODRIVER")}
+    proc = subprocess.run(
+        [sys.executable, "-m", "ablate.cli", "train", "--from", str(path), "--variant", "depth=2,width=8"]
+        + ["--seed", "2", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=env,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "XDG_RUNTIME_DIR" not in proc.stderr + proc.stdout and proc.stderr == ""  # the video was rendered quietly
+    trial = next(t for t in expand(load_experiment(path)) if t.variant == "depth=2,width=8" and t.seed == 2)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["trial_key"] == trial.key and f"trial {trial.key}" in proc.stdout
+    assert (out / "video.mp4").is_file()
+    # The same config as the experiment's trial: the same episodes, return for return.
+    reference = run_trial(trial.config)
+    with open(out / "episodes.csv") as table:
+        returns = [float(row["episode_return"]) for row in csv.DictReader(table)]
+    assert returns == [m.episode_return for m in reference.episodes] and len(returns) == 16

@@ -2,7 +2,17 @@
 
 import numpy as np
 
-from ablate.envs import FrameDifference, ObservationWindow, env_info, make_env, make_vec_env, pre_process
+from ablate.envs import (
+    FrameDifference,
+    ObservationWindow,
+    PongEnv,
+    env_info,
+    frame_difference,
+    make_env,
+    make_vec_env,
+    pre_process,
+    pre_process_int8,
+)
 
 
 def test_pre_process_crops_downsamples_and_binarises():
@@ -51,3 +61,60 @@ def test_vectorised_cartpole_respects_each_versions_time_limit():
             observations, _ = env.reset(seed=0)
             assert observations.shape == (env.num_envs, 4) and observations.dtype == np.float32
             env.close()
+
+
+def test_pre_process_known_output_and_raw_frame_untouched():
+    frame = np.full((210, 160, 3), 144, dtype=np.uint8)
+    frame[35:195:2, ::2, 0][:, 40] = 109  # the second background colour: erased
+    frame[35 + 2 * 7, 2 * 3 : 2 * 5, 0] = 236  # ball pixels at (7, 3) and (7, 4) after downsampling
+    frame[35 + 2 * 70, 2 * 76, 0] = 92  # a paddle pixel at (70, 76)
+    frame[35 + 2 * 7 + 1, 2 * 9, 0] = 236  # on an odd row: dropped by the downsampling
+    before = frame.copy()
+    expected = np.zeros((80, 80), np.float32)
+    expected[7, 3:5] = 1
+    expected[70, 76] = 1
+    np.testing.assert_array_equal(pre_process(frame), expected)
+    np.testing.assert_array_equal(pre_process_int8(frame), expected.astype(np.int8))
+    np.testing.assert_array_equal(frame, before)
+
+
+def test_frame_difference_of_a_moving_ball():
+    previous = np.full((210, 160, 3), 144, dtype=np.uint8)
+    frame = previous.copy()
+    previous[35 + 2 * 20, 2 * 30, 0] = 236  # the ball at (20, 30) ...
+    frame[35 + 2 * 22, 2 * 31, 0] = 236  # ... moved to (22, 31)
+    difference = frame_difference(frame, previous)
+    assert difference[22, 31] == 1 and difference[20, 30] == -1 and np.abs(difference).sum() == 2
+    assert not frame_difference(frame, None).any()  # the first frame of an episode: no motion yet
+
+
+def test_pong_env_is_ale_pong_v5_step_for_step_and_restores_its_state():
+    import gymnasium as gym
+
+    reference = gym.make("ALE/Pong-v5").unwrapped  # sticky actions on, as in v5
+    ours = PongEnv("ALE/Pong-v5", action_set="all")
+    frame, _ = reference.reset(seed=3)
+    observation = ours.reset(seed=3)
+    assert not observation.any() and observation.dtype == np.int8
+    rng = np.random.default_rng(0)
+    previous = frame
+    for _ in range(300):
+        action = int(rng.integers(6))
+        frame, reward, terminated, truncated, _ = reference.step(action)
+        observation, our_reward, done = ours.step(action)
+        np.testing.assert_array_equal(ours.frame, frame)
+        np.testing.assert_array_equal(observation, frame_difference(frame, previous))
+        assert (our_reward, done) == (reward, terminated or truncated)
+        previous = frame
+    saved = ours.state()
+    first = [ours.step(a % 2)[0].copy() for a in range(50)]
+    ours.set_state(saved)
+    assert all((a == ours.step(i % 2)[0]).all() for i, a in enumerate(first))
+
+
+def test_pong_env_action_sets_and_step_cap():
+    moving = PongEnv(action_set="move", max_episode_steps=25)
+    moving.reset(seed=0)
+    assert [a.name for a in moving.ale_actions] == ["RIGHT", "LEFT"]  # ALE 2 and 3: the paddle up and down
+    dones = [moving.step(t % 2)[2] for t in range(25)]
+    assert dones == [False] * 24 + [True]

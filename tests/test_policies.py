@@ -59,3 +59,47 @@ def test_numpy_acting_path_matches_torch_and_follows_updates():
     window = np.zeros((2, 4, 4), np.float32)
     with torch.no_grad():
         np.testing.assert_allclose(cnn.act_logits(window), cnn(torch.from_numpy(window)).numpy())
+
+
+def test_pong_mlp_acts_in_numpy_on_sparse_int8_frame_differences():
+    import numpy as np
+
+    torch.manual_seed(0)
+    mlp = create_pong_model(n_actions=2, architecture="mlp", hidden_sizes=(16,), dropout=0.1).eval()
+    assert mlp._numpy_ok  # its nn.Flatten no longer sends it down the torch path
+    rng = np.random.default_rng(0)
+    sparse = np.zeros((3, 1, 80, 80), np.int8)
+    sparse[0, 0, 10, 5:9] = 1
+    sparse[0, 0, 40, 70] = -1
+    sparse[2, 0, 79, 79] = 1  # row 1 stays empty
+    dense = rng.integers(-1, 2, (2, 1, 80, 80)).astype(np.int8)  # mostly non-zero: the dense product
+    for x in (sparse, dense):
+        with torch.no_grad():
+            expected = mlp(torch.from_numpy(x.astype(np.float32))).numpy()
+        np.testing.assert_allclose(mlp.act_logits(x), expected, rtol=1e-5, atol=1e-5)
+    cnn = create_pong_model(n_actions=2).eval()
+    with torch.no_grad():
+        expected = cnn(torch.from_numpy(sparse.astype(np.float32))).numpy()
+    np.testing.assert_allclose(cnn.act_logits(sparse), expected, rtol=1e-5, atol=1e-6)
+    assert expected.shape == (3, 2)
+
+
+def test_pong_mlp_sparse_forward_matches_dense_in_value_and_gradient():
+    import numpy as np
+
+    torch.manual_seed(0)
+    mlp = create_pong_model(n_actions=2, architecture="mlp", hidden_sizes=(16, 8))
+    x = np.zeros((5, 1, 80, 80), np.int8)
+    rng = np.random.default_rng(1)
+    for i in (0, 1, 3, 4):  # observation 2 stays all zeros: an empty bag
+        x[i].reshape(-1)[rng.integers(0, 6400, 40)] = rng.choice(np.array([-1, 1], np.int8), 40)
+    weights = torch.linspace(-1, 1, 10).reshape(5, 2)
+    grads = []
+    for inputs in (torch.from_numpy(x), torch.from_numpy(x.astype(np.float32))):
+        mlp.zero_grad()
+        logits = mlp(inputs)
+        (logits * weights).sum().backward()
+        grads.append((logits.detach(), [p.grad.clone() for p in mlp.parameters()]))
+    torch.testing.assert_close(grads[0][0], grads[1][0])
+    for sparse, dense in zip(grads[0][1], grads[1][1], strict=True):
+        torch.testing.assert_close(sparse, dense)

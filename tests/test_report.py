@@ -1,18 +1,25 @@
-"""The report, built from a tiny real ablation (Ray + MLflow): its numbers against the tracked metrics,
-its HTML opened in headless Chromium, and the empty cases."""
+"""The report: from a tiny real ablation (Ray + MLflow), its numbers against the tracked metrics and its HTML and
+PDF in headless Chromium; from small synthetic stores (the tracker's own writes, no training), Pong without a
+threshold, one seed, escaping, generations, variant selection, and the cases that must write nothing."""
 
+import hashlib
+import json
 import re
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import pytest
 from scipy import stats
 
+from ablate.cli import main
 from ablate.config import load_experiment
-from ablate.report import write_report
+from ablate.curve import CurveReducer
+from ablate.report import chromium_flags, write_report
 from ablate.tracking import Tracker
 
 ARTIFACTS = Path(__file__).parent / "artifacts"
@@ -51,15 +58,23 @@ def test_report_files(built_report):
     folder, _ = built_report
     for name in ("report.md", "report.html", "tables/convergence.csv", "tables/comparisons.csv", "tables/trials.csv"):
         assert (folder / name).is_file(), name
-    for figure in ("learning_curves_episodes", "learning_curves_wallclock", "episodes_to_solve"):
-        assert (folder / "figures" / f"{figure}.png").stat().st_size > 5000
+    figures = ("learning_curves_episodes", "learning_curves_by_variant", "learning_curves_wallclock")
+    for figure in (*figures, "episodes_to_solve", "performance_vs_parameters"):
+        assert (folder / "figures" / f"{figure}.png").stat().st_size > 5000, figure
         assert (folder / "figures" / f"{figure}.svg").is_file()
-    assert list((folder / "videos").glob("small-best-seed*.mp4")) and list((folder / "videos").glob("big-*.mp4"))
+    assert list((folder / "videos").glob("small-seed*.mp4")) and list((folder / "videos").glob("big-seed*.mp4"))
     text = (folder / "report.md").read_text()
-    for section in ("## Method", "## Convergence", "## Findings", "## Figures", "## Videos", "## Reproducibility"):
-        assert section in text
-    for line in text.split("## Findings")[1].split("## Figures")[0].strip().splitlines():
-        assert "CI" in line or "did not solve" in line or "no claim" in line, line  # no claim without interval
+    sections = ("Summary", "Method", "Results", "Findings", "Figures", "Videos", "Limitations", "Reproducibility")
+    for section in (*sections, "Glossary", "References"):
+        assert f"## {section}" in text, section
+    assert "Williams, R. J. (1992)" in text and "Agarwal, R." in text
+    findings = text.split("## Findings")[1].split("## Figures")[0].strip().splitlines()[2:]
+    for line in findings:  # no claim without an interval
+        assert "CI" in line or "did not solve" in line or "no claim" in line or line.endswith(" vs small:"), line
+    figure_numbers = [int(n) for n in re.findall(r"^\*Figure (\d+)\. ", text, flags=re.M)]
+    assert figure_numbers == list(range(1, len(figure_numbers) + 1)) and len(figure_numbers) >= 5
+    assert "(baseline)" not in text and "baseline (reference)" in text
+    assert "one greedy episode" in text and "contended" in text
 
 
 def test_report_tables_match_the_tracked_metrics(built_report):
@@ -87,19 +102,25 @@ def test_report_tables_match_the_tracked_metrics(built_report):
 def test_html_is_self_contained(built_report):
     folder, _ = built_report
     page = (folder / "report.html").read_text()
-    assert page.count("<img") >= 3 and "<video" in page
+    assert page.count("<img") >= 5 and "<video" in page
     assert not re.search(r'src="(?!data:)', page), "every src is a data URI"
 
 
+def test_report_is_attached_to_the_launch_run(built_report):
+    folder, uri = built_report
+    tracker = Tracker(uri, "reportable")
+    launch = tracker.launches()[0].info.run_id
+    attached = {a.path for a in tracker.client.list_artifacts(launch, "report")}
+    assert {"report/report.md", "report/report.html", "report/figures", "report/tables"} <= attached
+    assert "report/videos" not in attached  # the videos are the trial runs' own artifacts
+
+
 def _chromium() -> str | None:
-    found = shutil.which("chromium") or shutil.which("chromium-browser")
-    if found:
-        return found
-    if shutil.which("apt-get") is None:
-        return None
-    install = "apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium"
-    subprocess.run(["bash", "-c", install], capture_output=True, timeout=900)
-    return shutil.which("chromium")
+    """Chromium and poppler-utils (pdftoppm renders the PDF's pages), installed with apt-get when missing."""
+    if not (shutil.which("chromium") and shutil.which("pdftoppm")) and shutil.which("apt-get"):
+        install = "apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium poppler-utils"
+        subprocess.run(["bash", "-c", install], capture_output=True, timeout=900)
+    return shutil.which("chromium") if shutil.which("pdftoppm") else None
 
 
 CHECK_SCRIPT = """
@@ -116,9 +137,18 @@ window.addEventListener('load', () => {
     const images = [...document.querySelectorAll('img')];
     const badImages = images.filter(i => !(i.complete && i.naturalWidth > 0)).length;
     const badVideos = media.filter(v => v.readyState < 1 || v.error).length;
+    const figures = [...document.querySelectorAll('figure[id^="figure-"]')];
+    const numbered = figures.filter((f, i) => f.querySelector('img') &&
+      (f.querySelector('figcaption')?.textContent || '').startsWith(`Figure ${i + 1}. `) &&
+      f.querySelector('figcaption').textContent.length > 80).length;
+    const unframed = images.filter(i => !i.closest('figure')).length;
+    const table = document.querySelector('table');
+    const column = [...table.querySelectorAll('th')].findIndex(th => th.textContent.trim() === 'variant');
+    const align = getComputedStyle(table.querySelectorAll('tbody tr')[0].children[column]).textAlign;
     const out = document.createElement('pre');
     out.id = 'media-check';
-    out.textContent = `images=${images.length} bad_images=${badImages} videos=${media.length} bad_videos=${badVideos}`;
+    out.textContent = `images=${images.length} bad_images=${badImages} videos=${media.length} ` +
+      `bad_videos=${badVideos} figures=${figures.length} numbered=${numbered} unframed=${unframed} align=${align}`;
     document.body.appendChild(out);
   });
 });
@@ -126,58 +156,256 @@ window.addEventListener('load', () => {
 """
 
 
-def test_html_in_headless_chromium_loads_every_image_and_video(built_report, tmp_path):
+def test_html_and_pdf_in_headless_chromium(built_report, tmp_path):
     browser = _chromium()
     if browser is None:
-        pytest.skip("Chromium is not installed and could not be installed with apt-get (no root or no Debian mirror)")
-    folder, _ = built_report
+        pytest.skip("Chromium or pdftoppm missing and apt-get could not install them (no root or no Debian mirror)")
+    folder, uri = built_report
     probe = tmp_path / "probe.html"
     probe.write_text((folder / "report.html").read_text().replace("</body>", CHECK_SCRIPT + "</body>"))
-    flags = [
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        f"--user-data-dir={tmp_path / 'profile'}",
-    ]
+    flags = chromium_flags(tmp_path / "profile")
     dom = subprocess.run(
         [browser, *flags, "--virtual-time-budget=20000", "--dump-dom", probe.as_uri()],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=180,
     ).stdout
-    found = re.search(r"images=(\d+) bad_images=(\d+) videos=(\d+) bad_videos=(\d+)", dom)
+    found = re.search(
+        r"images=(\d+) bad_images=(\d+) videos=(\d+) bad_videos=(\d+) figures=(\d+) "
+        r"numbered=(\d+) unframed=(\d+) align=(\w+)",
+        dom,
+    )
     assert found, "the check script did not run: " + dom[-500:]
-    images, bad_images, videos, bad_videos = map(int, found.groups())
-    assert images >= 3 and bad_images == 0
+    images, bad_images, videos, bad_videos, figures, numbered, unframed = map(int, found.groups()[:7])
+    assert images >= 5 and bad_images == 0
     assert videos >= 2 and bad_videos == 0
+    assert figures == images and numbered == figures and unframed == 0, found.group(0)
+    assert found.group(8) == "left"  # the variant column
     ARTIFACTS.mkdir(exist_ok=True)
     shot = ARTIFACTS / "report_screenshot.png"
     subprocess.run(
         [browser, *flags, "--window-size=1200,2400", f"--screenshot={shot}", (folder / "report.html").as_uri()],
         capture_output=True,
-        timeout=120,
+        timeout=180,
     )
     assert shot.is_file() and shot.stat().st_size > 10_000
+    # The PDF: printed by the report itself, every page rendered to PNG, every figure's caption in its text.
+    pdf = folder / "report.pdf"
+    assert pdf.is_file() and pdf.read_bytes().startswith(b"%PDF")
+    for old in ARTIFACTS.glob("report_pdf-*.png"):
+        old.unlink()
+    subprocess.run(["pdftoppm", "-r", "40", "-png", str(pdf), str(ARTIFACTS / "report_pdf")], check=True, timeout=120)
+    pages = sorted(ARTIFACTS.glob("report_pdf-*.png"))
+    assert len(pages) >= 4 and all(p.stat().st_size > 3_000 for p in pages)
+    text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, timeout=60).stdout
+    for number in range(1, figures + 1):
+        assert f"Figure {number}." in text, number
 
 
-def test_report_with_no_runs_says_so(tmp_path, tracking_uri):
-    folder = write_report("never-ran", tracking_uri=tracking_uri, out_root=tmp_path)
+# --- synthetic stores ------------------------------------------------------------------------------------------
+def make_store(folder: Path, name: str, variants: dict[str, dict], seeds=(0, 1, 2), budget: int = 40, **options) -> str:
+    """One launch of ``name`` in ``folder/mlflow.db``, written by the tracker as a run would. ``variants`` maps a
+    name to ``curve(seed) -> returns`` and optionally ``architecture``, ``hidden``, ``parameters``. Options:
+    ``env_id``, ``threshold`` (None: no solve threshold), ``window``, ``description``, ``generation``, ``failed``
+    (keys recorded FAILED), ``only`` (keys to run; the rest are not run), ``observation`` (log observation.png)."""
+    env_id, threshold = options.get("env_id", "CartPole-v1"), options.get("threshold", 25.0)
+    window, generation = options.get("window", 8), options.get("generation", "gen1")
+    uri = f"sqlite:///{folder / 'mlflow.db'}"
+    tracker = Tracker(uri, name)
+    base = {"env_id": env_id, "max_episodes": budget, "solve_window": window, "solve_threshold": threshold}
+    base |= {"learning_rate": 0.03, "gamma": 0.95, "episodes_per_update": 4}
+    trials = [{"key": f"{v}-s{s}", "variant": v, "seed": s} for v in variants for s in seeds]
+    grid = {"experiment": name, "description": options.get("description", "synthetic"), "seeds": list(seeds)}
+    grid |= {"baseline": next(iter(variants)), "base": base, "trials": trials}
+    grid["variants"] = [{"name": v, "overrides": spec.get("overrides", {})} for v, spec in variants.items()]
+    environment = {"python": "3.11", "packages": {}, "machine": "a test machine", "cpu_model": "Test CPU 9000"}
+    environment["torch_cpu_capability"] = "AVX2"
+    files = {"grid.json": json.dumps(grid), "environment.json": json.dumps(environment)}
+    launch = tracker.start_launch(generation, name, {"ablate.command": f"ablate run {name}.toml"}, files)
+    for trial in trials:
+        if trial["key"] not in options.get("only", {trial["key"]}):
+            continue
+        spec = variants[trial["variant"]]
+        returns = np.asarray(spec["curve"](trial["seed"]), float)
+        rolling = [returns[max(0, i - window + 1) : i + 1].mean() for i in range(len(returns))]
+        params = {"variant": trial["variant"], "max_episodes": budget, "solve_window": window}
+        params |= {"solve_threshold": threshold, "model.architecture": spec.get("architecture", "mlp")}
+        params |= {"model.hidden_sizes": json.dumps(spec.get("hidden", [8])), "model.activation": "relu"}
+        tracker.start_trial(launch, generation, trial["key"], trial["variant"], trial["seed"], params, "abc123")
+        rows = [
+            SimpleNamespace(
+                episode=i + 1,
+                update=i // 4 + 1,
+                episode_return=r,
+                rolling_mean=rolling[i],
+                loss=0.1,
+                entropy=0.5,
+                wall_s=0.01 * (i + 1),
+                length=10,
+                env_steps=10 * (i + 1),
+            )
+            for i, r in enumerate(returns)
+        ]
+        reducer = CurveReducer(budget)
+        tracker.log_points(trial["key"], reducer.add(rows) + reducer.flush())
+        if trial["key"] in options.get("failed", ()):
+            tracker.fail_trial(trial["key"], "injected fault <b>boom</b>")
+            continue
+        hits = [i + 1 for i in range(window - 1, len(rolling)) if threshold is not None and rolling[i] >= threshold]
+        summary = {"solved": float(bool(hits)), "episodes_run": float(len(returns)), "final_rolling_mean": rolling[-1]}
+        summary |= {"env_steps": 10.0 * len(returns), "wall_s": 0.01 * len(returns), "steps_per_s": 1000.0}
+        summary["parameter_count"] = float(spec.get("parameters", 58))
+        if hits:
+            summary |= {"episodes_to_solve": hits[0], "env_steps_to_solve": 10.0 * hits[0], "wall_s_to_solve": 0.1}
+        artifacts = Path(tempfile.mkdtemp(prefix="artifacts-", dir=folder))
+        pd.DataFrame([vars(row) for row in rows]).to_csv(artifacts / "episodes.csv", index=False)  # what it reads
+        if options.get("observation"):
+            (artifacts / "observation.png").write_bytes(ARTIFACT_PNG)
+        tracker.finish_trial(trial["key"], summary, artifacts)
+    tracker.finish_launch(launch, "FINISHED", {})
+    return uri
+
+
+# a 1x1 PNG: what the report does with the trial's observation figure does not depend on its pixels
+ARTIFACT_PNG = bytes.fromhex(
+    "89504e470d0a1a0a0000000d4948445200000001000000010806000000"
+    "1f15c4890000000d49444154789c6360606060000000050001a5f645400000000049454e44ae426082"
+)
+
+
+def rising(start, stop, n=40):
+    return lambda seed: np.linspace(start, stop, n) + np.sin(np.arange(n) + seed)
+
+
+EVIL = "<img src=x onerror=alert(1)>"
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    """One SQLite store with several experiments (creating a store costs seconds; reading it does not)."""
+    folder = tmp_path_factory.mktemp("synthetic")
+    pong = {
+        "cnn": {"curve": rising(-21, -12, 60), "architecture": "cnn", "hidden": [64], "parameters": 97_414},
+        "mlp": {"curve": rising(-21, -17, 60), "hidden": [64], "parameters": 410_118},
+    }
+    options = {"env_id": "ALE/Pong-v5", "threshold": None, "window": 10, "observation": True}
+    uri = make_store(folder, "pong", pong, seeds=(0,), budget=60, **options)
+    evil = {"base<script>alert(1)</script>": {"curve": rising(5, 30)}, EVIL: {"curve": rising(5, 20)}}
+    make_store(folder, "evil", evil, description="<script>alert('description')</script> & more")
+    make_store(folder, "single", {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 12)}}, seeds=(0,))
+    make_store(folder, "broken", {"boom": {"curve": rising(5, 10)}}, seeds=(0, 1), failed={"boom-s0", "boom-s1"})
+    cartpole = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 25)}, "c": {"curve": rising(5, 12)}}
+    make_store(folder, "gens", cartpole, generation="complete1")
+    make_store(folder, "gens", cartpole, generation="partial2", only={"a-s0", "b-s0"})
+    return folder, uri
+
+
+def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monkeypatch):
+    # issue 9: `TypeError: unsupported format string passed to NoneType` (no threshold) and
+    # `ValueError: cannot convert float NaN to integer` (one seed)
+    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    _, uri = store
+    folder = write_report("pong", tracking_uri=uri, out_root=tmp_path)
     text = (folder / "report.md").read_text()
-    assert "No results to report" in text and "ablate run" in text
+    assert "No solve threshold" in text and "[no interval: 1 seed]" in text
+    assert "1 seed gives no interval" in text  # no claim from one seed
+    assert "2-D CNN over the 80×80 frame difference" in text and "97,414" in text
+    assert "MLP over the 6,400 pixels" in text and "410,118" in text
+    assert "episodes to reach -15" in text and "improvement over untrained" in text
+    assert "One observation of ALE/Pong-v5" in text and (folder / "figures" / "observation.png").is_file()
+    convergence = pd.read_csv(folder / "tables" / "convergence.csv").set_index("variant")
+    assert {"return_at_60_iqm", "auc_iqm", "improvement_iqm", "episodes_to_-15_median"} <= set(convergence.columns)
+    assert convergence.loc["cnn", "auc_iqm"] > convergence.loc["mlp", "auc_iqm"]
 
 
-def test_report_with_only_failed_runs_says_so(run_quiet, tmp_path, tracking_uri):
-    path = tmp_path / "broken.toml"
-    path.write_text(
-        'name = "broken"\nseeds = 2\n[base]\nmax_episodes = 8\nepisodes_per_update = 8\nrecord_video = false\n'
-        '[[variants]]\nname = "boom"\nfault = "raise"\n'
-    )
-    outcome = run_quiet(load_experiment(path), tmp_path, tracking_uri)
-    assert outcome.exit_code == 1
-    folder = write_report("broken", tracking_uri=tracking_uri, out_root=tmp_path / "reports")
-    text = (folder / "report.md").read_text()
-    assert "No results to report" in text and "failed" in text and "injected fault" in text
+def test_report_of_one_seed_with_a_threshold(store, tmp_path, monkeypatch):
+    # issue 9: `ValueError: cannot convert float NaN to integer` with one seed
+    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    _, uri = store
+    text = (write_report("single", tracking_uri=uri, out_root=tmp_path) / "report.md").read_text()
+    assert "[no interval: 1 seed]" in text and "1 seed gives no interval" in text
+
+
+def test_user_text_is_escaped_in_the_html(store, tmp_path, monkeypatch):
+    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    _, uri = store
+    folder = write_report("evil", tracking_uri=uri, out_root=tmp_path)
+    page = (folder / "report.html").read_text()
+    assert "<script>" not in page and "<img src=x" not in page
+    assert "&lt;script&gt;alert(" in page and "&lt;img src=x onerror=alert(1)&gt;" in page
+
+
+def _snapshot(folder: Path) -> dict[str, str]:
+    """Every file under ``folder`` with the hash of its bytes."""
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.rglob("*") if p.is_file()
+    }
+
+
+@pytest.fixture
+def good_report(tmp_path, monkeypatch):
+    """A folder holding a good report of "cartpole" (and of the synthetic experiments' names)."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("cartpole", "broken", "nope"):
+        (tmp_path / "reports" / name / "figures").mkdir(parents=True)
+        (tmp_path / "reports" / name / "report.md").write_text(f"# a good report of {name}\n")
+        (tmp_path / "reports" / name / "figures" / "curve.png").write_bytes(b"png")
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    ("argv", "code", "message"),
+    [
+        (["report", "cartpole", "--tracking-uri", "sqlite:///{tmp}/nonexist/x.db"], 2, "no MLflow store at"),
+        (["report", "cartpole", "--tracking-uri", "sqlite:///{tmp}/absent.db"], 2, "no MLflow store at"),
+        (["report", "nope", "--tracking-uri", "{store}"], 1, "no MLflow experiment named 'nope'"),
+        (["report", "broken", "--tracking-uri", "{store}"], 1, "none of the 2 trials"),
+        (["report", "..", "--tracking-uri", "{store}"], 2, "is invalid"),
+        (["report", ".", "--tracking-uri", "{store}"], 2, "is invalid"),
+        (["report", "../escape", "--tracking-uri", "{store}"], 2, "is invalid"),
+        (["report", "a/b", "--tracking-uri", "{store}"], 2, "is invalid"),
+        (["report", "gens", "--tracking-uri", "{store}", "--generation", "zzz"], 2, "no generation of 'gens'"),
+        (["report", "gens", "--tracking-uri", "{store}", "--variants", "a,zz"], 2, "unknown variant 'zz'"),
+        (["report", "gens", "--tracking-uri", "{store}", "--baseline", "zz"], 2, "--baseline 'zz'"),
+    ],
+)
+def test_a_report_that_cannot_be_built_writes_nothing(store, good_report, capsys, argv, code, message):
+    folder, uri = store
+    argv = [a.format(tmp=good_report, store=uri) for a in argv]
+    before_reports, before_store = _snapshot(good_report), _snapshot(folder)
+    assert main(argv) == code
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1, err
+    assert _snapshot(good_report) == before_reports  # nothing written, no database created
+    assert _snapshot(folder) == before_store  # the store is as it was
+    assert not (good_report / "nonexist").exists() and not (good_report / "absent.db").exists()
+    assert not (good_report / "report.md").exists() and not (good_report / "escape").exists()
+
+
+def test_generation_variants_and_baseline(store, tmp_path, monkeypatch, capsys):
+    # after `--fresh` then Ctrl-C the newest generation is incomplete; the complete one can still be reported
+    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test")
+    _, uri = store
+    assert main(["report", "gens", "--tracking-uri", uri, "--out", str(tmp_path), "--no-pdf"]) == 0
+    out = capsys.readouterr().out
+    assert "generation partial2, where 2 of 9 trials finished" in out and "--generation complete1" in out
+    trials = pd.read_csv(tmp_path / "gens" / "tables" / "trials.csv")
+    assert (trials.status == "FINISHED").sum() == 2 and (trials.status == "NOT RUN").sum() == 7
+    argv = ["report", "gens", "--tracking-uri", uri, "--out", str(tmp_path), "--generation", "complete"]
+    assert main([*argv, "--variants", "c,b", "--baseline", "b"]) == 0
+    trials = pd.read_csv(tmp_path / "gens" / "tables" / "trials.csv")
+    assert (trials.status == "FINISHED").sum() == 6 and set(trials.variant) == {"b", "c"}
+    compare = pd.read_csv(tmp_path / "gens" / "tables" / "comparisons.csv")
+    assert set(compare.variant) == {"c"} and set(compare.baseline) == {"b"}
+    text = (tmp_path / "gens" / "report.md").read_text()
+    assert "--generation complete --variants c,b --baseline b" in text
+    assert "did not finish" not in text
+
+
+def test_report_help_names_every_option(capsys):
+    with pytest.raises(SystemExit):
+        main(["report", "--help"])
+    out = capsys.readouterr().out
+    for option in ("--tracking-uri", "--out", "--generation", "--variants", "--baseline", "--no-pdf"):
+        help_line = out.split(option, 2)[-1].split("\n  -")[0]
+        assert len(help_line.strip()) > 15, option

@@ -5,13 +5,15 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 
+import pandas as pd
 import pytest
 
 from ablate.config import load_experiment
 from ablate.grid import expand
-from ablate.tracking import Tracker
+from ablate.tracking import POINT_METRICS, Tracker
 
 TINY = """
 name = "tiny"
@@ -62,19 +64,18 @@ def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tracking_uri):
         expected_sizes = "[8]" if run.variant == "narrow" else "[16, 16]"
         assert run.params["model.hidden_sizes"] == expected_sizes
         assert run.params["model.dropout"] == ("0.0" if run.variant == "narrow" else "0.1")
-        history = tracker.metric_history(run.run_id, "episode/return")
-        assert [step for step, _ in history] == list(range(1, 21))  # every episode
-        for metric in ("episode/rolling_mean", "episode/loss", "episode/entropy", "episode/wall_s", "episode/length"):
-            history = tracker.metric_history(run.run_id, metric)
-            assert [step for step, _ in history] == [10, 20], metric  # once per update of 10 episodes
-        rolling = dict(tracker.metric_history(run.run_id, "episode/rolling_mean"))
+        # 20 episodes of a 20-episode budget: one point per episode (bounded at CURVE_POINTS per curve)
+        for metric in POINT_METRICS:
+            assert [step for step, _ in tracker.metric_history(run.run_id, metric)] == list(range(1, 21)), metric
         returns = [v for _, v in tracker.metric_history(run.run_id, "episode/return")]
         assert run.metrics["env_steps"] == sum(returns)  # CartPole: one reward per step
-        assert rolling[20] == pytest.approx(sum(returns[-20:]) / 20)  # solve_window 100 > 20 episodes
+        assert run.metrics["episode/rolling_mean"] == pytest.approx(sum(returns) / 20)  # solve_window 100 > 20
         assert run.metrics["episodes_run"] == 20 and run.metrics["solved"] == 0
         assert set(run.artifacts) == {"episodes.csv", "weights.pt", "video.mp4", "learning_curve.png"}
-        lengths = dict(tracker.metric_history(run.run_id, "episode/length"))
-        assert lengths[20] == pytest.approx(sum(returns[10:]) / 10)  # mean length of the second update
+        assert run.tags["ablate.node"]  # the Ray node that ran it
+        with tempfile.TemporaryDirectory() as folder:
+            table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
+        assert list(table["episode"]) == list(range(1, 21)) and list(table["episode_return"]) == returns
     launch_files = {a.path for a in tracker.client.list_artifacts(launch_id)}
     assert launch_files == {"experiment.toml", "grid.json", "environment.json"}
 
@@ -309,7 +310,10 @@ def _fake_scheduler(monkeypatch, body):
     """Replace Ray with ``body(trials, events)``: the runner's bookkeeping around the scheduler, without Ray."""
     import ablate.runner
 
-    monkeypatch.setattr(ablate.runner, "run_trials", lambda trials, events, options, run_name: body(trials, events))
+    monkeypatch.setattr(ablate.runner, "ensure_ray", lambda address: False)
+    monkeypatch.setattr(
+        ablate.runner, "run_trials", lambda trials, events, options, run_name, **_: body(trials, events)
+    )
 
 
 def test_a_scheduler_crash_records_the_launch_failed_with_the_error(tmp_path, tracking_uri, monkeypatch):
@@ -381,7 +385,7 @@ def test_the_next_launch_marks_runs_a_dead_launch_left_running_killed_and_remove
         assert (tmp_path / "ray").exists() and not leftover.exists()  # cleaned before the new launch ran
         for trial in todo:
             events.started(trial.key)
-            events.finished(trial.key, {"episodes_to_solve": 5.0}, None)
+            events.finished(trial.key, {"episodes_to_solve": 5.0}, None, "node-1")
 
     _fake_scheduler(monkeypatch, finish_all)
     outcome = run_experiment(

@@ -1,72 +1,51 @@
-"""The tracker's metric layout, against a real SQLite MLflow store in a temp folder."""
+"""The tracker's metric layout and checkpoints, against a real SQLite MLflow store in a temp folder."""
 
 import pytest
+from test_curve import rows
 
-from ablate.tracking import EPISODES_PER_POINT, Tracker
-from ablate.trial import EpisodeMetrics
-
-UPDATE_KEYS = ("episode/rolling_mean", "episode/loss", "episode/entropy", "episode/wall_s", "episode/length")
-
-
-def _rows(episodes: int, per_update: int) -> list[EpisodeMetrics]:
-    rows = []
-    for i in range(episodes):
-        update = i // per_update + 1
-        rows.append(
-            EpisodeMetrics(
-                episode=i + 1,
-                episode_return=float(10 + i),
-                length=10 + i,
-                loss=float(update),  # every row of an update carries that update's loss and entropy
-                entropy=0.5 + update,
-                rolling_mean=float(i),
-                env_steps=100 * i,
-                wall_s=0.1 * (i + 1),
-                update=update,
-            )
-        )
-    return rows
+from ablate.curve import CurveReducer
+from ablate.tracking import POINT_METRICS, Tracker
 
 
-def _track(tracking_uri, rows, chunk):
+def _track(tracking_uri, points, status="FINISHED"):
     tracker = Tracker(tracking_uri, "layout")
     launch = tracker.start_launch("g", "launch", {}, {})
     run_id = tracker.start_trial(launch, "g", "t-s0-abc", "t", 0, {"seed": 0}, "commit")
-    for start in range(0, len(rows), chunk):  # the scheduler sends whole updates, a few at a time
-        tracker.log_episodes("t-s0-abc", rows[start : start + chunk])
-    tracker.finish_trial("t-s0-abc", {"episodes_run": len(rows)}, None)
+    for start in range(0, len(points), 2):  # the scheduler sends a few points at a time
+        tracker.log_points("t-s0-abc", points[start : start + 2])
+    if status == "FINISHED":
+        tracker.finish_trial("t-s0-abc", {"episodes_run": 20}, None, tags={"ablate.node": "n1"})
     return tracker, run_id
 
 
-def test_one_episode_updates_get_a_point_every_eight_episodes_and_the_rest_at_the_end(tracking_uri):
-    assert EPISODES_PER_POINT == 8
-    tracker, run_id = _track(tracking_uri, _rows(20, per_update=1), chunk=5)
-    assert [step for step, _ in tracker.metric_history(run_id, "episode/return")] == list(range(1, 21))
-    for key in UPDATE_KEYS:
-        assert [step for step, _ in tracker.metric_history(run_id, key)] == [8, 16, 20], key
-    loss = dict(tracker.metric_history(run_id, "episode/loss"))
-    assert loss == {8: pytest.approx(4.5), 16: pytest.approx(12.5), 20: pytest.approx(18.5)}  # mean of updates
-    entropy = dict(tracker.metric_history(run_id, "episode/entropy"))
-    assert entropy[20] == pytest.approx(19.0)
-    length = dict(tracker.metric_history(run_id, "episode/length"))
-    assert length[8] == pytest.approx(sum(range(10, 18)) / 8) and length[20] == pytest.approx(sum(range(26, 30)) / 4)
-    assert dict(tracker.metric_history(run_id, "episode/rolling_mean"))[16] == 15.0  # the value at that episode
-    assert dict(tracker.metric_history(run_id, "episode/wall_s"))[20] == pytest.approx(2.0)
+def test_each_point_logs_every_curve_metric_at_its_last_episode(tracking_uri):
+    reducer = CurveReducer(max_episodes=64, points=8)
+    points = reducer.add(rows(20, per_update=1)) + reducer.flush()
+    tracker, run_id = _track(tracking_uri, points)
+    for metric, attr in POINT_METRICS.items():
+        history = tracker.metric_history(run_id, metric)
+        assert history == [(p.episode, pytest.approx(float(getattr(p, attr)))) for p in points], metric
+    assert tracker.client.get_run(run_id).data.tags["ablate.node"] == "n1"
 
 
-@pytest.mark.parametrize(("per_update", "steps"), [(10, [10, 20]), (4, [8, 16, 20]), (32, [20])])
-def test_points_fall_on_update_ends(tracking_uri, per_update, steps):
-    tracker, run_id = _track(tracking_uri, _rows(20, per_update), chunk=per_update)
-    for key in UPDATE_KEYS:
-        assert [step for step, _ in tracker.metric_history(run_id, key)] == steps, key
+def test_a_killed_run_keeps_its_latest_checkpoint_for_the_next_launch(tracking_uri):
+    tracker, run_id = _track(tracking_uri, [], status="RUNNING")
+    tracker.log_checkpoint("t-s0-abc", b"first")
+    tracker.log_checkpoint("t-s0-abc", b"second")  # replaces the first
+    assert tracker.latest_checkpoint("g", "t-s0-abc") is None  # still running: not a checkpoint to resume
+    tracker.kill_open_trials()
+    assert Tracker(tracking_uri, "layout").latest_checkpoint("g", "t-s0-abc") == b"second"
+    assert tracker.latest_checkpoint("other-generation", "t-s0-abc") is None
 
 
-def test_metric_points_carry_the_episodes_own_time_not_the_batch_write(tracking_uri):
-    tracker, run_id = _track(tracking_uri, _rows(20, per_update=1), chunk=20)  # one batch: one write time
+def test_metric_points_carry_their_own_time_not_the_batch_write(tracking_uri):
+    reducer = CurveReducer(max_episodes=64, points=8)
+    points = reducer.add(rows(20, per_update=1)) + reducer.flush()
+    tracker, run_id = _track(tracking_uri, points)
     start_ms = tracker.client.get_run(run_id).info.start_time
-    for key in ("episode/return", *UPDATE_KEYS):
-        stamps = {m.step: m.timestamp for m in tracker.client.get_metric_history(run_id, key)}
-        assert stamps == {step: start_ms + int(0.1 * step * 1000) for step in stamps}, key  # wall_s = 0.1 x episode
+    for metric in POINT_METRICS:
+        stamps = {m.step: m.timestamp for m in tracker.client.get_metric_history(run_id, metric)}
+        assert stamps == {p.episode: start_ms + int(p.wall_s * 1000) for p in points}, metric
         assert len(set(stamps.values())) == len(stamps)
 
 

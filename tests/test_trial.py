@@ -3,6 +3,7 @@
 from dataclasses import replace
 
 import pytest
+import torch
 
 from ablate.config import DEFAULT, ModelConfig
 from ablate.trial import TrialFailed, run_trial
@@ -63,3 +64,64 @@ def test_default_config_solves_cartpole_v0():
     result = run_trial(replace(DEFAULT, env_id="CartPole-v0", seed=0, record_video=False))
     assert result.solved, f"rolling mean only reached {result.episodes[-1].rolling_mean}"
     assert result.episodes[result.episodes_to_solve - 1].rolling_mean >= 195.0
+
+
+PONG = replace(
+    DEFAULT,
+    env_id="ALE/Pong-v5",
+    gamma=0.99,
+    learning_rate=1e-3,
+    model=ModelConfig(architecture="mlp", hidden_sizes=(8,), dropout=0.1),
+    action_set="move",
+    max_episode_steps=40,  # a few seconds per trial: episodes cut at 40 steps
+    num_envs=3,
+    episodes_per_update=2,
+    max_episodes=12,
+    checkpoint_every=4,
+    record_video=False,
+)
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_pong_trial_resumed_from_its_checkpoint_continues_exactly():
+    blobs = []
+    whole = run_trial(PONG, on_checkpoint=blobs.append)
+    assert len(blobs) == 2  # after episodes 4 and 8; none at the end
+
+    def stop(blob):  # the process "dies" right after its first checkpoint
+        raise _Stop
+
+    with pytest.raises(_Stop):
+        run_trial(PONG, on_checkpoint=stop)
+    calls = []
+    resumed = run_trial(PONG, on_episodes=calls.append, resume_from=blobs[0])
+    assert [m.episode for m in calls[0]] == [1, 2, 3, 4]  # the saved history first, in one call
+    assert [m.episode for c in calls[1:] for m in c] == list(range(5, 13))
+    assert resumed.returns == whole.returns and resumed.env_steps == whole.env_steps
+    assert [m.loss for m in resumed.episodes] == [m.loss for m in whole.episodes]
+    for name, tensor in whole.state_dict.items():
+        assert torch.equal(resumed.state_dict[name], tensor), name
+
+
+def test_cartpole_resume_continues_the_episode_count():
+    blobs = []
+    config = replace(SHORT, max_episodes=32, checkpoint_every=16)
+    run_trial(config, on_checkpoint=blobs.append)
+    assert len(blobs) == 1
+    resumed = run_trial(config, resume_from=blobs[0])
+    assert [m.episode for m in resumed.episodes] == list(range(1, 33))
+    assert resumed.episodes[15].env_steps < resumed.episodes[16].env_steps
+
+
+def test_pong_trial_artifacts_training_videos_and_observation_figure(tmp_path):
+    config = replace(PONG, max_episodes=4, video_every=2, video_max_frames=30, record_video=True, checkpoint_every=0)
+    result = run_trial(config, artifacts_dir=tmp_path)
+    names = {p.name for p in tmp_path.iterdir()}
+    assert names == {"episodes.csv", "weights.pt", "learning_curve.png", "video.mp4", "observation.png", "videos"}
+    videos = sorted(p.name for p in (tmp_path / "videos").iterdir())
+    assert videos[0] == "episode_00001.mp4" and len(videos) >= 2  # the untrained policy, then every 2 episodes
+    assert all((tmp_path / "videos" / v).stat().st_size > 1000 for v in videos)
+    assert result.greedy_return is None  # Pong's video is of the sampling policy: no greedy return to report

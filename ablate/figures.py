@@ -1,0 +1,297 @@
+"""The report's figures: each drawn from an ``Ablation`` into PNG and SVG, with a caption that says what is
+plotted and how its bands are computed (the report numbers them).
+
+Matplotlib with the Agg backend. Captions carry user text (variant names) escaped for Markdown and HTML.
+"""
+
+from __future__ import annotations
+
+import html
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from ablate.results import N_RESAMPLES, Ablation, curve_band  # noqa: E402
+from ablate.tracking import Tracker  # noqa: E402
+
+# tab10 without its grey, which is the baseline's
+COLOURS = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7]
+BASELINE_COLOUR = "0.35"
+
+
+def esc(text: object) -> str:
+    """User text (descriptions, variant names, errors, commands) made inert in Markdown and HTML."""
+    return html.escape(str(text)).replace("|", "&#124;").replace("`", "&#96;")
+
+
+def fmt(x: float | None, digits: int = 0) -> str:
+    if x is None or (isinstance(x, float) and np.isnan(x)) or pd.isna(x):
+        return "–"
+    return f"{x:,.{digits}f}"
+
+
+@dataclass
+class Figure:
+    path: str
+    caption: str
+    alt: str
+    number: int = 0
+
+
+# --- figures -------------------------------------------------------------------------------------------
+def _save(fig, folder: Path, name: str) -> str:
+    fig.tight_layout()
+    for ext in ("png", "svg"):
+        fig.savefig(folder / f"{name}.{ext}", dpi=110)
+    plt.close(fig)
+    return f"figures/{name}.png"
+
+
+def _colour(ablation: Ablation, variant: str):
+    if variant == ablation.baseline:
+        return BASELINE_COLOUR
+    others = [v for v in ablation.variants if v != ablation.baseline]
+    return COLOURS[others.index(variant) % len(COLOURS)]
+
+
+def _reference(ablation: Ablation) -> str:
+    name = esc(ablation.baseline)
+    return "the baseline" if name == "baseline" else f"the baseline variant, {name}"
+
+
+def _episode_grid(ablation: Ablation) -> np.ndarray:
+    budget = int(ablation.finished.budget.max())
+    return np.unique(np.linspace(1, budget, 200).astype(int)).astype(float)
+
+
+def _band_text(ablation: Ablation) -> str:
+    seeds = len(ablation.grid["seeds"])
+    return (
+        f"Lines: interquartile mean (IQM) across {seeds} seed{'s' if seeds != 1 else ''} of the rolling mean "
+        f"return over {ablation_window(ablation)} episodes; bands: 95% percentile bootstrap interval of that IQM "
+        f"({N_RESAMPLES // 4} resamples of the seeds, at each point)" + (" (one seed: no band)." if seeds < 2 else ".")
+    )
+
+
+def ablation_window(ablation: Ablation) -> int:
+    return int(ablation.grid["base"].get("solve_window", 100))
+
+
+def figure_overview(ablation: Ablation, folder: Path) -> Figure:
+    grid = _episode_grid(ablation)
+    fig, ax = plt.subplots(figsize=(10, 5))
+    for variant in ablation.variants:
+        curves = ablation.curves[ablation.curves.variant == variant]
+        if curves.empty:
+            continue
+        centre, _, _ = curve_band(curves, "episode", grid)
+        baseline = variant == ablation.baseline
+        ax.plot(grid, centre, color=_colour(ablation, variant), linewidth=2.8 if baseline else 1.4, label=variant)
+    if ablation.threshold is not None:
+        ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.8, label="solved")
+    ax.set_xlabel("episode")
+    ax.set_ylabel(f"rolling mean return ({ablation_window(ablation)} episodes), IQM over seeds")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    caption = (
+        f"Learning curves of every variant against episodes; thick grey: {_reference(ablation)}. "
+        f"Lines: IQM across seeds of the rolling mean return over {ablation_window(ablation)} episodes; no bands "
+        "here, so the lines stay readable (Figure {next} shows each variant with its band)."
+        + (f" Dashed: the solve threshold ({ablation.threshold:g})." if ablation.threshold is not None else "")
+    )
+    return Figure(_save(fig, folder, "learning_curves_episodes"), caption, "Learning curves of every variant")
+
+
+def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
+    others = [v for v in ablation.variants if v != ablation.baseline]
+    if not others:
+        return None
+    grid = _episode_grid(ablation)
+    columns = min(3, len(others))
+    rows = int(np.ceil(len(others) / columns))
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(4.2 * columns, 3.0 * rows), sharex=True, sharey=True, squeeze=False
+    )
+    base_curves = ablation.curves[ablation.curves.variant == ablation.baseline]
+    base = curve_band(base_curves, "episode", grid) if len(base_curves) else None
+    for ax, variant in zip(axes.flat, others, strict=False):
+        if base is not None:
+            ax.plot(grid, base[0], color=BASELINE_COLOUR, linewidth=1.6, label=ablation.baseline)
+            ax.fill_between(grid, base[1], base[2], color=BASELINE_COLOUR, alpha=0.18, linewidth=0)
+        curves = ablation.curves[ablation.curves.variant == variant]
+        if len(curves):
+            centre, low, high = curve_band(curves, "episode", grid)
+            colour = _colour(ablation, variant)
+            ax.plot(grid, centre, color=colour, linewidth=1.8, label=variant)
+            ax.fill_between(grid, low, high, color=colour, alpha=0.25, linewidth=0)
+        if ablation.threshold is not None:
+            ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
+        ax.set_title(f"{variant} vs {ablation.baseline}", fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    for ax in axes.flat[len(others) :]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("episode")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("rolling mean return")
+    caption = (
+        f"Each variant (colour) against {_reference(ablation)} (grey), one panel per variant, shared "
+        f"axes. {_band_text(ablation)} A seed that stopped because it solved keeps its last value."
+    )
+    return Figure(_save(fig, folder, "learning_curves_by_variant"), caption, "Each variant against the baseline")
+
+
+def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
+    wall = ablation.curves.wall_s.dropna()
+    wall = wall[wall > 0]
+    if wall.empty:
+        return None
+    grid = np.geomspace(float(wall.min()), float(wall.max()), 200)
+    fig, ax = plt.subplots(figsize=(10, 5))
+    for variant in ablation.variants:
+        curves = ablation.curves[ablation.curves.variant == variant]
+        if curves.empty:
+            continue
+        centre, _, _ = curve_band(curves, "wall_s", grid)
+        baseline = variant == ablation.baseline
+        ax.plot(grid, centre, color=_colour(ablation, variant), linewidth=2.8 if baseline else 1.4, label=variant)
+    if ablation.threshold is not None:
+        ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.8, label="solved")
+    ax.set_xscale("log")  # variants differ ten-fold in speed: a linear axis hides the fast ones
+    ax.set_xlabel("wall-clock seconds since the trial started (log scale; trials shared the CPUs)")
+    ax.set_ylabel("rolling mean return, IQM over seeds")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    caption = (
+        "Learning curves against wall-clock time (log axis), IQM across seeds, no bands. Caveat: trials ran "
+        "several at a time on shared CPUs beside the driver process, so their clocks include contention and move "
+        "between runs and machines; compare variants on episodes (Figures 1-2), and read this figure for rough "
+        "cost only. A curve stops where fewer than half its seeds are still running."
+    )
+    return Figure(_save(fig, folder, "learning_curves_wallclock"), caption, "Learning curves against wall-clock")
+
+
+def figure_per_seed(ablation: Ablation, folder: Path) -> Figure:
+    fig, ax = plt.subplots(figsize=(9, 0.45 * len(ablation.variants) + 1.6))
+    rng = np.random.default_rng(0)
+    episodes = ablation.any_solved
+    budget = ablation.finished.budget.max()
+    for i, variant in enumerate(ablation.variants):
+        done = ablation.finished[ablation.finished.variant == variant]
+        y = np.full(len(done), i) + rng.uniform(-0.15, 0.15, len(done))
+        colour = _colour(ablation, variant)
+        if episodes:
+            solved = done.solved.to_numpy() == 1
+            ax.scatter(done.censored_episodes[solved], y[solved], color=colour, s=36, zorder=3)
+            ax.scatter(
+                done.censored_episodes[~solved] * (1 + rng.uniform(0.005, 0.04, (~solved).sum())),
+                y[~solved],
+                facecolors="none",
+                edgecolors=colour,
+                s=36,
+                zorder=3,
+                marker="s",
+            )
+            values = done.censored_episodes
+        else:
+            values = done.final_rolling_mean
+            ax.scatter(values, y, color=colour, s=36, zorder=3)
+        if len(done):
+            ax.plot([np.median(values)] * 2, [i - 0.3, i + 0.3], color="black", linewidth=1.5)
+    if episodes:
+        ax.axvline(budget, color="grey", linestyle=":", linewidth=1)
+        ax.text(budget, len(ablation.variants) - 0.4, " budget", color="grey", fontsize=8, va="bottom")
+        ax.set_xlabel("episodes to solve")
+        caption = (
+            "Episodes to solve, every seed of every variant (filled dots: solved; hollow squares: never solved, "
+            f"drawn at the budget of {fmt(budget)} episodes, slightly jittered: their true value is only known to "
+            "be larger). Black bar: the median over seeds, censored values included."
+        )
+    else:
+        ax.set_xlabel(f"final rolling mean return ({ablation_window(ablation)} episodes)")
+        caption = (
+            "Final rolling mean return of every seed (no seed reached a solve threshold, so episodes to solve "
+            "cannot rank the variants). Black bar: the median over seeds."
+        )
+    ax.set_yticks(range(len(ablation.variants)), ablation.variants)
+    ax.invert_yaxis()
+    ax.grid(axis="x", alpha=0.3)
+    name = "episodes_to_solve" if episodes else "final_return"
+    return Figure(_save(fig, folder, name), caption, "Every seed's outcome")
+
+
+def figure_improvement(ablation: Ablation, compare: pd.DataFrame, folder: Path) -> Figure | None:
+    table = compare[compare.metric == "episodes_to_solve"] if len(compare) else compare
+    if table.empty:
+        return None
+    fig, ax = plt.subplots(figsize=(8, 0.45 * len(table) + 1.6))
+    y = np.arange(len(table))
+    low = (table.p_improvement - table.p_improvement_ci_low).clip(lower=0).fillna(0)
+    high = (table.p_improvement_ci_high - table.p_improvement).clip(lower=0).fillna(0)
+    ax.errorbar(table.p_improvement, y, xerr=[low, high], fmt="o", color="tab:blue", capsize=3)
+    ax.axvline(0.5, color="black", linestyle="--", linewidth=0.8)
+    ax.set_yticks(y, table.variant)
+    ax.invert_yaxis()
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_xlabel(f"P(a seed of the variant solves in fewer episodes than a seed of {ablation.baseline})")
+    ax.grid(axis="x", alpha=0.3)
+    caption = (
+        f"Probability of improvement over {esc(ablation.baseline)}: the chance that a random seed of the variant "
+        "needs fewer episodes to solve than a random seed of the baseline (ties, such as two unsolved seeds, count one "
+        "half). Dots: the estimate over all seed pairs; bars: 95% percentile bootstrap interval, or, where every "
+        "pair is ordered the same way, the exact bound for that many seeds (see the glossary). Dashed: 0.5, no "
+        "difference."
+    )
+    return Figure(_save(fig, folder, "probability_of_improvement"), caption, "Probability of improvement")
+
+
+def figure_parameters(ablation: Ablation, table: pd.DataFrame, folder: Path) -> Figure | None:
+    rows = table.dropna(subset=["parameter_count", "auc_iqm"]) if "auc_iqm" in table else table.iloc[:0]
+    if rows.empty:
+        return None
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    for _, row in rows.iterrows():
+        low = row.auc_iqm - row.auc_ci_low if not pd.isna(row.auc_ci_low) else 0
+        high = row.auc_ci_high - row.auc_iqm if not pd.isna(row.auc_ci_high) else 0
+        colour = _colour(ablation, row.variant)
+        ax.errorbar([row.parameter_count], [row.auc_iqm], yerr=[[low], [high]], fmt="o", color=colour, capsize=3)
+        ax.annotate(
+            row.variant, (row.parameter_count, row.auc_iqm), xytext=(5, 4), textcoords="offset points", fontsize=8
+        )
+    ax.set_xscale("log")
+    ax.set_xlabel("trainable parameters (log scale)")
+    ax.set_ylabel("area under the learning curve (IQM over seeds)")
+    ax.grid(alpha=0.3)
+    caption = (
+        "Performance against model size: the area under the learning curve (the mean rolling return over the "
+        "whole episode budget; higher is better and rewards learning early) of each variant, IQM over seeds, "
+        "with its 95% percentile bootstrap interval, against the policy's number of trainable parameters (log "
+        "axis). Variants with the same count differ in a setting other than size (dropout, L2, the training "
+        "setting)."
+    )
+    return Figure(_save(fig, folder, "performance_vs_parameters"), caption, "Performance against parameter count")
+
+
+def figure_observation(ablation: Ablation, tracker: Tracker, folder: Path) -> Figure | None:
+    """The trial's own picture of one observation (raw, pre-processed, frame difference), where it logged one."""
+    for run_id in ablation.finished.run_id.dropna():
+        try:
+            downloaded = tracker.download(run_id, "observation.png")
+        except Exception:  # noqa: BLE001 - trials of envs without such a picture (CartPole)
+            return None
+        shutil.copyfile(downloaded, folder / "observation.png")
+        caption = (
+            f"One observation of {esc(ablation.env_id)} as the policy sees it: the raw frame, the pre-processed "
+            "frame (cropped, down-sampled to 80x80, background removed, binary) and the difference of two "
+            "consecutive pre-processed frames, which is the policy's input (it shows motion)."
+        )
+        return Figure("figures/observation.png", caption, "Observation: raw, pre-processed, frame difference")
+    return None

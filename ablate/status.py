@@ -1,0 +1,115 @@
+"""``ablate status``: what the MLflow store holds: ablations, their launches and generations, trials by state.
+
+Reads through ``tracking`` and writes nothing (not even an empty SQLite file where there is none).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter, defaultdict
+from collections.abc import Iterable
+
+from ablate.config import ConfigError, Experiment
+from ablate.grid import expand
+from ablate.tracking import LaunchRun, Tracker, TrialRun, ablation_names, resolve_uri, store_exists
+
+STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
+"""A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""
+
+
+def trial_states(runs: Iterable[TrialRun]) -> dict[str, tuple[str, str]]:
+    """``{key: (variant, state)}``: FINISHED when any run of the key finished, else its newest run's status
+    (a re-run after Ctrl-C or a failure opens a new run under the same key)."""
+    states: dict[str, tuple[str, str]] = {}
+    for run in sorted(runs, key=lambda r: r.start_time_ms):
+        if states.get(run.key, ("", ""))[1] != "FINISHED":
+            states[run.key] = (run.variant, run.status)
+    return states
+
+
+def describe(counts: Counter) -> str:
+    """``48 finished, 1 failed`` (states with no trial left out)."""
+    parts = [f"{counts[s]} {s.lower()}" for s in STATES if counts[s]]
+    return _count(sum(counts.values()), "trial") + (f": {', '.join(parts)}" if parts else "")
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 'es' if noun.endswith('ch') else 's'}"
+
+
+def _when(ms: int) -> str:
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ms / 1000))
+
+
+def overview(tracking_uri: str | None) -> str:
+    """One line per ablation in the store."""
+    uri = resolve_uri(tracking_uri)
+    names = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
+    if not names:
+        return f"no ablations in the MLflow store {uri} yet; start one with: ablate run experiments/cartpole.toml"
+    rows = [("experiment", "launches", "generations", "newest launch", "", "trials of the newest generation")]
+    for name in names:
+        tracker = Tracker(tracking_uri, name)
+        launches = tracker.launch_runs()
+        newest = launches[-1]
+        counts = Counter(s for _, s in trial_states(tracker.trial_runs(newest.generation)).values())
+        generations = len({launch.generation for launch in launches})
+        rows.append(
+            (name, str(len(launches)), str(generations), _when(newest.start_time_ms), newest.status, describe(counts))
+        )
+    return f"MLflow store: {uri}\n" + _table(rows, right=(1, 2))
+
+
+def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = None) -> str:
+    """An ablation's generations (newest first), each with its launches and trials by state; the newest
+    generation per variant. With ``experiment`` (its file), trials of the file with no run count as pending."""
+    uri = resolve_uri(tracking_uri)
+    known = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
+    if name not in known:
+        valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"
+        raise ConfigError(f"{name!r} is not an ablation in the MLflow store {uri}; {valid}")
+    tracker = Tracker(tracking_uri, name)
+    launches = tracker.launch_runs()
+    by_generation: dict[str, list[LaunchRun]] = defaultdict(list)
+    for launch in launches:
+        by_generation[launch.generation].append(launch)
+    runs = tracker.trial_runs()
+    lines = [
+        f"{name}: {_count(len(launches), 'launch')} in {_count(len(by_generation), 'generation')} (MLflow store: {uri})"
+    ]
+    newest_generation = launches[-1].generation
+    for generation in sorted(by_generation, key=lambda g: by_generation[g][-1].start_time_ms, reverse=True):
+        states = trial_states(r for r in runs if r.tags.get("ablate.generation") == generation)
+        newest = generation == newest_generation
+        if newest and experiment is not None:
+            for trial in expand(experiment):
+                states.setdefault(trial.key, (trial.variant, "PENDING"))
+        counts = Counter(s for _, s in states.values())
+        lines.append("")
+        lines.append(f"generation {generation}{' (newest)' if newest else ''}: {describe(counts)}")
+        for launch in by_generation[generation]:
+            lines.append(f"  launch {_when(launch.start_time_ms)}  {launch.status:<8}  {launch.command}".rstrip())
+        if newest:
+            lines.append(_variant_table(states))
+    return "\n".join(lines)
+
+
+def _variant_table(states: dict[str, tuple[str, str]]) -> str:
+    per_variant: dict[str, Counter] = defaultdict(Counter)
+    for variant, state in states.values():
+        per_variant[variant][state] += 1
+    shown = [s for s in STATES if any(c[s] for c in per_variant.values())] or ["FINISHED"]
+    rows = [("variant", *(s.lower() for s in shown))]
+    rows += [(v, *(str(c[s]) for s in shown)) for v, c in per_variant.items()]
+    return _table(rows, right=tuple(range(1, len(shown) + 1)), indent="  ")
+
+
+def _table(rows: list[tuple[str, ...]], right: tuple[int, ...] = (), indent: str = "") -> str:
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    return "\n".join(
+        indent
+        + "  ".join(
+            cell.rjust(w) if i in right else cell.ljust(w) for i, (cell, w) in enumerate(zip(row, widths, strict=True))
+        ).rstrip()
+        for row in rows
+    )

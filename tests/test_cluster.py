@@ -1,0 +1,171 @@
+"""``make test-cluster``: a two-node Ray cluster on this machine whose worker node cannot see the driver's
+files, a real ``mlflow server`` on a free loopback port, a tiny ablation tracked on the server, then a node
+lost mid-run. Every process it starts listens on 127.0.0.1 and is stopped, pass or fail."""
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+import local_cluster  # noqa: E402
+
+from ablate.tracking import POINT_METRICS, Tracker  # noqa: E402
+
+pytestmark = pytest.mark.skipif(
+    not os.environ.get("ABLATE_CLUSTER_TESTS"), reason="a two-node cluster with a private mount: make test-cluster"
+)
+ROOT = local_cluster.ROOT
+# The worker node's view: empty /tmp, /dev/shm and project folder, except the code a worker needs installed
+# (the virtualenv, ablate/, tools/). The driver's store, Tune's folder and every temp folder are out of sight.
+PRIVATE_MOUNTS = f"""set -e
+mount -t tmpfs worker-private /tmp
+mount -t tmpfs worker-private /dev/shm
+for d in .venv ablate tools; do mkdir -p /tmp/.keep/$d; mount --bind "{ROOT}/$d" /tmp/.keep/$d; done
+mount -t tmpfs worker-private "{ROOT}"
+for d in .venv ablate tools; do mkdir "{ROOT}/$d"; mount --move /tmp/.keep/$d "{ROOT}/$d"; done
+test ! -e "$PROBE"
+exec "$@"
+"""
+
+EXPERIMENT = """
+name = "{name}"
+seeds = 2
+[base]
+env_id = "CartPole-v1"
+max_episodes = {episodes}
+episodes_per_update = 10
+video_max_frames = 30
+{extra}
+[[variants]]
+name = "narrow"
+hidden_sizes = [8]
+"""
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    """mlflow server, a head node (1 CPU), a worker node (1 CPU) in its own mount namespace; all stopped after."""
+    log = open(tmp_path / "cluster.log", "w")  # noqa: SIM115 - closed at the end
+    processes = []
+    try:
+        port = local_cluster.free_port()
+        server = local_cluster.mlflow_server(tmp_path / "server", port, log=log)
+        processes.append(server)
+        head, head_id, gcs = local_cluster.start_node_process(True, 1, port=local_cluster.free_port(), log=log)
+        processes.append(head)
+        probe = tmp_path / "server"  # the tracking server's files: the worker node must not see them
+        wrap = [
+            "env",
+            f"PROBE={probe}",
+            "unshare",
+            "--mount",
+            "--propagation",
+            "private",
+            "sh",
+            "-c",
+            PRIVATE_MOUNTS,
+            "sh",
+        ]
+        worker, worker_id, _ = local_cluster.start_node_process(False, 1, address=gcs, wrap=wrap, log=log)
+        processes.append(worker)
+        local_cluster.wait_http(f"http://127.0.0.1:{port}/health", 120, server)
+        yield {
+            "uri": f"http://127.0.0.1:{port}",
+            "gcs": gcs,
+            "head": head_id,
+            "worker": worker_id,
+            "worker_process": worker,
+            "processes": processes,
+            "tmp": tmp_path,
+        }
+    finally:
+        for process in reversed(processes):
+            local_cluster.stop_process(process)
+        log.close()
+
+
+def _ablate(cluster, name, episodes, extra=""):
+    folder = cluster["tmp"] / name
+    folder.mkdir()
+    (folder / "exp.toml").write_text(EXPERIMENT.format(name=name, episodes=episodes, extra=extra))
+    command = [sys.executable, "-m", "ablate.cli", "run", "exp.toml", "--address", cluster["gcs"]]
+    command += ["--tracking-uri", cluster["uri"], "--no-report"]
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    return subprocess.Popen(command, cwd=folder, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _finish(process, timeout_s=240):
+    try:
+        output, _ = process.communicate(timeout=timeout_s)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    return process.returncode, output
+
+
+def _listening(pids):
+    """Local addresses of every TCP socket our processes (and their descendants) listen on."""
+    family = set()
+    for pid in pids:
+        try:
+            root = psutil.Process(pid)
+            family |= {root, *root.children(recursive=True)}
+        except psutil.Error:
+            continue
+    ids = {p.pid for p in family}
+    out = subprocess.run(["ss", "-ltnpH"], capture_output=True, text=True, check=True).stdout
+    addresses = []
+    for line in out.splitlines():
+        if any(f"pid={pid}," in line for pid in ids):
+            addresses.append(line.split()[3].rsplit(":", 1)[0])
+    return addresses
+
+
+def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
+    # 1. Trials on both nodes, every run, metric and artifact on the server.
+    code, output = _finish(_ablate(cluster, "spread", episodes=200))
+    assert code == 0, output
+    tracker = Tracker(cluster["uri"], "spread")
+    runs = tracker.trial_runs(with_artifacts=True)
+    assert len(runs) == 2 and {r.status for r in runs} == {"FINISHED"}
+    assert {r.tags["ablate.node"] for r in runs} == {cluster["head"], cluster["worker"]}  # one per node
+    for run in runs:
+        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "video.mp4", "learning_curve.png"}
+        for metric in POINT_METRICS:
+            steps = [s for s, _ in tracker.metric_history(run.run_id, metric)]
+            assert steps == list(range(2, 201, 2)), metric  # 200 episodes -> 100 points
+    assert list((cluster["tmp"] / "server" / "artifacts").rglob("episodes.csv"))  # in the server's store
+
+    # 2. A node lost mid-run: both trials block until a file exists (which the worker node cannot see),
+    #    the worker node dies, its trial is retried on the head, the ablation completes.
+    marker = cluster["tmp"] / "release"
+    launch = _ablate(cluster, "lost", episodes=20, extra=f'fault = "block"\nfault_marker = "{marker}"')
+    try:
+        lost = Tracker(cluster["uri"], "lost")
+        deadline = time.monotonic() + 300
+        while sum(r.status == "RUNNING" for r in lost.trial_runs()) < 2:
+            assert launch.poll() is None and time.monotonic() < deadline, _finish(launch)[1]
+            time.sleep(0.5)
+        pids = [p.pid for p in cluster["processes"]] + [launch.pid]
+        addresses = _listening(pids)
+        assert addresses and set(addresses) <= {"127.0.0.1", "[::ffff:127.0.0.1]"}, addresses
+        local_cluster.stop_process(cluster["worker_process"])  # kills the node's raylet and workers
+        marker.write_text("go\n")
+        code, output = _finish(launch)
+    finally:
+        marker.write_text("go\n")
+        if launch.poll() is None:
+            launch.kill()
+    assert code == 0, output
+    runs = lost.trial_runs()
+    finished = [r for r in runs if r.status == "FINISHED"]
+    assert len(finished) == 2 and len({r.key for r in finished}) == 2 and len(runs) == 2  # the partial run deleted
+    assert {r.tags["ablate.node"] for r in finished} == {cluster["head"]}
+    assert max(int(r.tags["ablate.attempt"]) for r in finished) == 2  # the lost trial ran again
+    launches = lost.client.search_runs([lost.experiment_id()], "tags.`ablate.role` = 'launch'")
+    assert [launch.info.status for launch in launches] == ["FINISHED"]

@@ -1,0 +1,55 @@
+"""The shipped experiment files: the default Pong ablation's grid, and the Pong smoke ablation end to end
+through real Ray and a real MLflow store (the report is tested with the report)."""
+
+from pathlib import Path
+
+from ablate.config import load_experiment
+from ablate.grid import expand
+from ablate.tracking import Tracker
+
+EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
+
+
+def test_pong_ablation_is_cnn_vs_mlp_with_each_knob_and_three_seeds():
+    experiment = load_experiment(EXPERIMENTS / "pong.toml")
+    assert len(experiment.seeds) >= 3 and experiment.base.gamma == 0.99 and experiment.base.reset_on_score
+    variants = {v.name: v.config for v in experiment.variants}
+    for arch in ("cnn", "mlp"):
+        base = variants[arch]
+        assert base.model.architecture == arch
+        changed = {
+            "deep": lambda c, base=base: len(c.model.hidden_sizes) > len(base.model.hidden_sizes),
+            "wide": lambda c, base=base: c.model.hidden_sizes[0] > base.model.hidden_sizes[0],
+            "dropout": lambda c: c.model.dropout > 0,
+            "l2": lambda c: c.l2 > 0,
+        }
+        for knob, differs in changed.items():
+            config = variants[f"{arch}-{knob}"]
+            assert config.model.architecture == arch and differs(config), f"{arch}-{knob}"
+    assert len(expand(experiment)) == len(variants) * len(experiment.seeds)
+
+
+def test_pong_smoke_ablation_through_ray_and_mlflow(run_quiet, tmp_path, tracking_uri):
+    experiment = load_experiment(EXPERIMENTS / "pong-smoke.toml")
+    assert experiment.base.max_episode_steps > 0  # capped episodes: seconds per trial
+    outcome = run_quiet(experiment, tmp_path, tracking_uri)
+    assert outcome.exit_code == 0 and len(outcome.finished) == 4 and not outcome.failed
+    tracker = Tracker(tracking_uri, "pong-smoke")
+    runs = tracker.trial_runs(with_artifacts=True)
+    assert sorted((r.variant, r.seed) for r in runs) == [("cnn", 0), ("cnn", 1), ("mlp", 0), ("mlp", 1)]
+    for run in runs:
+        assert run.status == "FINISHED" and run.params["action_set"] == "move"
+        returns = tracker.metric_history(run.run_id, "episode/return")
+        assert [step for step, _ in returns] == [1, 2, 3, 4]
+        assert all(-50 <= value <= 1 for _, value in returns)  # at most a point or two in 50 steps
+        assert run.metrics["episodes_run"] == 4 and run.metrics["env_steps"] == 4 * 50
+        assert set(run.artifacts) == {
+            "episodes.csv",
+            "weights.pt",
+            "video.mp4",
+            "learning_curve.png",
+            "observation.png",
+            "videos",
+        }
+        videos = [a.path for a in tracker.client.list_artifacts(run.run_id, "videos")]
+        assert videos[0] == "videos/episode_00001.mp4" and len(videos) >= 2

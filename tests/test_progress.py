@@ -1,0 +1,215 @@
+"""The progress view: the estimate from the expected cost of each trial, per-variant figures over seeds, the
+rows of running trials; and the view itself in a real terminal (tmux) during a real `ablate run`."""
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from ablate import progress
+from ablate.config import TrialConfig
+from ablate.grid import GridTrial
+from ablate.progress import ProgressView, makespan, stage
+from ablate.trial import EpisodeMetrics
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    fake = Clock()
+    monkeypatch.setattr(progress.time, "monotonic", fake)
+    return fake
+
+
+def _trials(budget=100, variants=("fast", "slow"), seeds=(0, 1)):
+    config = replace(TrialConfig(), max_episodes=budget)
+    return [GridTrial(f"{v}-s{s}", v, s, replace(config, seed=s)) for v in variants for s in seeds]
+
+
+def _row(episode, rolling_mean):
+    return EpisodeMetrics(episode, 10.0, 10, 0.0, 0.5, rolling_mean, episode * 10, 0.0, episode)
+
+
+def test_makespan_sees_a_long_trial_that_starts_last():
+    assert makespan([], [10, 10, 10, 10], slots=2) == 20
+    assert makespan([], [1, 1, 1, 9], slots=2) == 10  # the 9 s trial starts at 1 s and runs alone
+    assert makespan([5], [1], slots=2) == 5  # an idle slot takes the pending trial at once
+    assert makespan([3, 4], [], slots=2) == 4
+
+
+def test_cost_is_learned_per_variant_from_finished_trials_else_from_the_budget(clock):
+    view = ProgressView("x", _trials(budget=100), already_done=0, enabled=False, slots=2, start=clock.now - 7)
+    assert view.seconds_left() is None  # nothing is known of any trial's cost yet
+    assert "0:07 elapsed" in view.headline()  # the clock counts from the command's start
+    view.started("fast-s0")
+    view.started("fast-s1")
+    clock.now += 2
+    view.episodes("fast-s0", [_row(1, 9.0), _row(20, 20.0)])  # 0.1 s per episode
+    view.episodes("fast-s1", [_row(20, 30.0)])
+    # Nothing finished: every trial is costed at its whole budget at 0.1 s per episode.
+    assert view.expected_cost("slow") == pytest.approx(10.0)
+    # Running ones have 80 episodes (8 s) left; then two slow trials of 10 s on the two slots.
+    assert view.seconds_left() == pytest.approx(8 + 10)
+    clock.now += 1
+    view.finished("fast-s0", solved=True)
+    view.finished("fast-s1", solved=True)
+    assert view.expected_cost("fast") == pytest.approx(3.0)  # learned from the finished trials of the variant
+    view.started("slow-s0")
+    clock.now += 30
+    view.episodes("slow-s0", [_row(10, 5.0)])  # 3 s per episode: slow's whole budget is 300 s
+    assert view.expected_cost("slow") == pytest.approx(3.0 * 100)
+    # slow-s0 has 90 episodes (270 s) left; slow-s1 takes the free slot now and needs 300 s. A mean over the
+    # trials ended so far (3 s each) would say 3 s.
+    assert view.seconds_left() == pytest.approx(300)
+
+
+def test_recent_pace_counts_when_episodes_get_longer(clock):
+    view = ProgressView("x", _trials(budget=1000, variants=("a",), seeds=(0,)), 0, enabled=False, slots=1)
+    view.started("a-s0")
+    for episode, seconds in ((100, 1), (200, 2), (300, 4), (400, 8)):  # the pace halves at every report
+        clock.now += seconds
+        view.episodes("a-s0", [_row(episode, 1.0)])
+    # Over the last reports: 14 s for 300 episodes; since the start it would be 15 s for 400.
+    assert view.seconds_left() == pytest.approx(600 * 14 / 300)
+
+
+def test_variant_figure_is_the_median_of_seeds_not_the_best_seed(clock):
+    view = ProgressView("x", _trials(variants=("dropout",), seeds=(0, 1, 2)), 0, enabled=False)
+    for seed, mean in ((0, 466.0), (1, 150.0), (2, 215.6)):
+        view.started(f"dropout-s{seed}")
+        view.episodes(f"dropout-s{seed}", [_row(5, 500.0), _row(10, mean)])  # the newest, not the highest
+    text = _text(view)
+    row = next(line for line in text.splitlines() if line.startswith("dropout ") and "0/3" in line)
+    assert "215.6" in row and "150.0 to 466.0" in row and "500" not in row
+    for seed, mean in ((0, "466.0"), (1, "150.0"), (2, "215.6")):  # a row per running trial
+        assert re.search(rf"^dropout\s+{seed}\s+10/100\s+{mean}\s", text, re.M), text
+
+
+def test_running_rows_and_total_line(clock):
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, start=clock.now)
+    clock.now += 9
+    view.started("a-s1")
+    clock.now += 5
+    view.episodes("a-s1", [_row(40, 12.5)])
+    assert re.search(r"a\s+1\s+40/100\s+12\.5\s+0:05", _text(view))
+    view.finished("a-s1", solved=False)
+    view.failed("a-s0")
+    assert "all trials ended" in view.headline()
+    clock.now += 7
+    assert view.total_line(report_s=7) == "total 0:21 (until the first trial started 0:09, trials 0:05, report 0:07)"
+
+
+def test_stage_without_a_terminal_prints_a_line_before_and_after(capsys):
+    with stage("writing the report") as seconds:
+        assert capsys.readouterr().out == "writing the report ...\n"
+    assert len(seconds) == 1 and seconds[0] >= 0
+    assert re.fullmatch(r"writing the report: done in \d+\.\d s\n", capsys.readouterr().out)
+
+
+def _text(view) -> str:
+    from rich.console import Console
+
+    console = Console(width=160, record=True, file=open(os.devnull, "w"))  # noqa: SIM115
+    console.print(view.render())
+    return console.export_text()
+
+
+# --- the view in a real terminal -------------------------------------------------------------------
+
+SLOW_TINY = """
+name = "tmuxview"
+seeds = [0, 1, 2]
+[base]
+env_id = "CartPole-v1"
+max_episodes = 100000
+episodes_per_update = 1
+learning_rate = 0.00001
+solve_threshold = 100000
+record_video = false
+[[variants]]
+name = "narrow"
+hidden_sizes = [8]
+[[variants]]
+name = "other"
+hidden_sizes = [4]
+"""
+
+
+def _tmux() -> str | None:
+    found = shutil.which("tmux")
+    if found or shutil.which("apt-get") is None or os.geteuid() != 0:
+        return found
+    install = "apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq tmux"
+    subprocess.run(["bash", "-c", install], capture_output=True, timeout=600)
+    return shutil.which("tmux")
+
+
+def test_progress_view_in_tmux_clock_runs_before_any_trial_ends_and_running_rows_appear(tmp_path):
+    tmux = _tmux()
+    if tmux is None:
+        pytest.skip("tmux is not installed and could not be installed with apt-get (no root or no Debian mirror)")
+    (tmp_path / "exp.toml").write_text(SLOW_TINY)
+    socket = f"ablate-test-{os.getpid()}"
+    # bash, not sh: after Ctrl-C it waits for ablate to exit (130) and then echoes the code.
+    (tmp_path / "run.sh").write_text(
+        f"{sys.executable} -m ablate.cli run exp.toml --only narrow --seeds 0,1 --no-report "
+        f"--tracking-uri sqlite:///{tmp_path / 'mlflow.db'} --max-concurrent 2\necho EXIT=$?\nsleep 600\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TMUX")}
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1])
+
+    def tmux_run(*args: str, check: bool = True) -> str:
+        proc = subprocess.run([tmux, "-L", socket, *args], capture_output=True, text=True, env=env, timeout=30)
+        if check:
+            assert proc.returncode == 0, proc.stderr
+        return proc.stdout
+
+    tmux_run("new-session", "-d", "-s", "view", "-x", "150", "-y", "40", "-c", str(tmp_path), "bash run.sh")
+    clocks_before_any_start: set[str] = set()  # while Ray starts
+    clocks_before_any_end: set[str] = set()
+    screens: list[str] = []
+    running_row = None
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and running_row is None:
+            screen = tmux_run("capture-pane", "-p", "-t", "view")
+            screens.append(screen)
+            assert "Traceback" not in screen and "EXIT=" not in screen, screen
+            head = re.search(
+                r"tmuxview: (\d+) done, (\d+) running, \d+ pending, \d+ failed \(of (\d+);.*\| (\d+:\d\d)", screen
+            )
+            if head:
+                done, running, total, elapsed = head.groups()
+                assert total == "2", screen  # --only narrow --seeds 0,1: two trials
+                if done == "0":
+                    clocks_before_any_end.add(elapsed)
+                    if running == "0":
+                        clocks_before_any_start.add(elapsed)
+            if len(clocks_before_any_end) >= 2:
+                running_row = re.search(r"^narrow\s+[01]\s+[\d,]+/100,000\s+\d+\.\d\s+\d+:\d\d", screen, re.M)
+            time.sleep(0.25)  # a polling interval; every assertion waits on what the screen shows
+        assert len(clocks_before_any_end) >= 2, "the clock did not advance before a trial ended:\n" + screens[-1]
+        assert len(clocks_before_any_start) >= 2, "the clock stood still while Ray started:\n" + "\n".join(screens)
+        assert running_row is not None, "no row of a running trial with its episode:\n" + screens[-1]
+        # Ctrl-C: the run stops its trials and Ray, and exits 130.
+        tmux_run("send-keys", "-t", "view", "C-c")
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and "EXIT=" not in (screen := tmux_run("capture-pane", "-p", "-t", "view")):
+            time.sleep(0.25)
+        assert "EXIT=130" in screen, screen
+        assert re.search(r"^total \d+:\d\d \(until the first trial started \d+:\d\d, trials", screen, re.M), screen
+    finally:
+        tmux_run("kill-server", check=False)

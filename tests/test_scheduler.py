@@ -1,0 +1,99 @@
+"""Which Ray ``ablate run`` uses: a fresh local one on 127.0.0.1 even when another cluster runs on the
+machine, the cluster ``RAY_ADDRESS`` names when set, and one line within seconds when it cannot be reached."""
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+import local_cluster  # noqa: E402
+from test_cluster import _listening  # noqa: E402
+
+from ablate.tracking import Tracker  # noqa: E402
+
+EXPERIMENT = """
+name = "{name}"
+seeds = 1
+[base]
+env_id = "CartPole-v1"
+max_episodes = 10
+episodes_per_update = 10
+record_video = false
+{extra}
+[[variants]]
+name = "narrow"
+hidden_sizes = [8]
+"""
+
+
+def _launch(folder: Path, name: str, extra: str = "", **env) -> subprocess.Popen:
+    folder.mkdir()
+    (folder / "exp.toml").write_text(EXPERIMENT.format(name=name, extra=extra))
+    environment = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | env
+    return subprocess.Popen(
+        [sys.executable, "-m", "ablate.cli", "run", "exp.toml", "--no-report"],
+        cwd=folder,
+        env=environment,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+
+
+def _finish(process: subprocess.Popen, timeout_s: float = 240) -> tuple[int, str]:
+    try:
+        output, _ = process.communicate(timeout=timeout_s)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    return process.returncode, output
+
+
+@pytest.fixture
+def other_cluster(tmp_path):
+    """Another Ray cluster running on the machine (a head node with 1 CPU): what plain ``ray.init()`` finds."""
+    head, node_id, gcs = local_cluster.start_node_process(True, 1, port=local_cluster.free_port())
+    try:
+        yield node_id, gcs
+    finally:
+        local_cluster.stop_process(head)
+
+
+def test_a_local_run_ignores_another_cluster_listens_on_loopback_and_ray_address_joins(tmp_path, other_cluster):
+    other_node, gcs = other_cluster
+    marker = tmp_path / "release"
+    block = f'fault = "block"\nfault_marker = "{marker}"'
+    launch = _launch(tmp_path / "local", "local", block)
+    try:
+        tracker = Tracker(f"sqlite:///{tmp_path / 'local' / 'mlflow.db'}", "local")
+        deadline = time.monotonic() + 180
+        while not any(r.status == "RUNNING" for r in tracker.trial_runs()):  # the trial runs: Ray is up
+            assert launch.poll() is None and time.monotonic() < deadline, _finish(launch)[1]
+            time.sleep(0.5)
+        addresses = _listening([launch.pid])
+        assert len(addresses) >= 3 and set(addresses) <= {"127.0.0.1", "[::ffff:127.0.0.1]"}, addresses
+    finally:
+        marker.write_text("go\n")
+    code, output = _finish(launch)
+    assert code == 0, output
+    (run,) = tracker.trial_runs()
+    assert run.status == "FINISHED" and run.tags["ablate.node"] != other_node  # a fresh local Ray of its own
+
+    code, output = _finish(_launch(tmp_path / "joined", "joined", RAY_ADDRESS=gcs))
+    assert code == 0, output
+    (run,) = Tracker(f"sqlite:///{tmp_path / 'joined' / 'mlflow.db'}", "joined").trial_runs()
+    assert run.status == "FINISHED" and run.tags["ablate.node"] == other_node  # ran on that cluster
+
+
+def test_an_unreachable_cluster_is_one_line_and_exit_1_within_seconds(tmp_path):
+    started = time.monotonic()
+    launch = _launch(tmp_path / "x", "x", RAY_ADDRESS=f"127.0.0.1:{local_cluster.free_port()}")
+    code, output = _finish(launch, timeout_s=60)
+    assert code == 1 and time.monotonic() - started < 60
+    assert output.strip().splitlines()[-1].startswith("ablate run: cannot reach the Ray cluster at 127.0.0.1:"), output
+    assert "Traceback" not in output
+    assert Tracker(f"sqlite:///{tmp_path / 'x' / 'mlflow.db'}", "x").latest_launch() is None  # nothing recorded

@@ -1,0 +1,209 @@
+"""A Ray cluster and an MLflow tracking server on this machine, every port on 127.0.0.1: ``make cluster-up``,
+``make cluster-down``, and the nodes of ``make test-cluster``.
+
+``node``: one Ray node (head, or a worker joining ``--address``) in the foreground until SIGTERM, SIGINT or
+end of stdin, then all of its processes are killed (to a cluster, a node that died). ``up``/``down``: a head
+node and ``mlflow server`` (served artifacts) in the background, their process ids in ``.cluster/state.json``.
+``ray start``/``ray stop`` are not used: ``ray stop`` kills every Ray on the machine, not just this one, and
+``ray start`` binds a worker node to the machine's address on every interface.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+STATE = ROOT / ".cluster" / "state.json"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_node(head: bool, address: str | None, port: int, cpus: float, temp_dir: str | None) -> int:
+    """Start one node bound to 127.0.0.1, print ``ready <node id> <gcs address>``, wait, kill its processes."""
+    import ray._private.ray_constants as ray_constants
+
+    # With clusters "disabled" (Ray's macOS default) 127.0.0.1 stays the node's address and every server of
+    # the node binds to it alone; on Linux Ray would take the machine's address and bind to all interfaces.
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    from ray._private.node import Node
+    from ray._private.parameter import RayParams
+
+    params = RayParams(
+        node_ip_address="127.0.0.1",
+        num_cpus=cpus,
+        num_gpus=0,
+        object_store_memory=150 * 2**20,
+        min_worker_port=0,
+        max_worker_port=0,
+        include_dashboard=False,
+        temp_dir=temp_dir,
+    )
+    if head:
+        params.update(gcs_server_port=port)
+    else:
+        params.update(gcs_address=address, include_log_monitor=False, node_manager_port=0)
+        params.dashboard_agent_listen_port = None
+    node = Node(params, head=head, shutdown_at_exit=True, spawn_reaper=True)
+    stop = threading.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda *_: stop.set())
+    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    print(f"ready {node.node_id} {node.gcs_address}", flush=True)
+    stop.wait()
+    node.kill_all_processes(check_alive=False, allow_graceful=False)
+    return 0
+
+
+def wait_http(url: str, timeout_s: float, process: subprocess.Popen | None = None) -> None:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            with urllib.request.urlopen(url, timeout=5) as response:
+                if response.status == 200:
+                    return
+        except OSError:
+            pass
+        if process is not None and process.poll() is not None:
+            raise RuntimeError(f"{process.args[0]} exited with code {process.returncode} before {url} answered")
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{url} did not answer within {timeout_s:.0f} s")
+        time.sleep(0.2)
+
+
+def mlflow_server(folder: Path, port: int, backend: str | None = None, log=None) -> subprocess.Popen:
+    """``mlflow server`` on 127.0.0.1:``port``, serving artifacts from ``folder/artifacts``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    command = [
+        str(Path(sys.executable).parent / "mlflow"),
+        "server",
+        "--backend-store-uri",
+        backend or f"sqlite:///{folder / 'mlflow.db'}",
+        "--serve-artifacts",
+        "--artifacts-destination",
+        str(folder / "artifacts"),
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--workers",
+        "1",
+    ]
+    return subprocess.Popen(
+        command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+    )
+
+
+def start_node_process(
+    head: bool, cpus: float, port: int = 0, address: str | None = None, wrap: list[str] | None = None, log=None
+) -> tuple[subprocess.Popen, str, str]:
+    """``node`` in a child process (inside ``wrap``, e.g. an ``unshare`` command); returns it, its node id and
+    the cluster's GCS address once the node is up."""
+    command = [sys.executable, str(Path(__file__).resolve()), "node", "--cpus", str(cpus)]
+    command += ["--head", "--port", str(port)] if head else ["--address", address]
+    process = subprocess.Popen(
+        [*(wrap or []), *command],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=log,
+        text=True,
+        start_new_session=True,
+    )
+    line = process.stdout.readline().split()
+    if len(line) != 3 or line[0] != "ready":
+        process.kill()
+        raise RuntimeError(f"the Ray node did not start (exit code {process.wait()}); see its log")
+    return process, line[1], line[2]
+
+
+def stop_process(process: subprocess.Popen, timeout_s: float = 60) -> None:
+    """SIGTERM, then SIGKILL of its whole process group."""
+    if process.poll() is None:
+        os.killpg(process.pid, signal.SIGTERM)
+        try:
+            process.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+
+
+def up(ray_port: int, mlflow_port: int, cpus: float) -> int:
+    if STATE.exists():
+        print(f"a local cluster is already up ({STATE}); make cluster-down first", file=sys.stderr)
+        return 1
+    folder = STATE.parent
+    folder.mkdir(exist_ok=True)
+    log = open(folder / "cluster.log", "a")  # noqa: SIM115 - stays open in the children
+    server = mlflow_server(folder / "mlflow", mlflow_port, log=log)
+    head, node_id, gcs = start_node_process(True, cpus, port=ray_port, log=log)
+    STATE.write_text(
+        json.dumps({"pids": [head.pid, server.pid], "ray": gcs, "mlflow": f"http://127.0.0.1:{mlflow_port}"})
+    )
+    wait_http(f"http://127.0.0.1:{mlflow_port}/health", 120, server)
+    head.stdin.close = lambda: None  # the node runs on after this process exits: it stops on SIGTERM
+    print(f"Ray head {gcs} (node {node_id[:8]}), MLflow http://127.0.0.1:{mlflow_port}; logs in {folder}/cluster.log")
+    print(f"  ablate run experiments/cartpole.toml --address {gcs} --tracking-uri http://127.0.0.1:{mlflow_port}")
+    os._exit(0)  # leave the children running (no stdin EOF, no atexit)
+
+
+def down() -> int:
+    if not STATE.exists():
+        print("no local cluster is up")
+        return 0
+    state = json.loads(STATE.read_text())
+    for pid in state["pids"]:
+        try:
+            os.killpg(pid, signal.SIGTERM)
+        except ProcessLookupError:
+            continue
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                os.killpg(pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.2)
+        else:
+            os.killpg(pid, signal.SIGKILL)
+    STATE.unlink()
+    print(f"stopped the Ray head {state['ray']} and MLflow {state['mlflow']}")
+    return 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    commands = parser.add_subparsers(dest="command", required=True)
+    node = commands.add_parser("node")
+    node.add_argument("--head", action="store_true")
+    node.add_argument("--address")
+    node.add_argument("--port", type=int, default=0)
+    node.add_argument("--cpus", type=float, default=1)
+    node.add_argument("--temp-dir")
+    start = commands.add_parser("up")
+    start.add_argument("--ray-port", type=int, default=6390)
+    start.add_argument("--mlflow-port", type=int, default=5050)
+    start.add_argument("--cpus", type=float, default=os.cpu_count())
+    commands.add_parser("down")
+    args = parser.parse_args()
+    if args.command == "node":
+        return run_node(args.head, args.address, args.port or free_port(), args.cpus, args.temp_dir)
+    if args.command == "up":
+        return up(args.ray_port, args.mlflow_port, args.cpus)
+    return down()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
