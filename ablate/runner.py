@@ -27,7 +27,7 @@ from ablate.curve import CurvePoint
 from ablate.grid import GridTrial, expand, select
 from ablate.lock import launch_lock
 from ablate.progress import ProgressView, clock, stage
-from ablate.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, run_trials, stop_ray
+from ablate.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, largest_node_cpus, run_trials, stop_ray
 from ablate.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
 
 
@@ -356,6 +356,14 @@ def _run_locked(
     if not todo:
         return outcome
     started_ray = ensure_ray(address)  # an unreachable cluster fails here, in seconds, before a launch is recorded
+    biggest = largest_node_cpus()
+    if experiment.resources_per_trial > biggest:  # a joined cluster: no node could ever start a trial
+        if started_ray:
+            stop_ray()
+        raise ConfigError(
+            f"{experiment.path}: cpus_per_trial = {experiment.resources_per_trial:g} is more than the largest node "
+            f"of the Ray cluster has ({biggest:g} CPUs), so no trial could start; valid: at most {biggest:g}"
+        )
     # Trials a killed launch left with a checkpoint continue from it.
     resume = {t.key: blob for t in todo if (blob := tracker.latest_checkpoint(generation, t.key)) is not None}
     commit = git_commit()

@@ -232,6 +232,11 @@ def ensure_ray(address: str | None) -> bool:
     return True
 
 
+def largest_node_cpus() -> float:
+    """CPUs of the biggest live node of the cluster Ray is connected to: a trial needing more never starts."""
+    return max((node["Resources"].get("CPU", 0.0) for node in ray.nodes() if node.get("Alive")), default=0.0)
+
+
 def stop_ray() -> None:
     """Stop the local Ray this process started, or leave the cluster it joined."""
     if ray.is_initialized():

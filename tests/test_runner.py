@@ -311,6 +311,7 @@ def _fake_scheduler(monkeypatch, body):
     import ablate.runner
 
     monkeypatch.setattr(ablate.runner, "ensure_ray", lambda address: False)
+    monkeypatch.setattr(ablate.runner, "largest_node_cpus", lambda: 2.0)
     monkeypatch.setattr(
         ablate.runner, "run_trials", lambda trials, events, options, run_name, **_: body(trials, events)
     )
@@ -428,3 +429,20 @@ def test_the_commit_is_not_dirty_because_the_committed_report_changed(tmp_path, 
     assert not git_commit().endswith("-dirty")
     (tmp_path / "code.py").write_text("x = 2\n")
     assert git_commit().endswith("-dirty")
+
+
+def test_a_cluster_whose_nodes_are_all_too_small_is_refused_before_a_launch_is_recorded(
+    tmp_path, tracking_uri, monkeypatch
+):
+    from ablate.config import ConfigError
+    from ablate.runner import run_experiment
+
+    _fake_scheduler(monkeypatch, lambda trials, events: pytest.fail("no trial may be scheduled"))
+    import dataclasses
+
+    experiment = dataclasses.replace(_experiment(tmp_path), resources_per_trial=3.0)  # the fake nodes have 2
+    with pytest.raises(
+        ConfigError, match=r"cpus_per_trial = 3 is more than the largest node of the Ray cluster has \(2 CPUs\)"
+    ):
+        run_experiment(experiment, tracking_uri=tracking_uri, address="auto", show_progress=False)
+    assert not _launches(Tracker(tracking_uri, "tiny"))
