@@ -18,7 +18,7 @@ from pathlib import Path
 
 
 class LaunchLocked(RuntimeError):
-    """Another live launch holds the lock; the message names it (one line)."""
+    """Another live launch holds the lock (the message names it), or the lock file cannot be opened: one line."""
 
 
 def _holder_text(fd: int) -> str:
@@ -54,7 +54,11 @@ def _pid_alive(pid: int) -> bool:
 @contextlib.contextmanager
 def launch_lock(path: Path, what: str, command: str = "") -> Iterator[None]:
     """Hold the lock at ``path`` for the body, or raise ``LaunchLocked`` at once naming the launch that has it."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)  # the per-user folder for a tracking server's locks
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as error:
+        raise LaunchLocked(f"cannot open the launch lock {path}: {error.strerror}") from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
