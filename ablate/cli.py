@@ -223,7 +223,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="report this generation (an id or a unique prefix; default: the newest launch's), e.g. the complete one "
         "before a --fresh run was interrupted",
     )
-    report.add_argument("--variants", help="only these variants, comma-separated, e.g. baseline,deep (default: all)")
+    report.add_argument(
+        "--variants",
+        help="only these variants, comma-separated, e.g. deep,cnn; the baseline is always kept (default: all)",
+    )
     report.add_argument("--baseline", help="the variant the others are compared to (default: the experiment's)")
     report.add_argument("--no-pdf", dest="pdf", action="store_false", help="skip report.pdf (Chromium not needed)")
     return parser

@@ -113,6 +113,8 @@ def architecture(params: dict[str, str], env_id: str) -> str:
             text = f"MLP over the 6,400 pixels of the 80×80 frame difference: {dense}"
         else:
             text = "linear policy over the 6,400 pixels of the 80×80 frame difference (no hidden layer)"
+        actions = {"all": "6 actions", "move": "2 actions (up, down)"}.get(params.get("action_set", ""), "")
+        text += f"; {actions}" if actions else ""
     elif arch == "cnn":
         conv = _sizes(params, "model.conv_channels")
         text = (
@@ -188,6 +190,8 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     lines.append(_markdown_table(pd.DataFrame(rows)))
     lines += ["", "**Base hyper-parameters.**", ""]
     keep = ("learning_rate", "gamma", "episodes_per_update", "max_episodes", "solve_window", "l2")
+    if ablation.env_id.startswith("ALE/Pong"):
+        keep += ("action_set", "frameskip", "max_episode_steps")
     lines.append(_markdown_table(pd.DataFrame([{k: base[k] for k in keep if k in base}])))
     lines += [
         "",
