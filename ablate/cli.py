@@ -19,6 +19,8 @@ from typing import Any, NoReturn
 from ablate import config as config_module
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, Experiment, ModelConfig, TrialConfig, apply_knobs
 from ablate.grid import GridTrial, expand, select
+from ablate.lock import LaunchLocked
+from ablate.tracking import TrackingError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -383,9 +385,12 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as error:
         sys.stderr.write(f"ablate {args.command}: {error}\n")
         return EXIT_USAGE
-    except KeyboardInterrupt:
+    except (TrackingError, LaunchLocked) as error:
+        sys.stderr.write(f"ablate {args.command}: {error}\n")
+        return getattr(error, "exit_code", EXIT_FAILED)
+    except KeyboardInterrupt as interrupt:  # before the launch began (SIGTERM too, in `run`: exit code 143)
         sys.stderr.write(f"ablate {args.command}: interrupted\n")
-        return EXIT_INTERRUPTED
+        return getattr(interrupt, "exit_code", EXIT_INTERRUPTED)
 
 
 if __name__ == "__main__":

@@ -143,3 +143,9 @@ def test_bad_experiment_files_name_file_key_and_valid_values(tmp_path, text, mes
 def test_missing_experiment_file(tmp_path):
     with pytest.raises(ConfigError, match="no such experiment file"):
         load_experiment(tmp_path / "nope.toml")
+
+
+def test_a_file_starting_with_a_utf8_byte_order_mark_loads(tmp_path):
+    path = tmp_path / "bom.toml"
+    path.write_bytes('\ufeffname = "bom"\n[[variants]]\nname = "a"\n'.encode())
+    assert load_experiment(path).name == "bom"
