@@ -55,7 +55,7 @@ train: $(STAMP) ## one CartPole trial: curve, video, weights in outputs/train/ (
 	$(BIN)/ablate train $(ARGS)
 
 ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray, track in MLflow, write the report
-	$(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
+	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
 
 ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, 30 trials (about an hour on 2 cores)
 	$(BIN)/ablate run experiments/pong.toml --tracking-uri $(TRACKING_URI)

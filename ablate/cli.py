@@ -19,6 +19,8 @@ from typing import Any, NoReturn
 from ablate import config as config_module
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, Experiment, ModelConfig, TrialConfig, apply_knobs
 from ablate.grid import GridTrial, expand, select
+from ablate.lock import LaunchLocked
+from ablate.tracking import TrackingError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -120,7 +122,13 @@ def add_knob_flags(parser: argparse.ArgumentParser) -> None:
                 parser.add_argument("--no-video", dest=name, action="store_false", help="same as --no-record-video")
         else:
             convert = (
-                _sizes if kind.startswith("tuple") else float if "float" in kind else int if kind == "int" else str
+                _sizes
+                if kind.startswith("tuple")
+                else float
+                if "float" in kind
+                else int
+                if kind.startswith("int")
+                else str
             )
             metavar = {_sizes: "N,N", float: "X", int: "N", str: "NAME"}[convert]
             parser.add_argument(*flags, dest=name, type=convert, metavar=metavar, help=help_text)
@@ -229,7 +237,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="report this generation (an id or a unique prefix; default: the newest launch's), e.g. the complete one "
         "before a --fresh run was interrupted",
     )
-    report.add_argument("--variants", help="only these variants, comma-separated, e.g. baseline,deep (default: all)")
+    report.add_argument(
+        "--variants",
+        help="only these variants, comma-separated, e.g. deep,cnn; the baseline is always kept (default: all)",
+    )
     report.add_argument("--baseline", help="the variant the others are compared to (default: the experiment's)")
     report.add_argument("--no-pdf", dest="pdf", action="store_false", help="skip report.pdf (Chromium not needed)")
     return parser
@@ -382,9 +393,12 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as error:
         sys.stderr.write(f"ablate {args.command}: {error}\n")
         return EXIT_USAGE
-    except KeyboardInterrupt:
+    except (TrackingError, LaunchLocked) as error:
+        sys.stderr.write(f"ablate {args.command}: {error}\n")
+        return getattr(error, "exit_code", EXIT_FAILED)
+    except KeyboardInterrupt as interrupt:  # before the launch began (SIGTERM too, in `run`: exit code 143)
         sys.stderr.write(f"ablate {args.command}: interrupted\n")
-        return EXIT_INTERRUPTED
+        return getattr(interrupt, "exit_code", EXIT_INTERRUPTED)
 
 
 if __name__ == "__main__":

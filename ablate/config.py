@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
@@ -17,6 +18,14 @@ SUPPORTED_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
 ARCHITECTURES = ("mlp", "cnn")
 ACTIVATIONS = ("relu", "tanh", "elu", "gelu")
 FAULTS = ("", "crash_once", "crash_after_checkpoint", "raise", "block")
+MAX_NAME_LENGTH = 100
+"""Characters in an experiment's name: it names folders (``reports/<name>``, ``mlartifacts/<name>``, Tune's
+``ray_results/<name>-<launch>``) and file systems refuse a component over 255 bytes."""
+MAX_VARIANT_NAME_LENGTH = 200
+"""Characters in a variant's name: it starts every trial key, which names a folder of its own."""
+MAX_TRIALS = 10_000
+"""Trials (variants x seeds) one experiment may hold: more is a typo in a ``[grid]`` far more often than an
+intent, and expanding it would take minutes and gigabytes before the first trial starts."""
 # --- Pong env knobs (issue 9) ---
 PONG_ACTION_SETS = ("all", "move")
 """``all``: Pong's 6 actions; ``move``: only UP and DOWN (ALE actions 2 and 3), as in Karpathy's pg-pong."""
@@ -147,7 +156,9 @@ KNOBS: dict[str, Knob] = {
     "episodes_per_update": Knob("trial", lambda v: _is_int(v) and 1 <= v <= 256, "an integer in [1, 256]"),
     "max_episodes": Knob("trial", lambda v: _is_int(v) and 1 <= v <= 1_000_000, "an integer in [1, 1000000]"),
     "solve_threshold": Knob(
-        "trial", lambda v: v is None or _is_number(v), "a number (or leave it out for the env's threshold)"
+        "trial",
+        lambda v: v is None or (_is_number(v) and math.isfinite(v)),
+        "a finite number (or leave it out for the env's threshold)",
     ),
     "solve_window": Knob("trial", lambda v: _is_int(v) and 1 <= v <= 10_000, "an integer in [1, 10000]"),
     "seed": Knob("trial", lambda v: _is_int(v) and 0 <= v < 2**31, "an integer in [0, 2**31)"),
@@ -304,9 +315,12 @@ def load_experiment(path: str | Path) -> Experiment:
     if not path.is_file():
         raise ConfigError(f"{path}: no such experiment file")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        # utf-8-sig: a byte-order mark (Windows editors write one) is not part of the TOML.
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML: tables or arrays nested too deeply to read") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a UTF-8 text file") from None
     return parse_experiment(data, str(path))
@@ -317,8 +331,15 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         if key not in EXPERIMENT_KEYS:
             raise ConfigError(f"{source}: {key}: unknown key; valid top-level keys: {', '.join(EXPERIMENT_KEYS)}")
     name = data.get("name", Path(source).stem)
-    if not isinstance(name, str) or not name.replace("-", "").replace("_", "").isalnum():
-        raise ConfigError(f"{source}: name = {name!r} is invalid; valid: letters, digits, '-' and '_'")
+    if (
+        not isinstance(name, str)
+        or not name.replace("-", "").replace("_", "").isascii()
+        or not name.replace("-", "").replace("_", "").isalnum()
+        or len(name) > MAX_NAME_LENGTH
+    ):
+        raise ConfigError(
+            f"{source}: name = {_clip(name)} is invalid; valid: up to {MAX_NAME_LENGTH} letters, digits, '-' and '_'"
+        )
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ConfigError(f"{source}: description = {description!r} is invalid; valid: a string")
@@ -362,6 +383,10 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         vname = table.pop("name", None)
         if not isinstance(vname, str) or not vname.strip():
             raise ConfigError(f"{where}name: missing or empty; valid: a non-empty string naming the variant")
+        if len(vname) > MAX_VARIANT_NAME_LENGTH:
+            raise ConfigError(
+                f"{where}name = {_clip(vname)} is invalid; valid: at most {MAX_VARIANT_NAME_LENGTH} characters"
+            )
         knobs = _without_seed(table, where)
         variants.append(Variant(vname, tuple(knobs.items()), apply_knobs(base, knobs, where)))
 
@@ -375,6 +400,12 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
                     f"{source}: grid.{key} = {values!r} is invalid; valid: a non-empty list of values to try"
                 )
         axes = list(grid)
+        count = (len(explicit) + math.prod(len(grid[a]) for a in axes)) * len(seeds)
+        if count > MAX_TRIALS:
+            sizes = " x ".join(f"{len(grid[a])} {a}" for a in axes)
+            raise ConfigError(
+                f"{source}: grid: {sizes} x {len(seeds)} seeds is {count:,} trials; valid: at most {MAX_TRIALS:,}"
+            )
         for combo in itertools.product(*(grid[a] for a in axes)):
             knobs = _without_seed(dict(zip(axes, combo, strict=True)), f"{source}: grid.")
             vname = ",".join(f"{a}={_short(v)}" for a, v in knobs.items())
@@ -382,6 +413,11 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
 
     if not variants:
         raise ConfigError(f"{source}: the grid is empty; add [[variants]] tables or a [grid] with at least one axis")
+    if len(variants) * len(seeds) > MAX_TRIALS:
+        raise ConfigError(
+            f"{source}: {len(variants)} variants x {len(seeds)} seeds is {len(variants) * len(seeds):,} trials; "
+            f"valid: at most {MAX_TRIALS:,}"
+        )
     seen: set[str] = set()
     for v in variants:
         if v.name in seen:
@@ -400,6 +436,16 @@ def _without_seed(table: Mapping[str, Any], where: str) -> dict[str, Any]:
     if "seed" in table:
         raise ConfigError(f"{where}seed: set seeds at the top level (seeds = 5 or seeds = [0, 1, 2])")
     return dict(table)
+
+
+def _clip(value: Any, limit: int = 60) -> str:
+    """``repr`` of a bad value, shortened so the error stays one readable line."""
+    text = repr(value)
+    return (
+        text
+        if len(text) <= limit
+        else f"{text[:limit]}... ({len(value) if isinstance(value, str) else len(text)} characters)"
+    )
 
 
 def _short(value: Any) -> str:

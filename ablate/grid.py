@@ -30,13 +30,29 @@ def config_hash(config: TrialConfig) -> str:
     return hashlib.sha1(json.dumps(flat, sort_keys=True, default=list).encode()).hexdigest()[:10]
 
 
+def variant_slug(variant: str) -> str:
+    """The variant's name as it starts a trial key (a folder name): other characters become ``_``."""
+    return re.sub(r"[^A-Za-z0-9._=-]+", "_", variant).strip("_") or "variant"
+
+
 def trial_key(variant: str, config: TrialConfig) -> str:
-    slug = re.sub(r"[^A-Za-z0-9._=-]+", "_", variant).strip("_") or "variant"
-    return f"{slug}-s{config.seed}-{config_hash(config)}"
+    return f"{variant_slug(variant)}-s{config.seed}-{config_hash(config)}"
 
 
 def expand(experiment: Experiment) -> list[GridTrial]:
-    """Every (variant, seed) pair, variant-major: the order trials are scheduled in."""
+    """Every (variant, seed) pair, variant-major: the order trials are scheduled in.
+
+    Two variant names with one slug (``"a b"`` and ``"a_b"``) are refused rather than told apart: with equal
+    knobs they would share keys (one trial answering for both), and keys must stay what earlier launches
+    recorded, so the slug rule cannot change."""
+    by_slug: dict[str, str] = {}
+    for variant in experiment.variants:
+        other = by_slug.setdefault(variant_slug(variant.name), variant.name)
+        if other != variant.name:
+            raise ConfigError(
+                f"{experiment.path}: variants {other!r} and {variant.name!r} would share the trial key prefix "
+                f"{variant_slug(variant.name)!r}; valid: names that differ in letters, digits, '.', '=' or '-'"
+            )
     trials = []
     for variant in experiment.variants:
         for seed in experiment.seeds:

@@ -113,6 +113,8 @@ def architecture(params: dict[str, str], env_id: str) -> str:
             text = f"MLP over the 6,400 pixels of the 80×80 frame difference: {dense}"
         else:
             text = "linear policy over the 6,400 pixels of the 80×80 frame difference (no hidden layer)"
+        actions = {"all": "6 actions", "move": "2 actions (up, down)"}.get(params.get("action_set", ""), "")
+        text += f"; {actions}" if actions else ""
     elif arch == "cnn":
         conv = _sizes(params, "model.conv_channels")
         text = (
@@ -188,6 +190,8 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     lines.append(_markdown_table(pd.DataFrame(rows)))
     lines += ["", "**Base hyper-parameters.**", ""]
     keep = ("learning_rate", "gamma", "episodes_per_update", "max_episodes", "solve_window", "l2")
+    if ablation.env_id.startswith("ALE/Pong"):
+        keep += ("action_set", "frameskip", "max_episode_steps")
     lines.append(_markdown_table(pd.DataFrame([{k: base[k] for k in keep if k in base}])))
     lines += [
         "",
@@ -299,6 +303,37 @@ def _no_claim_reason(n: int, m: int) -> str:
     )
 
 
+def _suggestion(row: pd.Series) -> str:
+    """What the seeds suggest when too few of them support a claim: the estimate and its bootstrap interval,
+    worded as a direction only where the interval excludes no difference (a percentile bootstrap over 3 seeds
+    runs narrow, so it is a pointer for the next, larger run, never a result)."""
+    if any(np.isnan(v) for v in (row.point, row.low, row.high)):
+        return ""
+    if row.bound == "censored":
+        return " Both IQMs count seeds that never got there as the budget: episodes cannot separate them."
+    if row.bound:  # one side censored: the estimate is a bound, and a bound on a suggestion says too little
+        return ""
+    if row.metric.startswith("episodes_to_"):
+        estimate = (
+            f"IQM {_fmt(row.variant_value)} vs {_fmt(row.baseline_value)} episodes, change {_signed_pct(-row.point)} "
+            f"(95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})"
+        )
+        better, worse = "fewer episodes", "more episodes"
+    else:
+        estimate = (
+            f"IQM {_fmt(row.variant_value, 1)} vs {_fmt(row.baseline_value, 1)}, {_signed(row.point)} "
+            f"(95% bootstrap CI {_signed(row.low)} to {_signed(row.high)})"
+        )
+        better, worse = "higher", "lower"
+    if row.low > 0:
+        direction = f"the seeds suggest {better} for {_esc(row.variant)}"
+    elif row.high < 0:
+        direction = f"the seeds suggest {worse} for {_esc(row.variant)}"
+    else:
+        direction = "the interval includes no difference"
+    return f" Estimate: {estimate}; {direction}, to be confirmed with more seeds."
+
+
 def _stability(row: pd.Series) -> str:
     if row.verdict not in (BETTER, WORSE):
         return ""
@@ -317,7 +352,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     base, metric, name = _esc(ablation.baseline), row.metric, _metric_name(row.metric)
     n, m = int(row.n_variant), int(row.n_baseline)
     if row.verdict == NO_CLAIM:
-        return f"{name}: no claim; {_no_claim_reason(n, m)}."
+        return f"{name}: no claim; {_no_claim_reason(n, m)}.{_suggestion(row)}"
     if metric.startswith("episodes_to_"):
         x, y = _fmt(row.variant_value), _fmt(row.baseline_value)
         unsolved = (

@@ -565,7 +565,13 @@ def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cen
     y_bound = is_censored_statistic(int(y_cens.sum()), len(y), "iqm")
     verdict = _verdict(low, high)
     if verdict == NO_CLAIM or min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
-        return point, low, high, NO_CLAIM, ""
+        return (
+            point,
+            low,
+            high,
+            NO_CLAIM,
+            "censored" if x_bound and y_bound else "at least" if x_bound or y_bound else "",
+        )
     if x_bound and y_bound:
         return point, low, high, UNSEPARATED, "censored"
     if x_bound:  # the variant's true IQM is larger: "worse" can only grow; "better" is not supported

@@ -6,24 +6,61 @@ The glue of ``ablate run``; it imports neither Ray nor MLflow (``scheduler`` and
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
 import shlex
+import shutil
+import signal
+import socket
 import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
 from ablate.curve import CurvePoint
 from ablate.grid import GridTrial, expand, select
+from ablate.lock import launch_lock
 from ablate.progress import ProgressView, clock, stage
-from ablate.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, run_trials, stop_ray
-from ablate.tracking import TAG_NODE, Tracker
+from ablate.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, largest_node_cpus, run_trials, stop_ray
+from ablate.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM: the launch stops cleanly (workers stopped, running trials marked KILLED).
+    ``exit_code`` is the shell's convention for death by that signal: 130 for SIGINT, 143 for SIGTERM."""
+
+    def __init__(self, signum: int = signal.SIGINT) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+        self.exit_code = 128 + signum
+
+
+_signals_received: list[int] = []
+"""Signals ``_raise_interrupted`` turned into ``Interrupted``: Tune re-raises a plain ``KeyboardInterrupt``."""
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    _signals_received.append(signum)
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Cleanup that must finish (closing runs) is not cut short by a second Ctrl-C or SIGTERM."""
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s in saved:
+        signal.signal(s, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
 
 
 @dataclass
@@ -41,23 +78,63 @@ class RunOutcome:
     failed: dict[str, str] = field(default_factory=dict)
     killed: list[str] = field(default_factory=list)
     interrupted: bool = False
+    signal_name: str = ""
+    """``SIGINT`` or ``SIGTERM`` when ``interrupted``."""
+    error: str = ""
+    """Why the scheduler stopped before the grid was done (a Ray error, say): the launch is FAILED."""
+    reaped: int = 0
+    """Runs a dead launch (kill -9, power loss) left RUNNING, marked KILLED by this one."""
     view: ProgressView | None = field(default=None, repr=False)
     """The launch's progress view (its clock and stage times), when trials ran."""
 
     @property
     def exit_code(self) -> int:
         if self.interrupted:
-            return 130
-        return 1 if self.failed else 0
+            return 128 + signal.Signals[self.signal_name or "SIGINT"].value
+        return 1 if self.failed or self.error or self.killed else 0
+
+    def note(self) -> str:
+        """One line for the launch run: what happened."""
+        counts = f"{len(self.finished)} finished, {len(self.failed)} failed, {len(self.killed)} killed"
+        if self.interrupted:
+            return f"Interrupted by {self.signal_name}: {counts}; run the same command again to finish the rest."
+        if self.error:
+            return f"The scheduler failed ({self.error}): {counts}."
+        return f"{counts} (of {self.total - self.skipped} to run; {self.skipped} finished before)."
 
 
 def git_commit() -> str:
+    """HEAD, ``-dirty`` when tracked files differ from it; ``reports/`` does not count: every ablation rewrites
+    the committed report, and the code that ran is what the commit names."""
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True)
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", ":(top)", ":(top,exclude)reports"],
+            capture_output=True,
+            text=True,
+        )
         return commit + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
+
+
+_CNN_ONLY = ("model.history", "model.conv_channels", "model.kernel_size")
+
+
+def tracked_params(variant: str, config) -> dict:
+    """A trial's MLflow params: every knob that shaped it, and none that did not (the test-only fault knobs
+    unless set, the CartPole CNN's knobs on other runs, an unset ``solve_threshold``), so MLflow's params
+    table and its "diff only" view show real differences."""
+    params = {"variant": variant, **flatten(config)}
+    for key in ("fault", "fault_marker"):
+        if not params[key]:
+            del params[key]
+    if config.model.architecture != "cnn" or not config.env_id.startswith("CartPole"):
+        for key in _CNN_ONLY:
+            del params[key]
+    if params["solve_threshold"] is None:
+        del params["solve_threshold"]
+    return params
 
 
 def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
@@ -117,40 +194,99 @@ class _Recorder:
     ) -> None:
         self.tracker, self.launch, self.generation = tracker, launch, generation
         self.trials, self.commit, self.view, self.outcome = trials, commit, view, outcome
+        self.closed = False
+        """Set once the launch stops: a late event from the scheduler then opens no run."""
 
-    def _open(self, key: str) -> None:
+    def _open(self, key: str) -> bool:
+        """Open the trial's run if needed; ``False`` once the launch has stopped (the event is dropped)."""
+        if self.closed:
+            return False
         if key not in self.tracker.open_runs:
             trial = self.trials[key]
-            params = {"variant": trial.variant, **flatten(trial.config)}
+            params = tracked_params(trial.variant, trial.config)
             self.tracker.start_trial(self.launch, self.generation, key, trial.variant, trial.seed, params, self.commit)
+        return True
 
     def started(self, key: str) -> None:
-        self._open(key)
-        self.view.started(key)
+        if self._open(key):
+            self.view.started(key)
 
     def episodes(self, key: str, points: list[CurvePoint]) -> None:
-        self._open(key)
+        if not self._open(key):
+            return
         self.tracker.log_points(key, points)
         self.view.episodes(key, points)
 
     def checkpoint(self, key: str, blob: bytes) -> None:
-        self._open(key)
+        if not self._open(key):
+            return
         self.tracker.log_checkpoint(key, blob)
 
     def restarted(self, key: str, reason: str) -> None:
-        self.tracker.discard_trial(key, reason)
+        if not self.closed:
+            self.tracker.discard_trial(key, reason)
 
     def finished(self, key: str, summary: dict[str, float], artifacts: Path | None, node: str) -> None:
-        self._open(key)
+        if not self._open(key):
+            return
         self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
         self.outcome.finished.append(key)
         self.view.finished(key, bool(summary.get("solved")))
 
     def failed(self, key: str, message: str) -> None:
-        self._open(key)
+        if not self._open(key):
+            return
         self.tracker.fail_trial(key, message)
         self.outcome.failed[key] = message
         self.view.failed(key)
+
+
+def tune_run_name(experiment: str, launch_id: str) -> str:
+    """Tune's folder for one launch, ``<storage_path>/<this>``: removed when the launch ends, or by the next
+    launch if this one died."""
+    return f"{experiment}-{launch_id[:8]}"
+
+
+def ui_port() -> int:
+    """The port ``make mlflow-ui`` serves on: ``PORT`` (the Makefile passes it through), else 5000."""
+    try:
+        return int(os.environ.get("PORT", "5000"))
+    except ValueError:
+        return 5000
+
+
+def check_resources(experiment: Experiment, address: str | None) -> None:
+    """A local run whose trial needs more CPUs than the machine has would wait forever ("pending")."""
+    cpus = os.cpu_count() or 1
+    if address is None and experiment.resources_per_trial > cpus:
+        raise ConfigError(
+            f"{experiment.path}: cpus_per_trial = {experiment.resources_per_trial:g} is more than this machine's "
+            f"{cpus} CPUs, so no trial could start; valid: at most {cpus} (or --address a cluster with bigger nodes)"
+        )
+
+
+def reap_stale_runs(tracker: Tracker, storage_path: str) -> int:
+    """Mark KILLED the runs a dead launch of this experiment left RUNNING (kill -9, a power cut) and remove
+    its Tune folder; returns how many runs. Called with the launch lock held, so no other launch of this
+    experiment is alive on this store, or, for a tracking server, on this machine: a RUNNING launch from
+    another machine may be alive and is left alone, with its trials."""
+    host = socket.gethostname()
+    whole_store = sqlite_path(tracker.uri) is not None  # the lock beside the file covers every machine
+    running = tracker.running_runs()
+    launches = [r for r in running if r.data.tags.get(TAG_ROLE) == "launch"]
+    stale = {r.info.run_id for r in launches if whole_store or r.data.tags.get(TAG_HOST) == host}
+    alive = {r.info.run_id for r in launches} - stale
+    trials = [
+        r.info.run_id
+        for r in running
+        if r.data.tags.get(TAG_ROLE) == "trial" and r.data.tags.get(TAG_PARENT) not in alive
+    ]
+    reason = "its launch's process died (found RUNNING by the next launch)"
+    tracker.kill_runs(trials, reason)
+    tracker.kill_runs(stale, "the launch's process died without closing it (found RUNNING by the next launch)")
+    for launch_id in stale:
+        shutil.rmtree(Path(storage_path) / tune_run_name(tracker.experiment_name, launch_id), ignore_errors=True)
+    return len(trials) + len(stale)
 
 
 def run_experiment(
@@ -166,19 +302,68 @@ def run_experiment(
     started_at: float | None = None,
 ) -> RunOutcome:
     """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
-    current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock."""
+    current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock.
+
+    Every check that can fail without Ray (the grid, the CPUs, the store, another launch) fails first. Holds
+    the experiment's launch lock throughout (``LaunchLocked`` if another launch has it)."""
     trials = expand(experiment)
+    check_resources(experiment, address)
     tracker = Tracker(tracking_uri, experiment.name)
+    with launch_lock(tracker.lock_path(), f"experiment {experiment.name!r}", command):
+        reaped = reap_stale_runs(tracker, storage_path)
+        outcome = _run_locked(
+            experiment,
+            trials,
+            tracker,
+            address,
+            fresh,
+            max_concurrent,
+            storage_path,
+            show_progress,
+            command,
+            only,
+            started_at,
+        )
+        outcome.reaped = reaped
+        return outcome
+
+
+def _run_locked(
+    experiment: Experiment,
+    trials: list[GridTrial],
+    tracker: Tracker,
+    address: str | None,
+    fresh: bool,
+    max_concurrent: int | None,
+    storage_path: str,
+    show_progress: bool,
+    command: str,
+    only: Sequence[GridTrial] | None,
+    started_at: float | None,
+) -> RunOutcome:
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     finished_before = tracker.finished_keys(generation)
     chosen = trials if only is None else list(only)
     todo = [t for t in chosen if t.key not in finished_before]
     outcome = RunOutcome(
-        experiment.name, generation, None, skipped=len(chosen) - len(todo), total=len(chosen), ui_link=tracker.ui_link()
+        experiment.name,
+        generation,
+        None,
+        skipped=len(chosen) - len(todo),
+        total=len(chosen),
+        ui_link=tracker.ui_link(ui_port()),
     )
     if not todo:
         return outcome
     started_ray = ensure_ray(address)  # an unreachable cluster fails here, in seconds, before a launch is recorded
+    biggest = largest_node_cpus()
+    if experiment.resources_per_trial > biggest:  # a joined cluster: no node could ever start a trial
+        if started_ray:
+            stop_ray()
+        raise ConfigError(
+            f"{experiment.path}: cpus_per_trial = {experiment.resources_per_trial:g} is more than the largest node "
+            f"of the Ray cluster has ({biggest:g} CPUs), so no trial could start; valid: at most {biggest:g}"
+        )
     # Trials a killed launch left with a checkpoint continue from it.
     resume = tracker.latest_checkpoints(generation, (t.key for t in todo))
     commit = git_commit()
@@ -186,9 +371,15 @@ def run_experiment(
     launch = tracker.start_launch(
         generation,
         name=f"{experiment.name} {time.strftime('%Y-%m-%d %H:%M:%S')}",
-        tags={"mlflow.source.git.commit": commit, "ablate.command": command, "ablate.experiment_file": experiment.path},
+        tags={
+            "mlflow.source.git.commit": commit,
+            "ablate.command": command,
+            "ablate.experiment_file": experiment.path,
+            TAG_HOST: socket.gethostname(),
+            TAG_PID: str(os.getpid()),
+        },
         files={
-            "experiment.toml": Path(experiment.path).read_text(),
+            "experiment.toml": Path(experiment.path).read_text(encoding="utf-8-sig"),
             "grid.json": json.dumps(grid, indent=1),
             "environment.json": json.dumps(environment_document(), indent=1),
         },
@@ -205,26 +396,59 @@ def run_experiment(
         getattr(experiment, "gpus_per_trial", 0.0),
         storage_path,
     )
-    status = "FINISHED"
     try:
         with view:
-            run_trials(todo, recorder, options, run_name=f"{experiment.name}-{launch[:8]}", resume=resume)
-    except KeyboardInterrupt:
+            run_trials(todo, recorder, options, run_name=tune_run_name(experiment.name, launch), resume=resume)
+    except KeyboardInterrupt as interrupt:
         outcome.interrupted = True
-        outcome.killed = tracker.kill_open_trials()
-        status = "KILLED"
+        signum = getattr(interrupt, "signum", None) or (_signals_received[-1] if _signals_received else signal.SIGINT)
+        outcome.signal_name = signal.Signals(signum).name
+    except Exception as error:  # noqa: BLE001 - any scheduler or Ray error: the launch is recorded FAILED, with it
+        outcome.error = f"{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
     finally:
-        tracker.finish_launch(
-            launch,
-            "FAILED" if outcome.failed and status == "FINISHED" else status,
-            {"trials_finished": len(outcome.finished), "trials_failed": len(outcome.failed)},
-        )
-        if started_ray:
-            stop_ray()
+        with _signals_deferred():
+            recorder.closed = True
+            if outcome.interrupted:
+                reason = f"interrupted ({outcome.signal_name}); a re-run starts it again"
+            elif outcome.error:
+                reason = f"the launch failed ({outcome.error}); a re-run starts it again"
+            else:
+                reason = "the scheduler ended without a result for this trial; a re-run starts it again"
+            outcome.killed = tracker.kill_running_trials(launch, reason)
+            if outcome.interrupted:
+                status = "KILLED"
+            elif outcome.error or outcome.failed or outcome.killed:
+                status = "FAILED"
+            else:
+                status = "FINISHED"
+            tracker.finish_launch(
+                launch,
+                status,
+                {
+                    "trials_finished": len(outcome.finished),
+                    "trials_failed": len(outcome.failed),
+                    "trials_killed": len(outcome.killed),
+                },
+                note=outcome.note(),
+            )
+            if started_ray:
+                stop_ray()
     return outcome
 
 
 def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
+    # SIGTERM (a supervisor, `kill`, a CI timeout) stops the launch as Ctrl-C does, with exit code 143 (the
+    # shell's 128 + 15, so a supervisor sees which signal ended it). The scheduler keeps this handler across
+    # ray.init, which would install one that exits mid-call and aborts in C++.
+    previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+    _signals_received.clear()
+    try:
+        return _cmd_run(args, started_at)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
     started_at = time.monotonic() if started_at is None else started_at
     experiment = load_experiment(args.experiment)
     chosen = select(expand(experiment), args.only, args.seeds)
@@ -248,10 +472,17 @@ def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
         sys.stderr.write(f"ablate run: {error}\n")
         return 1
     total = outcome.total
+    if outcome.reaped:
+        print(f"marked {outcome.reaped} run(s) KILLED that a launch which died had left RUNNING")
     if outcome.interrupted:
         print(
-            f"interrupted: {len(outcome.killed)} running trial(s) marked killed; "
+            f"interrupted: {len(outcome.killed)} running trial(s) marked killed ({outcome.signal_name}); "
             f"run the same command again to finish the remaining {total - len(outcome.finished) - outcome.skipped}"
+        )
+    elif outcome.error:
+        print(
+            f"the scheduler failed: {outcome.error}; {len(outcome.finished)} finished, {len(outcome.killed)} "
+            "running trial(s) marked killed, launch recorded FAILED; run the same command again to finish the rest"
         )
     elif outcome.launch_run_id is None:
         print(f"all {total} trials of {experiment.name} already finished; --fresh starts over")
@@ -260,7 +491,7 @@ def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
     for key, message in outcome.failed.items():
         print(f"  FAILED {key}: {message}")
     print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
-    if not outcome.interrupted and getattr(args, "report", True):
+    if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
         from ablate.report import NoResults, terminal_summary, write_report
 
         try:

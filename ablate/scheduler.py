@@ -22,8 +22,10 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+import signal
 import socket
 import tempfile
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -207,6 +209,9 @@ def ensure_ray(address: str | None) -> bool:
     # A head on this machine's loopback (``make cluster-up``): Ray would otherwise swap 127.0.0.1 for the
     # machine's address, where that head does not listen.
     _loopback_only(not address or _host(address) in ("127.0.0.1", "localhost"))
+    # ray.init installs a SIGTERM handler that calls sys.exit() wherever the driver is, which skips the
+    # caller's cleanup and ends in a C++ abort (exit 134); the caller's own handler stays.
+    sigterm = signal.getsignal(signal.SIGTERM)
     try:
         ray.init(
             address=address or "local",
@@ -218,7 +223,14 @@ def ensure_ray(address: str | None) -> bool:
         )
     except ConnectionError as error:
         raise ClusterUnavailable(f"cannot join the Ray cluster at {address}: {error}".splitlines()[0]) from None
+    if callable(sigterm) and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, sigterm)
     return True
+
+
+def largest_node_cpus() -> float:
+    """CPUs of the biggest live node of the cluster Ray is connected to: a trial needing more never starts."""
+    return max((node["Resources"].get("CPU", 0.0) for node in ray.nodes() if node.get("Alive")), default=0.0)
 
 
 def stop_ray() -> None:

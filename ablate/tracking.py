@@ -6,14 +6,18 @@ the scheduler), so an SQLite store never sees two writers; a tracking server wor
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
 import json
 import logging
 import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlparse
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 # A trial's curve: one point per bin of episodes (``ablate.curve``: at most ~100 points however many episodes
@@ -34,11 +38,27 @@ CHECKPOINT_ARTIFACT = "checkpoint.pt"
 TAG_ROLE, TAG_GENERATION, TAG_KEY = "ablate.role", "ablate.generation", "ablate.trial_key"
 TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed", "ablate.error", "ablate.attempt"
 TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
+TAG_HOST, TAG_PID = "ablate.host", "ablate.pid"
 TAG_NODE = "ablate.node"
 _BATCH = 1000  # MLflow's limit of metrics per log_batch call
 FLUSH_EVERY_S = 10.0
 """Seconds a trial's curve points wait to be written together: one MLflow call costs ~4 ms plus ~50 us per
 value, so a trial that reports every 2 s is written in a fifth of the calls; a trial's end flushes it."""
+SCHEMES = ("sqlite", "http", "https", "file", "postgresql", "mysql", "mssql", "databricks")
+"""URI schemes MLflow can track to (``file`` and a bare path: its folder store)."""
+PROBE_TIMEOUT_S = 5
+"""The first request to a tracking server: one try, this long. MLflow's defaults (7 retries with backoff,
+120 s timeout) are right mid-run but turn a mistyped server into four minutes of silence at the start."""
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+class TrackingError(RuntimeError):
+    """The tracking store cannot be used (unknown scheme, unreachable, corrupt, read-only, experiment deleted).
+    The message is one line naming the store and what to do; ``exit_code`` is 2 for a malformed URI, else 1."""
+
+    def __init__(self, message: str, exit_code: int = 1) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 def _quiet_mlflow() -> None:
@@ -109,6 +129,103 @@ def resolve_uri(tracking_uri: str | None) -> str:
     return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
 
 
+def sqlite_path(uri: str) -> Path | None:
+    """The database file of an ``sqlite:///`` URI (relative to the current folder, or absolute with four
+    slashes); ``None`` for any other store."""
+    if not uri.startswith("sqlite:///"):
+        return None
+    return Path(uri.removeprefix("sqlite:///").split("?", 1)[0])
+
+
+def _check_uri(uri: str) -> None:
+    scheme = urlparse(uri).scheme
+    if scheme and scheme not in SCHEMES and not scheme.startswith(("postgresql+", "mysql+", "mssql+")):
+        raise TrackingError(
+            f"--tracking-uri {uri}: unknown scheme {scheme!r}; valid: sqlite:///path/to/mlflow.db, "
+            "http(s)://host:port of a tracking server, or another MLflow store URI (file, postgresql, mysql)",
+            exit_code=2,
+        )
+
+
+def _check_sqlite(path: Path, write: bool) -> None:
+    """Fail in a line, before MLflow tries (and retries) to use a file that cannot work as a store."""
+    folder = path.parent.resolve()
+    if not path.exists():
+        if not folder.is_dir():
+            raise TrackingError(f"MLflow store {path}: folder {folder} does not exist; create it or choose another")
+        if not write:
+            raise TrackingError(f"MLflow store {path}: no such file; `ablate run` creates it")
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise TrackingError(f"MLflow store {path}: folder {folder} is read-only; cannot create the store there")
+        return
+    if not path.is_file():
+        raise TrackingError(f"MLflow store {path}: not a file")
+    if not os.access(path, os.R_OK):
+        raise TrackingError(f"MLflow store {path}: not readable by this user")
+    if write and not (os.access(path, os.W_OK) and os.access(folder, os.W_OK | os.X_OK)):
+        what = "file" if not os.access(path, os.W_OK) else f"folder {folder}"
+        raise TrackingError(
+            f"MLflow store {path}: the {what} is read-only (SQLite writes a journal beside the file); "
+            "make it writable or point --tracking-uri at a writable store"
+        )
+    size = path.stat().st_size
+    if size == 0:
+        return  # SQLite treats an empty file as a new database
+    with path.open("rb") as file:
+        header = file.read(100)
+    if not header.startswith(SQLITE_MAGIC):
+        raise TrackingError(
+            f"MLflow store {path}: not an SQLite database (corrupt or another file); move it away to start a new "
+            "store, or point --tracking-uri at the right one"
+        )
+    # The header records the page size and the page count: a shorter file was truncated (an interrupted copy).
+    page_size = int.from_bytes(header[16:18], "big") if len(header) >= 18 else 0
+    page_size = 65536 if page_size == 1 else page_size
+    pages = int.from_bytes(header[28:32], "big") if len(header) >= 32 else 0
+    if len(header) < 100 or (page_size and pages and size < page_size * pages):
+        raise TrackingError(
+            f"MLflow store {path}: truncated ({size:,} of {page_size * pages:,} bytes); restore it from a copy "
+            "or move it away to start a new store"
+        )
+
+
+@contextlib.contextmanager
+def _store_setup_lock(path: Path | None) -> Iterator[None]:
+    """Serialises the first use of an SQLite store across processes: two launches in a fresh folder would
+    otherwise both run MLflow's schema migrations and one would die in them. A lock on the folder itself,
+    so no file is left behind; the kernel releases it if the process dies."""
+    if path is None:
+        yield
+        return
+    fd = os.open(path.parent.resolve(), os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def _fail_fast_http() -> Iterator[None]:
+    names = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": str(PROBE_TIMEOUT_S)}
+    saved = {name: os.environ.get(name) for name in names}
+    os.environ.update(names)
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def _first_line(error: BaseException) -> str:
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    text = lines[0] if lines else type(error).__name__
+    return text[:300]
+
+
 def store_exists(tracking_uri: str | None) -> bool:
     """Whether there is a store to read: a local SQLite file must exist (opening one would create it)."""
     uri = resolve_uri(tracking_uri)
@@ -131,21 +248,67 @@ def ablation_names(tracking_uri: str | None) -> list[str]:
 class Tracker:
     """Runs of one MLflow experiment (one per ablation): a parent run per launch, a child run per trial."""
 
-    def __init__(self, tracking_uri: str | None, experiment_name: str) -> None:
+    def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
+        """Opens the store and reads the experiment once, so every reason the store cannot be used surfaces
+        here as a one-line ``TrackingError``, before anything is written or started. ``write=False`` (a
+        report) accepts a read-only store and refuses to create one."""
+        self.uri = resolve_uri(tracking_uri)
+        self.experiment_name = experiment_name
+        self._experiment_id: str | None = None
+        _check_uri(self.uri)
+        db = sqlite_path(self.uri)
+        if db is not None:
+            _check_sqlite(db, write)
+
         from mlflow.tracking import MlflowClient
 
         _quiet_mlflow()
-
-        self.uri = resolve_uri(tracking_uri)
-        self.client = MlflowClient(self.uri)
-        self.experiment_name = experiment_name
-        self._experiment_id: str | None = None
+        try:
+            with _store_setup_lock(db), _fail_fast_http():
+                self.client = MlflowClient(self.uri)
+                existing = self.client.get_experiment_by_name(experiment_name)
+        except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
+            raise TrackingError(self._store_problem(error)) from None
+        if existing is not None and existing.lifecycle_stage == "deleted":
+            raise TrackingError(
+                f"MLflow experiment {experiment_name!r} (id {existing.experiment_id}) at {self.uri} is deleted; "
+                f"restore it with `MLFLOW_TRACKING_URI={self.uri} mlflow experiments restore --experiment-id "
+                f"{existing.experiment_id}`, or give the experiment another name"
+            )
+        if existing is not None:
+            self._experiment_id = existing.experiment_id
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
         self._points: dict[str, tuple[list[Any], float, int]] = {}
         """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
+        self._started_ms: dict[str, int] = {}
+        """Per open trial, its run's start (ms): metric points are stamped start + the point's ``wall_s``, so
+        MLflow's time axes show when each happened, not when the driver wrote a batch."""
 
     # --- experiment -------------------------------------------------------------------------------
+    def _store_problem(self, error: BaseException) -> str:
+        text, full = _first_line(error), str(error).lower()
+        if self.uri.startswith(("http://", "https://")):
+            reason = text
+            if "refused" in full:
+                reason = "connection refused"
+            elif "timed out" in full or "timeout" in full:
+                reason = f"no answer in {PROBE_TIMEOUT_S} s"
+            elif "name or service not known" in full or "nodename nor servname" in full:
+                reason = "unknown host"
+            return f"MLflow tracking server {self.uri} is unreachable ({reason}); start it or check --tracking-uri"
+        return f"MLflow store {self.uri} cannot be used: {text}"
+
+    def lock_path(self) -> Path:
+        """The file that lets one launch at a time run this experiment on this store: beside an SQLite file;
+        for a server, in this user's cache (it serialises launches from this machine only)."""
+        db = sqlite_path(self.uri)
+        safe = self.experiment_name  # config allows letters, digits, '-' and '_' only
+        if db is not None:
+            return db.with_name(f"{db.name}.{safe}.lock")
+        digest = hashlib.sha1(self.uri.encode()).hexdigest()[:12]
+        return Path.home() / ".cache" / "ablate" / "locks" / f"{digest}-{safe}.lock"
+
     def experiment_id(self, create: bool = True) -> str | None:
         if self._experiment_id is None:
             existing = self.client.get_experiment_by_name(self.experiment_name)
@@ -166,7 +329,8 @@ class Tracker:
 
     def ui_link(self, port: int = 5000) -> str:
         base = self.uri if self.uri.startswith("http") else f"http://127.0.0.1:{port}"
-        return f"{base.rstrip('/')}/#/experiments/{self.experiment_id()}/runs"
+        # MLflow 3 opens an experiment in its GenAI view unless told this is a machine-learning one.
+        return f"{base.rstrip('/')}/#/experiments/{self.experiment_id()}/runs?workflowType=machine_learning"
 
     # --- launches ---------------------------------------------------------------------------------
     def latest_generation(self) -> str | None:
@@ -206,8 +370,13 @@ class Tracker:
             self.client.log_text(run.info.run_id, text, filename)
         return run.info.run_id
 
-    def finish_launch(self, run_id: str, status: str, summary: dict[str, float]) -> None:
+    def finish_launch(self, run_id: str, status: str, summary: dict[str, float], note: str = "") -> None:
+        """Close the launch's run; ``note`` (the run's description in MLflow) says what happened."""
         self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
+        if note:
+            self.client.set_tag(run_id, TAG_NOTE, note[:5000])
+        if status != "FINISHED":
+            self.client.set_tag(run_id, TAG_ERROR, note[:5000])
         self.client.set_terminated(run_id, status)
 
     # --- trials -----------------------------------------------------------------------------------
@@ -232,6 +401,7 @@ class Tracker:
             },
         )
         run_id = run.info.run_id
+        self._started_ms[key] = run.info.start_time
         self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
         self._points[key] = ([], time.monotonic(), run.info.start_time)
@@ -320,6 +490,20 @@ class Tracker:
             self.client.set_terminated(run_id, "KILLED")
             self.client.delete_run(run_id)
 
+    def kill_running_trials(self, launch_id: str, reason: str) -> list[str]:
+        """Mark every trial run of ``launch_id`` still RUNNING in the store KILLED; returns their keys. Read
+        from the store, not from ``open_runs``: an interrupt can land between MLflow creating a run and this
+        object recording it, and such a run must not stay RUNNING."""
+        for key, run_id in list(self.open_runs.items()):  # their curves so far (written every FLUSH_EVERY_S)
+            with contextlib.suppress(Exception):  # marking the runs KILLED matters more than their last points
+                self._flush_points(key, run_id)
+        self.open_runs.clear()
+        self._started_ms.clear()
+        self._points.clear()
+        runs = self.running_runs(f" and tags.`{TAG_PARENT}` = '{launch_id}'")
+        self.kill_runs([r.info.run_id for r in runs], reason)
+        return [r.data.tags.get(TAG_KEY, r.info.run_id) for r in runs]
+
     def kill_open_trials(self) -> list[str]:
         killed = list(self.open_runs)
         for key in killed:
@@ -328,13 +512,35 @@ class Tracker:
             self.client.set_terminated(run_id, "KILLED")
         return killed
 
-    def _log_metrics(self, run_id: str, values: Iterable[tuple[str, float, int]]) -> None:
+    def running_runs(self, query: str = "") -> list[Any]:
+        """Runs of this experiment MLflow has as RUNNING (``query``: more of a filter, `` and ...``)."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        runs, token = [], None
+        while True:
+            page = self.client.search_runs(
+                [experiment_id], "attributes.status = 'RUNNING'" + query, max_results=1000, page_token=token
+            )
+            runs.extend(page)
+            token = page.token
+            if not token:
+                return runs
+
+    def kill_runs(self, run_ids: Iterable[str], reason: str) -> None:
+        for run_id in run_ids:
+            self.client.set_tag(run_id, TAG_ERROR, reason[:5000])
+            self.client.set_tag(run_id, TAG_NOTE, f"Killed: {reason[:5000]}")
+            self.client.set_terminated(run_id, "KILLED")
+
+    def _log_metrics(self, run_id: str, values: Iterable[tuple]) -> None:
+        """``(key, value, step)``, stamped now, or ``(key, value, step, timestamp_ms)``."""
         from mlflow.entities import Metric
 
         now = int(time.time() * 1000)
         batch: list[Any] = []
-        for key, value, step in values:
-            batch.append(Metric(key, float(value), now, int(step)))
+        for key, value, step, *at_ms in values:
+            batch.append(Metric(key, float(value), at_ms[0] if at_ms else now, int(step)))
             if len(batch) == _BATCH:
                 self.client.log_batch(run_id, metrics=batch)
                 batch = []

@@ -71,7 +71,8 @@ class TrialResult:
     wall_s: float
     parameter_count: int
     greedy_return: float | None = None
-    """Return of the recorded greedy episode (None when no video was recorded)."""
+    """Return of the recorded greedy episode (None when no video was recorded, and for Pong, whose video is of
+    the sampling policy)."""
     state_dict: dict[str, torch.Tensor] = field(default_factory=dict)
     artifacts: dict[str, Path] = field(default_factory=dict)
 

@@ -619,9 +619,10 @@ def bench_pong(repeats: int = 3) -> None:
     RESULTS["pong"] = {"medians": medians, "runs": rows}
 
 
-def bench_pong_memory(episodes: int = 1000, variant: str = "cnn") -> None:
+def bench_pong_memory(episodes: int = 1000, variant: str = "cnn", max_episode_steps: int = 0) -> None:
     """Resident memory of one Pong trial at pong.toml's settings (the `cnn` variant, seed 0) over ``episodes``
-    episodes (~20 min of CPU for 1,000): RSS after episode 100, every 100 after, and the process's peak."""
+    episodes (~20 min of CPU for 1,000): RSS after episode 100, every 100 after, and the process's peak.
+    ``max_episode_steps`` (`--pong-memory-cap`) cuts episodes short: as many updates in less time."""
     import resource
 
     import psutil
@@ -635,12 +636,12 @@ def bench_pong_memory(episodes: int = 1000, variant: str = "cnn") -> None:
                 samples[row.episode] = process.memory_info().rss / 2**20
                 print(f"  episode {row.episode}: RSS {samples[row.episode]:,.0f} MB", flush=True)
 
-    run_trial(_pong_config(variant, max_episodes=episodes), on_episodes=sample)
+    run_trial(_pong_config(variant, max_episodes=episodes, max_episode_steps=max_episode_steps), on_episodes=sample)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     first, last = samples.get(100, float("nan")), samples.get(episodes, float("nan"))
     print(
-        f"pong-memory: {variant} trial, {episodes} episodes: RSS {first:,.0f} MB at episode 100, {last:,.0f} MB at "
-        f"episode {episodes}; peak RSS {peak_mb:,.0f} MB"
+        f"pong-memory: {variant} trial, {episodes} episodes (step cap {max_episode_steps or 'none'}): RSS "
+        f"{first:,.0f} MB at episode 100, {last:,.0f} MB at episode {episodes}; peak RSS {peak_mb:,.0f} MB"
     )
     RESULTS["pong-memory"] = {"variant": variant, "rss_mb": samples, "peak_rss_mb": peak_mb}
 
@@ -663,6 +664,9 @@ def main() -> int:
     parser.add_argument(
         "--ablation-repeats", type=int, default=1, help="repeats of the default ablation's three runs (~11 min each)"
     )
+    parser.add_argument(
+        "--pong-memory-cap", type=int, default=0, help="pong-memory: cut episodes at this many steps (0: none)"
+    )
     args = parser.parse_args()
     print(f"python {sys.version.split()[0]}, torch {torch.__version__}, {time.strftime('%Y-%m-%d %H:%M')}")
     unknown = [name for name in args.sections if name not in SECTIONS]
@@ -672,7 +676,11 @@ def main() -> int:
         parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
     for name in args.sections or SECTIONS:
         print(f"== {name}", flush=True)
-        SECTIONS[name](**({"repeats": args.ablation_repeats} if name == "ablation" else {}))
+        kwargs = {
+            "ablation": {"repeats": args.ablation_repeats},
+            "pong-memory": {"max_episode_steps": args.pong_memory_cap},
+        }
+        SECTIONS[name](**kwargs.get(name, {}))
     if args.json:
         args.json.write_text(json.dumps(RESULTS, indent=2) + "\n")
     return 0

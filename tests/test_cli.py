@@ -161,7 +161,9 @@ def test_train_has_a_flag_for_every_knob_and_each_reaches_the_config():
     argv = shlex.split(
         "--env-id CartPole-v0 --learning-rate 0.5 --gamma 0.9 --l2 0.01 --episodes-per-update 4 --max-episodes 7 "
         "--solve-threshold 150 --solve-window 20 --seed 3 --no-record-video --video-max-frames 9 --architecture cnn "
-        "--hidden-sizes 5,6 --activation tanh --dropout 0.25 --history 6 --conv-channels 3,4 --kernel-size 3"
+        "--hidden-sizes 5,6 --activation tanh --dropout 0.25 --history 6 --conv-channels 3,4 --kernel-size 3 "
+        "--action-set move --frameskip 2 --repeat-action-probability 0.1 --max-episode-steps 30 --num-envs 2 "
+        "--video-every 5 --checkpoint-every 7"
     )
     args = train.parse_args(argv)
     knobs = {k: getattr(args, k) for k in TRAIN_KNOBS if getattr(args, k) is not None}

@@ -27,6 +27,11 @@ def test_depth_and_width_expand_to_hidden_sizes():
         ({"learning_rate": "fast"}, "learning_rate = 'fast' is invalid"),
         ({"widht": 3}, "widht: unknown key; valid keys:"),
         ({"hidden_sizes": [32], "depth": 2}, "either hidden_sizes or depth/width"),
+        ({"action_set": "up"}, "action_set = 'up' is invalid; valid: 'all' (6 actions) or 'move' (UP and DOWN)"),
+        ({"frameskip": 0}, "frameskip = 0 is invalid; valid: an integer in [1, 16]"),
+        ({"repeat_action_probability": 1.5}, "repeat_action_probability = 1.5 is invalid"),
+        ({"max_episode_steps": -1}, "max_episode_steps = -1 is invalid"),
+        ({"checkpoint_every": 2.5}, "checkpoint_every = 2.5 is invalid"),
     ],
 )
 def test_bad_knobs_name_key_value_and_valid_range(knobs, message):
@@ -107,7 +112,22 @@ BAD_FILES = [
     ),
     ("[[variants]]\nname='a'\nseed = 1\n", "variants[0].seed: set seeds at the top level"),
     ("[[variants]]\ndepth = 2\n", "variants[0].name: missing or empty"),
+    ("gpus_per_trial = -1\n[[variants]]\nname='a'\n", "gpus_per_trial = -1 is invalid; valid: a number in [0, 16]"),
 ]
+
+
+def test_pong_knobs_gpus_and_checkpoint_defaults(tmp_path):
+    path = _write(
+        tmp_path,
+        "gpus_per_trial = 0.25\n[base]\nenv_id = 'ALE/Pong-v5'\naction_set = 'move'\nmax_episode_steps = 50\n"
+        "repeat_action_probability = 0\n[[variants]]\nname = 'a'\n",
+    )
+    experiment = load_experiment(path)
+    assert experiment.gpus_per_trial == 0.25
+    config = experiment.variants[0].config
+    assert (config.action_set, config.max_episode_steps, config.repeat_action_probability) == ("move", 50, 0.0)
+    assert config.checkpoint_interval == 50 and DEFAULT.checkpoint_interval == 0  # Pong on, CartPole off
+    assert config.vector_envs == config.episodes_per_update
 
 
 @pytest.mark.parametrize(("text", "message"), BAD_FILES)
@@ -123,3 +143,9 @@ def test_bad_experiment_files_name_file_key_and_valid_values(tmp_path, text, mes
 def test_missing_experiment_file(tmp_path):
     with pytest.raises(ConfigError, match="no such experiment file"):
         load_experiment(tmp_path / "nope.toml")
+
+
+def test_a_file_starting_with_a_utf8_byte_order_mark_loads(tmp_path):
+    path = tmp_path / "bom.toml"
+    path.write_bytes('\ufeffname = "bom"\n[[variants]]\nname = "a"\n'.encode())
+    assert load_experiment(path).name == "bom"

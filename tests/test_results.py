@@ -204,6 +204,15 @@ def test_three_seeds_against_three_support_no_claim():
     ablation = _frame({"a": [10, 11, 12], "b": [50, 60, 70]}, budget=100)
     assert compare_metric(ablation, "b", "episodes_to_solve").verdict == "no claim"
     assert "no ordering of the seeds can reach 95%" in _findings_text(ablation)
+    # ... but the reader still sees the estimate, its interval, and the direction worded as a suggestion
+    text = _findings_text(ablation)
+    assert "Estimate: IQM 60 vs 11 episodes" in text and "the seeds suggest more episodes for b" in text
+    assert "to be confirmed with more seeds" in text
+    overlapping = _frame({"a": [10, 30, 50], "b": [20, 40, 60]}, budget=100)
+    assert "the interval includes no difference" in _findings_text(overlapping)
+    never = _frame({"a": [None, None, None], "b": [None, None, 50]}, budget=100)  # both IQMs use the budget
+    (episodes_line,) = [line for line in _findings_text(never).splitlines() if "episodes to solve" in line]
+    assert "episodes cannot separate them" in episodes_line and "Estimate" not in episodes_line
 
 
 def test_leave_one_seed_out_marks_a_claim_that_rests_on_some_seeds():

@@ -256,3 +256,236 @@ def test_a_trial_whose_process_died_resumes_from_its_checkpoint_in_one_continuou
         table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
     assert list(table["wall_s"][:16]) == [row[7] for row in saved["history"]]
     assert "checkpoint.pt" in run.artifacts  # the latest checkpoint stays with the run
+
+
+BLOCKED = """
+name = "{name}"
+seeds = 1
+[base]
+env_id = "CartPole-v1"
+max_episodes = 20
+episodes_per_update = 10
+record_video = false
+[[variants]]
+name = "quick"
+[[variants]]
+name = "blocked"
+fault = "block"
+fault_marker = "{release}"
+"""
+
+
+class _Launch:
+    """``ablate run`` in a child process of its own session (so a failed test can kill it and its Ray at once),
+    with the test waiting on states it observes in the store."""
+
+    def __init__(self, tmp_path, path, tracking_uri, release):
+        self.release = release
+        self.command = [sys.executable, "-m", "ablate.cli", "run", str(path), "--tracking-uri", tracking_uri]
+        self.command.append("--no-report")
+        self.proc = subprocess.Popen(
+            self.command,
+            cwd=tmp_path,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            text=True,
+            start_new_session=True,
+        )
+
+    def wait_for(self, tracker, wanted: dict[str, str], timeout_s: float = 240) -> None:
+        deadline = time.monotonic() + timeout_s
+        seen: dict[str, str] = {}
+        while time.monotonic() < deadline and self.proc.poll() is None:
+            if tracker.experiment_id(create=False):
+                seen = {r.variant: r.status for r in tracker.trial_runs()}  # the newest run of each wins
+                if all(seen.get(v) == s for v, s in wanted.items()):
+                    return
+            time.sleep(0.3)
+        raise AssertionError(f"never saw {wanted}; saw {seen}; output: {self.stop()}")
+
+    def stop(self) -> str:
+        """Release and end the child (and its session) whatever state it is in."""
+        self.release.write_text("go\n")
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        output, _ = self.proc.communicate(timeout=60)
+        return output
+
+
+def _runs_by_status(tracker) -> dict[str, list[str]]:
+    runs = tracker.client.search_runs([tracker.experiment_id()], "", max_results=1000)
+    found: dict[str, list[str]] = {}
+    for run in runs:
+        found.setdefault(run.info.status, []).append(run.data.tags.get("ablate.trial_key", "launch"))
+    return found
+
+
+def test_sigterm_stops_like_ctrl_c_and_a_second_launch_is_refused(tmp_path, tracking_uri, capsys):
+    from ablate.cli import main
+
+    release = tmp_path / "release"
+    path = tmp_path / "term.toml"
+    path.write_text(BLOCKED.format(name="term", release=release))
+    tracker = Tracker(tracking_uri, "term")
+
+    # 1. SIGTERM: handled as Ctrl-C (no C++ abort), exit 143, the running trial and the launch KILLED.
+    first = _Launch(tmp_path, path, tracking_uri, release)
+    try:
+        first.wait_for(tracker, {"quick": "FINISHED", "blocked": "RUNNING"})
+        # 2. Meanwhile a second launch of the experiment on this store is refused in one line naming the first.
+        code = main(["run", str(path), "--tracking-uri", tracking_uri, "--no-report"])
+        err = capsys.readouterr().err
+        assert code == 1 and err.count("\n") == 1 and f"by pid {first.proc.pid} on " in err, err
+        first.proc.send_signal(signal.SIGTERM)
+        output, _ = first.proc.communicate(timeout=120)
+    finally:
+        if first.proc.returncode is None:
+            first.stop()
+    assert first.proc.returncode == 143, output
+    assert "interrupted: 1 running trial(s) marked killed (SIGTERM)" in output and "Traceback" not in output
+    statuses = _runs_by_status(tracker)
+    assert sorted(statuses) == ["FINISHED", "KILLED"] and len(statuses["KILLED"]) == 2, statuses  # trial, launch
+    assert not (tmp_path / "ray_results").exists() or not list((tmp_path / "ray_results").iterdir())
+
+
+def _fake_scheduler(monkeypatch, body):
+    """Replace Ray with ``body(trials, events)``: the runner's bookkeeping around the scheduler, without Ray."""
+    import ablate.runner
+
+    monkeypatch.setattr(ablate.runner, "ensure_ray", lambda address: False)
+    monkeypatch.setattr(ablate.runner, "largest_node_cpus", lambda: 2.0)
+    monkeypatch.setattr(
+        ablate.runner, "run_trials", lambda trials, events, options, run_name, **_: body(trials, events)
+    )
+
+
+def test_a_scheduler_crash_records_the_launch_failed_with_the_error(tmp_path, tracking_uri, monkeypatch):
+    from ablate.runner import run_experiment
+
+    def crash(trials, events):
+        events.started(trials[0].key)
+        raise RuntimeError("RaySystemError: the GCS went away\nmore detail")
+
+    _fake_scheduler(monkeypatch, crash)
+    outcome = run_experiment(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False)
+    assert outcome.exit_code == 1 and outcome.error == "RuntimeError: RaySystemError: the GCS went away"
+    tracker = Tracker(tracking_uri, "tiny")
+    launch = _launches(tracker)[0]
+    assert launch.info.status == "FAILED"
+    assert (
+        "The scheduler failed (RuntimeError: RaySystemError: the GCS went away)"
+        in launch.data.tags["mlflow.note.content"]
+    )
+    assert [r.status for r in tracker.trial_runs()] == ["KILLED"]
+
+
+def test_an_interrupt_while_a_run_is_being_opened_leaves_nothing_running(tmp_path, tracking_uri, monkeypatch):
+    """Ctrl-C can land after MLflow created a trial's run and before the tracker noted it; and a scheduler
+    event can come after the interrupt. Neither may leave a run RUNNING or say "0 marked killed"."""
+    from ablate.runner import run_experiment
+
+    late: list = []
+
+    def interrupted_mid_open(trials, events):
+        events.started(trials[0].key)
+        original = Tracker.start_trial
+
+        def start_then_interrupt(self, *args, **kwargs):
+            original(self, *args, **kwargs)
+            self.open_runs.pop(args[2])  # as if the signal landed before the run was recorded
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(Tracker, "start_trial", start_then_interrupt)
+        late.append(events)
+        events.started(trials[1].key)
+
+    _fake_scheduler(monkeypatch, interrupted_mid_open)
+    outcome = run_experiment(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False)
+    assert outcome.interrupted and outcome.exit_code == 130 and len(outcome.killed) == 2
+    late[0].started(expand(_experiment(tmp_path))[2].key)  # an event after the stop opens no run
+    tracker = Tracker(tracking_uri, "tiny")
+    assert sorted(r.status for r in tracker.trial_runs()) == ["KILLED", "KILLED"]
+    assert _launches(tracker)[0].info.status == "KILLED"
+
+
+def test_the_next_launch_marks_runs_a_dead_launch_left_running_killed_and_removes_its_tune_folder(
+    tmp_path, tracking_uri, monkeypatch
+):
+    """What kill -9 of a driver leaves (its launch and trial runs RUNNING, ``ray_results/<run>/``), made
+    directly: the next launch reaps it, runs the grid, and leaves nothing RUNNING."""
+    from ablate.runner import run_experiment, tune_run_name
+
+    experiment = _experiment(tmp_path)
+    trials = expand(experiment)
+    dead = Tracker(tracking_uri, "tiny")
+    generation = "g-dead"
+    launch = dead.start_launch(generation, "dead", {"ablate.host": "elsewhere", "ablate.pid": "1"}, {})
+    dead.start_trial(launch, generation, trials[0].key, trials[0].variant, 0, {}, "abc")
+    leftover = tmp_path / "ray" / tune_run_name("tiny", launch)
+    (leftover / trials[0].key).mkdir(parents=True)
+
+    def finish_all(todo, events):
+        assert (tmp_path / "ray").exists() and not leftover.exists()  # cleaned before the new launch ran
+        for trial in todo:
+            events.started(trial.key)
+            events.finished(trial.key, {"episodes_to_solve": 5.0}, None, "node-1")
+
+    _fake_scheduler(monkeypatch, finish_all)
+    outcome = run_experiment(
+        experiment, tracking_uri=tracking_uri, show_progress=False, storage_path=str(tmp_path / "ray")
+    )
+    assert outcome.reaped == 2 and outcome.exit_code == 0 and len(outcome.finished) == 4
+    runs = {r.info.run_id: r for r in dead.client.search_runs([dead.experiment_id()], "")}
+    assert runs[launch].info.status == "KILLED" and "process died" in runs[launch].data.tags["ablate.error"]
+    assert [r.info.status for r in runs.values()].count("RUNNING") == 0
+    assert [r.info.status for r in runs.values()].count("KILLED") == 2
+
+
+def test_trial_params_hold_only_knobs_that_shaped_the_trial():
+    from ablate.config import DEFAULT, apply_knobs
+    from ablate.runner import tracked_params
+
+    mlp = tracked_params("base", DEFAULT)
+    assert mlp["variant"] == "base" and mlp["model.hidden_sizes"] == (32,) and "learning_rate" in mlp
+    assert not {"fault", "fault_marker", "solve_threshold", "model.history", "model.kernel_size"} & set(mlp)
+    cnn = tracked_params("cnn", apply_knobs(DEFAULT, {"architecture": "cnn", "solve_threshold": 400.0}))
+    assert cnn["model.history"] == 4 and cnn["model.conv_channels"] == (16,) and cnn["solve_threshold"] == 400.0
+    faulty = tracked_params("f", apply_knobs(DEFAULT, {"fault": "raise"}))
+    assert faulty["fault"] == "raise" and "fault_marker" not in faulty
+
+
+def test_the_commit_is_not_dirty_because_the_committed_report_changed(tmp_path, monkeypatch):
+    from ablate.runner import git_commit
+
+    def git(*args):
+        subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / "reports").mkdir()
+    (tmp_path / "reports" / "report.md").write_text("old\n")
+    (tmp_path / "code.py").write_text("x = 1\n")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "first")
+    monkeypatch.chdir(tmp_path / "reports")  # from a subfolder too
+    (tmp_path / "reports" / "report.md").write_text("new\n")
+    assert not git_commit().endswith("-dirty")
+    (tmp_path / "code.py").write_text("x = 2\n")
+    assert git_commit().endswith("-dirty")
+
+
+def test_a_cluster_whose_nodes_are_all_too_small_is_refused_before_a_launch_is_recorded(
+    tmp_path, tracking_uri, monkeypatch
+):
+    from ablate.config import ConfigError
+    from ablate.runner import run_experiment
+
+    _fake_scheduler(monkeypatch, lambda trials, events: pytest.fail("no trial may be scheduled"))
+    import dataclasses
+
+    experiment = dataclasses.replace(_experiment(tmp_path), resources_per_trial=3.0)  # the fake nodes have 2
+    with pytest.raises(
+        ConfigError, match=r"cpus_per_trial = 3 is more than the largest node of the Ray cluster has \(2 CPUs\)"
+    ):
+        run_experiment(experiment, tracking_uri=tracking_uri, address="auto", show_progress=False)
+    assert not _launches(Tracker(tracking_uri, "tiny"))

@@ -39,3 +39,48 @@ def test_a_killed_run_keeps_its_latest_checkpoint_for_the_next_launch(tracking_u
     tracker.kill_open_trials()
     assert Tracker(tracking_uri, "layout").latest_checkpoints("g", ["t-s0-abc", "x"]) == {"t-s0-abc": b"second"}
     assert tracker.latest_checkpoints("other-generation", ["t-s0-abc"]) == {}
+
+
+def test_metric_points_carry_their_own_time_not_the_batch_write(tracking_uri):
+    reducer = CurveReducer(max_episodes=64, points=8)
+    points = reducer.add(rows(20, per_update=1)) + reducer.flush()
+    tracker, run_id = _track(tracking_uri, points)
+    start_ms = tracker.client.get_run(run_id).info.start_time
+    for metric in POINT_METRICS:
+        stamps = {m.step: m.timestamp for m in tracker.client.get_metric_history(run_id, metric)}
+        assert stamps == {p.episode: start_ms + int(p.wall_s * 1000) for p in points}, metric
+        assert len(set(stamps.values())) == len(stamps)
+
+
+def test_the_mlflow_link_opens_the_machine_learning_view_on_the_given_port(tracking_uri):
+    tracker = Tracker(tracking_uri, "link")
+    assert tracker.ui_link(5123) == (
+        f"http://127.0.0.1:5123/#/experiments/{tracker.experiment_id()}/runs?workflowType=machine_learning"
+    )
+
+
+def test_first_launches_racing_on_a_fresh_folder_all_open_the_store(tmp_path):
+    """Two launches in a fresh folder both ran MLflow's schema migrations and one died in them; now the first
+    use of a store is serialised. Children import MLflow, then start together when a file appears."""
+    import subprocess
+    import sys
+
+    go = tmp_path / "go"
+    script = (
+        "import os, sys, time\n"
+        "from ablate.tracking import Tracker\n"
+        "import mlflow.tracking, mlflow.store.tracking.sqlalchemy_store\n"
+        "print('ready', flush=True)\n"
+        f"while not os.path.exists({str(go)!r}): time.sleep(0.005)\n"
+        f"Tracker('sqlite:///{tmp_path}/mlflow.db', 'race').experiment_id(create=False)\n"
+        "print('ok')\n"
+    )
+    children = [
+        subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for _ in range(2)
+    ]
+    assert [c.stdout.readline() for c in children] == ["ready\n"] * 2  # all imported, none opened the store
+    go.write_text("go")
+    results = [c.communicate(timeout=120) for c in children]
+    assert [c.returncode for c in children] == [0, 0], [err[-2000:] for _, err in results]
+    assert Tracker(f"sqlite:///{tmp_path}/mlflow.db", "race").experiment_id(create=False) is None
