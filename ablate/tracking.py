@@ -66,32 +66,6 @@ def _quiet_mlflow() -> None:
     os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.WARNING)
-    _sqlite_write_ahead_log()
-
-
-def _sqlite_write_ahead_log() -> None:
-    """SQLite stores in write-ahead-log mode with ``synchronous=NORMAL``: a commit appends to the log instead
-    of syncing the database and its journal to disk, 3-4x less wall time per MLflow call on this machine
-    (``make bench``, section ``tracking``). A crash of the process or the OS loses at most the last commits,
-    never the database's consistency. WAL needs a local disk (not NFS), as SQLite's locking already does."""
-    import sqlite3
-
-    from sqlalchemy import event
-    from sqlalchemy.engine import Engine
-
-    if getattr(_sqlite_write_ahead_log, "installed", False):
-        return
-
-    @event.listens_for(Engine, "connect")
-    def _pragmas(connection: Any, record: Any) -> None:
-        if isinstance(connection, sqlite3.Connection):
-            try:
-                connection.execute("PRAGMA journal_mode=WAL")
-                connection.execute("PRAGMA synchronous=NORMAL")
-            except sqlite3.Error:  # a read-only store keeps its mode; reading needs none of this
-                pass
-
-    _sqlite_write_ahead_log.installed = True
 
 
 @dataclass
