@@ -1070,6 +1070,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     except NoResults as error:
         sys.stderr.write(f"ablate report: nothing to report: {error}; nothing written\n")
         return 1
+    except OSError as error:  # a read-only or full reports folder: an environment problem, not a bug
+        where = error.filename or args.out
+        sys.stderr.write(f"ablate report: cannot write the report under {args.out}: {error.strerror} ({where})\n")
+        return 1
     written = "report.md, report.html" + ("" if result.pdf_note else " and report.pdf")
     print(f"wrote {result.folder}/: {written}")
     for note in (result.generation_note, result.pdf_note, result.attach_note):

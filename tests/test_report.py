@@ -4,6 +4,7 @@ threshold, one seed, escaping, generations, variant selection, and the cases tha
 
 import hashlib
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -411,3 +412,28 @@ def test_report_help_names_every_option(capsys):
     for option in ("--tracking-uri", "--out", "--generation", "--variants", "--baseline", "--no-pdf"):
         help_line = out.split(option, 2)[-1].split("\n  -")[0]
         assert len(help_line.strip()) > 15, option
+
+
+def test_a_read_only_reports_folder_is_one_line_and_exit_1(store, good_report, capsys):
+    # issue 8: a read-only reports/ gave a PermissionError traceback from the temporary build folder
+    if os.geteuid() == 0 and not shutil.which("chattr"):
+        pytest.skip("running as root without chattr: nothing is read-only to root")
+    folder, uri = store
+    reports = good_report / "reports"
+    before = _snapshot(good_report)
+
+    def read_only(on: bool) -> None:
+        if os.geteuid() == 0:  # file modes do not bind root; the immutable attribute does
+            subprocess.run(["chattr", "+i" if on else "-i", str(reports)], check=True, capture_output=True)
+        else:
+            reports.chmod(0o555 if on else 0o755)
+
+    read_only(True)
+    try:
+        code = main(["report", "single", "--tracking-uri", uri, "--out", str(reports), "--no-pdf"])
+    finally:
+        read_only(False)
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert "cannot write" in err and str(reports) in err
+    assert _snapshot(good_report) == before
