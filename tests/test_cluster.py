@@ -23,15 +23,20 @@ ROOT = local_cluster.ROOT
 # The worker node's view: empty /tmp, /dev/shm and project folder, except the code a worker needs installed
 # (the virtualenv, ablate/, tools/) and the test's control folder (the files that release blocked trials).
 # The server's store, the driver's folders, Tune's and every temp folder are out of its sight.
+# The kept folders wait on a tmpfs of their own while /tmp, /dev/shm and the project folder are covered; it must
+# not lie above the project folder (a clone may live in /tmp or under /mnt), and the project folder is made
+# again after /tmp is covered in case it lived there.
+STAGE = "/srv" if ROOT.is_relative_to("/mnt") else "/mnt"
 PRIVATE_MOUNTS = f"""set -e
-mount -t tmpfs keep /mnt
-for d in .venv ablate tools; do mkdir -p /mnt/$d; mount --bind "{ROOT}/$d" /mnt/$d; done
-mkdir /mnt/control; mount --bind "$CONTROL" /mnt/control
+mount -t tmpfs keep {STAGE}
+for d in .venv ablate tools; do mkdir -p {STAGE}/$d; mount --bind "{ROOT}/$d" {STAGE}/$d; done
+mkdir {STAGE}/control; mount --bind "$CONTROL" {STAGE}/control
 mount -t tmpfs worker-private /tmp
 mount -t tmpfs worker-private /dev/shm
+mkdir -p "{ROOT}"
 mount -t tmpfs worker-private "{ROOT}"
-for d in .venv ablate tools; do mkdir "{ROOT}/$d"; mount --move /mnt/$d "{ROOT}/$d"; done
-mkdir -p "$CONTROL"; mount --move /mnt/control "$CONTROL"
+for d in .venv ablate tools; do mkdir "{ROOT}/$d"; mount --move {STAGE}/$d "{ROOT}/$d"; done
+mkdir -p "$CONTROL"; mount --move {STAGE}/control "$CONTROL"
 test ! -e "$PROBE"
 exec "$@"
 """
