@@ -455,6 +455,10 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> s
                 notes = (["a bound"] if first.bound else []) + (["fragile"] if first.fragile_seeds else [])
                 word = {BETTER: "better", WORSE: "worse"}[first.verdict]
                 verdict = word + (f" ({'; '.join(notes)})" if notes else "")
+            elif first.verdict == NO_CLAIM and not first.bound and first.low > 0:
+                verdict = "no claim; the seeds suggest better"
+            elif first.verdict == NO_CLAIM and not first.bound and first.high < 0:
+                verdict = "no claim; the seeds suggest worse"
             else:
                 verdict = first.verdict
         entry = {"rank": rank, "variant": _esc(row.variant)}

@@ -208,6 +208,9 @@ def test_three_seeds_against_three_support_no_claim():
     text = _findings_text(ablation)
     assert "Estimate: IQM 60 vs 11 episodes" in text and "the seeds suggest more episodes for b" in text
     assert "to be confirmed with more seeds" in text
+    from ablate.report import summary
+
+    assert "no claim; the seeds suggest worse" in summary(ablation, convergence_table(ablation), comparisons(ablation))
     overlapping = _frame({"a": [10, 30, 50], "b": [20, 40, 60]}, budget=100)
     assert "the interval includes no difference" in _findings_text(overlapping)
     never = _frame({"a": [None, None, None], "b": [None, None, 50]}, budget=100)  # both IQMs use the budget
