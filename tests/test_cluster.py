@@ -114,19 +114,10 @@ def _ablate(cluster, name, episodes, extra=""):
     return subprocess.Popen(command, cwd=folder, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def _finish(process, timeout_s=240):
-    try:
-        output, _ = process.communicate(timeout=timeout_s)
-    finally:
-        if process.poll() is None:
-            process.kill()
-    return process.returncode, output
-
-
 def _wait_running(tracker, count, launch, timeout_s=300):
     deadline = time.monotonic() + timeout_s
     while sum(r.status == "RUNNING" for r in tracker.trial_runs()) < count:
-        assert launch.poll() is None and time.monotonic() < deadline, _finish(launch)[1]
+        assert launch.poll() is None and time.monotonic() < deadline, local_cluster.finish_process(launch)[1]
         time.sleep(0.5)
 
 
@@ -155,7 +146,7 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     launch = _ablate(cluster, "spread", episodes=200, extra=f'fault = "block"\nfault_marker = "{marker}"')
     _wait_running(Tracker(cluster["uri"], "spread"), 2, launch)
     marker.write_text("go\n")
-    code, output = _finish(launch)
+    code, output = local_cluster.finish_process(launch)
     assert code == 0, output
     tracker = Tracker(cluster["uri"], "spread")
     runs = tracker.trial_runs(with_artifacts=True)
@@ -180,7 +171,7 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
         assert addresses and set(addresses) <= {"127.0.0.1", "[::ffff:127.0.0.1]"}, addresses
         local_cluster.stop_process(cluster["worker_process"])  # kills the node's raylet and workers
         marker.write_text("go\n")
-        code, output = _finish(launch)
+        code, output = local_cluster.finish_process(launch)
     finally:
         marker.write_text("go\n")
         if launch.poll() is None:

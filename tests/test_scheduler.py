@@ -44,15 +44,6 @@ def _launch(folder: Path, name: str, extra: str = "", **env) -> subprocess.Popen
     )
 
 
-def _finish(process: subprocess.Popen, timeout_s: float = 240) -> tuple[int, str]:
-    try:
-        output, _ = process.communicate(timeout=timeout_s)
-    finally:
-        if process.poll() is None:
-            process.kill()
-    return process.returncode, output
-
-
 @pytest.fixture
 def other_cluster(tmp_path):
     """Another Ray cluster running on the machine (a head node with 1 CPU): what plain ``ray.init()`` finds."""
@@ -72,18 +63,18 @@ def test_a_local_run_ignores_another_cluster_listens_on_loopback_and_ray_address
         tracker = Tracker(f"sqlite:///{tmp_path / 'local' / 'mlflow.db'}", "local")
         deadline = time.monotonic() + 180
         while not any(r.status == "RUNNING" for r in tracker.trial_runs()):  # the trial runs: Ray is up
-            assert launch.poll() is None and time.monotonic() < deadline, _finish(launch)[1]
+            assert launch.poll() is None and time.monotonic() < deadline, local_cluster.finish_process(launch)[1]
             time.sleep(0.5)
         addresses = _listening([launch.pid])
         assert len(addresses) >= 3 and set(addresses) <= {"127.0.0.1", "[::ffff:127.0.0.1]"}, addresses
     finally:
         marker.write_text("go\n")
-    code, output = _finish(launch)
+    code, output = local_cluster.finish_process(launch)
     assert code == 0, output
     (run,) = tracker.trial_runs()
     assert run.status == "FINISHED" and run.tags["ablate.node"] != other_node  # a fresh local Ray of its own
 
-    code, output = _finish(_launch(tmp_path / "joined", "joined", RAY_ADDRESS=gcs))
+    code, output = local_cluster.finish_process(_launch(tmp_path / "joined", "joined", RAY_ADDRESS=gcs))
     assert code == 0, output
     (run,) = Tracker(f"sqlite:///{tmp_path / 'joined' / 'mlflow.db'}", "joined").trial_runs()
     assert run.status == "FINISHED" and run.tags["ablate.node"] == other_node  # ran on that cluster
@@ -92,7 +83,7 @@ def test_a_local_run_ignores_another_cluster_listens_on_loopback_and_ray_address
 def test_an_unreachable_cluster_is_one_line_and_exit_1_within_seconds(tmp_path):
     started = time.monotonic()
     launch = _launch(tmp_path / "x", "x", RAY_ADDRESS=f"127.0.0.1:{local_cluster.free_port()}")
-    code, output = _finish(launch, timeout_s=60)
+    code, output = local_cluster.finish_process(launch, timeout_s=60)
     assert code == 1 and time.monotonic() - started < 60
     assert output.strip().splitlines()[-1].startswith("ablate run: cannot reach the Ray cluster at 127.0.0.1:"), output
     assert "Traceback" not in output

@@ -138,6 +138,16 @@ def start_node_process(
     return process, line[1], line[2]
 
 
+def finish_process(process: subprocess.Popen, timeout_s: float = 240) -> tuple[int, str]:
+    """Wait for ``process`` (text output piped); killed if it outlives ``timeout_s``. Its exit code and output."""
+    try:
+        output, _ = process.communicate(timeout=timeout_s)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    return process.returncode, output
+
+
 def stop_process(process: subprocess.Popen, timeout_s: float = 60) -> None:
     """SIGTERM, then SIGKILL of its whole process group."""
     if process.poll() is None:
