@@ -1,11 +1,15 @@
 """One trial end to end: determinism, solving, artifacts, metrics through the callback, faults."""
 
+import os
+import subprocess
+import sys
 from dataclasses import replace
 
 import pytest
 import torch
 
 from ablate.config import DEFAULT, ModelConfig
+from ablate.envs import PongEnv
 from ablate.trial import TrialFailed, run_trial
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=64, episodes_per_update=8, record_video=False)
