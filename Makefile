@@ -28,7 +28,7 @@ test: $(STAMP) ## the whole test suite (a few minutes on 2 cores)
 test-fast: $(STAMP) ## the test suite without the slow learning tests
 	$(BIN)/python -m pytest -q -m "not slow"
 
-test-cluster: $(STAMP) ## two Ray nodes (one sees none of the driver's files), an mlflow server, a lost node (~4 min, root)
+test-cluster: $(STAMP) ## two Ray nodes (one sees none of the driver's files), an mlflow server, a lost node (~1 min, root)
 	ABLATE_CLUSTER_TESTS=1 $(BIN)/python -m pytest -q tests/test_cluster.py
 
 test-cluster-postgres: $(STAMP) ## test-cluster with the server's store in a private PostgreSQL (apt-get installs it; skipped where it can't)
