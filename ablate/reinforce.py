@@ -61,10 +61,10 @@ def choose_action(
         actions = logits.argmax(axis=1)
     else:
         rng = rng if rng is not None else np.random.default_rng()
-        shifted = np.exp(logits - logits.max(axis=1, keepdims=True))
-        cumulative = np.cumsum(shifted / shifted.sum(axis=1, keepdims=True), axis=1)
-        # Inverse-CDF sampling; the clip guards against the last cumulative value rounding below u.
-        u = rng.random((len(batch), 1))
+        # Inverse-CDF sampling on the unnormalised softmax (u scaled by the total instead of dividing every
+        # probability by it); the clip guards against the last cumulative value rounding below u.
+        cumulative = np.cumsum(np.exp(logits - logits.max(axis=1, keepdims=True)), axis=1)
+        u = rng.random((len(batch), 1)) * cumulative[:, -1:]
         actions = np.minimum((cumulative < u).sum(axis=1), logits.shape[1] - 1)
     return int(actions[0]) if single else actions.astype(np.int64)
 

@@ -155,7 +155,7 @@ class _VectorCollector:
         self.adapter = observation_adapter(config.env_id, config.model)
         self.reset_seed: int | None = config.seed
 
-    def collect(self, model: Policy, rng: np.random.Generator, count: int) -> list[Episode]:
+    def collect(self, model: Policy, rng: np.random.Generator, count: int, budget: int | None = None) -> list[Episode]:
         episodes = collect_episodes(self.env, self.adapter, model, rng, count, seed=self.reset_seed)
         self.reset_seed = None  # seed the envs once; later resets continue their random streams
         return episodes
@@ -222,6 +222,10 @@ class TrainingVideos:
         self.next_at = (completed // self.every + 1) * self.every
         self.frame(frame, done=False)
 
+    @property
+    def recording(self) -> bool:
+        return self.writer is not None
+
     def frame(self, frame: np.ndarray, done: bool) -> None:
         if self.writer is None:
             return
@@ -257,24 +261,36 @@ class _PongCollector:
         self.observations = np.zeros((n, 1, 80, 80), np.int8)
         self.buffers = [_EpisodeBuffer() for _ in range(n)]
         self.finished: deque[Episode] = deque()
+        self.playing = np.ones(n, bool)
+        """Sub-envs playing an episode the trial may still use; the others sit idle once the trial's budget of
+        episodes is finished or under way (no steps spent on episodes that would be thrown away)."""
         self.completed = 0
         self.videos = videos
         for i, env in enumerate(self.envs):
             self.observations[i, 0] = env.reset(seed=config.seed * 1000 + i)
         self.videos.episode_started(0, self.envs[0].frame)
 
-    def collect(self, model: Policy, rng: np.random.Generator, count: int) -> list[Episode]:
+    def collect(self, model: Policy, rng: np.random.Generator, count: int, budget: int | None = None) -> list[Episode]:
+        """The oldest ``count`` finished episodes. ``budget``: episodes the trial still needs, these included
+        (None: no end in sight); a sub-env that finishes when enough episodes are finished or under way for
+        the budget stops instead of starting an episode nobody would train on."""
         while len(self.finished) < count:
-            actions = choose_action(model, self.observations, rng)
-            for i, env in enumerate(self.envs):
-                observation, reward, done = env.step(int(actions[i]))
-                self.buffers[i].add(self.observations[i, 0], actions[i], reward)
-                if i == 0:
+            playing = np.flatnonzero(self.playing)
+            observations = self.observations if len(playing) == len(self.envs) else self.observations[playing]
+            actions = choose_action(model, observations, rng)
+            for i, action in zip(playing, actions, strict=True):
+                env = self.envs[i]
+                observation, reward, done = env.step(int(action))
+                self.buffers[i].add(self.observations[i, 0], action, reward)
+                if i == 0 and self.videos.recording:
                     self.videos.frame(env.frame, done)
                 if done:
                     self.finished.append(self.buffers[i].episode())
                     self.buffers[i].length = 0
                     self.completed += 1
+                    if budget is not None and len(self.finished) + int(self.playing.sum()) - 1 >= budget:
+                        self.playing[i] = False
+                        continue
                     observation = env.reset()
                     if i == 0:
                         self.videos.episode_started(self.completed, env.frame)
@@ -290,6 +306,7 @@ class _PongCollector:
                 for b in self.buffers
             ],
             "finished": list(self.finished),
+            "playing": self.playing.copy(),
             "completed": self.completed,
         }
 
@@ -302,6 +319,7 @@ class _PongCollector:
             for t in range(len(actions)):
                 buffer.add(observations[t], actions[t], rewards[t])
         self.finished = deque(Episode(*e) for e in state["finished"])
+        self.playing[:] = state.get("playing", True)
         self.completed = state["completed"]
         self.videos.close()
         self.videos.next_at = -(-self.completed // self.videos.every) * self.videos.every if self.videos.every else 0
@@ -418,7 +436,7 @@ def run_trial(
     try:
         while len(history) < config.max_episodes and episodes_to_solve is None:
             count = min(config.episodes_per_update, config.max_episodes - len(history))
-            episodes = collector.collect(model, rng, count)
+            episodes = collector.collect(model, rng, count, budget=config.max_episodes - len(history))
             # Returns are discounted within each episode, then normalised across the whole batch.
             returns = [discount_rewards(e.rewards, config.gamma, config.reset_on_score) for e in episodes]
             stats = train_step(

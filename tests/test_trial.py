@@ -1,11 +1,15 @@
 """One trial end to end: determinism, solving, artifacts, metrics through the callback, faults."""
 
+import os
+import subprocess
+import sys
 from dataclasses import replace
 
 import pytest
 import torch
 
 from ablate.config import DEFAULT, ModelConfig
+from ablate.envs import PongEnv
 from ablate.trial import TrialFailed, run_trial
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=64, episodes_per_update=8, record_video=False)
@@ -116,12 +120,35 @@ def test_cartpole_resume_continues_the_episode_count():
     assert resumed.episodes[15].env_steps < resumed.episodes[16].env_steps
 
 
+def test_pong_trial_spends_no_steps_on_episodes_past_its_budget(monkeypatch):
+    """Sub-envs that finish once the trial's remaining episodes are finished or under way stop, instead of
+    starting episodes nobody trains on: every emulator step taken belongs to an episode of the result."""
+    taken = []
+    step = PongEnv.step
+    monkeypatch.setattr(PongEnv, "step", lambda self, action: (taken.append(1), step(self, action))[1])
+    result = run_trial(replace(PONG, max_episodes=5, checkpoint_every=0))
+    assert len(result.episodes) == 5
+    assert len(taken) == result.env_steps == 5 * 40  # 3 sub-envs: without the budget, 6 episodes were played
+
+
 def test_pong_trial_artifacts_training_videos_and_observation_figure(tmp_path):
-    config = replace(PONG, max_episodes=4, video_every=2, video_max_frames=30, record_video=True, checkpoint_every=0)
+    config = replace(PONG, max_episodes=4, video_every=1, video_max_frames=30, record_video=True, checkpoint_every=0)
     result = run_trial(config, artifacts_dir=tmp_path)
     names = {p.name for p in tmp_path.iterdir()}
     assert names == {"episodes.csv", "weights.pt", "learning_curve.png", "video.mp4", "observation.png", "videos"}
     videos = sorted(p.name for p in (tmp_path / "videos").iterdir())
-    assert videos[0] == "episode_00001.mp4" and len(videos) >= 2  # the untrained policy, then every 2 episodes
+    assert videos[:2] == ["episode_00001.mp4", "episode_00002.mp4"]  # the untrained policy, then each of sub-env 0
     assert all((tmp_path / "videos" / v).stat().st_size > 1000 for v in videos)
     assert result.greedy_return is None  # Pong's video is of the sampling policy: no greedy return to report
+
+
+@pytest.mark.parametrize(("given", "expected"), [(None, "1"), ("0", "0")])
+def test_importing_ablate_puts_torch_tensors_on_huge_pages_unless_told_otherwise(given, expected):
+    """torch reads THP_MEM_ALLOC_ENABLE once, at its first allocation: ``import ablate`` must set it before
+    torch is imported (in a Ray worker, the trial's import of ablate comes first), and leave a user's value."""
+    env = {k: v for k, v in os.environ.items() if k != "THP_MEM_ALLOC_ENABLE"}
+    if given is not None:
+        env["THP_MEM_ALLOC_ENABLE"] = given
+    code = "import sys, os, ablate.trial; print(os.environ['THP_MEM_ALLOC_ENABLE'], 'torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.split() == [expected, "True"]
