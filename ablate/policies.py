@@ -65,7 +65,7 @@ class Policy(nn.Module):
 
     def _sparse_forward(self, observations: torch.Tensor) -> torch.Tensor:
         x = observations.reshape(len(observations), -1)
-        rows, columns = x.nonzero(as_tuple=True)  # row-major: rows ascending
+        rows, columns = _nonzero_rows_columns(x)  # row-major: rows ascending
         first = self.body[1]
         offsets = torch.searchsorted(rows, torch.arange(len(x), device=x.device))
         hidden = F.embedding_bag(
@@ -114,6 +114,17 @@ def _nonzero(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     in_word_rows, in_word_columns = np.nonzero(x.reshape(-1, 8)[words])
     positions = words[in_word_rows] * 8 + in_word_columns
     return np.divmod(positions, width)
+
+
+def _nonzero_rows_columns(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``x.nonzero(as_tuple=True)`` of a 2-D int8 tensor, row-major, ~4x faster when it is mostly zeros (a
+    Pong update's frames): the same 8-bytes-at-a-time scan as ``_nonzero``."""
+    n, width = x.shape
+    if width % 8 or not x.is_contiguous():
+        return x.nonzero(as_tuple=True)
+    word_rows, word_columns = x.view(torch.int64).nonzero(as_tuple=True)
+    in_word, byte = x.view(n, width // 8, 8)[word_rows, word_columns].nonzero(as_tuple=True)
+    return word_rows[in_word], word_columns[in_word] * 8 + byte
 
 
 def _sparse_matmul(x: np.ndarray, weight: np.ndarray) -> np.ndarray:

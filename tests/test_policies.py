@@ -103,3 +103,13 @@ def test_pong_mlp_sparse_forward_matches_dense_in_value_and_gradient():
     torch.testing.assert_close(grads[0][0], grads[1][0])
     for sparse, dense in zip(grads[0][1], grads[1][1], strict=True):
         torch.testing.assert_close(sparse, dense)
+
+
+def test_word_scan_nonzero_equals_torch_nonzero_in_order():
+    from ablate.policies import _nonzero_rows_columns
+
+    x = torch.zeros(4, 64, dtype=torch.int8)
+    x[0, [0, 7, 8, 63]] = torch.tensor([1, -1, 1, -1], dtype=torch.int8)  # both ends of words and of the row
+    x[2, 9:20] = 1  # several bytes of one word, spilling into the next; rows 1 and 3 stay empty
+    for got, expected in zip(_nonzero_rows_columns(x), x.nonzero(as_tuple=True), strict=True):
+        assert torch.equal(got, expected)
