@@ -8,7 +8,7 @@ TRACKING_URI ?= sqlite:///mlflow.db
 RAY_PORT ?= 6390
 CLUSTER_MLFLOW_PORT ?= 5050
 
-.PHONY: help setup test test-fast test-cluster cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
+.PHONY: help setup test test-fast test-cluster test-cluster-postgres cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
 
 help: ## this list (generated from the comments after each target's name)
 	@awk '/^[A-Za-z0-9_.-]+:([^=]|$$).*## / {printf "make %-18s %s\n", substr($$0, 1, index($$0, ":") - 1), substr($$0, index($$0, "## ") + 3)}' $(MAKEFILE_LIST)
@@ -28,8 +28,11 @@ test: $(STAMP) ## the whole test suite (a few minutes on 2 cores)
 test-fast: $(STAMP) ## the test suite without the slow learning tests
 	$(BIN)/python -m pytest -q -m "not slow"
 
-test-cluster: $(STAMP) ## two Ray nodes (one sees none of the driver's files), an mlflow server, a lost node (~4 min, root)
+test-cluster: $(STAMP) ## two Ray nodes (one sees none of the driver's files), an mlflow server, a lost node (~1 min, root)
 	ABLATE_CLUSTER_TESTS=1 $(BIN)/python -m pytest -q tests/test_cluster.py
+
+test-cluster-postgres: $(STAMP) ## test-cluster with the server's store in a private PostgreSQL (apt-get installs it; skipped where it can't)
+	tools/postgres_test.sh
 
 cluster-up: $(STAMP) ## a Ray head and an mlflow server on 127.0.0.1 (ports RAY_PORT=6390, CLUSTER_MLFLOW_PORT=5050)
 	$(BIN)/python tools/local_cluster.py up --ray-port $(RAY_PORT) --mlflow-port $(CLUSTER_MLFLOW_PORT)

@@ -3,6 +3,7 @@ files, a real ``mlflow server`` on a free loopback port, a tiny ablation tracked
 lost mid-run. Every process it starts listens on 127.0.0.1 and is stopped, pass or fail."""
 
 import os
+import secrets
 import subprocess
 import sys
 import time
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import psutil
 import pytest
+import sqlalchemy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import local_cluster  # noqa: E402
@@ -63,9 +65,11 @@ def cluster(tmp_path):
     processes = []
     try:
         port = local_cluster.free_port()
-        # ABLATE_TEST_BACKEND=postgresql://...: the server's store in PostgreSQL instead of an SQLite file
-        backend = os.environ.get("ABLATE_TEST_BACKEND")
-        server = local_cluster.mlflow_server(tmp_path / "server", port, backend=backend, log=log)
+        # ABLATE_TEST_BACKEND=postgresql+psycopg://...: the server's store in PostgreSQL instead of an SQLite file
+        # (make test-cluster-postgres starts a private one)
+        store = os.environ.get("ABLATE_TEST_BACKEND") or f"sqlite:///{tmp_path / 'server' / 'mlflow.db'}"
+        _check_store(store)
+        server = local_cluster.mlflow_server(tmp_path / "server", port, backend=store, log=log)
         processes.append(server)
         head, head_id, gcs = local_cluster.start_node_process(True, 1, port=local_cluster.free_port(), log=log)
         processes.append(head)
@@ -87,9 +91,18 @@ def cluster(tmp_path):
         ]
         worker, worker_id, _ = local_cluster.start_node_process(False, 1, address=gcs, wrap=wrap, log=log)
         processes.append(worker)
-        local_cluster.wait_http(f"http://127.0.0.1:{port}/health", 120, server)
+        problem = None
+        try:
+            local_cluster.wait_http(f"http://127.0.0.1:{port}/health", 120, server)
+        except (RuntimeError, TimeoutError) as error:
+            problem = error
+        if problem:
+            log.flush()
+            tail = "\n".join((tmp_path / "cluster.log").read_text(errors="replace").splitlines()[-8:])
+            pytest.fail(f"mlflow server with store {_safe(store)}: {problem}; its log ends:\n{tail}", pytrace=False)
         yield {
             "uri": f"http://127.0.0.1:{port}",
+            "store": store,
             "gcs": gcs,
             "head": head_id,
             "worker": worker_id,
@@ -102,6 +115,45 @@ def cluster(tmp_path):
         for process in reversed(processes):
             local_cluster.stop_process(process)
         log.close()
+
+
+def _safe(store):
+    return sqlalchemy.engine.make_url(store).render_as_string(hide_password=True)
+
+
+def _check_store(store):
+    """One clear failure in seconds when the store cannot be reached (MLflow's server retries for ~100 s)."""
+    if store.startswith("sqlite"):
+        return
+    problem = None
+    try:
+        engine = sqlalchemy.create_engine(store, connect_args={"connect_timeout": 10})
+    except ImportError as error:
+        pytest.fail(f"{_safe(store)}: no driver ({error}); pip install -e '.[postgres]'", pytrace=False)
+    try:
+        with engine.connect():
+            pass
+    except sqlalchemy.exc.SQLAlchemyError as error:
+        problem = str(getattr(error, "orig", error)).strip().splitlines()[0]
+    finally:
+        engine.dispose()
+    if problem:  # outside the except: one line, not the chain of exceptions behind it
+        pytest.fail(f"ABLATE_TEST_BACKEND={_safe(store)} cannot be reached: {problem}", pytrace=False)
+
+
+def _store_run_ids(store, experiment):
+    """Ids of the active runs of ``experiment`` read from the server's database itself, not through MLflow: the
+    runs are in the store the server was given (PostgreSQL under make test-cluster-postgres), nowhere else."""
+    engine = sqlalchemy.create_engine(store)
+    query = sqlalchemy.text(
+        "SELECT r.run_uuid FROM runs r JOIN experiments e ON r.experiment_id = e.experiment_id"
+        " WHERE e.name = :name AND r.lifecycle_stage = 'active'"
+    )
+    try:
+        with engine.connect() as connection:
+            return {row[0] for row in connection.execute(query, {"name": experiment})}
+    finally:
+        engine.dispose()
 
 
 def _ablate(cluster, name, episodes, extra=""):
@@ -142,15 +194,19 @@ def _listening(pids):
 def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     # 1. Trials on both nodes (each blocks until both run: one per node, 1 CPU each), every run, metric and
     #    artifact on the server.
+    # Experiment names new to the store: a PostgreSQL store outlives the test and may hold an earlier run's.
+    spread, lost_name = (f"{name}-{secrets.token_hex(4)}" for name in ("spread", "lost"))
     marker = cluster["control"] / "release"
-    launch = _ablate(cluster, "spread", episodes=200, extra=f'fault = "block"\nfault_marker = "{marker}"')
-    _wait_running(Tracker(cluster["uri"], "spread"), 2, launch)
+    launch = _ablate(cluster, spread, episodes=200, extra=f'fault = "block"\nfault_marker = "{marker}"')
+    _wait_running(Tracker(cluster["uri"], spread), 2, launch)
     marker.write_text("go\n")
     code, output = local_cluster.finish_process(launch)
     assert code == 0, output
-    tracker = Tracker(cluster["uri"], "spread")
+    tracker = Tracker(cluster["uri"], spread)
     runs = tracker.trial_runs(with_artifacts=True)
     assert len(runs) == 2 and {r.status for r in runs} == {"FINISHED"}
+    tracked = {r.run_id for r in runs} | {launch.info.run_id for launch in tracker.launches()}
+    assert len(tracked) == 3 and _store_run_ids(cluster["store"], spread) == tracked  # in the server's database
     assert {r.tags["ablate.node"] for r in runs} == {cluster["head"], cluster["worker"]}  # one per node
     for run in runs:
         assert set(run.artifacts) == {"episodes.csv", "weights.pt", "video.mp4", "learning_curve.png"}
@@ -162,9 +218,9 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     # 2. A node lost mid-run: both trials block until a file exists (which the worker node cannot see),
     #    the worker node dies, its trial is retried on the head, the ablation completes.
     marker = cluster["tmp"] / "release"
-    launch = _ablate(cluster, "lost", episodes=20, extra=f'fault = "block"\nfault_marker = "{marker}"')
+    launch = _ablate(cluster, lost_name, episodes=20, extra=f'fault = "block"\nfault_marker = "{marker}"')
     try:
-        lost = Tracker(cluster["uri"], "lost")
+        lost = Tracker(cluster["uri"], lost_name)
         _wait_running(lost, 2, launch)
         pids = [p.pid for p in cluster["processes"]] + [launch.pid]
         addresses = _listening(pids)
