@@ -127,3 +127,38 @@ def test_choose_action_is_reproducible_with_a_seeded_generator():
     a = choose_action(model, obs, np.random.default_rng(7))
     b = choose_action(model, obs, np.random.default_rng(7))
     np.testing.assert_array_equal(a, b)
+
+
+def test_chunks_cover_the_batch_in_a_bounded_set_of_shapes():
+    from ablate.reinforce import _chunks
+
+    shapes = set()
+    for total in range(1, 5000):
+        chunks = _chunks(total, 1024)
+        assert chunks[0][0] == 0 and chunks[-1][1] == total
+        assert all(a[1] == b[0] for a, b in zip(chunks, chunks[1:], strict=False))  # contiguous, in order
+        shapes |= {end - start for start, end in chunks}
+    # 1024, 512, 256, 128, 64 and the rests under 64: a trial's updates meet these shapes and no others.
+    assert shapes == {1024, 512, 256, 128, 64} | set(range(1, 64))
+    assert _chunks(1383, 1024) == [(0, 1024), (1024, 1280), (1280, 1344), (1344, 1383)]
+    assert _chunks(10, None) == [(0, 10)]
+
+
+def test_train_step_in_chunks_sums_the_same_gradient_as_one_pass():
+    from ablate.policies import create_pong_model
+
+    rng = np.random.default_rng(0)
+    observations = rng.choice(np.array([-1, 0, 0, 0, 1], np.int8), (150, 1, 80, 80))
+    actions = rng.integers(0, 2, 150)
+    returns = rng.standard_normal(150).astype(np.float32)
+    results = []
+    for chunk_size in (None, 64):  # 64 + 64 + 22
+        torch.manual_seed(0)
+        model = create_pong_model(2, (16,), architecture="cnn")
+        optimizer = torch.optim.SGD(model.parameters(), lr=0.0)  # the step leaves the gradients to compare
+        stats = train_step(model, optimizer, observations, actions, returns, chunk_size=chunk_size)
+        results.append((stats, [p.grad.clone() for p in model.parameters()]))
+    assert results[0][0].loss == pytest.approx(results[1][0].loss, rel=1e-5)
+    assert results[0][0].entropy == pytest.approx(results[1][0].entropy, rel=1e-5)
+    for one, chunked in zip(results[0][1], results[1][1], strict=True):
+        torch.testing.assert_close(one, chunked, rtol=1e-4, atol=1e-7)
