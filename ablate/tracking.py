@@ -256,6 +256,9 @@ class Tracker:
         self._points: dict[str, tuple[list[Any], float, int]] = {}
         """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
         self._started_ms: dict[str, int] = {}
+        self._artifact_uris: dict[str, str] = {}
+        """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
+        the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
         """Per open trial, its run's start (ms): metric points are stamped start + the point's ``wall_s``, so
         MLflow's time axes show when each happened, not when the driver wrote a batch."""
 
@@ -376,6 +379,7 @@ class Tracker:
         )
         run_id = run.info.run_id
         self._started_ms[key] = run.info.start_time
+        self._artifact_uris[run_id] = run.info.artifact_uri
         self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
         self._points[key] = ([], time.monotonic(), run.info.start_time)
@@ -438,8 +442,17 @@ class Tracker:
             tags=[RunTag(k, v) for k, v in (tags or {}).items()],
         )
         if artifacts is not None:
-            self.client.log_artifacts(run_id, str(artifacts))
+            self._log_artifacts(run_id, artifacts)
         self.client.set_terminated(run_id, "FINISHED")
+
+    def _log_artifacts(self, run_id: str, folder: Path) -> None:
+        from mlflow.store.artifact.artifact_repository_registry import get_artifact_repository
+
+        uri = self._artifact_uris.pop(run_id, None)
+        if uri is None:
+            self.client.log_artifacts(run_id, str(folder))
+        else:
+            get_artifact_repository(uri, tracking_uri=self.uri).log_artifacts(str(folder))
 
     def _close(self, key: str) -> str:
         """Write the trial's pending points and forget it as open; its run id."""
@@ -448,8 +461,12 @@ class Tracker:
         self._points.pop(key, None)
         return run_id
 
+    def _forget_artifact_uri(self, run_id: str | None) -> None:
+        self._artifact_uris.pop(run_id, None)
+
     def fail_trial(self, key: str, message: str) -> None:
         run_id = self._close(key)
+        self._forget_artifact_uri(run_id)
         self.client.set_tag(run_id, TAG_ERROR, message[:5000])
         self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
         self.client.set_terminated(run_id, "FAILED")
@@ -459,6 +476,7 @@ class Tracker:
         no metric is counted twice; the restart opens a new run (``ablate.attempt`` counts them)."""
         run_id = self.open_runs.pop(key, None)
         self._points.pop(key, None)
+        self._forget_artifact_uri(run_id)
         if run_id is not None:
             self.client.set_tag(run_id, TAG_ERROR, f"process died, retried: {reason}"[:5000])
             self.client.set_terminated(run_id, "KILLED")
@@ -473,6 +491,7 @@ class Tracker:
                 self._flush_points(key, run_id)
         self.open_runs.clear()
         self._started_ms.clear()
+        self._artifact_uris.clear()
         self._points.clear()
         runs = self.running_runs(f" and tags.`{TAG_PARENT}` = '{launch_id}'")
         self.kill_runs([r.info.run_id for r in runs], reason)
