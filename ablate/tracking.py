@@ -202,8 +202,8 @@ def _first_line(error: BaseException) -> str:
 
 def store_exists(tracking_uri: str | None) -> bool:
     """Whether there is a store to read: a local SQLite file must exist (opening one would create it)."""
-    uri = resolve_uri(tracking_uri)
-    return not uri.startswith("sqlite:///") or Path(uri.removeprefix("sqlite:///")).is_file()
+    db = sqlite_path(resolve_uri(tracking_uri))
+    return db is None or db.is_file()
 
 
 def ablation_names(tracking_uri: str | None) -> list[str]:
@@ -255,12 +255,9 @@ class Tracker:
         self.attempts: dict[str, int] = {}
         self._points: dict[str, tuple[list[Any], float, int]] = {}
         """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
-        self._started_ms: dict[str, int] = {}
         self._artifact_uris: dict[str, str] = {}
         """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
         the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
-        """Per open trial, its run's start (ms): metric points are stamped start + the point's ``wall_s``, so
-        MLflow's time axes show when each happened, not when the driver wrote a batch."""
 
     # --- experiment -------------------------------------------------------------------------------
     def _store_problem(self, error: BaseException) -> str:
@@ -378,7 +375,6 @@ class Tracker:
             },
         )
         run_id = run.info.run_id
-        self._started_ms[key] = run.info.start_time
         self._artifact_uris[run_id] = run.info.artifact_uri
         self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
@@ -395,21 +391,22 @@ class Tracker:
             self._flush_points(key, self.open_runs[key])
 
     def _flush_points(self, key: str, run_id: str) -> None:
-        from mlflow.entities import Metric
-
+        """Write the pending points, each stamped run start + its ``wall_s``, so MLflow's time axes show when
+        it happened, not when the driver wrote the batch."""
         pending, _, start_ms = self._points.get(key, ([], 0.0, 0))
         self._points[key] = ([], time.monotonic(), start_ms)
-        metrics = [
-            Metric(metric, float(getattr(p, attr)), start_ms + int(1000 * p.wall_s), int(p.episode))
-            for p in pending
-            for metric, attr in POINT_METRICS.items()
-        ]
-        for start in range(0, len(metrics), _BATCH):
-            self.client.log_batch(run_id, metrics=metrics[start : start + _BATCH])
+        self._log_metrics(
+            run_id,
+            (
+                (metric, getattr(p, attr), p.episode, start_ms + int(1000 * p.wall_s))
+                for p in pending
+                for metric, attr in POINT_METRICS.items()
+            ),
+        )
 
     def log_checkpoint(self, key: str, blob: bytes) -> None:
         """Keep ``blob`` as the open trial's ``checkpoint.pt`` (replacing the previous one): whatever ends the
-        launch (Ctrl-C, a killed driver), the next launch finds the latest one (``latest_checkpoint``)."""
+        launch (Ctrl-C, a killed driver), the next launch finds the latest one (``latest_checkpoints``)."""
         import tempfile
 
         with tempfile.TemporaryDirectory(prefix="ablate-checkpoint-") as folder:
@@ -490,20 +487,11 @@ class Tracker:
             with contextlib.suppress(Exception):  # marking the runs KILLED matters more than their last points
                 self._flush_points(key, run_id)
         self.open_runs.clear()
-        self._started_ms.clear()
         self._artifact_uris.clear()
         self._points.clear()
         runs = self.running_runs(f" and tags.`{TAG_PARENT}` = '{launch_id}'")
         self.kill_runs([r.info.run_id for r in runs], reason)
         return [r.data.tags.get(TAG_KEY, r.info.run_id) for r in runs]
-
-    def kill_open_trials(self) -> list[str]:
-        killed = list(self.open_runs)
-        for key in killed:
-            run_id = self._close(key)
-            self.client.set_tag(run_id, TAG_ERROR, "interrupted (Ctrl-C); a re-run starts it again")
-            self.client.set_terminated(run_id, "KILLED")
-        return killed
 
     def running_runs(self, query: str = "") -> list[Any]:
         """Runs of this experiment MLflow has as RUNNING (``query``: more of a filter, `` and ...``)."""

@@ -36,7 +36,8 @@ def test_a_killed_run_keeps_its_latest_checkpoint_for_the_next_launch(tracking_u
     tracker.log_checkpoint("t-s0-abc", b"first")
     tracker.log_checkpoint("t-s0-abc", b"second")  # replaces the first
     assert tracker.latest_checkpoints("g", ["t-s0-abc"]) == {}  # still running: not a checkpoint to resume
-    tracker.kill_open_trials()
+    launch = tracker.client.get_run(run_id).data.tags["mlflow.parentRunId"]
+    tracker.kill_running_trials(launch, "interrupted")
     assert Tracker(tracking_uri, "layout").latest_checkpoints("g", ["t-s0-abc", "x"]) == {"t-s0-abc": b"second"}
     assert tracker.latest_checkpoints("other-generation", ["t-s0-abc"]) == {}
 
