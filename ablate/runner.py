@@ -393,7 +393,7 @@ def _run_locked(
         address,
         max_concurrent,
         experiment.resources_per_trial,
-        getattr(experiment, "gpus_per_trial", 0.0),
+        experiment.gpus_per_trial,
         storage_path,
     )
     try:
@@ -466,7 +466,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
             command=command,
             only=chosen,
             started_at=started_at,
-            storage_path=getattr(args, "storage_path", "ray_results"),
+            storage_path=args.storage_path,
         )
     except ClusterUnavailable as error:
         sys.stderr.write(f"ablate run: {error}\n")

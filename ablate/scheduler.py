@@ -192,8 +192,8 @@ def run_trials(
     finally:
         if storage is not None:
             shutil.rmtree(storage / run_name, ignore_errors=True)  # everything is in the tracker by now
-        if started_here and ray.is_initialized():
-            ray.shutdown()
+        if started_here:
+            stop_ray()
 
 
 def ensure_ray(address: str | None) -> bool:
