@@ -109,11 +109,11 @@ class _PaletteForeground:
 
     def __call__(self, ale, screen: np.ndarray) -> np.ndarray:
         ale.getScreen(screen)
-        image = np.take(self.table, screen[35:195:2, ::2])
+        indices = screen[35:195:2, ::2]
+        image = np.take(self.table, indices)
         if (image == self._UNKNOWN).any():  # a colour not seen yet: learn it from the RGB screen
-            rgb = ale.getScreenRGB()
-            self.table[screen.ravel()] = _FOREGROUND[rgb[:, :, 0].ravel()]
-            image = np.take(self.table, screen[35:195:2, ::2])
+            image = pre_process_int8(ale.getScreenRGB())
+            self.table[indices] = image
         return image
 
 
