@@ -119,12 +119,16 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     fig, axes = plt.subplots(
         rows, columns, figsize=(4.2 * columns, 3.0 * rows), sharex=True, sharey=True, squeeze=False
     )
-    base_curves = ablation.curves[ablation.curves.variant == ablation.baseline]
-    base = curve_band(base_curves, "episode", grid) if len(base_curves) else None
+    bands = {}
     for ax, variant in zip(axes.flat, others, strict=False):
-        if base is not None:
-            ax.plot(grid, base[0], color=BASELINE_COLOUR, linewidth=1.6, label=ablation.baseline)
-            ax.fill_between(grid, base[1], base[2], color=BASELINE_COLOUR, alpha=0.18, linewidth=0)
+        reference = ablation.reference(variant)
+        if reference not in bands:
+            ref_curves = ablation.curves[ablation.curves.variant == reference]
+            bands[reference] = curve_band(ref_curves, "episode", grid) if len(ref_curves) else None
+        if bands[reference] is not None:
+            centre, low, high = bands[reference]
+            ax.plot(grid, centre, color=BASELINE_COLOUR, linewidth=1.6, label=reference)
+            ax.fill_between(grid, low, high, color=BASELINE_COLOUR, alpha=0.18, linewidth=0)
         curves = ablation.curves[ablation.curves.variant == variant]
         if len(curves):
             centre, low, high = curve_band(curves, "episode", grid)
@@ -133,7 +137,7 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
             ax.fill_between(grid, low, high, color=colour, alpha=0.25, linewidth=0)
         if ablation.threshold is not None:
             ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
-        ax.set_title(f"{variant} vs {ablation.baseline}", fontsize=10)
+        ax.set_title(f"{variant} vs {reference}", fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="lower right")
     for ax in axes.flat[len(others) :]:
@@ -142,11 +146,16 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
         ax.set_xlabel("episode")
     for ax in axes[:, 0]:
         ax.set_ylabel("rolling mean return")
+    extends = [v for v in others if ablation.reference(v) != ablation.baseline]
+    against = f"{_reference(ablation)} (grey)"
+    if extends:
+        against = f"its reference (grey): {_reference(ablation)}, or the variant whose change it extends"
     caption = (
-        f"Each variant (colour) against {_reference(ablation)} (grey), one panel per variant, shared "
-        f"axes. {_band_text(ablation)} A seed that stopped because it solved keeps its last value."
+        f"Each variant (colour) against {against}, one panel per variant, shared axes. {_band_text(ablation)} A "
+        "seed that stopped because it solved keeps its last value."
     )
-    return Figure(_save(fig, folder, "learning_curves_by_variant"), caption, "Each variant against the baseline")
+    title = "Each variant against its reference" if extends else "Each variant against the baseline"
+    return Figure(_save(fig, folder, "learning_curves_by_variant"), caption, title)
 
 
 def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
@@ -241,11 +250,14 @@ def figure_improvement(ablation: Ablation, compare: pd.DataFrame, folder: Path) 
     ax.set_yticks(y, table.variant)
     ax.invert_yaxis()
     ax.set_xlim(-0.02, 1.02)
-    ax.set_xlabel(f"P(a seed of the variant solves in fewer episodes than a seed of {ablation.baseline})")
+    varied = set(table.reference) != {ablation.baseline}
+    against = "its reference" if varied else ablation.baseline
+    ax.set_xlabel(f"P(a seed of the variant solves in fewer episodes than a seed of {against})")
     ax.grid(axis="x", alpha=0.3)
+    other = "its reference (Findings)" if varied else "the baseline"
     caption = (
-        f"Probability of improvement over {esc(ablation.baseline)}: the chance that a random seed of the variant "
-        "needs fewer episodes to solve than a random seed of the baseline (ties, such as two unsolved seeds, count one "
+        f"Probability of improvement over {esc(against)}: the chance that a random seed of the variant "
+        f"needs fewer episodes to solve than a random seed of {other} (ties, such as two unsolved seeds, count one "
         "half). Dots: the estimate over all seed pairs; bars: 95% percentile bootstrap interval, or, where every "
         "pair is ordered the same way, the exact bound for that many seeds (see the glossary). Dashed: 0.5, no "
         "difference."

@@ -37,6 +37,7 @@ from ablate.figures import (
 from ablate.figures import esc as _esc
 from ablate.figures import fmt as _fmt
 from ablate.results import (
+    ARCHITECTURE_KNOBS,
     BETTER,
     CONFIDENCE,
     INITIAL_EPISODES,
@@ -52,9 +53,6 @@ from ablate.results import (
     smallest_p_value,
 )
 from ablate.tracking import Tracker
-
-# Knobs that together make one architecture: a variant changing several of them changes one thing.
-ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
 
 
 def _pct(x: float) -> str:
@@ -137,6 +135,30 @@ def _setting_groups(overrides: dict) -> list[str]:
     return groups
 
 
+def _extends(ablation: Ablation) -> list[str]:
+    """The variants compared with another variant than the baseline, because they extend its changes."""
+    return [v for v in ablation.variants if v != ablation.baseline and ablation.reference(v) != ablation.baseline]
+
+
+def _role(ablation: Ablation, variant: str) -> str:
+    if variant == ablation.baseline:
+        return "baseline (reference)"
+    users = [v for v in ablation.variants if v != variant and ablation.reference(v) == variant]
+    role = [f"compared with {_esc(ablation.reference(variant))}"] if variant in _extends(ablation) else []
+    return "; ".join(role + ([f"reference of {', '.join(map(_esc, users))}"] if users else []))
+
+
+def _findings_intro(ablation: Ablation) -> str:
+    extends = _extends(ablation)
+    if not extends:
+        return f"Each variant against {_esc(ablation.baseline)}"
+    pairs = ", ".join(f"{_esc(v)} against {_esc(ablation.reference(v))}" for v in extends)
+    return (
+        f"Each variant against its reference: {_esc(ablation.baseline)}, or, for a variant that adds one change to "
+        f"another variant's, that variant, so each comparison isolates one change ({pairs})"
+    )
+
+
 def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     base = ablation.grid["base"]
     threshold = ablation.threshold
@@ -181,7 +203,7 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
         rows.append(
             {
                 "variant": _esc(variant["name"]),
-                "role": "baseline (reference)" if variant["name"] == ablation.baseline else "",
+                "role": _role(ablation, variant["name"]),
                 "changes": _esc(overrides),
                 "policy": _esc(architecture(params, ablation.env_id)) if params else "–",
                 "parameters": _fmt(count.iloc[0]) if len(count) and not pd.isna(count.iloc[0]) else "–",
@@ -315,13 +337,13 @@ def _suggestion(row: pd.Series) -> str:
         return ""
     if row.metric.startswith("episodes_to_"):
         estimate = (
-            f"IQM {_fmt(row.variant_value)} vs {_fmt(row.baseline_value)} episodes, change {_signed_pct(-row.point)} "
+            f"IQM {_fmt(row.variant_value)} vs {_fmt(row.reference_value)} episodes, change {_signed_pct(-row.point)} "
             f"(95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})"
         )
         better, worse = "fewer episodes", "more episodes"
     else:
         estimate = (
-            f"IQM {_fmt(row.variant_value, 1)} vs {_fmt(row.baseline_value, 1)}, {_signed(row.point)} "
+            f"IQM {_fmt(row.variant_value, 1)} vs {_fmt(row.reference_value, 1)}, {_signed(row.point)} "
             f"(95% bootstrap CI {_signed(row.low)} to {_signed(row.high)})"
         )
         better, worse = "higher", "lower"
@@ -349,12 +371,12 @@ def _stability(row: pd.Series) -> str:
 def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     """One metric's comparison in words: what may be claimed, sized as an estimate or as a bound, with its
     interval and whether it survives leaving out any one seed."""
-    base, metric, name = _esc(ablation.baseline), row.metric, _metric_name(row.metric)
-    n, m = int(row.n_variant), int(row.n_baseline)
+    base, metric, name = _esc(row.reference), row.metric, _metric_name(row.metric)
+    n, m = int(row.n_variant), int(row.n_reference)
     if row.verdict == NO_CLAIM:
         return f"{name}: no claim; {_no_claim_reason(n, m)}.{_suggestion(row)}"
     if metric.startswith("episodes_to_"):
-        x, y = _fmt(row.variant_value), _fmt(row.baseline_value)
+        x, y = _fmt(row.variant_value), _fmt(row.reference_value)
         unsolved = (
             (lambda v: int(table.loc[table.variant == v, "unsolved_censored"].iloc[0]))
             if metric == "episodes_to_solve"
@@ -363,7 +385,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
         counts = ""
         if unsolved is not None:
             counts = (
-                f"{unsolved(row.variant)} of {n} {_esc(row.variant)} seeds and {unsolved(ablation.baseline)} of {m} "
+                f"{unsolved(row.variant)} of {n} {_esc(row.variant)} seeds and {unsolved(row.reference)} of {m} "
                 f"{base} seeds never solved"
             )
         if row.bound == "censored":
@@ -399,7 +421,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
             f"{name}: not separated ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
             f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''})."
         )
-    x, y = _fmt(row.variant_value, 1), _fmt(row.baseline_value, 1)
+    x, y = _fmt(row.variant_value, 1), _fmt(row.reference_value, 1)
     interval = f"95% CI {_signed(row.low)} to {_signed(row.high)}"
     if row.verdict == BETTER:
         return f"{name}: **higher**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
@@ -415,7 +437,7 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
         rows = compare[compare.variant == variant] if len(compare) else compare
         if rows.empty:
             continue
-        lines.append(f"- **{_esc(variant)}** vs {_esc(ablation.baseline)}:")
+        lines.append(f"- **{_esc(variant)}** vs {_esc(ablation.reference(variant))}:")
         for _, row in rows.iterrows():
             text = finding(row, ablation, table)
             if row.metric == "episodes_to_solve" and not pd.isna(row.p_improvement):
@@ -441,10 +463,11 @@ def _rank_key(ablation: Ablation, row: pd.Series) -> tuple:
 
 def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> str:
     """Variants ranked on the primary metric (episodes to solve where seeds solved, else AUC), with intervals
-    and the verdict against the baseline."""
+    and the verdict against each variant's reference (the baseline unless the variant extends another)."""
     ran = table[table.seeds_run > 0]
     ranked = sorted(ran.iterrows(), key=lambda item: _rank_key(ablation, item[1]))
     primary = "episodes_to_solve" if ablation.any_solved else "auc"
+    extends = _extends(ablation)
     rows = []
     for rank, (_, row) in enumerate(ranked, 1):
         verdict = "reference" if row.variant == ablation.baseline else "–"
@@ -461,13 +484,16 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> s
                 verdict = "no claim; the seeds suggest worse"
             else:
                 verdict = first.verdict
+            if extends:
+                verdict = f"vs {_esc(ablation.reference(row.variant))}: {verdict}"
         entry = {"rank": rank, "variant": _esc(row.variant)}
         if ablation.threshold is not None:
             entry["solved"] = f"{int(row.solved)}/{int(row.seeds_run)}"
         if ablation.any_solved:
             entry["episodes to solve, IQM [95% CI]"] = _episodes_cell(row, "iqm")
         entry["AUC, IQM [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
-        entry[f"vs {_esc(ablation.baseline)} on {_metric_name(primary)}"] = verdict
+        against = "its reference" if extends else _esc(ablation.baseline)
+        entry[f"vs {against} on {_metric_name(primary)}"] = verdict
         rows.append(entry)
     how = (
         "fewest episodes to solve (IQM, censored), ties by AUC"
@@ -477,7 +503,9 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> s
     return "\n".join(
         [
             f"Variants ranked by {how}. A rank orders point estimates only: where intervals overlap, the seeds do not "
-            "separate the variants, and the last column says what the data support against the baseline (Findings "
+            "separate the variants, and the last column says what the data support against the "
+            + ("variant's reference" if extends else "baseline")
+            + " (Findings "
             "gives each comparison with its interval).",
             "",
             _markdown_table(pd.DataFrame(rows)),
@@ -515,12 +543,14 @@ def limitations(ablation: Ablation, table: pd.DataFrame) -> list[str]:
             "optimisation (one learning rate moves small and large networks differently); Figure "
             "{parameters} plots performance against size."
         )
-    for variant in variants:
-        groups = _setting_groups(variant["overrides"])
-        if len(groups) > 1:
+    for variant in ablation.variants:
+        reference = ablation.reference(variant)
+        groups = _setting_groups(ablation.changes(variant, reference))
+        if variant != ablation.baseline and len(groups) > 1:
             out.append(
-                f"**{_esc(variant['name'])} changes {len(groups)} settings at once** ({', '.join(groups)}): its "
-                "difference from the baseline cannot be attributed to any one of them."
+                f"**{_esc(variant)} changes {len(groups)} settings at once** against {_esc(reference)} "
+                f"({', '.join(groups)}): its difference from {_esc(reference)} cannot be attributed to any one of "
+                "them."
             )
     finished = ablation.finished
     if ablation.threshold is not None and len(finished) and (finished.solved != 1).any():
@@ -757,7 +787,8 @@ def build_markdown(
         "",
         "## Findings",
         "",
-        f"Each variant against {_esc(ablation.baseline)}, on "
+        _findings_intro(ablation)
+        + ", on "
         + ", ".join(_metric_name(m) for m in dict.fromkeys(compare.metric) if isinstance(m, str))
         + ". Episodes: the relative change of the IQM; returns: the difference of the IQMs; each with its 95% "
         "interval, sized as a bound where censoring makes it one, and checked by leaving out each seed in turn.",

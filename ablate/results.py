@@ -29,6 +29,10 @@ RETURN_LEVELS = {"ALE/Pong-v5": (-15.0, -10.0)}
 """Return levels whose first crossing (rolling mean) is timed, for envs where few seeds reach a threshold."""
 
 
+# Knobs that together make one architecture: a variant changing several of them changes one thing.
+ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
+
+
 class NoResults(LookupError):
     """Nothing to report: the message says what is missing and what to run."""
 
@@ -57,6 +61,32 @@ class Ablation:
     @property
     def baseline(self) -> str:
         return self.grid["baseline"]
+
+    def changes(self, variant: str, against: str | None = None) -> dict[str, Any]:
+        """The knobs ``variant`` sets differently from ``against`` (default: the baseline), with its values."""
+        overrides = {v["name"]: v.get("overrides", {}) for v in self.grid["variants"]}
+        base, mine, theirs = self.grid.get("base", {}), overrides[variant], overrides[against or self.baseline]
+        return {
+            knob: mine.get(knob, base.get(knob))
+            for knob in sorted(set(mine) | set(theirs))
+            if mine.get(knob, base.get(knob)) != theirs.get(knob, base.get(knob))
+        }
+
+    def reference(self, variant: str) -> str:
+        """The variant ``variant`` is compared with: of the others, the one whose changes from the baseline
+        are the largest part of its own (``mlp-dropout`` against ``mlp`` when ``mlp`` changes only the
+        architecture), so that each comparison isolates what the variant adds; else the baseline. Between
+        two as large, the one with the variant's own architecture (``mlp-l2``: ``mlp``, not ``cnn-l2``)."""
+        mine = list(self.changes(variant).items())
+        best, rank = self.baseline, (0, False)
+        for other in self.variants:
+            theirs = list(self.changes(other).items())
+            if other == variant or not len(theirs) < len(mine) or any(item not in mine for item in theirs):
+                continue
+            same_architecture = not ARCHITECTURE_KNOBS & set(self.changes(variant, other))
+            if (len(theirs), same_architecture) > rank:
+                best, rank = other, (len(theirs), same_architecture)
+        return best
 
     @property
     def finished(self) -> pd.DataFrame:
@@ -521,15 +551,15 @@ BETTER, WORSE, UNSEPARATED, NO_CLAIM = "better", "worse", "not separated", "no c
 
 @dataclass(frozen=True)
 class Comparison:
-    """One variant against the baseline on one metric: the estimate, its 95% interval, what may be claimed
-    and whether the claim survives leaving out any one seed."""
+    """One variant against its reference (the baseline, or the variant it extends) on one metric: the
+    estimate, its 95% interval, what may be claimed and whether the claim survives leaving out any one seed."""
 
     variant: str
     metric: str
     """``episodes_to_solve``, ``auc``, ``return_at_<E>``, ``episodes_to_<L>``."""
     point: float
-    """Episodes metrics: 1 - IQM(variant) / IQM(baseline) (positive: fewer episodes). Return metrics:
-    IQM(variant) - IQM(baseline) (positive: higher return)."""
+    """Episodes metrics: 1 - IQM(variant) / IQM(reference) (positive: fewer episodes). Return metrics:
+    IQM(variant) - IQM(reference) (positive: higher return)."""
     low: float
     high: float
     verdict: str
@@ -538,11 +568,11 @@ class Comparison:
     """``""`` (an estimate), ``"at least"`` (censoring makes the point a bound on the size of the
     difference) or ``"censored"`` (both sides censored: episodes cannot separate them)."""
     variant_value: float
-    baseline_value: float
+    reference_value: float
     fragile_seeds: tuple[int, ...] = ()
     """Seeds whose removal changes the verdict (empty: the verdict holds leaving out any one seed)."""
     n_variant: int = 0
-    n_baseline: int = 0
+    n_reference: int = 0
 
 
 def _verdict(low: float, high: float) -> str:
@@ -589,11 +619,11 @@ def _return_comparison(x: np.ndarray, y: np.ndarray):
 
 
 def compare_metric(ablation: Ablation, variant: str, metric: str, stability: bool = True) -> Comparison:
-    """``variant`` against the baseline on ``metric``, with a leave-one-seed-out check of the verdict."""
-    done = ablation.finished
+    """``variant`` against its reference on ``metric``, with a leave-one-seed-out check of the verdict."""
+    done, reference = ablation.finished, ablation.reference(variant)
 
     def samples(frame: pd.DataFrame):
-        v, b = frame[frame.variant == variant], frame[frame.variant == ablation.baseline]
+        v, b = frame[frame.variant == variant], frame[frame.variant == reference]
         if metric == "episodes_to_solve":
             return (
                 v.censored_episodes.to_numpy(float),
@@ -654,14 +684,14 @@ def comparison_metrics(ablation: Ablation) -> list[str]:
 
 
 def comparisons(ablation: Ablation, stability: bool = True) -> pd.DataFrame:
-    """Each variant against the baseline on each metric of ``comparison_metrics``, plus the probability of
-    improvement on episodes to solve (censored): one row per (variant, metric)."""
+    """Each variant against its reference (``Ablation.reference``) on each metric of ``comparison_metrics``,
+    plus the probability of improvement on episodes to solve (censored): one row per (variant, metric)."""
     done = ablation.finished
-    reference = done[done.variant == ablation.baseline].censored_episodes.to_numpy(float)
     rows = []
     for variant in ablation.variants:
         if variant == ablation.baseline:
             continue
+        reference = done[done.variant == ablation.reference(variant)].censored_episodes.to_numpy(float)
         sample = done[done.variant == variant].censored_episodes.to_numpy(float)
         if len(sample) == 0 or len(reference) == 0:
             continue
@@ -669,7 +699,7 @@ def comparisons(ablation: Ablation, stability: bool = True) -> pd.DataFrame:
             c = compare_metric(ablation, variant, metric, stability)
             row = {k: getattr(c, k) for k in Comparison.__dataclass_fields__}
             row["fragile_seeds"] = " ".join(map(str, c.fragile_seeds))
-            row["baseline"] = ablation.baseline
+            row["reference"] = ablation.reference(variant)
             if metric == "episodes_to_solve":
                 row["p_improvement"] = probability_of_improvement(sample, reference)
                 row["p_improvement_ci_low"], row["p_improvement_ci_high"] = probability_of_improvement_interval(
@@ -678,7 +708,7 @@ def comparisons(ablation: Ablation, stability: bool = True) -> pd.DataFrame:
             rows.append(row)
     columns = [
         *Comparison.__dataclass_fields__,
-        "baseline",
+        "reference",
         "p_improvement",
         "p_improvement_ci_low",
         "p_improvement_ci_high",

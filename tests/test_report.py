@@ -296,6 +296,14 @@ def store(tmp_path_factory):
     evil = {"base<script>alert(1)</script>": {"curve": rising(5, 30)}, EVIL: {"curve": rising(5, 20)}}
     make_store(folder, "evil", evil, description="<script>alert('description')</script> & more")
     make_store(folder, "single", {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 12)}}, seeds=(0,))
+    l2 = {"l2": 0.001}
+    knobs = {
+        "cnn": {"curve": rising(-21, -12, 60), "architecture": "cnn"},
+        "cnn-l2": {"curve": rising(-21, -13, 60), "architecture": "cnn", "overrides": l2},
+        "mlp": {"curve": rising(-21, -17, 60), "overrides": {"architecture": "mlp"}},
+        "mlp-l2": {"curve": rising(-21, -18, 60), "overrides": {"architecture": "mlp"} | l2},
+    }
+    make_store(folder, "knobs", knobs, seeds=(0, 1, 2), budget=60, **(options | {"observation": False}))
     make_store(folder, "broken", {"boom": {"curve": rising(5, 10)}}, seeds=(0, 1), failed={"boom-s0", "boom-s1"})
     cartpole = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 25)}, "c": {"curve": rising(5, 12)}}
     make_store(folder, "gens", cartpole, generation="complete1")
@@ -319,6 +327,32 @@ def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monk
     convergence = pd.read_csv(folder / "tables" / "convergence.csv").set_index("variant")
     assert {"return_at_60_iqm", "auc_iqm", "improvement_iqm", "episodes_to_-15_median"} <= set(convergence.columns)
     assert convergence.loc["cnn", "auc_iqm"] > convergence.loc["mlp", "auc_iqm"]
+
+
+def test_each_architectures_knobs_are_compared_with_that_architecture(store, tmp_path, monkeypatch):
+    # the Pong ablation had mlp-l2 against cnn: two changes at once, and a limitation that said so
+    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    _, uri = store
+    folder = write_report("knobs", tracking_uri=uri, out_root=tmp_path)
+    text = (folder / "report.md").read_text()
+    findings = text.split("## Findings")[1].split("## Figures")[0]
+    assert "mlp-l2 against mlp" in findings.splitlines()[2]
+    headers = [line for line in findings.splitlines() if line.startswith("- **")]
+    assert headers == ["- **cnn-l2** vs cnn:", "- **mlp** vs cnn:", "- **mlp-l2** vs mlp:"]
+    assert "settings at once" not in text
+    assert "| vs its reference on area under the curve (AUC) |" in text and "| vs mlp: " in text
+    assert "| mlp |  | architecture = mlp |" not in text and "reference of mlp-l2" in text
+    assert "mlp-l2 vs mlp" not in text  # the figure's panel titles are in the PNG, its caption says how
+    assert "its reference (grey)" in text
+    compare = pd.read_csv(folder / "tables" / "comparisons.csv")
+    assert dict(zip(compare.variant, compare.reference, strict=False)) == {
+        "cnn-l2": "cnn",
+        "mlp": "cnn",
+        "mlp-l2": "mlp",
+    }
+    auc = compare[(compare.variant == "mlp-l2") & (compare.metric == "auc")].iloc[0]
+    table = pd.read_csv(folder / "tables" / "convergence.csv").set_index("variant")
+    assert auc.reference_value == pytest.approx(table.loc["mlp", "auc_iqm"])
 
 
 def test_report_of_one_seed_with_a_threshold(store, tmp_path, monkeypatch):
@@ -399,7 +433,7 @@ def test_generation_variants_and_baseline(store, tmp_path, monkeypatch, capsys):
     trials = pd.read_csv(tmp_path / "gens" / "tables" / "trials.csv")
     assert (trials.status == "FINISHED").sum() == 6 and set(trials.variant) == {"b", "c"}
     compare = pd.read_csv(tmp_path / "gens" / "tables" / "comparisons.csv")
-    assert set(compare.variant) == {"c"} and set(compare.baseline) == {"b"}
+    assert set(compare.variant) == {"c"} and set(compare.reference) == {"b"}
     text = (tmp_path / "gens" / "report.md").read_text()
     assert "--generation complete --variants c,b --baseline b" in text
     assert "did not finish" not in text

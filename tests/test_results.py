@@ -266,3 +266,65 @@ def test_censored_statistics():
     assert is_censored_statistic(1, 5, "iqm") is False  # the one censored seed is trimmed
     assert is_censored_statistic(2, 5, "iqm") and not is_censored_statistic(2, 5, "median")
     assert is_censored_statistic(3, 5, "median")
+
+
+def _grid_ablation(variants: dict[str, dict], baseline: str) -> Ablation:
+    grid = {"variants": [{"name": n, "overrides": o} for n, o in variants.items()], "baseline": baseline}
+    grid["base"] = {"architecture": "cnn", "hidden_sizes": [64], "l2": 0.0}
+    return Ablation("t", grid, {}, pd.DataFrame(), pd.DataFrame())
+
+
+def test_each_variant_is_compared_with_the_variant_whose_changes_it_extends():
+    # the default Pong ablation: mlp-l2 against cnn would change two things at once; against mlp, one
+    ablation = _grid_ablation(
+        {
+            "cnn": {},
+            "cnn-l2": {"l2": 0.001},
+            "mlp": {"architecture": "mlp"},
+            "mlp-l2": {"architecture": "mlp", "l2": 0.001},
+            "mlp-wide": {"architecture": "mlp", "hidden_sizes": [256]},
+            "mlp-wide-l2": {"architecture": "mlp", "hidden_sizes": [256], "l2": 0.001},
+            "cnn-as-base": {"architecture": "cnn"},  # the base's own value: no change
+            "mlp-l2-strong": {"architecture": "mlp", "l2": 0.01},  # a different value is another change
+        },
+        baseline="cnn",
+    )
+    assert ablation.changes("mlp-l2") == {"architecture": "mlp", "l2": 0.001}
+    assert ablation.changes("mlp-l2", "mlp") == {"l2": 0.001}
+    assert ablation.changes("cnn-as-base") == {}
+    references = {v: ablation.reference(v) for v in ablation.variants}
+    assert references == {
+        "cnn": "cnn",
+        "cnn-l2": "cnn",
+        "mlp": "cnn",
+        "mlp-l2": "mlp",
+        "mlp-wide": "mlp",
+        "mlp-wide-l2": "mlp-wide",  # the largest part of its changes; mlp-l2 is as large and comes later
+        "cnn-as-base": "cnn",
+        "mlp-l2-strong": "mlp",
+    }
+
+
+def test_with_another_baseline_the_references_follow_it():
+    variants = {"cnn": {}, "mlp": {"architecture": "mlp"}, "mlp-l2": {"architecture": "mlp", "l2": 0.001}}
+    ablation = _grid_ablation(variants, baseline="mlp")
+    assert ablation.changes("cnn") == {"architecture": "cnn"} and ablation.reference("mlp-l2") == "mlp"
+    assert ablation.reference("cnn") == "mlp"
+
+
+def test_comparisons_are_against_each_variants_reference():
+    rows = []
+    for variant, auc in (("cnn", 1.0), ("mlp", 5.0), ("mlp-l2", 9.0)):
+        for seed in range(5):
+            row = _row(variant, seed, False, None)
+            row["auc"] = auc + seed * 0.01
+            rows.append(row)
+    trials = pd.DataFrame(rows)
+    trials["censored_episodes"] = trials.budget
+    variants = {"cnn": {}, "mlp": {"architecture": "mlp"}, "mlp-l2": {"architecture": "mlp", "l2": 0.001}}
+    ablation = replace(_grid_ablation(variants, baseline="cnn"), trials=trials)
+    mlp_l2 = compare_metric(ablation, "mlp-l2", "auc", stability=False)
+    assert mlp_l2.point == pytest.approx(4.0) and mlp_l2.reference_value == pytest.approx(5.02)
+    assert compare_metric(ablation, "mlp", "auc", stability=False).point == pytest.approx(4.0)
+    table = comparisons(replace(ablation, grid=ablation.grid | {"seeds": list(range(5))}), stability=False)
+    assert dict(zip(table.variant, table.reference, strict=True)) == {"mlp": "cnn", "mlp-l2": "mlp"}
