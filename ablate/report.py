@@ -135,6 +135,11 @@ def _setting_groups(overrides: dict) -> list[str]:
     return groups
 
 
+def _sampling_videos(ablation: Ablation) -> bool:
+    """Pong's end-of-trial videos are of the sampling policy (``trial.record_pong_episode``), others greedy."""
+    return ablation.env_id.startswith("ALE/Pong")
+
+
 def _extends(ablation: Ablation) -> list[str]:
     """The variants compared with another variant than the baseline, because they extend its changes."""
     return [v for v in ablation.variants if v != ablation.baseline and ablation.reference(v) != ablation.baseline]
@@ -571,10 +576,16 @@ def limitations(ablation: Ablation, table: pd.DataFrame) -> list[str]:
         "its tracking; seconds move between runs and machines. Compare variants on episodes; read seconds as rough "
         "cost."
     )
-    out.append(
-        "**Videos show one greedy episode** per chosen seed (the most likely action at every step, after "
-        "training): a single episode, not an average, and not the sampling policy that was trained."
-    )
+    if _sampling_videos(ablation):
+        out.append(
+            "**Videos show one stretch of play** per chosen seed (the trained policy sampling its actions, up to "
+            f"{_fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average."
+        )
+    else:
+        out.append(
+            "**Videos show one greedy episode** per chosen seed (the most likely action at every step, after "
+            "training): a single episode, not an average, and not the sampling policy that was trained."
+        )
     out.append(
         f"**One environment and budget** ({_esc(ablation.env_id)}, {_fmt(base.get('max_episodes'))} "
         "episodes): the findings say nothing about other tasks or longer training."
@@ -800,12 +811,27 @@ def build_markdown(
     ]
     for f in figures:
         parts += [f"FIGURE:{f.number}", ""]
+    if _sampling_videos(ablation):
+        frames = int(ablation.grid["base"].get("video_max_frames", 500))
+        parts += [
+            "## Videos of the trained agent",
+            "",
+            "Each video is the trained policy sampling its actions, as in training, on a seed training never used: "
+            f"up to {frames:,} frames ({frames / 30:.0f} s at 30 frames/s), for two seeds per variant chosen as the "
+            "captions say. Not greedy: a Pong agent that has not learnt much holds one button for the whole video "
+            "when it always takes its most likely action. Each trial's MLflow run also holds videos of it playing "
+            "during training (`videos/`).",
+            "",
+        ]
+    else:
+        parts += [
+            "## Videos of the greedy agent",
+            "",
+            "Each video is one greedy episode (the most likely action at every step) of a trained agent, for two "
+            "seeds per variant chosen as the captions say.",
+            "",
+        ]
     parts += [
-        "## Videos of the greedy agent",
-        "",
-        "Each video is one greedy episode (the most likely action at every step) of a trained agent, for two "
-        "seeds per variant chosen as the captions say.",
-        "",
         "VIDEOS_PLACEHOLDER",
         "",
     ]
