@@ -76,14 +76,15 @@ class Ablation:
         """The variant ``variant`` is compared with: of the others, the one whose changes from the baseline
         are the largest part of its own (``mlp-dropout`` against ``mlp`` when ``mlp`` changes only the
         architecture), so that each comparison isolates what the variant adds; else the baseline. Between
-        two as large, the one with the variant's own architecture (``mlp-l2``: ``mlp``, not ``cnn-l2``)."""
+        two as large, the one of the variant's own architecture family (``mlp-l2``: ``mlp``, not ``cnn-l2``),
+        then the first in the experiment file."""
         mine = list(self.changes(variant).items())
         best, rank = self.baseline, (0, False)
         for other in self.variants:
             theirs = list(self.changes(other).items())
             if other == variant or not len(theirs) < len(mine) or any(item not in mine for item in theirs):
                 continue
-            same_architecture = not ARCHITECTURE_KNOBS & set(self.changes(variant, other))
+            same_architecture = "architecture" not in self.changes(variant, other)
             if (len(theirs), same_architecture) > rank:
                 best, rank = other, (len(theirs), same_architecture)
         return best

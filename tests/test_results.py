@@ -280,6 +280,7 @@ def test_each_variant_is_compared_with_the_variant_whose_changes_it_extends():
         {
             "cnn": {},
             "cnn-l2": {"l2": 0.001},
+            "cnn-wide": {"hidden_sizes": [256]},  # before mlp, as in pong.toml
             "mlp": {"architecture": "mlp"},
             "mlp-l2": {"architecture": "mlp", "l2": 0.001},
             "mlp-wide": {"architecture": "mlp", "hidden_sizes": [256]},
@@ -298,8 +299,9 @@ def test_each_variant_is_compared_with_the_variant_whose_changes_it_extends():
         "cnn-l2": "cnn",
         "mlp": "cnn",
         "mlp-l2": "mlp",
-        "mlp-wide": "mlp",
-        "mlp-wide-l2": "mlp-wide",  # the largest part of its changes; mlp-l2 is as large and comes later
+        "cnn-wide": "cnn",
+        "mlp-wide": "mlp",  # its own family: width within the MLPs, not the architecture at width 256
+        "mlp-wide-l2": "mlp-l2",  # the largest part of its changes; mlp-wide is as large and comes later
         "cnn-as-base": "cnn",
         "mlp-l2-strong": "mlp",
     }
