@@ -37,7 +37,6 @@ from ablate.figures import (
 from ablate.figures import esc as _esc
 from ablate.figures import fmt as _fmt
 from ablate.results import (
-    ARCHITECTURE_KNOBS,
     BETTER,
     CONFIDENCE,
     INITIAL_EPISODES,
@@ -53,6 +52,9 @@ from ablate.results import (
     smallest_p_value,
 )
 from ablate.tracking import Tracker
+
+# Knobs that together make one architecture: a variant changing several of them changes one thing.
+ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
 
 
 def _pct(x: float) -> str:

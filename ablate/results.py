@@ -10,6 +10,7 @@ import json
 import math
 import tempfile
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +28,6 @@ INITIAL_EPISODES = 10
 """The untrained policy's return: the mean of a trial's first 10 episodes."""
 RETURN_LEVELS = {"ALE/Pong-v5": (-15.0, -10.0)}
 """Return levels whose first crossing (rolling mean) is timed, for envs where few seeds reach a threshold."""
-
-
-# Knobs that together make one architecture: a variant changing several of them changes one thing.
-ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
 
 
 class NoResults(LookupError):
@@ -78,16 +75,23 @@ class Ablation:
         architecture), so that each comparison isolates what the variant adds; else the baseline. Between
         two as large, the one of the variant's own architecture family (``mlp-l2``: ``mlp``, not ``cnn-l2``),
         then the first in the experiment file."""
-        mine = list(self.changes(variant).items())
-        best, rank = self.baseline, (0, False)
-        for other in self.variants:
-            theirs = list(self.changes(other).items())
-            if other == variant or not len(theirs) < len(mine) or any(item not in mine for item in theirs):
-                continue
-            same_architecture = "architecture" not in self.changes(variant, other)
-            if (len(theirs), same_architecture) > rank:
-                best, rank = other, (len(theirs), same_architecture)
-        return best
+        return self._references[variant]
+
+    @cached_property
+    def _references(self) -> dict[str, str]:
+        """``reference`` of every variant, found once: the report asks for them per row and per figure panel."""
+        changes = {v: list(self.changes(v).items()) for v in self.variants}
+        references = {}
+        for variant, mine in changes.items():
+            best, rank = self.baseline, (0, False)
+            for other, theirs in changes.items():
+                if other == variant or not len(theirs) < len(mine) or any(item not in mine for item in theirs):
+                    continue
+                same_architecture = "architecture" not in self.changes(variant, other)
+                if (len(theirs), same_architecture) > rank:
+                    best, rank = other, (len(theirs), same_architecture)
+            references[variant] = best
+        return references
 
     @property
     def finished(self) -> pd.DataFrame:
