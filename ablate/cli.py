@@ -18,9 +18,9 @@ from typing import Any, NoReturn
 
 from ablate import config as config_module
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, Experiment, ModelConfig, TrialConfig, apply_knobs
-from ablate.grid import GridTrial, expand, select
-from ablate.lock import LaunchLocked
-from ablate.tracking import TrackingError
+from ablate.run.grid import GridTrial, expand, select
+from ablate.run.lock import LaunchLocked
+from ablate.run.tracking import TrackingError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -290,7 +290,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if trial:
         print(f"trial {trial.key}: variant {trial.variant}, seed {trial.seed} of {args.from_experiment}")
 
-    from ablate.trial import run_trial  # heavy imports only once the input is known to be good
+    from ablate.agent.trial import run_trial  # heavy imports only once the input is known to be good
 
     progress = _ProgressLine()
     result = run_trial(config, on_episodes=progress.update, artifacts_dir=out)
@@ -337,7 +337,7 @@ class _ProgressLine:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from ablate.status import detail, overview
+    from ablate.report.status import detail, overview
 
     if args.experiment is None:
         print(overview(args.tracking_uri))
@@ -384,10 +384,10 @@ def main(argv: list[str] | None = None) -> int:
             if args.dry_run:
                 return dry_run(experiment, trials)
             print(f"ablate run {experiment.name}: {len(trials)} trials; starting MLflow and Ray ...", flush=True)
-            from ablate.runner import cmd_run
+            from ablate.run.runner import cmd_run
 
             return cmd_run(args, started_at)
-        from ablate.report import cmd_report
+        from ablate.report.document import cmd_report
 
         return cmd_report(args)
     except ConfigError as error:

@@ -23,8 +23,8 @@ from pathlib import Path
 import torch
 
 from ablate.config import COURSE, DEFAULT
-from ablate.course import course_loop
-from ablate.trial import run_trial
+from ablate.agent.course import course_loop
+from ablate.agent.trial import run_trial
 
 RESULTS: dict[str, object] = {}
 
@@ -99,7 +99,7 @@ class _TimedEvents:
 
 def _untracked(trials, concurrent: int, storage: Path, name: str) -> tuple[float, float]:
     """Run ``trials`` through Ray Tune untracked, ``concurrent`` at a time: (wall s, s to the first start)."""
-    from ablate.scheduler import ClusterOptions, run_trials
+    from ablate.run.scheduler import ClusterOptions, run_trials
 
     events = _TimedEvents()
     run_trials(trials, events, ClusterOptions(max_concurrent=concurrent, storage_path=str(storage)), name)
@@ -127,10 +127,10 @@ def bench_runner(repeats: int = 3) -> None:
     import tempfile
 
     from ablate.config import load_experiment
-    from ablate.grid import expand
-    from ablate.runner import run_experiment
-    from ablate.scheduler import ensure_ray
-    from ablate.tracking import Tracker
+    from ablate.run.grid import expand
+    from ablate.run.runner import run_experiment
+    from ablate.run.scheduler import ensure_ray
+    from ablate.run.tracking import Tracker
 
     ensure_ray(None)
     folder = Path(tempfile.mkdtemp(prefix="ablate-bench-"))
@@ -185,8 +185,8 @@ def _tracked_run(experiment_path: str, folder: Path) -> tuple[float, float, floa
     import psutil
 
     from ablate.config import load_experiment
-    from ablate.runner import run_experiment
-    from ablate.tracking import Tracker
+    from ablate.run.runner import run_experiment
+    from ablate.run.tracking import Tracker
 
     in_tracker = [0.0]
     originals = {}
@@ -255,10 +255,10 @@ def bench_ablation(repeats: int = 1) -> None:
     import ray
 
     from ablate.config import load_experiment
-    from ablate.grid import expand
-    from ablate.report import write_report
-    from ablate.scheduler import ensure_ray
-    from ablate.tracking import Tracker
+    from ablate.run.grid import expand
+    from ablate.report.document import write_report
+    from ablate.run.scheduler import ensure_ray
+    from ablate.run.tracking import Tracker
 
     path = "experiments/cartpole.toml"
     trials = expand(load_experiment(path))
@@ -348,11 +348,11 @@ def _writer_run(trials: int, seconds: float, trial_wall: float, reports: list, a
     import queue
     import threading
 
-    from ablate.grid import GridTrial
-    from ablate.progress import ProgressView
-    from ablate.runner import RunOutcome, _Recorder
-    from ablate.scheduler import REPORT_EVERY_S
-    from ablate.tracking import Tracker
+    from ablate.run.grid import GridTrial
+    from ablate.run.progress import ProgressView
+    from ablate.run.runner import RunOutcome, _Recorder
+    from ablate.run.scheduler import REPORT_EVERY_S
+    from ablate.run.tracking import Tracker
 
     tracker = Tracker(f"sqlite:///{folder / 'mlflow.db'}", "bench-tracking")
     launch = tracker.start_launch("g", "bench", {}, {})
@@ -424,8 +424,8 @@ def bench_tracking(trials: int = 256, seconds: float = 60.0) -> None:
     import shutil
     import tempfile
 
-    from ablate.curve import CURVE_POINTS, CurvePoint, CurveReducer
-    from ablate.scheduler import REPORT_EVERY_S
+    from ablate.run.curve import CURVE_POINTS, CurvePoint, CurveReducer
+    from ablate.run.scheduler import REPORT_EVERY_S
 
     updates, trial_wall, artifacts = _cartpole_stream()
     episodes = sum(len(rows) for _, rows in updates)
@@ -566,7 +566,7 @@ def _raw_pong_steps_per_cpu_s(steps: int = 8000) -> float:
     import gymnasium as gym
     import numpy as np
 
-    from ablate.envs import _register_ale
+    from ablate.agent.envs import _register_ale
 
     _register_ale()
     env = gym.make("ALE/Pong-v5")
@@ -589,8 +589,8 @@ def _cnn_compute_ms_per_step(batch: int = 1024, acting_batch: int = 4) -> float:
     backward of a training chunk of ``batch`` frames divided by the chunk (real frame differences)."""
     import numpy as np
 
-    from ablate.envs import PongEnv
-    from ablate.policies import create_pong_model
+    from ablate.agent.envs import PongEnv
+    from ablate.agent.policies import create_pong_model
 
     env = PongEnv(action_set="move")
     env.reset(seed=0)

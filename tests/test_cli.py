@@ -209,7 +209,7 @@ def test_run_dry_run_lists_the_chosen_trials_and_starts_nothing(tmp_path):
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     assert lines[0] == "tiny: 4 of 9 trials (dry run: nothing started or written)"
-    from ablate.grid import expand
+    from ablate.run.grid import expand
 
     expected = [t for t in expand(load_experiment(path)) if t.variant != "narrow" and t.seed in (0, 2)]
     rows = [line.split() for line in lines[2:6]]
@@ -264,8 +264,8 @@ def test_train_from_bad_input_is_exit_2(tmp_path, capsys, argv, message):
 def test_train_from_runs_that_trial_with_its_key_and_config_and_no_sdl_noise(tmp_path):
     import csv
 
-    from ablate.grid import expand
-    from ablate.trial import run_trial
+    from ablate.run.grid import expand
+    from ablate.agent.trial import run_trial
 
     path = tmp_path / "tiny.toml"
     path.write_text(TINY)

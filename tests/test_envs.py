@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ablate.envs import (
+from ablate.agent.envs import (
     FrameDifference,
     ObservationWindow,
     PongEnv,

@@ -4,8 +4,8 @@ through real Ray and a real MLflow store (the report is tested with the report).
 from pathlib import Path
 
 from ablate.config import load_experiment
-from ablate.grid import expand
-from ablate.tracking import Tracker
+from ablate.run.grid import expand
+from ablate.run.tracking import Tracker
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 

@@ -3,7 +3,7 @@
 import pytest
 
 from ablate.config import ConfigError, parse_experiment
-from ablate.grid import expand, select, split_variants
+from ablate.run.grid import expand, select, split_variants
 
 EXPERIMENT = {
     "seeds": 3,

@@ -1,4 +1,4 @@
-"""ablate.optim.Adam against torch.optim.Adam, and the import it exists to avoid."""
+"""ablate.agent.optim.Adam against torch.optim.Adam, and the import it exists to avoid."""
 
 import subprocess
 import sys
@@ -6,8 +6,8 @@ import sys
 import pytest
 import torch
 
-from ablate.optim import Adam
-from ablate.policies import create_cartpole_model
+from ablate.agent.optim import Adam
+from ablate.agent.policies import create_cartpole_model
 
 
 def _loss(model: torch.nn.Module, batch: torch.Tensor) -> torch.Tensor:
@@ -52,7 +52,7 @@ def test_a_trial_never_imports_torch_dynamo():
     code = (
         "import sys\n"
         "from ablate.config import DEFAULT, apply_knobs\n"
-        "from ablate.trial import run_trial\n"
+        "from ablate.agent.trial import run_trial\n"
         "run_trial(apply_knobs(DEFAULT, {'max_episodes': 64, 'seed': 1}))\n"
         "print('torch._dynamo' in sys.modules)\n"
     )

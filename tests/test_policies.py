@@ -3,7 +3,7 @@
 import torch
 from torch import nn
 
-from ablate.policies import create_cartpole_model, create_pong_model, parameter_count
+from ablate.agent.policies import create_cartpole_model, create_pong_model, parameter_count
 
 
 def test_cartpole_mlp_depth_width_dropout():
@@ -106,7 +106,7 @@ def test_pong_mlp_sparse_forward_matches_dense_in_value_and_gradient():
 
 
 def test_word_scan_nonzero_equals_torch_nonzero_in_order():
-    from ablate.policies import _nonzero_rows_columns
+    from ablate.agent.policies import _nonzero_rows_columns
 
     x = torch.zeros(4, 64, dtype=torch.int8)
     x[0, [0, 7, 8, 63]] = torch.tensor([1, -1, 1, -1], dtype=torch.int8)  # both ends of words and of the row

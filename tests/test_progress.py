@@ -14,9 +14,9 @@ import pytest
 
 from ablate import progress
 from ablate.config import TrialConfig
-from ablate.grid import GridTrial
-from ablate.progress import ProgressView, makespan, stage
-from ablate.trial import EpisodeMetrics
+from ablate.run.grid import GridTrial
+from ablate.run.progress import ProgressView, makespan, stage
+from ablate.agent.trial import EpisodeMetrics
 
 
 class Clock:

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from ablate.policies import create_cartpole_model
-from ablate.reinforce import (
+from ablate.agent.policies import create_cartpole_model
+from ablate.agent.reinforce import (
     Memory,
     choose_action,
     compute_loss,
@@ -130,7 +130,7 @@ def test_choose_action_is_reproducible_with_a_seeded_generator():
 
 
 def test_chunks_cover_the_batch_in_a_bounded_set_of_shapes():
-    from ablate.reinforce import _chunks
+    from ablate.agent.reinforce import _chunks
 
     shapes = set()
     for total in range(1, 5000):
@@ -145,7 +145,7 @@ def test_chunks_cover_the_batch_in_a_bounded_set_of_shapes():
 
 
 def test_train_step_in_chunks_sums_the_same_gradient_as_one_pass():
-    from ablate.policies import create_pong_model
+    from ablate.agent.policies import create_pong_model
 
     rng = np.random.default_rng(0)
     observations = rng.choice(np.array([-1, 0, 0, 0, 1], np.int8), (150, 1, 80, 80))

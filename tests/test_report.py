@@ -19,9 +19,9 @@ from scipy import stats
 
 from ablate.cli import main
 from ablate.config import load_experiment
-from ablate.curve import CurveReducer
-from ablate.report import chromium_flags, write_report
-from ablate.tracking import Tracker
+from ablate.run.curve import CurveReducer
+from ablate.report.document import chromium_flags, write_report
+from ablate.run.tracking import Tracker
 
 ARTIFACTS = Path(__file__).parent / "artifacts"
 EXPERIMENT = """
@@ -314,7 +314,7 @@ def store(tmp_path_factory):
 def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monkeypatch):
     # issue 9: `TypeError: unsupported format string passed to NoneType` (no threshold) and
     # `ValueError: cannot convert float NaN to integer` (one seed)
-    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
     folder = write_report("pong", tracking_uri=uri, out_root=tmp_path)
     text = (folder / "report.md").read_text()
@@ -334,7 +334,7 @@ def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monk
 
 def test_each_architectures_knobs_are_compared_with_that_architecture(store, tmp_path, monkeypatch):
     # the Pong ablation had mlp-l2 against cnn: two changes at once, and a limitation that said so
-    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
     folder = write_report("knobs", tracking_uri=uri, out_root=tmp_path)
     text = (folder / "report.md").read_text()
@@ -360,14 +360,14 @@ def test_each_architectures_knobs_are_compared_with_that_architecture(store, tmp
 
 def test_report_of_one_seed_with_a_threshold(store, tmp_path, monkeypatch):
     # issue 9: `ValueError: cannot convert float NaN to integer` with one seed
-    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
     text = (write_report("single", tracking_uri=uri, out_root=tmp_path) / "report.md").read_text()
     assert "[no interval: 1 seed]" in text and "1 seed gives no interval" in text
 
 
 def test_user_text_is_escaped_in_the_html(store, tmp_path, monkeypatch):
-    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
     folder = write_report("evil", tracking_uri=uri, out_root=tmp_path)
     page = (folder / "report.html").read_text()
@@ -424,7 +424,7 @@ def test_a_report_that_cannot_be_built_writes_nothing(store, good_report, capsys
 
 def test_generation_variants_and_baseline(store, tmp_path, monkeypatch, capsys):
     # after `--fresh` then Ctrl-C the newest generation is incomplete; the complete one can still be reported
-    monkeypatch.setattr("ablate.report.print_pdf", lambda *a, **k: "no PDF in this test")
+    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test")
     _, uri = store
     assert main(["report", "gens", "--tracking-uri", uri, "--out", str(tmp_path), "--no-pdf"]) == 0
     out = capsys.readouterr().out

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from ablate.results import (
+from ablate.report.results import (
     Ablation,
     area_under_curve,
     bootstrap_interval,
@@ -118,7 +118,7 @@ def test_censoring_is_counted_not_dropped():
 
 
 def test_vectorised_improvement_matches_mann_whitney():
-    from ablate.results import _pairwise_improvement
+    from ablate.report.results import _pairwise_improvement
 
     rng = np.random.default_rng(3)
     for _ in range(20):
@@ -154,7 +154,7 @@ BASELINE_4_OF_5 = [707, 749, 715, 900, None]  # the committed report's baseline:
 
 
 def _findings_text(ablation):
-    from ablate.report import findings
+    from ablate.report.document import findings
 
     table = convergence_table(ablation)
     return "\n".join(findings(ablation, table, comparisons(ablation)))
@@ -198,7 +198,7 @@ def test_complete_separation_of_five_seeds_is_not_an_interval_of_one_point():
 
 
 def test_three_seeds_against_three_support_no_claim():
-    from ablate.results import smallest_p_value
+    from ablate.report.results import smallest_p_value
 
     assert smallest_p_value(3, 3) == pytest.approx(0.1) and smallest_p_value(5, 5) == pytest.approx(2 / 252)
     ablation = _frame({"a": [10, 11, 12], "b": [50, 60, 70]}, budget=100)
@@ -208,7 +208,7 @@ def test_three_seeds_against_three_support_no_claim():
     text = _findings_text(ablation)
     assert "Estimate: IQM 60 vs 11 episodes" in text and "the seeds suggest more episodes for b" in text
     assert "to be confirmed with more seeds" in text
-    from ablate.report import summary
+    from ablate.report.document import summary
 
     assert "no claim; the seeds suggest worse" in summary(ablation, convergence_table(ablation), comparisons(ablation))
     overlapping = _frame({"a": [10, 30, 50], "b": [20, 40, 60]}, budget=100)

@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import local_cluster  # noqa: E402
 from test_cluster import _listening  # noqa: E402
 
-from ablate.tracking import Tracker  # noqa: E402
+from ablate.run.tracking import Tracker  # noqa: E402
 
 EXPERIMENT = """
 name = "{name}"

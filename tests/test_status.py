@@ -4,9 +4,9 @@ import re
 
 from ablate.cli import main
 from ablate.config import load_experiment
-from ablate.grid import expand, select
-from ablate.status import trial_states
-from ablate.tracking import TrialRun
+from ablate.run.grid import expand, select
+from ablate.report.status import trial_states
+from ablate.run.tracking import TrialRun
 
 FAULTY = """
 name = "faulty"

@@ -3,8 +3,8 @@
 import pytest
 from test_curve import rows
 
-from ablate.curve import CurveReducer
-from ablate.tracking import POINT_METRICS, Tracker
+from ablate.run.curve import CurveReducer
+from ablate.run.tracking import POINT_METRICS, Tracker
 
 
 def _track(tracking_uri, points, status="FINISHED"):
@@ -69,7 +69,7 @@ def test_first_launches_racing_on_a_fresh_folder_all_open_the_store(tmp_path):
     go = tmp_path / "go"
     script = (
         "import os, sys, time\n"
-        "from ablate.tracking import Tracker\n"
+        "from ablate.run.tracking import Tracker\n"
         "import mlflow.tracking, mlflow.store.tracking.sqlalchemy_store\n"
         "print('ready', flush=True)\n"
         f"while not os.path.exists({str(go)!r}): time.sleep(0.005)\n"

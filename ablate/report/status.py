@@ -10,8 +10,8 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable
 
 from ablate.config import ConfigError, Experiment
-from ablate.grid import expand
-from ablate.tracking import LaunchRun, Tracker, TrialRun, ablation_names, resolve_uri, store_exists
+from ablate.run.grid import expand
+from ablate.run.tracking import LaunchRun, Tracker, TrialRun, ablation_names, resolve_uri, store_exists
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
 """A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""

@@ -13,8 +13,8 @@ import numpy as np
 import torch
 
 from ablate.config import COURSE, TrialConfig
-from ablate.policies import Policy, create_cartpole_model
-from ablate.reinforce import Memory, discount_rewards, normalize, train_step
+from ablate.agent.policies import Policy, create_cartpole_model
+from ablate.agent.reinforce import Memory, discount_rewards, normalize, train_step
 
 
 def course_choose_action(model: Policy, observation: np.ndarray) -> int:

@@ -19,7 +19,7 @@ import pandas as pd
 from scipy import stats
 
 from ablate.config import ConfigError
-from ablate.tracking import Tracker
+from ablate.run.tracking import Tracker
 
 CONFIDENCE = 0.95
 N_RESAMPLES = 2000
@@ -321,7 +321,7 @@ def _generation_summary(tracker: Tracker, launches: list[Any]) -> list[dict[str,
 def check_store(tracking_uri: str | None) -> str:
     """The store's URI; a local store (SQLite file or folder) that does not exist is a ``ConfigError``, so
     that reading never creates an empty database where a user mistyped a path."""
-    from ablate.tracking import resolve_uri
+    from ablate.run.tracking import resolve_uri
 
     uri = resolve_uri(tracking_uri)
     if uri.startswith("sqlite:///"):

@@ -111,7 +111,7 @@ def l2_penalty(model: nn.Module) -> torch.Tensor:
 
 
 class Optimizer(Protocol):
-    """What ``train_step`` needs of an optimizer: ``ablate.optim.Adam`` and any ``torch.optim`` optimizer fit."""
+    """What ``train_step`` needs of an optimizer: ``ablate.agent.optim.Adam`` and any ``torch.optim`` optimizer fit."""
 
     def zero_grad(self, set_to_none: bool = True) -> None: ...
     def step(self) -> object: ...

@@ -20,7 +20,7 @@ from typing import Any
 from urllib.parse import urlparse
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
-# A trial's curve: one point per bin of episodes (``ablate.curve``: at most ~100 points however many episodes
+# A trial's curve: one point per bin of episodes (``ablate.run.curve``: at most ~100 points however many episodes
 # run), step = the bin's last episode. MLflow's SQLite store costs ~4 ms per call plus ~55 us per value of
 # the writer's CPU, and one writer serves every trial: a value per episode capped it at ~10 concurrent
 # trials. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
@@ -382,7 +382,7 @@ class Tracker:
         return run_id
 
     def log_points(self, key: str, points: Sequence[Any]) -> None:
-        """``POINT_METRICS`` of each curve point (``ablate.curve.CurvePoint``) of an open trial; written
+        """``POINT_METRICS`` of each curve point (``ablate.run.curve.CurvePoint``) of an open trial; written
         ``FLUSH_EVERY_S`` at a time (and when the trial ends), each point timestamped at its own moment in
         the trial (run start + the point's ``wall_s``) so MLflow's time axes show the curve."""
         pending, flushed_at, _ = self._points[key]

@@ -25,10 +25,10 @@ import torch
 from threadpoolctl import threadpool_limits
 
 from ablate.config import TrialConfig
-from ablate.envs import PONG_ACTIONS, PongEnv, env_info, is_pong, make_env, make_vec_env, observation_adapter
-from ablate.optim import Adam
-from ablate.policies import Policy, create_model, parameter_count
-from ablate.reinforce import choose_action, discount_rewards, normalize, train_step
+from ablate.agent.envs import PONG_ACTIONS, PongEnv, env_info, is_pong, make_env, make_vec_env, observation_adapter
+from ablate.agent.optim import Adam
+from ablate.agent.policies import Policy, create_model, parameter_count
+from ablate.agent.reinforce import choose_action, discount_rewards, normalize, train_step
 
 
 class TrialFailed(RuntimeError):
@@ -596,8 +596,8 @@ def write_artifacts(result: TrialResult, model: Policy, folder: Path) -> None:
     """Per-episode table, weights, learning curve and (optionally) a video of the agent into ``folder``; for
     Pong also ``observation.png`` (one observation raw, pre-processed and as a frame difference)."""
     # Imported here: a worker process pays for matplotlib and ffmpeg only when a trial ends.
-    from ablate.envs import sample_pong_frames
-    from ablate.plots import plot_pong_observation, plot_progress
+    from ablate.agent.envs import sample_pong_frames
+    from ablate.agent.plots import plot_pong_observation, plot_progress
 
     folder.mkdir(parents=True, exist_ok=True)
     config = result.config

@@ -18,8 +18,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from ablate.results import N_RESAMPLES, Ablation, curve_band  # noqa: E402
-from ablate.tracking import Tracker  # noqa: E402
+from ablate.report.results import N_RESAMPLES, Ablation, curve_band  # noqa: E402
+from ablate.run.tracking import Tracker  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
 COLOURS = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7]

@@ -23,12 +23,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
-from ablate.curve import CurvePoint
-from ablate.grid import GridTrial, expand, select
-from ablate.lock import launch_lock
-from ablate.progress import ProgressView, clock, stage
-from ablate.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, largest_node_cpus, run_trials, stop_ray
-from ablate.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
+from ablate.run.curve import CurvePoint
+from ablate.run.grid import GridTrial, expand, select
+from ablate.run.lock import launch_lock
+from ablate.run.progress import ProgressView, clock, stage
+from ablate.run.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, largest_node_cpus, run_trials, stop_ray
+from ablate.run.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
 
 
 class Interrupted(KeyboardInterrupt):
@@ -492,7 +492,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         print(f"  FAILED {key}: {message}")
     print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
     if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
-        from ablate.report import NoResults, terminal_summary, write_report
+        from ablate.report.document import NoResults, terminal_summary, write_report
 
         try:
             with stage(f"writing the report into reports/{experiment.name}/") as report_s:

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import ConfigError, load_experiment
-from ablate.figures import (
+from ablate.report.figures import (
     Figure,
     ablation_window,
     figure_improvement,
@@ -34,9 +34,9 @@ from ablate.figures import (
     figure_small_multiples,
     figure_wallclock,
 )
-from ablate.figures import esc as _esc
-from ablate.figures import fmt as _fmt
-from ablate.results import (
+from ablate.report.figures import esc as _esc
+from ablate.report.figures import fmt as _fmt
+from ablate.report.results import (
     BETTER,
     CONFIDENCE,
     INITIAL_EPISODES,
@@ -51,7 +51,7 @@ from ablate.results import (
     select,
     smallest_p_value,
 )
-from ablate.tracking import Tracker
+from ablate.run.tracking import Tracker
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}

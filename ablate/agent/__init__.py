@@ -1,0 +1,1 @@
+"""One trial, no Ray and no MLflow: the REINFORCE core, policies, environments, the optimiser, the trial loop."""
