@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from ablate import progress
+from ablate.run import progress
 from ablate.config import TrialConfig
 from ablate.run.grid import GridTrial
 from ablate.run.progress import ProgressView, makespan, stage
