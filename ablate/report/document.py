@@ -138,7 +138,7 @@ def _setting_groups(overrides: dict) -> list[str]:
 
 
 def _sampling_videos(ablation: Ablation) -> bool:
-    """Pong's end-of-trial videos are of the sampling policy (``trial.record_pong_episode``), others greedy."""
+    """Pong's end-of-trial videos are of the sampling policy (``collectors.record_pong_episode``), others greedy."""
     return ablation.env_id.startswith("ALE/Pong")
 
 
