@@ -12,6 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ablate.agent import sparse_cnn
 from ablate.config import ModelConfig
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
@@ -45,6 +46,16 @@ class Policy(nn.Module):
         self._numpy_ok = isinstance(body, nn.Sequential) and all(
             isinstance(m, nn.Linear) or type(m) in _NUMPY_ACTIVATIONS for m in body
         )
+        self._sparse_stem = (
+            sparse_cnn.SparseStem(body, observation_shape[1]) if sparse_cnn.fits(body, self.observation_shape) else None
+        )
+        # Acting in numpy through the whole CNN needs every later layer to have a numpy stand-in.
+        self._numpy_stem_ok = (
+            self._sparse_stem is not None
+            and isinstance(body[4], nn.Conv2d)
+            and all(isinstance(m, nn.Linear) or type(m) in _NUMPY_ACTIVATIONS for m in [body[1], body[3], *body[5:]])
+        )
+        self._numpy_stem: sparse_cnn.NumpyStem | None = None
         self._channels_last = any(isinstance(m, nn.Conv2d) for m in body.modules())
         if self._channels_last:
             # oneDNN's 2-D convolutions run ~20% faster forward and backward on NHWC than NCHW on one core
@@ -58,9 +69,17 @@ class Policy(nn.Module):
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
         """Logits. int8 observations (Pong's frame differences) go through a dense body's first layer as a
         sparse product (``embedding_bag`` over the non-zero pixels: the same result, a few times faster for
-        a batch in an update); any other body gets them as float32."""
+        a batch in an update), and through a CNN's first two convolutions as their background response plus
+        the non-zero pixels' contributions (``sparse_cnn``); any other body gets them as float32."""
         if observations.dtype == torch.int8 and self._sparse_first:
             return self._sparse_forward(observations)
+        if observations.dtype == torch.int8 and self._sparse_stem is not None:
+            x = observations.reshape(len(observations), -1)
+            rows, columns = _nonzero_rows_columns(x)
+            # A frame with a quarter of its pixels set has no sparsity to exploit (the first frame of an episode
+            # is the whole screen): the dense convolutions, the same function.
+            if len(rows) * 4 < x.numel():
+                return self.body[3:](self._sparse_stem(x, rows, columns))
         return self.body(self._input(observations))
 
     def _sparse_forward(self, observations: torch.Tensor) -> torch.Tensor:
@@ -73,6 +92,19 @@ class Policy(nn.Module):
         )
         return self.body[2:](hidden + first.bias)
 
+    def _numpy_stem_logits(self, observations: np.ndarray, parameters: list[nn.Parameter]) -> np.ndarray:
+        """Pong's CNN acting in numpy (``sparse_cnn.NumpyStem``), rebuilt whenever a parameter changes."""
+        versions = tuple(p._version for p in parameters)
+        if self._numpy_stem is None or versions != self._numpy_versions:
+            self._numpy_stem = sparse_cnn.NumpyStem(self._sparse_stem, self.body, _numpy_layer)
+            self._numpy_versions = versions
+        x = observations.reshape(len(observations), -1)
+        rows, columns = _nonzero(x)
+        if len(rows) * 4 >= x.size:  # no sparsity to exploit: the dense network
+            with torch.inference_mode():
+                return self.body(self._input(torch.from_numpy(observations))).numpy()
+        return self._numpy_stem(x, rows, columns)
+
     def act_logits(self, observations: np.ndarray) -> np.ndarray:
         """Logits for acting: eval mode, no autograd. A dense body runs in numpy on a copy of the weights,
         refreshed whenever a parameter changes (torch's per-call overhead is most of the cost of a forward
@@ -81,18 +113,15 @@ class Policy(nn.Module):
             # Cached: walking the module tree for its parameters costs ~70 us, more than the forward itself.
             self._parameters_list = list(self.parameters())
         parameters = self._parameters_list
+        if self._numpy_stem_ok and parameters[0].device.type == "cpu" and observations.dtype == np.int8:
+            return self._numpy_stem_logits(observations, parameters)
         if not self._numpy_ok or parameters[0].device.type != "cpu":  # a conv body, or a policy on a GPU
             with torch.inference_mode():
                 inputs = torch.from_numpy(observations).to(parameters[0].device)
-                return self.body(self._input(inputs)).float().cpu().numpy()
+                return self(inputs).float().cpu().numpy()
         versions = tuple(p._version for p in parameters)
         if self._numpy_layers is None or versions != self._numpy_versions:
-            self._numpy_layers = [
-                (m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy())
-                if isinstance(m, nn.Linear)
-                else _NUMPY_ACTIVATIONS[type(m)]
-                for m in self.body
-            ]
+            self._numpy_layers = [_numpy_layer(m) for m in self.body]
             self._numpy_versions = versions
         x = observations
         for layer in self._numpy_layers:
@@ -102,6 +131,13 @@ class Policy(nn.Module):
             else:
                 x = layer(x)
         return x
+
+
+def _numpy_layer(module: nn.Module):
+    """A numpy stand-in for ``module`` when acting: (weight.T, bias) copies for a Linear, else a function."""
+    if isinstance(module, nn.Linear):
+        return module.weight.detach().numpy().T.copy(), module.bias.detach().numpy().copy()
+    return _NUMPY_ACTIVATIONS[type(module)]
 
 
 def _nonzero(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
