@@ -88,3 +88,19 @@ def test_an_unreachable_cluster_is_one_line_and_exit_1_within_seconds(tmp_path):
     assert output.strip().splitlines()[-1].startswith("ablate run: cannot reach the Ray cluster at 127.0.0.1:"), output
     assert "Traceback" not in output
     assert Tracker(f"sqlite:///{tmp_path / 'x' / 'mlflow.db'}", "x").latest_launch() is None  # nothing recorded
+
+
+@pytest.mark.parametrize(("gpus", "expected"), [(0.25, {"CPU": 1.0, "GPU": 0.25}), (0.0, {"CPU": 1.0})])
+def test_gpus_per_trial_reaches_ray_tunes_resource_request(gpus, expected):
+    """What Tune asks Ray to reserve for each trial (no GPU or running cluster needed to build the request)."""
+    from ray import tune
+    from ray.tune.trainable.function_trainable import wrap_function  # what Tune turns a function trainable into
+
+    from ablate.run.scheduler import ClusterOptions, trial_resources
+
+    def train(config):
+        return None
+
+    options = ClusterOptions(cpus_per_trial=1.0, gpus_per_trial=gpus)
+    trainable = wrap_function(tune.with_resources(train, trial_resources(options)))
+    assert trainable.default_resource_request({}).required_resources == expected

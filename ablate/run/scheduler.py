@@ -163,11 +163,10 @@ def run_trials(
     )
     bridge = _Bridge(events, checkpoints)
     storage = Path(options.storage_path).resolve() if "://" not in options.storage_path else None
-    resources = {"cpu": options.cpus_per_trial}
-    if options.gpus_per_trial:
-        resources["gpu"] = options.gpus_per_trial
     tuner = tune.Tuner(
-        tune.with_resources(tune.with_parameters(_train, trials=by_key, checkpoints=checkpoints), resources),
+        tune.with_resources(
+            tune.with_parameters(_train, trials=by_key, checkpoints=checkpoints), trial_resources(options)
+        ),
         param_space={"key": tune.grid_search(list(by_key))},
         tune_config=tune.TuneConfig(
             reuse_actors=True,  # ~0.5 s per trial instead of ~2 s for a fresh worker process
@@ -194,6 +193,15 @@ def run_trials(
             shutil.rmtree(storage / run_name, ignore_errors=True)  # everything is in the tracker by now
         if started_here:
             stop_ray()
+
+
+def trial_resources(options: ClusterOptions) -> dict[str, float]:
+    """What Ray Tune reserves for each trial: ``cpus_per_trial`` CPUs and, when set, ``gpus_per_trial`` GPUs
+    (the trial puts its policy on CUDA whenever torch sees one)."""
+    resources = {"cpu": options.cpus_per_trial}
+    if options.gpus_per_trial:
+        resources["gpu"] = options.gpus_per_trial
+    return resources
 
 
 def ensure_ray(address: str | None) -> bool:
