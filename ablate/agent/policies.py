@@ -73,7 +73,8 @@ class Policy(nn.Module):
         the non-zero pixels' contributions (``sparse_cnn``); any other body gets them as float32."""
         if observations.dtype == torch.int8 and self._sparse_first:
             return self._sparse_forward(observations)
-        if observations.dtype == torch.int8 and self._sparse_stem is not None:
+        # CPU only: on a GPU the dense convolutions are a few large kernels, the sparse path dozens of small ones.
+        if observations.dtype == torch.int8 and self._sparse_stem is not None and observations.device.type == "cpu":
             x = observations.reshape(len(observations), -1)
             rows, columns = _nonzero_rows_columns(x)
             # A frame with a quarter of its pixels set has no sparsity to exploit (the first frame of an episode
