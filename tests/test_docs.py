@@ -118,15 +118,18 @@ def _defines(path: Path, name: str) -> bool:
 @pytest.mark.parametrize("name", COURSE_NAMES)
 def test_the_courses_names_are_findable(name):
     """The MIT 6.S191 lab's names appear in the docs beside the module that defines them."""
-    found = []
-    for page in PAGES:
-        for line in page.read_text(encoding="utf-8").splitlines():
-            if f"`{name}`" in line:
-                found += re.findall(r"ablate/[\w/]+\.py", line)
-    assert found, f"`{name}` is in no line of README.md or docs/ that names its module (ablate/....py)"
-    assert any((ROOT / p).is_file() and _defines(ROOT / p, name) for p in found), (
-        f"`{name}`: none of {sorted(set(found))} exists and defines it"
-    )
+    lines = [
+        (page, line, set(re.findall(r"ablate/[\w/]+\.py", line)))
+        for page in PAGES
+        for line in page.read_text(encoding="utf-8").splitlines()
+        if f"`{name}`" in line
+    ]
+    placed = [(page, line, paths) for page, line, paths in lines if paths]
+    assert placed, f"`{name}` is in no line of README.md or docs/ that names its module (ablate/....py)"
+    for page, line, paths in placed:  # a line that places the name must place it right
+        assert any((ROOT / p).is_file() and _defines(ROOT / p, name) for p in paths), (
+            f"{page.relative_to(ROOT)}: `{name}` beside {sorted(paths)}, none of which defines it: {line.strip()}"
+        )
 
 
 def test_readme_example_experiment_is_valid_and_as_large_as_it_says():
