@@ -185,7 +185,14 @@ class NumpyStem:
         self.kernel2 = second.weight.detach().permute(1, 2, 3, 0).reshape(second.in_channels, -1).contiguous()
         self.kernel3 = third.weight.detach().permute(2, 3, 1, 0).reshape(-1, third.out_channels).contiguous()
         self.bias3 = third.bias.detach().numpy().copy()
-        self.k3, self.s3, self.p3 = third.kernel_size[0], third.stride[0], third.padding[0]
+        # For each output of the third convolution and kernel offset (ky, kx): the input position it reads, or
+        # side2 * side2 (a zero row) where that falls in the padding.
+        k, s3, p3, side2 = third.kernel_size[0], third.stride[0], third.padding[0], stem.side2
+        self.side3 = (side2 + 2 * p3 - k) // s3 + 1
+        oy, ox, ky, kx = np.meshgrid(*[np.arange(self.side3)] * 2, *[np.arange(k)] * 2, indexing="ij")
+        y, x = oy * s3 - p3 + ky, ox * s3 - p3 + kx
+        inside = (y >= 0) & (y < side2) & (x >= 0) & (x < side2)
+        self.patch3 = np.where(inside, y * side2 + x, side2 * side2).ravel()
 
     def __call__(self, frames: np.ndarray, rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
         """Logits of int8 ``frames`` (batch, size * size) with non-zero entries at ``rows``, ``columns``."""
@@ -220,14 +227,11 @@ class NumpyStem:
         pre2 = pre2.reshape(n, side2 * side2, c2).astype(np.float32) + self.background2
         hidden = self.act2(pre2.reshape(n, side2, side2, c2))
 
-        # Third convolution: every output's patch (k x k x channels, the kernel's layout), one product.
-        k, s3, p3 = self.k3, self.s3, self.p3
-        padded = np.zeros((n, side2 + 2 * p3, side2 + 2 * p3, c2), np.float32)
-        padded[:, p3 : p3 + side2, p3 : p3 + side2] = hidden
-        windows = np.lib.stride_tricks.sliding_window_view(padded, (k, k), axis=(1, 2))[:, ::s3, ::s3]
-        side3 = windows.shape[1]
-        patches = windows.transpose(0, 1, 2, 4, 5, 3).reshape(n * side3 * side3, -1)
-        x = (_matmul(patches, self.kernel3) + self.bias3).reshape(n, side3, side3, -1).transpose(0, 3, 1, 2)
+        # Third convolution: every output's patch (k x k x channels, the kernel's layout) gathered in one index
+        # (padding reads an appended zero row), one product.
+        rows3 = np.concatenate([hidden.reshape(n, side2 * side2, c2), np.zeros((n, 1, c2), np.float32)], axis=1)
+        patches = rows3[:, self.patch3].reshape(n * self.side3 * self.side3, -1)
+        x = (_matmul(patches, self.kernel3) + self.bias3).reshape(n, self.side3, self.side3, -1).transpose(0, 3, 1, 2)
         for layer in self.layers:
             if isinstance(layer, tuple):
                 x = _matmul(x, layer[0])
