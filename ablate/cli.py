@@ -383,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
             trials = select(expand(experiment), args.only, args.seeds)
             if args.dry_run:
                 return dry_run(experiment, trials)
-            print(f"ablate run {experiment.name}: {len(trials)} trials; starting MLflow and Ray ...", flush=True)
+            print(f"ablate run {experiment.name}: {len(trials)} trials; reading the MLflow store ...", flush=True)
             from ablate.run.runner import cmd_run
 
             return cmd_run(args, started_at)

@@ -480,9 +480,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             f"{source}: baseline = {baseline!r} is invalid; valid: one of the variant names {sorted(seen)}"
         )
     tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), seeds)
-    return Experiment(
-        name, source, description, base, tuple(variants), seeds, baseline, float(cpus), float(gpus), tune
-    )
+    return Experiment(name, source, description, base, tuple(variants), seeds, baseline, float(cpus), float(gpus), tune)
 
 
 def _parse_tune(
@@ -511,9 +509,7 @@ def _parse_tune(
             knob = KNOBS[key]
             for candidate in value:
                 if not knob.check(candidate):
-                    raise ConfigError(
-                        f"{where}.{key}: candidate {_clip(candidate)} is invalid; valid: {knob.valid}"
-                    )
+                    raise ConfigError(f"{where}.{key}: candidate {_clip(candidate)} is invalid; valid: {knob.valid}")
             converted = tuple(knob.convert(v) for v in value)
             if len(set(converted)) != len(converted):
                 raise ConfigError(f"{where}.{key} = {_clip(value)} is invalid; valid: distinct candidate values")

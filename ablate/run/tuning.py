@@ -69,9 +69,7 @@ def _distance(values: Mapping[str, Any], base: Mapping[str, Any]) -> float:
     return sum(abs(math.log(float(v)) - math.log(float(base[k]))) for k, v in values.items())
 
 
-def choose(
-    spec: TuneSpec, tuned: tuple[str, ...], base: Mapping[str, Any], results: Iterable[TuningResult]
-) -> Choice:
+def choose(spec: TuneSpec, tuned: tuple[str, ...], base: Mapping[str, Any], results: Iterable[TuningResult]) -> Choice:
     """One variant's choice from its finished tuning trials (every candidate on every tuning seed): see ``RULE``.
     ``tuned``: the knobs it is tuned on; ``base``: its own values of every knob of ``[tune]``."""
     if not tuned:
@@ -141,6 +139,25 @@ def choose_all(experiment: Experiment, results: Iterable[TuningResult]) -> dict[
             continue
         choices[variant.name] = choose(spec, tuned, base_values(spec, variant), rows)
     return choices
+
+
+def finished_results(
+    experiment: Experiment, plan: Iterable[Any], finished: Mapping[str, Mapping[str, float]]
+) -> list[TuningResult]:
+    """The stage-1 trials of ``plan`` (``GridTrial``s of stage ``tune``) that have finished, with their summary
+    metrics from ``finished`` (trial key -> metrics, from this launch or read back from the store)."""
+    spec = experiment.tune
+    assert spec is not None
+    variants = {v.name: v for v in experiment.variants}
+    results = []
+    for trial in plan:
+        if trial.key in finished:
+            tuned = spec.tuned_knobs(variants[trial.variant])
+            values = {k: getattr(trial.config, k) for k in tuned}
+            results.append(
+                TuningResult(trial.variant, values, trial.seed, finished[trial.key], trial.config.max_episodes)
+            )
+    return results
 
 
 def tuning_document(experiment: Experiment, choices: Mapping[str, Choice]) -> dict[str, Any]:
