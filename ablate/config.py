@@ -545,7 +545,7 @@ def _parse_tune(
         )
     spec = TuneSpec(tuple(knobs), tuple(range(TUNE_SEED_START, TUNE_SEED_START + count)), metric, budget)
     # Stage 1 (every candidate on every tuning seed) and stage 2 (the choice and the base value per seed).
-    tuning = sum(len(spec.candidates(v)) for v in variants) * count
+    tuning = sum(len(spec.candidates(v)) for v in variants if spec.tuned_knobs(v)) * count
     evaluation = 2 * len(variants) * len(seeds)
     if tuning + evaluation > MAX_TRIALS:
         raise ConfigError(

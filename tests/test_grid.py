@@ -81,12 +81,11 @@ def test_tuning_trials_use_tuning_seeds_disjoint_from_evaluation_seeds():
         "exp.toml",
     )
     tuning = tuning_trials(experiment)
-    # "own" sets learning_rate itself: one candidate (its own value) on each tuning seed.
-    assert len(tuning) == 2 * 3 + 1 * 3
+    # "own" sets learning_rate itself: it has no stage 1.
+    assert len(tuning) == 2 * 3 and {t.variant for t in tuning} == {"a"}
     assert {t.seed for t in tuning} == {10_000, 10_001, 10_002}
     assert not {t.seed for t in tuning} & set(experiment.seeds)
     assert all(t.stage == "tune" and t.config.max_episodes == 40 and not t.config.record_video for t in tuning)
-    assert {t.config.learning_rate for t in tuning if t.variant == "own"} == {0.001}
     evaluation = expand(experiment)
     assert not {t.key for t in tuning} & {t.key for t in evaluation}
     chosen = chosen_trials(experiment, {"a": {"learning_rate": 0.1}})

@@ -66,15 +66,18 @@ def expand(experiment: Experiment) -> list[GridTrial]:
 
 
 def tuning_trials(experiment: Experiment) -> list[GridTrial]:
-    """Stage 1 of a ``[tune]`` experiment: every variant x candidate x tuning seed, variant-major; ``[]``
-    without ``[tune]``. Tuning trials record no video (nobody watches them) and use the tuning budget; their
-    seeds (10,000 up) keep their keys apart from every evaluation trial's."""
+    """Stage 1 of a ``[tune]`` experiment: every tuned variant x candidate x tuning seed, variant-major; ``[]``
+    without ``[tune]``. A variant that sets every tuned knob itself has no stage 1. Tuning trials record no
+    video (nobody watches them) and use the tuning budget; their seeds (10,000 up)
+    keep their keys apart from every evaluation trial's."""
     spec = experiment.tune
     if spec is None:
         return []
     trials = []
+    budget = {"max_episodes": spec.max_episodes} if spec.max_episodes is not None else {}
     for variant in experiment.variants:
-        budget = {"max_episodes": spec.max_episodes} if spec.max_episodes is not None else {}
+        if not spec.tuned_knobs(variant):
+            continue  # it sets every tuned knob itself: nothing to choose
         for values in spec.candidates(variant):
             for seed in spec.seeds:
                 config = replace(variant.config, seed=seed, record_video=False, **budget, **values)
