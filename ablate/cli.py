@@ -422,7 +422,10 @@ def main(argv: list[str] | None = None) -> int:
                 warn_design(experiment)
                 return code
             warn_design(experiment)  # before any compute
-            print(f"ablate run {experiment.name}: {len(trials)} trials; reading the MLflow store ...", flush=True)
+            wanted = {t.variant for t in trials}
+            tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
+            count = f"{len(tuning)} tuning trials, then {len(trials)}" if tuning else f"{len(trials)}"
+            print(f"ablate run {experiment.name}: {count} trials; reading the MLflow store ...", flush=True)
             from ablate.run.runner import cmd_run
 
             return cmd_run(args, started_at)

@@ -75,6 +75,7 @@ def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tracking_uri):
         assert run.metrics["episodes_run"] == 20 and run.metrics["solved"] == 0
         assert set(run.artifacts) == {"episodes.csv", "weights.pt", "video.mp4", "learning_curve.png"}
         assert run.tags["ablate.node"]  # the Ray node that ran it
+        assert run.tags["ablate.stage"] == "eval"  # no [tune]: every trial is an evaluation trial
         with tempfile.TemporaryDirectory() as folder:
             table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
         assert list(table["episode"]) == list(range(1, 21)) and list(table["episode_return"]) == returns
