@@ -774,6 +774,9 @@ def main() -> int:
         "--ablation-repeats", type=int, default=1, help="repeats of the default ablation's three runs (~11 min each)"
     )
     parser.add_argument(
+        "--tuning-repeats", type=int, default=3, help="tuning: pairs of untuned and tuned ablations (~6 min each)"
+    )
+    parser.add_argument(
         "--pong-memory-cap", type=int, default=0, help="pong-memory: cut episodes at this many steps (0: none)"
     )
     args = parser.parse_args()
@@ -783,11 +786,14 @@ def main() -> int:
         parser.error(f"unknown section {unknown[0]!r}; valid: {', '.join(SECTIONS)}")
     if args.ablation_repeats < 1:
         parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
+    if args.tuning_repeats < 1:
+        parser.error(f"--tuning-repeats must be at least 1, got {args.tuning_repeats}")
     for name in args.sections or SECTIONS:
         print(f"== {name}", flush=True)
         kwargs = {
             "ablation": {"repeats": args.ablation_repeats},
             "pong-memory": {"max_episode_steps": args.pong_memory_cap},
+            "tuning": {"repeats": args.tuning_repeats},
         }
         SECTIONS[name](**kwargs.get(name, {}))
     if args.json:
