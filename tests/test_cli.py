@@ -357,3 +357,12 @@ def test_dry_run_of_a_tuned_file_lists_stage_1_then_stage_2_after_tuning(tmp_pat
     assert [r[:3] for r in rows[4:6]] == [["a", "[base]", "1"], ["own", "[base]", "1"]]
     assert rows[6][:5] == ["a", "[chosen]", "1", "after", "tuning"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tuned.toml"]
+
+
+def test_dry_run_only_narrows_both_stages_to_the_variants_asked_for(tmp_path, capsys):
+    path = tmp_path / "tuned.toml"
+    path.write_text(TUNED.replace('name = "own"\nlearning_rate = 0.001', 'name = "b"\nhidden_sizes = [8]'))
+    assert main(["run", str(path), "--dry-run", "--only", "b"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("tuned: 4 tuning trials, then 2 at the base values and up to 2 at the chosen values")
+    assert {line.split()[0] for line in lines[2:-2]} == {"b"}
