@@ -641,6 +641,31 @@ max_episodes = 10
     # 2 variants x 2 candidates x 1 tuning seed; the base value on seed 0; the choice on seed 0 (never 0.03)
     assert stages.count("tune") == 4 and stages.count("eval") == 2 + 2
 
-    # Re-running a finished experiment answers from the store: no Ray.
-    noop = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, env=env, timeout=300)
-    assert noop.returncode == 0 and "already finished" in noop.stdout and "starting Ray" not in noop.stdout
+    # Re-running a finished experiment answers from the store without starting, or even importing, Ray.
+    code = (
+        "import sys; from ablate.cli import main; "
+        f"rc = main({command[3:]!r}); print('RAY IMPORTED' if 'ray' in sys.modules else 'NO RAY'); sys.exit(rc)"
+    )
+    noop = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert noop.returncode == 0, noop.stdout + noop.stderr
+    assert "all 8 trials of tuneint already finished" in noop.stdout and noop.stdout.splitlines()[-1] == "NO RAY"
+
+
+def test_rerunning_a_finished_ablation_answers_from_the_store_without_importing_ray(tmp_path, tracking_uri):
+    # The store is written directly (no Ray): one launch, every trial of the file FINISHED.
+    experiment = _experiment(tmp_path)
+    tracker = Tracker(tracking_uri, "tiny")
+    launch = tracker.start_launch("g1", "tiny", {}, {})
+    for trial in expand(experiment):
+        tracker.start_trial(launch, "g1", trial.key, trial.variant, trial.seed, {}, "abc")
+        tracker.finish_trial(trial.key, {"solved": 0.0}, None)
+    tracker.finish_launch(launch, "FINISHED", {})
+    code = (
+        "import sys; from ablate.cli import main; "
+        f"rc = main(['run', {experiment.path!r}, '--tracking-uri', {tracking_uri!r}, '--no-report']); "
+        "print('RAY IMPORTED' if 'ray' in sys.modules else 'NO RAY'); sys.exit(rc)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "all 4 trials of tiny already finished" in proc.stdout and "starting" not in proc.stdout
+    assert proc.stdout.splitlines()[-1] == "NO RAY"
