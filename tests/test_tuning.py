@@ -126,3 +126,21 @@ def test_a_choice_is_always_one_of_the_candidates(metric):
     experiment = _spec(metric, candidates=(0.003, 0.3))
     table = {0.003: [_unsolved(), _unsolved()], 0.3: [_unsolved(), _unsolved()]}
     assert _choose(experiment, table).values["learning_rate"] in (0.003, 0.3)
+
+
+def test_stage_plan_reads_stage_1_from_finished_summaries_and_narrows_stage_2_to_the_seeds_asked_for():
+    from ablate.run.grid import expand, tuning_trials
+    from ablate.run.tuning import StagePlan, unique
+
+    experiment = _spec()
+    evaluation = [t for t in expand(experiment) if t.seed == 0]  # as --seeds 0 selects
+    plan = StagePlan(experiment, evaluation, tuning_trials(experiment))
+    assert {t.variant for t in plan.tuning} == {"a"} and len(plan.tuning) == 3 * 2
+    finished = {t.key: {"auc": 10.0 * t.config.learning_rate} for t in plan.tuning}
+    assert plan.choices({}) == {"own": plan.choices({})["own"]}  # nothing finished: only the untuned variant
+    choices = plan.choices(finished)
+    assert choices["a"].values == {"learning_rate": 0.1}
+    chosen = plan.chosen(choices)
+    assert [(t.variant, t.seed, t.config.learning_rate) for t in chosen] == [("a", 0, 0.1)]
+    at_base = plan.chosen({"a": choices["a"].__class__({"learning_rate": 0.03}, True, "")})
+    assert unique([*evaluation, *at_base], set()) == evaluation  # the choice equal to the base adds no trial

@@ -24,11 +24,11 @@ from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
 from ablate.run.curve import CurvePoint
-from ablate.run.grid import GridTrial, chosen_trials, expand, select, tuning_trials
+from ablate.run.grid import GridTrial, expand, select, tuning_trials
 from ablate.run.lock import launch_lock
 from ablate.run.progress import ProgressView, clock, stage
 from ablate.run.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
-from ablate.run.tuning import Choice, choose_all, finished_results, tuning_document
+from ablate.run.tuning import StagePlan, tuning_document, unique
 
 # ``ablate.run.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
 # re-run with nothing left answers from the store alone.
@@ -345,39 +345,6 @@ def run_experiment(
         return outcome
 
 
-@dataclass
-class _Plan:
-    """What a launch runs: stage 1 (tuning) and the evaluation trials known now; the rest of stage 2 (each
-    variant at its chosen values) once stage 1 is done. Without ``[tune]``: the evaluation trials alone."""
-
-    experiment: Experiment
-    evaluation: list[GridTrial]
-    """The untuned trials asked for (``--only``, ``--seeds``): in a tuned launch, the base-value trials."""
-    tuning: list[GridTrial]
-    """Stage 1 of the variants asked for (``--seeds`` never narrows it)."""
-
-    def chosen(self, choices: dict[str, Choice]) -> list[GridTrial]:
-        """Stage 2 at the chosen values, for the variants and evaluation seeds asked for."""
-        pairs = {(t.variant, t.seed) for t in self.evaluation}
-        values = {name: c.values for name, c in choices.items() if c.tuned}
-        return [t for t in chosen_trials(self.experiment, values) if (t.variant, t.seed) in pairs]
-
-    def choices(self, finished: dict[str, dict[str, float]]) -> dict[str, Choice]:
-        """Choices of the variants whose stage 1 has finished (``finished``: key -> summary metrics)."""
-        if not self.tuning:
-            return {}
-        return choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished))
-
-
-def _unique(trials: list[GridTrial], skip: set[str]) -> list[GridTrial]:
-    seen, out = set(skip), []
-    for trial in trials:
-        if trial.key not in seen:
-            seen.add(trial.key)
-            out.append(trial)
-    return out
-
-
 def _run_locked(
     experiment: Experiment,
     trials: list[GridTrial],
@@ -394,12 +361,12 @@ def _run_locked(
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     evaluation = trials if only is None else list(only)
     wanted = {t.variant for t in evaluation}
-    plan = _Plan(experiment, evaluation, [t for t in tuning_trials(experiment) if t.variant in wanted])
+    plan = StagePlan(experiment, evaluation, [t for t in tuning_trials(experiment) if t.variant in wanted])
     # Selection on resume reads the tuning trials finished by earlier launches back from the store.
     finished_runs = {r.key: r.metrics for r in tracker.trial_runs(generation) if r.status == "FINISHED"}
     finished_before = set(finished_runs)
     choices = plan.choices(finished_runs)
-    known = _unique([*plan.tuning, *evaluation, *plan.chosen(choices)], set())
+    known = unique([*plan.tuning, *evaluation, *plan.chosen(choices)], set())
     todo = [t for t in known if t.key not in finished_before]
     outcome = RunOutcome(
         experiment.name,
@@ -466,7 +433,7 @@ def _run_locked(
             # Stage 2: every variant whose tuning trials all finished, at its chosen values.
             choices = plan.choices(finished_runs | recorder.summaries)
             tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
-            later = _unique(plan.chosen(choices), {t.key for t in known})
+            later = unique(plan.chosen(choices), {t.key for t in known})
             todo_after = [t for t in later if t.key not in finished_before]
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)

@@ -1,6 +1,5 @@
-"""Stage 1 -> stage 2 of a tuned ablation: pick each variant's knob values from its finished tuning trials.
-
-Pure: a function of the experiment's ``[tune]`` and the tuning trials' summary metrics; no Ray, no MLflow.
+"""Stage 1 -> stage 2 of a tuned ablation: pick each variant's knob values from its finished tuning trials,
+and the trials each stage runs. Pure: no Ray, no MLflow, no file.
 """
 
 from __future__ import annotations
@@ -11,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ablate.config import Experiment, TuneSpec, Variant
+from ablate.run.grid import GridTrial, chosen_trials
 
 RULE = (
     "Each variant takes the candidate with the best mean {metric} over its tuning seeds; where that leaves a tie "
@@ -178,3 +178,38 @@ def tuning_document(experiment: Experiment, choices: Mapping[str, Choice]) -> di
             for name, c in choices.items()
         },
     }
+
+
+@dataclass
+class StagePlan:
+    """What a launch runs: stage 1 (tuning) and the evaluation trials known now; the rest of stage 2 (each
+    variant at its chosen values) once stage 1 is done. Without ``[tune]``: the evaluation trials alone."""
+
+    experiment: Experiment
+    evaluation: list[GridTrial]
+    """The untuned trials asked for (``--only``, ``--seeds``): in a tuned launch, the base-value trials."""
+    tuning: list[GridTrial]
+    """Stage 1 of the variants asked for (``--seeds`` never narrows it)."""
+
+    def chosen(self, choices: dict[str, Choice]) -> list[GridTrial]:
+        """Stage 2 at the chosen values, for the variants and evaluation seeds asked for."""
+        pairs = {(t.variant, t.seed) for t in self.evaluation}
+        values = {name: c.values for name, c in choices.items() if c.tuned}
+        return [t for t in chosen_trials(self.experiment, values) if (t.variant, t.seed) in pairs]
+
+    def choices(self, finished: dict[str, dict[str, float]]) -> dict[str, Choice]:
+        """Choices of the variants whose stage 1 has finished (``finished``: key -> summary metrics)."""
+        if not self.tuning:
+            return {}
+        return choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished))
+
+
+def unique(trials: list[GridTrial], skip: set[str]) -> list[GridTrial]:
+    """``trials`` without repeated keys and without the keys in ``skip``, in order (a chosen value equal to the
+    base value gives the base-value trial again)."""
+    seen, out = set(skip), []
+    for trial in trials:
+        if trial.key not in seen:
+            seen.add(trial.key)
+            out.append(trial)
+    return out
