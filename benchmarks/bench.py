@@ -3,7 +3,8 @@
 Sections: `core` (course-style loop vs our trial, time to solve CartPole-v1), `runner`, `ablation` (the
 default ablation: speed-up, tracking overhead, memory), `tracking` (the single writer with 256 synthetic
 trials), `cluster` (a tiny ablation on the local default vs a joined head and a tracking server), `pong`
-and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial).
+and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial), `eta` (the time-left
+estimate against the time that actually remained).
 `python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
 """
 
@@ -689,6 +690,88 @@ def bench_pong_memory(episodes: int = 1000, variant: str = "cnn", max_episode_st
     RESULTS["pong-memory"] = {"variant": variant, "rss_mb": samples, "peak_rss_mb": peak_mb}
 
 
+def _eta_errors(view) -> dict:
+    """Each estimate logged once a quarter of the trials had ended, against the time that actually remained
+    until the last trial ended; the bound is the issue's: +-30% or +-20 s, whichever is larger."""
+    total = len(view.trials)
+    end = view.trials_end - view.start
+    points = [
+        (t, est, end - t) for t, ended, est in view.estimates if est is not None and ended >= total / 4 and t < end
+    ]
+    if not points:
+        return {"points": 0}
+    over = [(abs(est - truth) / max(0.3 * truth, 20.0), t, est, truth) for t, est, truth in points]
+    worst = max(over)
+    relative = max(points, key=lambda p: abs(p[1] - p[2]) / p[2] if p[2] > 0 else 0)
+    first_quarter = next(t for t, ended, _ in view.estimates if ended >= total / 4)
+    return {
+        "points": len(points),
+        "within_bound": sum(o <= 1 for o, *_ in over),
+        "worst_over_bound": worst[0],
+        "worst_at_s": worst[1],
+        "worst_estimate_s": worst[2],
+        "worst_truth_s": worst[3],
+        "worst_relative_error": (relative[1] - relative[2]) / relative[2] if relative[2] > 0 else 0.0,
+        "quarter_at_s": first_quarter,
+        "trials_end_s": end,
+    }
+
+
+def bench_eta(experiments: tuple[str, ...] = ("experiments/cartpole.toml", "experiments/pong-smoke.toml")) -> None:
+    """The time-left estimate against the truth: each experiment run twice into a fresh store, cold (no
+    earlier launch to learn costs from) then warm (``--fresh`` on the same store: the first launch's costs
+    are the prior), every estimate logged. Printed: the worst error after a quarter of the trials ended, as a
+    fraction of the bound (<= 1.00 keeps the promise) and as a relative error."""
+    import shutil
+    import tempfile
+
+    from ablate.config import load_experiment
+    from ablate.run.runner import run_experiment
+
+    folder = Path(tempfile.mkdtemp(prefix="ablate-bench-eta-"))
+    figures = {}
+    try:
+        for path in experiments:
+            experiment = load_experiment(path)
+            store = folder / experiment.name
+            store.mkdir()
+            for launch in ("cold", "warm"):
+                started = time.monotonic()
+                outcome = run_experiment(
+                    experiment,
+                    tracking_uri=f"sqlite:///{store / 'mlflow.db'}",
+                    storage_path=str(store / "ray"),
+                    show_progress=False,
+                    fresh=launch == "warm",
+                    started_at=started,
+                    log_estimates=True,
+                )
+                assert outcome.exit_code == 0 and outcome.view is not None, outcome.failed
+                view = outcome.view
+                errors = _eta_errors(view)
+                trace = [
+                    (round(t, 2), ended, None if est is None else round(est, 2)) for t, ended, est in view.estimates
+                ]
+                figures[f"{experiment.name}/{launch}"] = {**errors, "trace": trace}
+                if not errors["points"]:
+                    print(f"  {path} {launch}: no estimate after a quarter of the trials", flush=True)
+                    continue
+                e = errors
+                print(
+                    f"  {path} {launch}: {len(view.trials)} trials ended at {e['trials_end_s']:.0f} s (a quarter "
+                    f"at {e['quarter_at_s']:.0f} s); {e['within_bound']}/{e['points']} estimates after a quarter "
+                    f"within +-30% or +-20 s; worst {e['worst_over_bound']:.2f} of the bound (said "
+                    f"{e['worst_estimate_s']:.0f} s at {e['worst_at_s']:.0f} s, {e['worst_truth_s']:.0f} s remained); "
+                    f"worst relative error {100 * e['worst_relative_error']:+.0f}%",
+                    flush=True,
+                )
+        worst = max(f.get("worst_over_bound", 0.0) for f in figures.values())
+        print(f"eta: worst error after 25% of the trials: {worst:.2f} of the bound (+-30% or +-20 s; <= 1.00 keeps it)")
+        RESULTS["eta"] = figures
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 SECTIONS = {
     "core": bench_core,
     "runner": bench_runner,
@@ -697,6 +780,7 @@ SECTIONS = {
     "cluster": bench_cluster,
     "pong": bench_pong,
     "pong-memory": bench_pong_memory,
+    "eta": bench_eta,
 }
 
 

@@ -12,7 +12,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -67,6 +67,16 @@ class _Trial:
         return ((self.ended_at or now) - self.started_at) / self.episode
 
 
+@dataclass(frozen=True)
+class _CostsSeen:
+    means: dict[tuple[str, int], float]
+    """Mean seconds of the finished trials per (variant, episode budget)."""
+    rates: dict[str | None, float]
+    """Mean seconds per episode per variant (``None``: over every variant)."""
+    prior_scale: float
+    """This launch's seconds over the earlier runs' seconds, for the trials both finished; 1 before one has."""
+
+
 def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], slots: int) -> float:
     """Seconds until the last trial ends when ``pending_cost_s`` (in scheduling order) each take the next free
     one of ``slots`` trial slots, the running trials holding theirs for ``running_left_s``: a long trial
@@ -92,9 +102,13 @@ class ProgressView:
         enabled: bool = True,
         slots: int | None = None,
         start: float | None = None,
+        prior_costs: Mapping[str, float] | None = None,
+        log_estimates: bool = False,
     ) -> None:
-        """``slots``: trials that can run at once (``None``: the most seen running at once). ``start``: the
-        ``time.monotonic()`` the command started at, so the clock includes imports and Ray's start."""
+        """``trials`` in the order they will start. ``slots``: trials that can run at once (``None``: the most
+        seen running at once). ``start``: the ``time.monotonic()`` the command started at, so the clock
+        includes imports and Ray's start. ``prior_costs``: seconds by trial key that earlier launches took
+        (``Tracker.trial_costs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``)."""
         self.name = name
         self.trials = {t.key: _Trial(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
@@ -110,6 +124,14 @@ class ProgressView:
         self.live: Live | None = None
         self.last_line = 0.0
         self.lock = threading.Lock()
+        self.prior = dict(prior_costs or {})
+        self.gaps: list[float] = []
+        """Seconds between a slot freeing and the next trial starting, one per start after an end."""
+        self._freed: deque[float] = deque()
+        """When slots freed that no trial has taken yet."""
+        self.log_estimates = log_estimates
+        self.estimates: list[tuple[float, int, float | None]] = []
+        """(seconds since ``start``, trials ended, the estimate in seconds) after every event."""
 
     # --- events -----------------------------------------------------------------------------------
     def started(self, key: str) -> None:
@@ -120,6 +142,9 @@ class ProgressView:
             trial.reports.clear()
             self.first_start = self.first_start or now
             self.max_running = max(self.max_running, self._count("running"))
+            if self._freed:
+                self.gaps.append(now - self._freed.popleft())
+            self._log_estimate(now)
         self.refresh()
 
     def episodes(self, key: str, rows: Sequence[Any]) -> None:
@@ -130,6 +155,7 @@ class ProgressView:
             trial = self.trials[key]
             trial.episode, trial.rolling_mean = rows[-1].episode, rows[-1].rolling_mean
             trial.reports.append((time.monotonic(), trial.episode))
+            self._log_estimate(time.monotonic())
         self.refresh()
 
     def finished(self, key: str, solved: bool) -> None:
@@ -144,47 +170,70 @@ class ProgressView:
             trial.state, trial.solved, trial.ended_at = state, solved, time.monotonic()
             if not self._count("pending") and not self._count("running"):
                 self.trials_end = trial.ended_at
+            if self._count("pending"):
+                self._freed.append(trial.ended_at)
+            self._log_estimate(trial.ended_at)
         self.refresh()
 
     def _count(self, state: str) -> int:
         return sum(t.state == state for t in self.trials.values())
 
     # --- the estimate -----------------------------------------------------------------------------
-    def _seconds_per_episode(self, variant: str | None, now: float) -> float | None:
-        """The mean pace (wall seconds per episode) of this variant's trials so far (every variant's when
-        ``None``): recent for running trials, whole for ended ones."""
-        rates = [
-            rate
-            for t in self.trials.values()
-            if variant is None or t.trial.variant == variant
-            if (rate := t.seconds_per_episode(now)) is not None
-        ]
-        return statistics.fmean(rates) if rates else None
+    def _costs_seen(self, now: float) -> _CostsSeen:
+        """What this launch has shown so far of its trials' costs (once per estimate: the trials are many)."""
+        by_group: dict[tuple[str, int], list[float]] = {}
+        rates: dict[str | None, list[float]] = {}
+        observed = earlier = 0.0
+        for key, t in self.trials.items():
+            if t.state == "done" and t.started_at is not None and t.ended_at is not None:
+                by_group.setdefault((t.trial.variant, t.budget), []).append(t.ended_at - t.started_at)
+                if key in self.prior:
+                    observed, earlier = observed + t.ended_at - t.started_at, earlier + self.prior[key]
+            if (rate := t.seconds_per_episode(now)) is not None:
+                rates.setdefault(t.trial.variant, []).append(rate)
+                rates.setdefault(None, []).append(rate)
+        return _CostsSeen(
+            means={group: statistics.fmean(costs) for group, costs in by_group.items()},
+            rates={variant: statistics.fmean(r) for variant, r in rates.items()},
+            # How this launch's trials compare with their earlier runs (a busier machine, another CPU).
+            prior_scale=observed / earlier if earlier > 0 else 1.0,
+        )
+
+    def _trial_cost(self, trial: _Trial, seen: _CostsSeen) -> float | None:
+        """Expected seconds of a trial that has not started: its earlier run's (scaled to this launch's pace),
+        else the mean of its finished peers (same variant, same episode budget), else its whole budget at the
+        seconds per episode seen so far (its variant's own, else every variant's); ``None`` before any trial
+        has reported an episode."""
+        if trial.trial.key in self.prior:
+            return self.prior[trial.trial.key] * seen.prior_scale
+        mean = seen.means.get((trial.trial.variant, trial.budget))
+        if mean is not None:
+            return mean
+        rate = seen.rates.get(trial.trial.variant) or seen.rates.get(None)
+        return None if rate is None else rate * trial.budget
 
     def expected_cost(self, variant: str, now: float | None = None) -> float | None:
-        """Expected seconds of a trial of ``variant`` that has not started: the mean of its finished trials;
-        before one has finished, its whole episode budget at the seconds per episode seen so far (the
-        variant's own, else every variant's); ``None`` before any trial has reported an episode."""
+        """Expected seconds of a trial of ``variant`` that has not started (its first pending one)."""
         now = time.monotonic() if now is None else now
-        done = [t for t in self.trials.values() if t.trial.variant == variant and t.state == "done"]
-        if done:
-            return statistics.fmean(t.ended_at - t.started_at for t in done if t.started_at and t.ended_at)
-        rate = self._seconds_per_episode(variant, now) or self._seconds_per_episode(None, now)
-        if rate is None:
-            return None
-        budget = next(t.budget for t in self.trials.values() if t.trial.variant == variant)
-        return rate * budget
+        trials = [t for t in self.trials.values() if t.trial.variant == variant]
+        trial = next((t for t in trials if t.state == "pending"), trials[0])
+        return self._trial_cost(trial, self._costs_seen(now))
 
-    def _left_of_running(self, trial: _Trial, now: float) -> float | None:
+    def dispatch_s(self) -> float:
+        """Mean seconds a slot stays idle between one trial's end and the next trial's start (Tune's loop, the
+        driver writing the ended trial's artifacts): with trials of a second or two, a third of the time."""
+        return statistics.fmean(self.gaps) if self.gaps else 0.0
+
+    def _left_of_running(self, trial: _Trial, now: float, seen: _CostsSeen) -> float | None:
         elapsed = now - (trial.started_at or now)
-        expected = self.expected_cost(trial.trial.variant, now)
-        if (
-            expected is not None
-            and expected > elapsed
-            and any(t.state == "done" for t in self.trials.values() if t.trial.variant == trial.trial.variant)
-        ):
+        if trial.trial.key in self.prior:
+            expected = self.prior[trial.trial.key] * seen.prior_scale
+        else:
+            expected = seen.means.get((trial.trial.variant, trial.budget))
+        if expected is not None and expected > elapsed:
             return expected - elapsed
-        rate = trial.seconds_per_episode(now) or self._seconds_per_episode(None, now)
+        # Past what its peers took (or none has ended): the rest of its budget at its own recent pace.
+        rate = trial.seconds_per_episode(now) or seen.rates.get(None)
         if rate is None:
             return None
         return rate * max(trial.budget - trial.episode, 0)
@@ -196,12 +245,22 @@ class ProgressView:
         pending = [t for t in self.trials.values() if t.state == "pending"]
         if not running and not pending:
             return 0.0
-        running_left = [self._left_of_running(t, now) for t in running]
-        costs = {v: self.expected_cost(v, now) for v in {t.trial.variant for t in pending}}
-        if any(x is None for x in running_left) or any(c is None for c in costs.values()):
+        seen = self._costs_seen(now)
+        running_left = [self._left_of_running(t, now, seen) for t in running]
+        costs = [self._trial_cost(t, seen) for t in pending]
+        if any(x is None for x in running_left) or any(c is None for c in costs):
             return None
         slots = self.slots or max(self.max_running, 1)
-        return makespan(running_left, [costs[t.trial.variant] for t in pending], slots)  # type: ignore[misc]
+        gap = self.dispatch_s()
+        # Pending trials start in the order the scheduler was given them (``grid.schedule_order``).
+        return makespan(running_left, [c + gap for c in costs], slots)  # type: ignore[misc, operator]
+
+    def _log_estimate(self, now: float) -> None:
+        """Called with the lock held after every event: (seconds since the command started, trials ended,
+        the estimate) for ``make bench`` to hold against the time that actually remained."""
+        if self.log_estimates:
+            ended = self._count("done") + self._count("failed")
+            self.estimates.append((now - self.start, ended, self.seconds_left(now)))
 
     # --- rendering --------------------------------------------------------------------------------
     def headline(self) -> str:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
 from ablate.run.curve import CurvePoint
-from ablate.run.grid import GridTrial, expand, select
+from ablate.run.grid import GridTrial, expand, schedule_order, select
 from ablate.run.lock import launch_lock
 from ablate.run.progress import ProgressView, clock, stage
 from ablate.run.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, largest_node_cpus, run_trials, stop_ray
@@ -300,9 +300,11 @@ def run_experiment(
     command: str = "",
     only: Sequence[GridTrial] | None = None,
     started_at: float | None = None,
+    log_estimates: bool = False,
 ) -> RunOutcome:
     """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
     current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock.
+    ``log_estimates``: keep every time-left estimate in ``outcome.view.estimates`` (``make bench``).
 
     Every check that can fail without Ray (the grid, the CPUs, the store, another launch) fails first. Holds
     the experiment's launch lock throughout (``LaunchLocked`` if another launch has it)."""
@@ -323,6 +325,7 @@ def run_experiment(
             command,
             only,
             started_at,
+            log_estimates,
         )
         outcome.reaped = reaped
         return outcome
@@ -340,6 +343,7 @@ def _run_locked(
     command: str,
     only: Sequence[GridTrial] | None,
     started_at: float | None,
+    log_estimates: bool = False,
 ) -> RunOutcome:
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     finished_before = tracker.finished_keys(generation)
@@ -386,7 +390,12 @@ def _run_locked(
     )
     outcome.launch_run_id = launch
     slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
-    view = ProgressView(experiment.name, todo, len(finished_before), show_progress, slots, started_at)
+    # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
+    prior = tracker.trial_costs(t.key for t in todo)
+    todo = schedule_order(todo, prior)
+    view = ProgressView(
+        experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates
+    )
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
     options = ClusterOptions(

@@ -335,6 +335,29 @@ class Tracker:
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
 
+    def trial_costs(self, keys: Iterable[str]) -> dict[str, float]:
+        """Seconds each of ``keys`` took (its run's start to end) when an earlier launch, of any generation,
+        finished it; the newest such run counts. A trial key fixes everything that shapes the trial, so an
+        earlier run of it is the best guess of its cost: the time-left estimate starts from these."""
+        wanted = set(keys)
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None or not wanted:
+            return {}
+        query = f"tags.`{TAG_ROLE}` = 'trial' and attributes.status = 'FINISHED'"
+        costs: dict[str, float] = {}
+        token = None
+        while True:
+            page = self.client.search_runs(
+                [experiment_id], query, order_by=["attributes.start_time DESC"], max_results=1000, page_token=token
+            )
+            for r in page:
+                key = r.data.tags.get(TAG_KEY, "")
+                if key in wanted and key not in costs and r.info.end_time and r.info.start_time:
+                    costs[key] = max(r.info.end_time - r.info.start_time, 0) / 1000
+            token = page.token
+            if not token:
+                return costs
+
     def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
         """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid)."""
         run = self.client.create_run(
