@@ -358,6 +358,11 @@ def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
     overrides = {v.name: ", ".join(f"{k}={json.dumps(x)}" for k, x in v.overrides) for v in experiment.variants}
     total = len(expand(experiment))
     print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
+    if experiment.storage_name != experiment.name:
+        print(
+            f"stored as {experiment.storage_name!r}: reports/{experiment.storage_name}/, the MLflow experiment "
+            f"and Tune's folders (the name in a form every file system takes)"
+        )
     rows = [("variant", "seed", "key", "overrides")] + [
         (t.variant, str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials
     ]

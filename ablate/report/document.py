@@ -22,7 +22,7 @@ import markdown
 import numpy as np
 import pandas as pd
 
-from ablate.config import ConfigError, load_experiment
+from ablate.config import NAME_RULE, ConfigError, load_experiment, name_problem, storage_name
 from ablate.report.figures import (
     Figure,
     ablation_window,
@@ -955,12 +955,12 @@ def print_pdf(html_path: Path, pdf_path: Path, timeout_s: float = 180) -> str | 
 
 
 def report_folder(name: str, out_root: Path) -> Path:
-    """``out_root/name``, refusing any name that is not one plain folder name inside ``out_root``."""
-    if not name or name in (".", "..") or "/" in name or "\\" in name or name.startswith(".") or "\0" in name:
-        raise ConfigError(
-            f"experiment name {name!r} is invalid; valid: letters, digits, '-' and '_' (a folder in {out_root}/)"
-        )
-    folder = out_root / name
+    """``out_root/<the name's storage form>`` (``config.storage_name``), refusing a name no experiment could
+    have (``config.name_problem``)."""
+    problem = name_problem(name)
+    if problem:
+        raise ConfigError(f"experiment name {name!r} is invalid ({problem}); valid: {NAME_RULE}")
+    folder = out_root / storage_name(name)
     if folder.resolve().parent != out_root.resolve():
         raise ConfigError(f"experiment name {name!r} is invalid: {folder} is outside {out_root}/")
     return folder
@@ -1019,7 +1019,7 @@ def build_report(
         )
     command = command or f"ablate report {name}"
     Path(out_root).mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{name}.new-", dir=out_root))
+    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=out_root))
     try:
         tracker = Tracker(tracking_uri, name)
         pdf_note = _build(ablation, tracker, staging, pdf, command)

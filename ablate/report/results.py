@@ -438,7 +438,8 @@ def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.Dat
         if curves
         else pd.DataFrame(columns=["variant", "seed", "solved", "episode", "return", "rolling_mean", "wall_s"])
     )
-    return Ablation(name, grid, launch_info, trials, curves_frame, params)
+    # The name as written in the experiment file, whichever form (it or its storage name) asked for it.
+    return Ablation(grid.get("experiment", name), grid, launch_info, trials, curves_frame, params)
 
 
 def select(ablation: Ablation, variants: list[str] | None = None, baseline: str | None = None) -> Ablation:

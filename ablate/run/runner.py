@@ -243,7 +243,7 @@ class _Recorder:
 
 def tune_run_name(experiment: str, launch_id: str) -> str:
     """Tune's folder for one launch, ``<storage_path>/<this>``: removed when the launch ends, or by the next
-    launch if this one died."""
+    launch if this one died. ``experiment``: its storage name (``config.storage_name``)."""
     return f"{experiment}-{launch_id[:8]}"
 
 
@@ -407,7 +407,7 @@ def _run_locked(
     )
     try:
         with view:
-            run_trials(todo, recorder, options, run_name=tune_run_name(experiment.name, launch), resume=resume)
+            run_trials(todo, recorder, options, run_name=tune_run_name(tracker.experiment_name, launch), resume=resume)
     except KeyboardInterrupt as interrupt:
         outcome.interrupted = True
         signum = getattr(interrupt, "signum", None) or (_signals_received[-1] if _signals_received else signal.SIGINT)
@@ -504,7 +504,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         from ablate.report.document import NoResults, terminal_summary, write_report
 
         try:
-            with stage(f"writing the report into reports/{experiment.name}/") as report_s:
+            with stage(f"writing the report into reports/{experiment.storage_name}/") as report_s:
                 folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
         except NoResults as error:  # every trial failed: say so, and leave the last good report in place
             print(f"no report: {error}")
