@@ -277,3 +277,37 @@ def test_every_estimate_is_logged_against_the_clock_when_asked(clock):
     view.episodes("a-s0", [_row(50, 1.0)])
     view.finished("a-s0", solved=False)
     assert view.estimates == [(0.0, 0, None), (2.0, 0, pytest.approx(2.0)), (2.0, 1, 0.0)]
+
+
+def test_a_later_stage_counts_after_this_one_and_keeps_what_was_learned(clock):
+    # Stage 1: two tuning trials of "a"; stage 2 (not known yet): two trials of "a" at the same budget.
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=2, later=[("a", 100)] * 2)
+    view.started("a-s0")
+    view.started("a-s1")
+    clock.now += 4
+    view.episodes("a-s0", [_row(50, 1.0)])  # 0.08 s per episode; 4 s left of its 100-episode budget
+    view.episodes("a-s1", [_row(50, 1.0)])
+    # Stage 2 starts only when both have ended (4 s), then its two trials run side by side (8 s each).
+    assert view.seconds_left() == pytest.approx(4 + 8)
+    clock.now += 2
+    view.finished("a-s0", solved=True)  # 6 s
+    view.finished("a-s1", solved=True)
+    assert "all trials ended" not in view.headline() and view.seconds_left() == pytest.approx(6)
+    stage_2 = [GridTrial(f"a-lr-s{s}", "a", s, replace(TrialConfig(), max_episodes=100, seed=s)) for s in (0, 1)]
+    view.add_trials(stage_2)
+    assert view.seconds_left() == pytest.approx(6)  # the finished trials' cost carries over
+    view.started("a-lr-s0")
+    view.started("a-lr-s1")
+    view.finished("a-lr-s0", solved=True)
+    view.finished("a-lr-s1", solved=True)
+    assert "all trials ended" in view.headline() and view.seconds_left() == 0
+
+
+def test_a_later_stage_with_nothing_to_run_ends_the_trials(clock):
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, later=[("a", 100)])
+    view.started("a-s0")
+    clock.now += 3
+    view.finished("a-s0", solved=True)
+    clock.now += 1
+    view.add_trials([])  # every choice was the base value: no stage-2 trials
+    assert "all trials ended" in view.headline() and view.trials_end == clock.now - 1

@@ -104,11 +104,14 @@ class ProgressView:
         start: float | None = None,
         prior_costs: Mapping[str, float] | None = None,
         log_estimates: bool = False,
+        later: Sequence[tuple[str, int]] = (),
     ) -> None:
         """``trials`` in the order they will start. ``slots``: trials that can run at once (``None``: the most
         seen running at once). ``start``: the ``time.monotonic()`` the command started at, so the clock
         includes imports and Ray's start. ``prior_costs``: seconds by trial key that earlier launches took
-        (``Tracker.trial_costs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``)."""
+        (``Tracker.trial_costs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``).
+        ``later``: (variant, episode budget) of trials not known yet that start once every trial here has ended
+        (a tuned ablation's trials at the chosen values); ``add_trials`` puts them in when they are known."""
         self.name = name
         self.trials = {t.key: _Trial(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
@@ -130,6 +133,7 @@ class ProgressView:
         self._freed: deque[float] = deque()
         """When slots freed that no trial has taken yet."""
         self.log_estimates = log_estimates
+        self.later = list(later)
         self.estimates: list[tuple[float, int, float | None]] = []
         """(seconds since ``start``, trials ended, the estimate in seconds) after every event."""
 
@@ -168,11 +172,28 @@ class ProgressView:
         with self.lock:
             trial = self.trials[key]
             trial.state, trial.solved, trial.ended_at = state, solved, time.monotonic()
-            if not self._count("pending") and not self._count("running"):
+            if not self._count("pending") and not self._count("running") and not self.later:
                 self.trials_end = trial.ended_at
             if self._count("pending"):
                 self._freed.append(trial.ended_at)
             self._log_estimate(trial.ended_at)
+        self.refresh()
+
+    def add_trials(self, trials: Sequence[GridTrial]) -> None:
+        """The next stage's trials, now known, in the order they will start (none: it has nothing to run).
+        They replace the ``later`` guesses; what this launch learned of costs carries over."""
+        with self.lock:
+            for t in trials:
+                self.trials[t.key] = _Trial(t)
+                if t.variant not in self.variants:
+                    self.variants.append(t.variant)
+            self.later = []
+            self._freed.clear()  # the next stage starts on slots that are all free: no wait to count
+            if trials:
+                self.trials_end = None
+            elif not self._count("pending") and not self._count("running"):
+                self.trials_end = max((t.ended_at for t in self.trials.values() if t.ended_at), default=None)
+            self._log_estimate(time.monotonic())
         self.refresh()
 
     def _count(self, state: str) -> int:
@@ -243,17 +264,28 @@ class ProgressView:
         now = time.monotonic() if now is None else now
         running = [t for t in self.trials.values() if t.state == "running"]
         pending = [t for t in self.trials.values() if t.state == "pending"]
-        if not running and not pending:
+        if not running and not pending and not self.later:
             return 0.0
         seen = self._costs_seen(now)
         running_left = [self._left_of_running(t, now, seen) for t in running]
         costs = [self._trial_cost(t, seen) for t in pending]
-        if any(x is None for x in running_left) or any(c is None for c in costs):
+        later = [self._later_cost(variant, budget, seen) for variant, budget in self.later]
+        if any(x is None for x in [*running_left, *costs, *later]):
             return None
         slots = self.slots or max(self.max_running, 1)
         gap = self.dispatch_s()
-        # Pending trials start in the order the scheduler was given them (``grid.schedule_order``).
-        return makespan(running_left, [c + gap for c in costs], slots)  # type: ignore[misc, operator]
+        # Pending trials start in the order the scheduler was given them (``grid.schedule_order``); the later
+        # stage once every one of them has ended.
+        now_stage = makespan(running_left, [c + gap for c in costs], slots)  # type: ignore[misc, operator]
+        return now_stage + (makespan([], [c + gap for c in later], slots) if later else 0.0)  # type: ignore[misc, operator]
+
+    def _later_cost(self, variant: str, budget: int, seen: _CostsSeen) -> float | None:
+        """A trial not known yet: its variant's finished trials at its budget, else the budget at the pace seen."""
+        mean = seen.means.get((variant, budget))
+        if mean is not None:
+            return mean
+        rate = seen.rates.get(variant) or seen.rates.get(None)
+        return None if rate is None else rate * budget
 
     def _log_estimate(self, now: float) -> None:
         """Called with the lock held after every event: (seconds since the command started, trials ended,
