@@ -792,6 +792,12 @@ def main() -> int:
         "--ablation-repeats", type=int, default=1, help="repeats of the default ablation's three runs (~11 min each)"
     )
     parser.add_argument(
+        "--eta-experiment",
+        action="append",
+        dest="eta_experiments",
+        help="eta: an experiment file to measure (repeatable; default: cartpole.toml and pong-smoke.toml)",
+    )
+    parser.add_argument(
         "--pong-memory-cap", type=int, default=0, help="pong-memory: cut episodes at this many steps (0: none)"
     )
     args = parser.parse_args()
@@ -806,6 +812,7 @@ def main() -> int:
         kwargs = {
             "ablation": {"repeats": args.ablation_repeats},
             "pong-memory": {"max_episode_steps": args.pong_memory_cap},
+            "eta": {"experiments": tuple(args.eta_experiments)} if args.eta_experiments else {},
         }
         SECTIONS[name](**kwargs.get(name, {}))
     if args.json:
