@@ -311,3 +311,21 @@ def test_a_later_stage_with_nothing_to_run_ends_the_trials(clock):
     clock.now += 1
     view.add_trials([])  # every choice was the base value: no stage-2 trials
     assert "all trials ended" in view.headline() and view.trials_end == clock.now - 1
+
+
+def test_a_workers_start_paid_by_its_first_trial_is_not_charged_to_the_trials_after_it(clock):
+    view = ProgressView("x", _trials(variants=("a", "b"), seeds=(0, 1, 2)), 0, enabled=False, slots=2)
+    view.started("a-s0")  # both first on their workers: each pays a 20 s worker start
+    view.started("b-s0")
+    clock.now += 25
+    view.finished("a-s0", solved=True, wall_s=5.0)
+    view.started("a-s1")
+    clock.now += 1
+    view.finished("b-s0", solved=True, wall_s=4.0)
+    view.started("b-s1")
+    # No trial without a worker start has ended: a's trials cost their training time (5 s), not 25 s.
+    assert view.expected_cost("a") == pytest.approx(5.0)
+    clock.now += 6
+    view.finished("a-s1", solved=True, wall_s=5.0)  # 7 s since it started: 2 s beside its training
+    assert view.expected_cost("a") == pytest.approx((7 + 7) / 2)  # a-s0 counts as 5 s + the 2 s beside
+    assert view.expected_cost("b") == pytest.approx(4 + 2)

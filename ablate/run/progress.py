@@ -50,6 +50,11 @@ class _Trial:
     state: str = "pending"
     """pending, running, done, failed."""
     solved: bool = False
+    first_on_worker: bool = False
+    """Started before any trial had ended: its time holds its worker's start (imports, the emulator's ROMs),
+    which the trials after it on that worker do not pay."""
+    wall_s: float | None = None
+    """The trial's own training time (its summary's ``wall_s``), once finished."""
     reports: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=RATE_REPORTS))
     """(time, episode) of the newest reports: the recent pace, which slows as a CartPole agent's episodes grow."""
 
@@ -145,6 +150,7 @@ class ProgressView:
             trial.state, trial.started_at, trial.episode, trial.rolling_mean = "running", now, 0, None
             trial.reports.clear()
             self.first_start = self.first_start or now
+            trial.first_on_worker = not any(t.ended_at for t in self.trials.values())
             self.max_running = max(self.max_running, self._count("running"))
             if self._freed:
                 self.gaps.append(now - self._freed.popleft())
@@ -162,7 +168,9 @@ class ProgressView:
             self._log_estimate(time.monotonic())
         self.refresh()
 
-    def finished(self, key: str, solved: bool) -> None:
+    def finished(self, key: str, solved: bool, wall_s: float | None = None) -> None:
+        """``wall_s``: the trial's own training time (its summary's), which tells its worker's start apart."""
+        self.trials[key].wall_s = wall_s
         self._end(key, "done", solved)
 
     def failed(self, key: str) -> None:
@@ -205,11 +213,19 @@ class ProgressView:
         by_group: dict[tuple[str, int], list[float]] = {}
         rates: dict[str | None, list[float]] = {}
         observed = earlier = 0.0
-        for key, t in self.trials.items():
-            if t.state == "done" and t.started_at is not None and t.ended_at is not None:
-                by_group.setdefault((t.trial.variant, t.budget), []).append(t.ended_at - t.started_at)
-                if key in self.prior:
-                    observed, earlier = observed + t.ended_at - t.started_at, earlier + self.prior[key]
+        done = [t for t in self.trials.values() if t.state == "done" and t.started_at and t.ended_at]
+        # What a trial costs beside its training (Tune, the driver's writes), from the trials that paid no
+        # worker start; a trial that did pay one counts as its training time plus that.
+        beside = [t.ended_at - t.started_at - t.wall_s for t in done if not t.first_on_worker and t.wall_s is not None]
+        overhead = statistics.median(beside) if beside else 0.0
+        for t in done:
+            cost = t.ended_at - t.started_at  # type: ignore[operator]
+            if t.first_on_worker and t.wall_s is not None:
+                cost = min(cost, t.wall_s + max(overhead, 0.0))
+            by_group.setdefault((t.trial.variant, t.budget), []).append(cost)
+            if t.trial.key in self.prior:  # as the earlier launch measured it: start to end, a worker start too
+                observed, earlier = observed + t.ended_at - t.started_at, earlier + self.prior[t.trial.key]  # type: ignore[operator]
+        for t in self.trials.values():
             if (rate := t.seconds_per_episode(now)) is not None:
                 rates.setdefault(t.trial.variant, []).append(rate)
                 rates.setdefault(None, []).append(rate)

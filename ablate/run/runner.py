@@ -231,7 +231,7 @@ class _Recorder:
             return
         self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
         self.outcome.finished.append(key)
-        self.view.finished(key, bool(summary.get("solved")))
+        self.view.finished(key, bool(summary.get("solved")), summary.get("wall_s"))
 
     def failed(self, key: str, message: str) -> None:
         if not self._open(key):
