@@ -329,3 +329,12 @@ def test_a_workers_start_paid_by_its_first_trial_is_not_charged_to_the_trials_af
     view.finished("a-s1", solved=True, wall_s=5.0)  # 7 s since it started: 2 s beside its training
     assert view.expected_cost("a") == pytest.approx((7 + 7) / 2)  # a-s0 counts as 5 s + the 2 s beside
     assert view.expected_cost("b") == pytest.approx(4 + 2)
+
+
+def test_the_pace_of_a_trial_with_one_report_is_read_off_its_own_clock(clock):
+    view = ProgressView("x", _trials(budget=40, variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=1)
+    view.started("a-s0")
+    clock.now += 21  # 20 s of its worker's start, then 10 episodes in 1 s by the trial's own clock
+    view.episodes("a-s0", [_row(10, 1.0)._replace(wall_s=1.0)])
+    # 30 episodes left at 0.1 s, then a-s1's 40 episodes: not 2.1 s per episode from the wall since its start.
+    assert view.seconds_left() == pytest.approx(0.1 * 30 + 0.1 * 40)

@@ -55,6 +55,8 @@ class _Trial:
     which the trials after it on that worker do not pay."""
     wall_s: float | None = None
     """The trial's own training time (its summary's ``wall_s``), once finished."""
+    train_s: float | None = None
+    """The trial's own clock at the last episode reported (seconds since its training began)."""
     reports: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=RATE_REPORTS))
     """(time, episode) of the newest reports: the recent pace, which slows as a CartPole agent's episodes grow."""
 
@@ -63,12 +65,16 @@ class _Trial:
         return self.trial.config.max_episodes
 
     def seconds_per_episode(self, now: float) -> float | None:
-        """Over the newest reports when there are two, else since the trial started."""
+        """Over the newest reports when there are two, else by the trial's own clock (a worker's start and
+        Tune's scheduling are not episodes: in a 4-episode Pong trial they are most of its time), else since
+        the trial started."""
         if len(self.reports) >= 2 and self.reports[-1][1] > self.reports[0][1]:
             (t0, e0), (t1, e1) = self.reports[0], self.reports[-1]
             return (t1 - t0) / (e1 - e0)
         if self.started_at is None or not self.episode:
             return None
+        if self.train_s:
+            return self.train_s / self.episode
         return ((self.ended_at or now) - self.started_at) / self.episode
 
 
@@ -80,6 +86,8 @@ class _CostsSeen:
     """Mean seconds per episode per variant (``None``: over every variant)."""
     prior_scale: float
     """This launch's seconds over the earlier runs' seconds, for the trials both finished; 1 before one has."""
+    overhead_s: float
+    """What a trial costs beside its training (median over the finished trials that paid no worker start)."""
 
 
 def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], slots: int) -> float:
@@ -164,6 +172,7 @@ class ProgressView:
         with self.lock:
             trial = self.trials[key]
             trial.episode, trial.rolling_mean = rows[-1].episode, rows[-1].rolling_mean
+            trial.train_s = getattr(rows[-1], "wall_s", None)
             trial.reports.append((time.monotonic(), trial.episode))
             self._log_estimate(time.monotonic())
         self.refresh()
@@ -234,6 +243,7 @@ class ProgressView:
             rates={variant: statistics.fmean(r) for variant, r in rates.items()},
             # How this launch's trials compare with their earlier runs (a busier machine, another CPU).
             prior_scale=observed / earlier if earlier > 0 else 1.0,
+            overhead_s=max(overhead, 0.0),
         )
 
     def _trial_cost(self, trial: _Trial, seen: _CostsSeen) -> float | None:
@@ -247,7 +257,7 @@ class ProgressView:
         if mean is not None:
             return mean
         rate = seen.rates.get(trial.trial.variant) or seen.rates.get(None)
-        return None if rate is None else rate * trial.budget
+        return None if rate is None else rate * trial.budget + seen.overhead_s
 
     def expected_cost(self, variant: str, now: float | None = None) -> float | None:
         """Expected seconds of a trial of ``variant`` that has not started (its first pending one)."""
@@ -301,7 +311,7 @@ class ProgressView:
         if mean is not None:
             return mean
         rate = seen.rates.get(variant) or seen.rates.get(None)
-        return None if rate is None else rate * budget
+        return None if rate is None else rate * budget + seen.overhead_s
 
     def _log_estimate(self, now: float) -> None:
         """Called with the lock held after every event: (seconds since the command started, trials ended,
