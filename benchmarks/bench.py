@@ -717,7 +717,10 @@ def _eta_errors(view) -> dict:
     }
 
 
-def bench_eta(experiments: tuple[str, ...] = ("experiments/cartpole.toml", "experiments/pong-smoke.toml")) -> None:
+def bench_eta(
+    experiments: tuple[str, ...] = ("experiments/cartpole.toml", "experiments/pong-smoke.toml"),
+    launches: tuple[str, ...] = ("cold", "warm"),
+) -> None:
     """The time-left estimate against the truth: each experiment run twice into a fresh store, cold (no
     earlier launch to learn costs from) then warm (``--fresh`` on the same store: the first launch's costs
     are the prior), every estimate logged. Printed: the worst error after a quarter of the trials ended, as a
@@ -735,7 +738,7 @@ def bench_eta(experiments: tuple[str, ...] = ("experiments/cartpole.toml", "expe
             experiment = load_experiment(path)
             store = folder / experiment.name
             store.mkdir()
-            for launch in ("cold", "warm"):
+            for launch in launches:
                 started = time.monotonic()
                 outcome = run_experiment(
                     experiment,
@@ -753,6 +756,7 @@ def bench_eta(experiments: tuple[str, ...] = ("experiments/cartpole.toml", "expe
                     (round(t, 2), ended, None if est is None else round(est, 2)) for t, ended, est in view.estimates
                 ]
                 figures[f"{experiment.name}/{launch}"] = {**errors, "trace": trace}
+                print(f"  trace (s since start, trials ended, estimate s): {json.dumps(trace)}", flush=True)
                 if not errors["points"]:
                     print(f"  {path} {launch}: no estimate after a quarter of the trials", flush=True)
                     continue
@@ -798,6 +802,11 @@ def main() -> int:
         help="eta: an experiment file to measure (repeatable; default: cartpole.toml and pong-smoke.toml)",
     )
     parser.add_argument(
+        "--eta-launches",
+        default="cold,warm",
+        help="eta: cold (a fresh store), warm (--fresh on it: earlier costs known) or both, comma-separated",
+    )
+    parser.add_argument(
         "--pong-memory-cap", type=int, default=0, help="pong-memory: cut episodes at this many steps (0: none)"
     )
     args = parser.parse_args()
@@ -812,7 +821,10 @@ def main() -> int:
         kwargs = {
             "ablation": {"repeats": args.ablation_repeats},
             "pong-memory": {"max_episode_steps": args.pong_memory_cap},
-            "eta": {"experiments": tuple(args.eta_experiments)} if args.eta_experiments else {},
+            "eta": {
+                "launches": tuple(args.eta_launches.split(",")),
+                **({"experiments": tuple(args.eta_experiments)} if args.eta_experiments else {}),
+            },
         }
         SECTIONS[name](**kwargs.get(name, {}))
     if args.json:
