@@ -814,6 +814,9 @@ def main() -> int:
     unknown = [name for name in args.sections if name not in SECTIONS]
     if unknown:
         parser.error(f"unknown section {unknown[0]!r}; valid: {', '.join(SECTIONS)}")
+    bad_launches = [x for x in args.eta_launches.split(",") if x not in ("cold", "warm")]
+    if bad_launches:
+        parser.error(f"--eta-launches: {bad_launches[0]!r} is not a launch; valid: cold, warm")
     if args.ablation_repeats < 1:
         parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
     for name in args.sections or SECTIONS:
