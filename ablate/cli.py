@@ -18,7 +18,7 @@ from typing import Any, NoReturn
 
 from ablate import config as config_module
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, Experiment, ModelConfig, TrialConfig, apply_knobs
-from ablate.run.grid import GridTrial, expand, select
+from ablate.run.grid import GridTrial, expand, select, tuning_trials
 from ablate.run.lock import LaunchLocked
 from ablate.run.tracking import TrackingError
 
@@ -76,8 +76,9 @@ def _seed_list(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of seeds, e.g. 0,1") from None
 
 
-def field_docs() -> dict[str, str]:
-    """The docstring under each field of ``TrialConfig`` and ``ModelConfig`` (the flags' help), one line each."""
+def field_docs(code_mark: str = "") -> dict[str, str]:
+    """The docstring under each field of ``TrialConfig`` and ``ModelConfig`` (the flags' help), one line each;
+    the docstrings' ````code```` marks become ``code_mark`` (```` ` ```` for Markdown)."""
     docs: dict[str, str] = {}
     for node in ast.parse(inspect.getsource(config_module)).body:
         if not (isinstance(node, ast.ClassDef) and node.name in (TrialConfig.__name__, ModelConfig.__name__)):
@@ -90,8 +91,49 @@ def field_docs() -> dict[str, str]:
                 and isinstance(doc.value, ast.Constant)
                 and isinstance(doc.value.value, str)
             ):
-                docs[field_node.target.id] = " ".join(doc.value.value.replace("``", "").split())
+                docs[field_node.target.id] = " ".join(doc.value.value.replace("``", code_mark).split())
     return docs
+
+
+def knob_defaults() -> dict[str, Any]:
+    """Each knob of ``config.KNOBS`` at its typed default (``config.DEFAULT``): what an experiment file gets
+    for a knob it does not set."""
+    flat = {key.removeprefix("model."): value for key, value in config_module.flatten(config_module.DEFAULT).items()}
+    return {name: flat[name] for name in KNOBS}
+
+
+def format_value(value: Any) -> str:
+    """A value as an experiment file writes it (TOML): ``"relu"``, ``[32, 32]``, ``true``; ``None``: not set."""
+    if value is None:
+        return "not set"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(format_value(v) for v in value) + "]"
+    return repr(value)
+
+
+def _knobs_epilog() -> str:
+    """``ablate run --help``'s list of knobs with their defaults, from the config itself so it cannot go stale."""
+    defaults = knob_defaults()
+    # seed is the one knob a table may not set: seeds are the experiment's, at the top level.
+    items = [f"{name} = {format_value(defaults[name])}" for name in KNOBS if name not in (*TEST_ONLY_KNOBS, "seed")]
+    items += [
+        f"{name} (with {other}: instead of hidden_sizes)" for name, other in (("depth", "width"), ("width", "depth"))
+    ]
+    lines = [""]
+    for item in items:  # whole items per line: a knob and its default are never split
+        if lines[-1] and len(lines[-1]) + len(item) > 104:
+            lines.append("")
+        lines[-1] += ("; " if lines[-1] else "") + item
+    return (
+        "knobs an experiment file may set in [base], [[variants]] and [grid], with their defaults:\n"
+        + "\n".join(f"  {line}" for line in lines)
+        + f"\ntop-level keys: {', '.join(config_module.EXPERIMENT_KEYS)}.\n"
+        "Each knob's meaning and valid values, and the top-level keys' defaults: docs/experiments.md."
+    )
 
 
 def _field_types() -> dict[str, str]:
@@ -175,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run an ablation experiment file on Ray, tracked in MLflow",
         description="Run every trial of an experiment file that has no finished run yet, on a local Ray (or a "
         "cluster), track each in MLflow, show a live progress view, and write the report at the end.",
+        epilog=_knobs_epilog(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     run.add_argument("experiment", type=Path, help="e.g. experiments/cartpole.toml")
     run.add_argument(
@@ -354,23 +398,59 @@ def cmd_status(args: argparse.Namespace) -> int:
 
 
 def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
-    """``ablate run --dry-run``: the trials a run would consider, and nothing started or written."""
+    """``ablate run --dry-run``: the trials a run would consider, and nothing started or written. With
+    ``[tune]``: stage 1 (every candidate on the tuning seeds), then stage 2, whose chosen values are known only
+    after tuning (listed "after tuning"; the base-value trials are the untuned ones, with their keys)."""
     overrides = {v.name: ", ".join(f"{k}={json.dumps(x)}" for k, x in v.overrides) for v in experiment.variants}
     total = len(expand(experiment))
-    print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
+    rows = [("variant", "seed", "key", "overrides")]
+    if experiment.tune is None:
+        print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
+        rows += [(t.variant, str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials]
+    else:
+        spec = experiment.tune
+        wanted = {t.variant for t in trials}
+        tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
+        tuned = {v.name for v in experiment.variants if v.name in wanted and spec.tuned_knobs(v)}
+        after = [t for t in trials if t.variant in tuned]
+        print(
+            f"{experiment.name}: {len(tuning)} tuning trials, then {len(trials)} at the base values and up to "
+            f"{len(after)} at the chosen values (dry run: nothing started or written)"
+        )
+        rows += [
+            (
+                f"{t.variant} [tune]",
+                str(t.seed),
+                t.key,
+                ", ".join(
+                    f"{k}={getattr(t.config, k)}"
+                    for k in spec.tuned_knobs(next(v for v in experiment.variants if v.name == t.variant))
+                )
+                or "its own values",
+            )
+            for t in tuning
+        ]
+        rows += [(f"{t.variant} [base]", str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials]
+        rows += [(f"{t.variant} [chosen]", str(t.seed), "after tuning", "the chosen values") for t in after]
     if experiment.storage_name != experiment.name:
         print(
             f"stored as {experiment.storage_name!r}: reports/{experiment.storage_name}/, the MLflow experiment "
             f"and Tune's folders (the name in a form every file system takes)"
         )
-    rows = [("variant", "seed", "key", "overrides")] + [
-        (t.variant, str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials
-    ]
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3])
     print("a real run skips the trials already finished in the newest generation (see: ablate status)")
     return EXIT_OK
+
+
+def warn_design(experiment: Experiment) -> None:
+    """Before any compute: say when the design cannot reach a claim at 95% under the report's rule."""
+    from ablate.design import design_warning
+
+    warning = design_warning(len(experiment.seeds))
+    if warning:
+        print(f"warning: {warning}", flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -387,8 +467,14 @@ def main(argv: list[str] | None = None) -> int:
             experiment = load_experiment(args.experiment)  # bad input: one line, before Ray or MLflow is imported
             trials = select(expand(experiment), args.only, args.seeds)
             if args.dry_run:
-                return dry_run(experiment, trials)
-            print(f"ablate run {experiment.name}: {len(trials)} trials; starting MLflow and Ray ...", flush=True)
+                code = dry_run(experiment, trials)
+                warn_design(experiment)
+                return code
+            warn_design(experiment)  # before any compute
+            wanted = {t.variant for t in trials}
+            tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
+            count = f"{len(tuning)} tuning trials, then {len(trials)}" if tuning else f"{len(trials)}"
+            print(f"ablate run {experiment.name}: {count} trials; reading the MLflow store ...", flush=True)
             from ablate.run.runner import cmd_run
 
             return cmd_run(args, started_at)

@@ -3,8 +3,8 @@
 Sections: `core` (course-style loop vs our trial, time to solve CartPole-v1), `runner`, `ablation` (the
 default ablation: speed-up, tracking overhead, memory), `tracking` (the single writer with 256 synthetic
 trials), `cluster` (a tiny ablation on the local default vs a joined head and a tracking server), `pong`
-and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial), `eta` (the time-left
-estimate against the time that actually remained).
+and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial), `tuning`, `eta` (the
+time-left estimate against the time that actually remained).
 `python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
 """
 
@@ -690,6 +690,71 @@ def bench_pong_memory(episodes: int = 1000, variant: str = "cnn", max_episode_st
     RESULTS["pong-memory"] = {"variant": variant, "rss_mb": samples, "peak_rss_mb": peak_mb}
 
 
+def without_tune(text: str) -> str:
+    """An experiment file's text without its ``[tune]`` table (its header up to the next table header): the
+    same ablation, untuned."""
+    kept, inside = [], False
+    for line in text.splitlines(keepends=True):
+        if line.startswith("["):
+            inside = line.strip() == "[tune]"
+        if not inside:
+            kept.append(line)
+    return "".join(kept)
+
+
+def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> None:
+    """The tuned default ablation end to end (both stages, base-value trials included) against the same file
+    without ``[tune]``, each into a fresh store on one running Ray, alternating, medians of ``repeats``;
+    the ratio's target is at most 3x (issue 19)."""
+    import shutil
+    import tempfile
+
+    from ablate.config import load_experiment
+    from ablate.run.runner import run_experiment
+    from ablate.run.scheduler import ensure_ray
+    from ablate.run.tracking import Tracker
+
+    ensure_ray(None)
+    folder = Path(tempfile.mkdtemp(prefix="ablate-bench-"))
+    text = Path(path).read_text()
+    (folder / "tuned.toml").write_text(text)
+    (folder / "untuned.toml").write_text(without_tune(text))
+    tuned_experiment = load_experiment(folder / "tuned.toml")
+    assert tuned_experiment.tune is not None, f"{path} has no [tune] table"
+    walls: dict[str, list[float]] = {"untuned": [], "tuned": []}
+    counts: dict[str, int] = {}
+    try:
+        for i in range(repeats):
+            for kind in ("untuned", "tuned"):
+                store = folder / f"{kind}-{i}"
+                store.mkdir()
+                uri = f"sqlite:///{store / 'mlflow.db'}"
+                Tracker(uri, "warm").experiment_id()  # the store's tables exist, as in a user's store
+                started = time.perf_counter()
+                outcome = run_experiment(
+                    load_experiment(folder / f"{kind}.toml"),
+                    tracking_uri=uri,
+                    storage_path=str(folder / "ray"),
+                    show_progress=False,
+                )
+                walls[kind].append(time.perf_counter() - started)
+                assert outcome.exit_code == 0, outcome.failed
+                counts[kind] = len(outcome.finished)
+            print(
+                f"  {counts['untuned']} untuned trials {walls['untuned'][-1]:.0f} s; tuned launch {counts['tuned']} "
+                f"trials {walls['tuned'][-1]:.0f} s (ratio {walls['tuned'][-1] / walls['untuned'][-1]:.2f}x)",
+                flush=True,
+            )
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    untuned, tuned = statistics.median(walls["untuned"]), statistics.median(walls["tuned"])
+    print(
+        f"tuning: {path} end to end, median of {repeats}: untuned {untuned:.0f} s, tuned {tuned:.0f} s "
+        f"(both stages, base-value trials included): {tuned / untuned:.2f}x (target <= 3x)"
+    )
+    RESULTS["tuning"] = {"untuned_s": walls["untuned"], "tuned_s": walls["tuned"], "ratio": tuned / untuned}
+
+
 def _eta_errors(view) -> dict:
     """Each estimate logged once a quarter of the trials had ended, against the time that actually remained
     until the last trial ended; the bound is the issue's: +-30% or +-20 s, whichever is larger."""
@@ -784,6 +849,7 @@ SECTIONS = {
     "cluster": bench_cluster,
     "pong": bench_pong,
     "pong-memory": bench_pong_memory,
+    "tuning": bench_tuning,
     "eta": bench_eta,
 }
 
@@ -794,6 +860,9 @@ def main() -> int:
     parser.add_argument("--json", type=Path, help="also write the figures here")
     parser.add_argument(
         "--ablation-repeats", type=int, default=1, help="repeats of the default ablation's three runs (~11 min each)"
+    )
+    parser.add_argument(
+        "--tuning-repeats", type=int, default=3, help="tuning: pairs of untuned and tuned ablations (~6 min each)"
     )
     parser.add_argument(
         "--eta-experiment",
@@ -819,11 +888,14 @@ def main() -> int:
         parser.error(f"--eta-launches: {bad_launches[0]!r} is not a launch; valid: cold, warm")
     if args.ablation_repeats < 1:
         parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
+    if args.tuning_repeats < 1:
+        parser.error(f"--tuning-repeats must be at least 1, got {args.tuning_repeats}")
     for name in args.sections or SECTIONS:
         print(f"== {name}", flush=True)
         kwargs = {
             "ablation": {"repeats": args.ablation_repeats},
             "pong-memory": {"max_episode_steps": args.pong_memory_cap},
+            "tuning": {"repeats": args.tuning_repeats},
             "eta": {
                 "launches": tuple(args.eta_launches.split(",")),
                 **({"experiments": tuple(args.eta_experiments)} if args.eta_experiments else {}),
