@@ -31,7 +31,12 @@ SHORTHAND_MEANINGS = {
 }
 
 TOP_LEVEL_MEANINGS = {
-    "name": "The ablation's name: it names the MLflow experiment and `reports/<name>/`.",
+    "name": (
+        "The ablation's name, in any script (NFC-normalised). Where it names a folder (`reports/`, "
+        "`mlartifacts/`), the MLflow experiment or the lock file, its storage form stands in: the name itself "
+        "when it is ASCII letters, digits, `-` and `_`, else an ASCII slug and 8 hex digits (`ablate run "
+        "--dry-run` shows it)."
+    ),
     "description": "One line that opens the report.",
     "seeds": "Evaluation seeds: a count `n` (seeds 0 to n-1) or a list of distinct integers, e.g. `[0, 1, 2]`.",
     "baseline": "The variant the others are compared with, directly or [through another](report.md#references).",
@@ -46,7 +51,7 @@ TOP_LEVEL_MEANINGS = {
     "see [tuning](tuning.md).",
 }
 TOP_LEVEL_VALID = {
-    "name": f"up to {config.MAX_NAME_LENGTH} characters",
+    "name": f"1 to {config.MAX_NAME_LENGTH} characters; no control characters, `/` or `\\`",
     "description": "a string",
     "seeds": "a count in [1, 1000] or a list of distinct integers >= 0",
     "baseline": "a variant's name",
