@@ -19,8 +19,8 @@ from scipy import stats
 
 from ablate.cli import main
 from ablate.config import load_experiment
-from ablate.run.curve import CurveReducer
 from ablate.report.document import chromium_flags, write_report
+from ablate.run.curve import CurveReducer
 from ablate.run.tracking import Tracker
 
 ARTIFACTS = Path(__file__).parent / "artifacts"

@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import ConfigError, load_experiment
+from ablate.report.comparisons import comparisons
 from ablate.report.figures import (
     Figure,
     ablation_window,
@@ -36,21 +37,8 @@ from ablate.report.figures import (
 )
 from ablate.report.figures import esc as _esc
 from ablate.report.figures import fmt as _fmt
-from ablate.report.results import (
-    BETTER,
-    CONFIDENCE,
-    INITIAL_EPISODES,
-    N_RESAMPLES,
-    NO_CLAIM,
-    WORSE,
-    Ablation,
-    NoResults,
-    comparisons,
-    convergence_table,
-    load_ablation,
-    select,
-    smallest_p_value,
-)
+from ablate.report.results import INITIAL_EPISODES, Ablation, NoResults, convergence_table, load_ablation, select
+from ablate.report.statistics import BETTER, CONFIDENCE, N_RESAMPLES, NO_CLAIM, WORSE, smallest_p_value
 from ablate.run.tracking import Tracker
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.

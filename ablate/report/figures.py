@@ -18,7 +18,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from ablate.report.results import N_RESAMPLES, Ablation, curve_band  # noqa: E402
+from ablate.report.results import Ablation  # noqa: E402
+from ablate.report.statistics import N_RESAMPLES, curve_band  # noqa: E402
 from ablate.run.tracking import Tracker  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
