@@ -39,7 +39,7 @@ BASELINE_4_OF_5 = [707, 749, 715, 900, None]  # the committed report's baseline:
 
 
 def _findings_text(ablation):
-    from ablate.report.document import findings
+    from ablate.report.findings import findings
 
     table = convergence_table(ablation)
     return "\n".join(findings(ablation, table, comparisons(ablation)))
@@ -83,7 +83,7 @@ def test_three_seeds_against_three_support_no_claim():
     text = _findings_text(ablation)
     assert "Estimate: IQM 60 vs 11 episodes" in text and "the seeds suggest more episodes for b" in text
     assert "to be confirmed with more seeds" in text
-    from ablate.report.document import summary
+    from ablate.report.findings import summary
 
     assert "no claim; the seeds suggest worse" in summary(ablation, convergence_table(ablation), comparisons(ablation))
     overlapping = _frame({"a": [10, 30, 50], "b": [20, 40, 60]}, budget=100)

@@ -19,7 +19,8 @@ from scipy import stats
 
 from ablate.cli import main
 from ablate.config import load_experiment
-from ablate.report.document import chromium_flags, write_report
+from ablate.report.document import write_report
+from ablate.report.writers import chromium_flags
 from ablate.run.curve import CurveReducer
 from ablate.run.tracking import Tracker
 
