@@ -363,8 +363,25 @@ def test_report_of_one_seed_with_a_threshold(store, tmp_path, monkeypatch):
     # issue 9: `ValueError: cannot convert float NaN to integer` with one seed
     monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
-    text = (write_report("single", tracking_uri=uri, out_root=tmp_path) / "report.md").read_text()
+    folder = write_report("single", tracking_uri=uri, out_root=tmp_path)
+    text = (folder / "report.md").read_text()
     assert "[no interval: 1 seed]" in text and "1 seed gives no interval" in text
+    # issue 18 item 7: counts and flags were written as floats (solved 1.0, episodes_run 1000.0)
+    trials = pd.read_csv(folder / "tables" / "trials.csv", dtype=str)
+    assert set(trials.solved) <= {"0", "1"} and set(trials.episodes_run) == {"40"}, trials
+    assert set(trials.budget) == {"40"} and set(trials.parameter_count) == {"58"}
+    assert trials.final_rolling_mean.str.contains(".").all()  # measures stay floats
+
+
+def test_the_record_shows_the_report_command_as_typed(store, tmp_path, monkeypatch):
+    # issue 18 item 7: `ablate report experiments/activations.toml` was recorded as `ablate report activations`
+    _, uri = store
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "experiments").mkdir()
+    Path("experiments/single.toml").write_text('name = "single"\nseeds = 1\n[[variants]]\nname = "a"\n')
+    assert main(["report", "experiments/single.toml", "--tracking-uri", uri, "--no-pdf"]) == 0
+    text = (tmp_path / "reports" / "single" / "report.md").read_text()
+    assert f"<code>ablate report experiments/single.toml --tracking-uri {uri} --no-pdf</code>" in text
 
 
 def test_user_text_is_escaped_in_the_html(store, tmp_path, monkeypatch):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import html
 import re
+import shlex
 import shutil
 import sys
 import tempfile
@@ -34,7 +35,7 @@ from ablate.report.figures import (
 from ablate.report.figures import esc as _esc
 from ablate.report.figures import fmt as _fmt
 from ablate.report.findings import _findings_intro, findings, summary
-from ablate.report.results import Ablation, NoResults, convergence_table, load_ablation, select
+from ablate.report.results import Ablation, NoResults, convergence_table, load_ablation, select, trials_table
 from ablate.report.sections import (
     GLOSSARY,
     REFERENCES,
@@ -302,7 +303,7 @@ def _build(ablation: Ablation, tracker: Tracker, folder: Path, pdf: bool, comman
     compare = comparisons(ablation)
     table.to_csv(folder / "tables" / "convergence.csv", index=False)
     compare.to_csv(folder / "tables" / "comparisons.csv", index=False)
-    ablation.trials.to_csv(folder / "tables" / "trials.csv", index=False)
+    trials_table(ablation.trials).to_csv(folder / "tables" / "trials.csv", index=False)
     figures_folder = folder / "figures"
     candidates = [
         figure_overview(ablation, figures_folder),
@@ -355,18 +356,31 @@ def _names(text: str | None) -> list[str] | None:
     return [v.strip() for v in text.split(",") if v.strip()] if text else None
 
 
+def report_command(args: argparse.Namespace) -> str:
+    """``ablate report`` as the user typed it: the experiment as given (``experiments/activations.toml``, not
+    its name) and every option that was set, so the reproducibility record can be pasted back into a shell."""
+    words = ["ablate", "report", args.experiment]
+    for flag, value in (
+        ("--generation", getattr(args, "generation", None)),
+        ("--variants", getattr(args, "variants", None)),
+        ("--baseline", getattr(args, "baseline", None)),
+        ("--tracking-uri", getattr(args, "tracking_uri", None)),
+        ("--out", None if Path(getattr(args, "out", "reports")) == Path("reports") else args.out),
+    ):
+        if value:
+            words += [flag, str(value)]
+    if not getattr(args, "pdf", True):
+        words.append("--no-pdf")
+    return " ".join(shlex.quote(w) for w in words)
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     """``ablate report``: exit 0 with the report written; 1 with nothing to report; 2 for bad input. Nothing
     is written (and no store created) unless the whole report could be built."""
     name = args.experiment
     if name.endswith(".toml"):
         name = load_experiment(name).name  # a bad file is a ConfigError: one line, exit 2
-    command = "ablate report " + " ".join(
-        [name]
-        + ([f"--generation {args.generation}"] if getattr(args, "generation", None) else [])
-        + ([f"--variants {args.variants}"] if getattr(args, "variants", None) else [])
-        + ([f"--baseline {args.baseline}"] if getattr(args, "baseline", None) else [])
-    )
+    command = report_command(args)
     try:
         result = build_report(
             name,

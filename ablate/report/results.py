@@ -242,6 +242,10 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
         environment = json.loads(tracker.load_text(launch_id, "environment.json"))
     except Exception:  # noqa: BLE001 - older launches have no environment file
         environment = {}
+    try:
+        experiment_text = tracker.load_text(launch_id, "experiment.toml")
+    except Exception:  # noqa: BLE001 - a launch written by hand (tests) has no experiment file
+        experiment_text = None
     generation = launch.data.tags.get("ablate.generation")
     runs = tracker.trial_runs(generation)
     # The answer for a key: its newest finished run, else its newest run of any status.
@@ -292,6 +296,7 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
         "run_id": launch_id,
         "tags": dict(launch.data.tags),
         "environment": environment,
+        "experiment_text": experiment_text,
         "generations": generations,
     }
     return _ablation(name, grid, launch_info, pd.DataFrame(rows), curves, params)
@@ -347,6 +352,23 @@ SUMMARY_COLUMNS = (
     "parameter_count",
     "greedy_return",
 )
+
+
+INTEGER_COLUMNS = ("seed", "budget", "solved", "episodes_to_solve", "env_steps_to_solve", "episodes_run", "env_steps")
+INTEGER_COLUMNS += ("parameter_count", "censored_episodes")
+
+
+def trials_table(trials: pd.DataFrame) -> pd.DataFrame:
+    """The trials as ``tables/trials.csv`` holds them: counts and flags as integers (``solved`` 1, not 1.0;
+    ``episodes_run`` 1000, not 1000.0), empty where a trial has none. MLflow stores every metric as a float."""
+    table = trials.copy()
+    columns = [c for c in table if c in INTEGER_COLUMNS or c.startswith(("reached_", "episodes_to_"))]
+    for column in columns:
+        values = pd.to_numeric(table[column], errors="coerce")
+        present = values.dropna()
+        if len(present) and (present == present.round()).all():
+            table[column] = values.round().astype("Int64")
+    return table
 
 
 def _with_interval(row: dict[str, Any], prefix: str, values: np.ndarray) -> None:

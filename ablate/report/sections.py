@@ -3,7 +3,9 @@ the results tables, the limitations, the reproducibility record, the glossary an
 
 from __future__ import annotations
 
+import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -380,16 +382,61 @@ REFERENCES = [
 ]
 
 
+def experiment_file_state(commit: str, path: str, text: str | None, cwd: str | Path | None = None) -> str:
+    """Whether the experiment file that ran is the one in the recorded commit, as a sentence for the
+    reproducibility record: a run from a file never committed, or edited since, cannot be rebuilt from the
+    commit alone. Checked in the git clone at ``cwd`` (the report's folder); ``""`` when nothing can be said."""
+    commit = commit.removesuffix("-dirty")
+    if not path or not commit or commit == "unknown":
+        return ""
+
+    def git(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", *argv], cwd=cwd, capture_output=True, text=True, timeout=30, check=False)
+
+    try:
+        top = git("rev-parse", "--show-toplevel")
+        if top.returncode != 0:
+            return f"Not checked whether the experiment file {_esc(path)} is in that commit: no git clone here."
+        if git("cat-file", "-e", f"{commit}^{{commit}}").returncode != 0:
+            return f"Not checked whether the experiment file {_esc(path)} is in that commit: this clone lacks it."
+        where = Path(path)
+        if where.is_absolute():
+            try:
+                where = where.resolve().relative_to(Path(top.stdout.strip()).resolve())
+            except ValueError:
+                return f"**The experiment file {_esc(path)} is outside the git clone**: the commit does not hold it."
+        committed = git("show", f"{commit}:./{where.as_posix()}")
+    except (OSError, subprocess.TimeoutExpired):
+        return ""
+    if committed.returncode != 0:
+        return (
+            f"**The experiment file {_esc(path)} was not committed at {_esc(commit[:12])}**: the commit alone cannot "
+            "rebuild this run; the launch run's <code>experiment.toml</code> artifact holds the file as it ran."
+        )
+    if text is not None and committed.stdout.strip() != text.strip():
+        return (
+            f"**The experiment file {_esc(path)} had uncommitted changes** when it ran: it differs from the file at "
+            f"{_esc(commit[:12])}; the launch run's <code>experiment.toml</code> artifact holds the file as it ran."
+        )
+    return f"The experiment file {_esc(path)} is the one committed at {_esc(commit[:12])}."
+
+
 def _reproducibility(ablation: Ablation, command: str) -> str:
     tags = ablation.launch["tags"]
     environment = ablation.launch["environment"]
     versions = environment.get("packages", {})
     cpu = environment.get("cpu_model", "not recorded")
     capability = environment.get("torch_cpu_capability", "not recorded")
+    state = experiment_file_state(
+        tags.get("mlflow.source.git.commit", ""),
+        tags.get("ablate.experiment_file", ""),
+        ablation.launch.get("experiment_text"),
+    )
     lines = [
         f"- Command: <code>{_esc(tags.get('ablate.command') or 'ablate run ' + tags.get('ablate.experiment_file', ''))}"
         "</code>",
-        f"- Code version (git commit): <code>{_esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>",
+        f"- Code version (git commit): <code>{_esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>"
+        + (f". {state}" if state else ""),
         f"- Machine: {_esc(environment.get('machine', 'unknown'))}; CPU model: {_esc(cpu)}; torch CPU capability "
         f"(the vector kernels torch picked): {_esc(capability)}",
         f"- Python {_esc(environment.get('python', '?'))}; "
