@@ -17,6 +17,8 @@ import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.report.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
+from ablate.report.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
+from ablate.report.tuning import knobs as tuning_knobs
 from ablate.run.tracking import Tracker
 
 INITIAL_EPISODES = 10
@@ -45,6 +47,13 @@ class Ablation:
     """Long form: variant, seed, episode, return, rolling_mean, wall_s (finished trials only)."""
     params: dict[str, dict[str, str]] = field(default_factory=dict)
     """Flattened config per variant (from its first finished run)."""
+    tuning: dict[str, Any] | None = None
+    """The launch's ``tuning.json`` (candidates, tuning seeds, metric, rule, each variant's choice); None for
+    an ablation without ``[tune]``. Then ``trials`` and ``curves`` hold the evaluation seeds at the chosen values."""
+    tuning_trials: pd.DataFrame | None = None
+    """``tables/tuning.csv``: one row per tuning trial (``tuning.tuning_table``)."""
+    untuned: Ablation | None = None
+    """The same evaluation seeds at the shared base values (the untuned comparison), when tuned."""
 
     @property
     def variants(self) -> list[str]:
@@ -256,42 +265,36 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
             best_run[run.key] = run
     levels = RETURN_LEVELS.get(str(grid.get("base", {}).get("env_id", "")), ())
 
-    rows, curves, params = [], [], {}
-    for trial in grid["trials"]:
+    tuning = _tuning_document(tracker, launch_id)
+    names = tuning_knobs(tuning) if tuning else []
+    planned = {trial["key"] for trial in grid["trials"]}
+    # A tuned launch's evaluation trials at the chosen values are known only once tuning ends: not in grid.json.
+    later = [{"key": r.key, "variant": r.variant, "seed": r.seed} for r in best_run.values() if r.key not in planned]
+    rows, tune_rows, curves, params = [], [], {}, {}
+    for trial in [*grid["trials"], *later] if tuning else grid["trials"]:
         run = best_run.get(trial["key"])
         row = {"key": trial["key"], "variant": trial["variant"], "seed": trial["seed"]}
+        if tuning:
+            stage = (run.tags.get(STAGE_TAG) if run else None) or trial.get("stage")
+            row["stage"] = stage or (TUNE if trial["seed"] in tuning.get("seeds", []) else EVAL)
+            overrides = next((v.get("overrides", {}) for v in grid["variants"] if v["name"] == trial["variant"]), {})
+            fallback = base_values(tuning, trial["variant"], overrides)
+            for knob in names:
+                row[knob] = run.params.get(knob, fallback[knob]) if run else trial.get(knob, fallback[knob])
         if run is None:
-            rows.append(row | {"status": "NOT RUN"})
+            (tune_rows if row.get("stage") == TUNE else rows).append(row | {"status": "NOT RUN"})
             continue
         budget = int(run.params.get("max_episodes", grid["base"].get("max_episodes", 0)))
         row |= {"status": run.status, "run_id": run.run_id, "budget": budget, "error": run.tags.get("ablate.error", "")}
         row |= {k: run.metrics.get(k, np.nan) for k in SUMMARY_COLUMNS}
         if run.status == "FINISHED":
-            params.setdefault(trial["variant"], run.params)
-            # The exact per-episode table is the run's episodes.csv (MLflow holds a bounded curve); the rolling
-            # mean is recomputed from the returns with the trial's own window, exactly as the trial computed it.
-            with tempfile.TemporaryDirectory(prefix="ablate-episodes-") as folder:
-                table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
-            returns = dict(zip(table["episode"], table["episode_return"], strict=True))
-            wall = dict(zip(table["episode"], table["wall_s"], strict=True))
-            episodes = sorted(returns)
+            curve = _curve(tracker, run, trial, grid)
             window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
-            curve = pd.DataFrame(
-                {
-                    "variant": trial["variant"],
-                    "seed": trial["seed"],
-                    "solved": run.metrics.get("solved", 0.0) == 1.0,
-                    "episode": episodes,
-                    "return": [returns[e] for e in episodes],
-                    "wall_s": [wall.get(e, np.nan) for e in episodes],
-                }
-            )
-            # the clock is logged when an update ends: each episode gets the time of its update's end
-            curve["wall_s"] = curve["wall_s"].bfill()
-            curve["rolling_mean"] = curve["return"].rolling(window, min_periods=1).mean()
-            curves.append(curve)
             row |= trial_measures(curve, budget, levels, window)
-        rows.append(row)
+            if row.get("stage") != TUNE:
+                params.setdefault(trial["variant"], run.params)
+                curves[trial["key"]] = curve
+        (tune_rows if row.get("stage") == TUNE else rows).append(row)
     launch_info = {
         "run_id": launch_id,
         "tags": dict(launch.data.tags),
@@ -299,7 +302,55 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
         "experiment_text": experiment_text,
         "generations": generations,
     }
-    return _ablation(name, grid, launch_info, pd.DataFrame(rows), curves, params)
+    if not tuning:
+        return _ablation(name, grid, launch_info, pd.DataFrame(rows), list(curves.values()), params)
+    trials = pd.DataFrame(rows)
+    for knob in names:
+        trials[knob] = pd.to_numeric(trials[knob], errors="coerce")
+
+    def part(mask: pd.Series) -> Ablation:
+        chosen = trials[mask].reset_index(drop=True)
+        return _ablation(name, grid, launch_info, chosen, [curves[k] for k in chosen.key if k in curves], params)
+
+    overrides = {v["name"]: v.get("overrides", {}) for v in grid["variants"]}
+    tuned = part(at_values(trials, lambda v: chosen_values(tuning, v)))
+    untuned = part(at_values(trials, lambda v: base_values(tuning, v, overrides.get(v, {}))))
+    variants = [v["name"] for v in grid["variants"]]
+    return replace(tuned, tuning=tuning, tuning_trials=tuning_table(tune_rows, tuning, variants), untuned=untuned)
+
+
+def _tuning_document(tracker: Tracker, launch_id: str) -> dict[str, Any] | None:
+    """The launch's ``tuning.json``; None for a launch without ``[tune]``."""
+    try:
+        return json.loads(tracker.load_text(launch_id, "tuning.json"))
+    except Exception:  # noqa: BLE001 - no such artifact: an untuned launch
+        return None
+
+
+def _curve(tracker: Tracker, run: Any, trial: dict[str, Any], grid: dict[str, Any]) -> pd.DataFrame:
+    """One finished trial's learning curve. The exact per-episode table is the run's episodes.csv (MLflow holds
+    a bounded curve); the rolling mean is recomputed from the returns with the trial's own window, exactly as
+    the trial computed it."""
+    with tempfile.TemporaryDirectory(prefix="ablate-episodes-") as folder:
+        table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
+    returns = dict(zip(table["episode"], table["episode_return"], strict=True))
+    wall = dict(zip(table["episode"], table["wall_s"], strict=True))
+    episodes = sorted(returns)
+    window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
+    curve = pd.DataFrame(
+        {
+            "variant": trial["variant"],
+            "seed": trial["seed"],
+            "solved": run.metrics.get("solved", 0.0) == 1.0,
+            "episode": episodes,
+            "return": [returns[e] for e in episodes],
+            "wall_s": [wall.get(e, np.nan) for e in episodes],
+        }
+    )
+    # the clock is logged when an update ends: each episode gets the time of its update's end
+    curve["wall_s"] = curve["wall_s"].bfill()
+    curve["rolling_mean"] = curve["return"].rolling(window, min_periods=1).mean()
+    return curve
 
 
 def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.DataFrame], params) -> Ablation:
@@ -334,8 +385,18 @@ def select(ablation: Ablation, variants: list[str] | None = None, baseline: str 
     keep = ablation.trials.variant.isin(chosen)
     curves = ablation.curves[ablation.curves.variant.isin(chosen)] if len(ablation.curves) else ablation.curves
     params = {k: v for k, v in ablation.params.items() if k in chosen}
+    tuning_trials = ablation.tuning_trials
+    if tuning_trials is not None:
+        tuning_trials = tuning_trials[tuning_trials.variant.isin(chosen)].reset_index(drop=True)
+    untuned = select(ablation.untuned, variants, baseline) if ablation.untuned is not None else None
     return replace(
-        ablation, grid=grid, trials=ablation.trials[keep].reset_index(drop=True), curves=curves, params=params
+        ablation,
+        grid=grid,
+        trials=ablation.trials[keep].reset_index(drop=True),
+        curves=curves,
+        params=params,
+        tuning_trials=tuning_trials,
+        untuned=untuned,
     )
 
 
