@@ -2,12 +2,14 @@
 sensitivity figure, findings on the evaluation seeds at the chosen values, and the comparison at the base value."""
 
 import json
+import re
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from test_report import make_store, rising, write_trial
+from test_report import rising, write_trial
 
+from ablate.report.document import write_report
 from ablate.report.results import load_ablation
 from ablate.report.tuning import at_values, base_values, chosen_values, edge, tuning_table
 from ablate.run.tracking import Tracker
@@ -34,7 +36,7 @@ LEVEL |= {("deep", 0.03): 40, ("deep", 0.1): 30, ("course", 0.001): 14}
 
 
 def curve(variant, lr, seed, n):
-    return rising(5, LEVEL[(variant, lr)] + seed, n)(seed)
+    return rising(5, LEVEL[(variant, lr)] + seed % 100, n)(seed)
 
 
 def make_tuned_store(folder: Path) -> str:
@@ -73,7 +75,6 @@ def make_tuned_store(folder: Path) -> str:
 def tuned(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tuned")
     uri = make_tuned_store(folder)
-    make_store(folder, "plain", {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 12)}})
     return folder, uri
 
 
@@ -105,8 +106,32 @@ def test_selection_helpers_on_a_hand_made_frame():
     assert base_values(TUNING, "wide", {"learning_rate": 0.5}) == {"learning_rate": 0.5}
     trials = pd.DataFrame({"variant": ["baseline", "baseline", "deep"], "learning_rate": ["0.1", "0.03", "0.03"]})
     assert at_values(trials, lambda v: chosen_values(TUNING, v)).tolist() == [True, False, True]
-    assert edge(TUNING, {"learning_rate": 0.1}) == ["learning_rate at the highest candidate"]
+    assert edge(TUNING, {"learning_rate": 0.1}) == ["learning rate at the highest candidate"]
     assert edge(TUNING, {"learning_rate": 0.03}) == []
     rows = [{"variant": "deep", "seed": 10000, "learning_rate": 0.1, "status": "FINISHED", "solved": 0, "budget": 30}]
     censored = tuning_table(rows, TUNING | {"metric": "episodes_to_solve"}, ["deep"])
     assert censored.episodes_to_solve.tolist() == [30.0]  # never solved: censored at its own budget
+
+
+def test_the_tuned_report(tuned, tmp_path, monkeypatch):
+    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test")
+    _, uri = tuned
+    folder = write_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False)
+    text = (folder / "report.md").read_text()
+    tuning = text.split("## Tuning")[1].split("\n## ")[0]
+    assert "0.01, 0.03, 0.1 (base value 0.03)" in tuning and "2 per candidate (10000, 10001)" in tuning
+    assert "area under the curve (AUC), higher is better" in tuning and TUNING["rule"] in tuning
+    assert "Short horizon" in tuning  # tuning ran 30 episodes, the evaluation 40
+    assert "| baseline | 0.1 |" in tuning and "at the highest candidate" in tuning
+    assert "course (learning rate 0.001)" in tuning and "set by the variant" in tuning
+    figure = re.search(r"Figure (\d+) shows each variant's metric", tuning)
+    assert figure and f"*Figure {figure.group(1)}. Sensitivity to learning rate" in text
+    assert (folder / "figures" / "tuning_sensitivity.png").stat().st_size > 5000
+    table = pd.read_csv(folder / "tables" / "tuning.csv")
+    assert list(table.columns) == ["variant", "seed", "learning_rate", "auc", "status"] and len(table) == 12
+    assert set(pd.read_csv(folder / "tables" / "trials.csv").seed) == set(EVAL_SEEDS)
+    depends = text.split("## Does the finding depend on the learning rate?")[1].split("\n## ")[0]
+    assert "deep vs baseline on area under the curve (AUC) (flips)" in depends
+    (line,) = [x for x in depends.splitlines() if x.startswith("- deep vs baseline, area under")]
+    assert "**better**" in line.split("; at the chosen")[0] and "**worse**" in line.split("; at the chosen")[1]
+    assert "One training setting for all architectures" not in text and "Tuned over 3 candidates" in text

@@ -29,6 +29,7 @@ from ablate.report.figures import (
     figure_overview,
     figure_parameters,
     figure_per_seed,
+    figure_sensitivity,
     figure_small_multiples,
     figure_wallclock,
 )
@@ -47,6 +48,7 @@ from ablate.report.sections import (
     limitations,
 )
 from ablate.report.text import _metric_name
+from ablate.report.tuning_sections import dependence_section, knob_words, tuning_section
 from ablate.report.writers import CSS, _inline, print_pdf
 from ablate.run.tracking import Tracker
 
@@ -108,6 +110,7 @@ def build_markdown(
     table: pd.DataFrame,
     compare: pd.DataFrame,
     command: str = "",
+    untuned: pd.DataFrame | None = None,
 ) -> tuple[str, str]:
     """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks)."""
     description = ablation.grid.get("description") or ""
@@ -125,11 +128,14 @@ def build_markdown(
         ]
     parts += ["## Summary", "", summary(ablation, table, compare), ""]
     parts += ["## Method", "", _method(ablation, table), ""]
+    if ablation.tuning:
+        parts += ["## Tuning", "", tuning_section(ablation), ""]
     parts += [
         "## Results",
         "",
         _convergence_markdown(ablation, table),
-        "Tables as CSV: tables/convergence.csv, tables/comparisons.csv, tables/trials.csv.",
+        "Tables as CSV: tables/convergence.csv, tables/comparisons.csv, tables/trials.csv"
+        + (", tables/tuning.csv." if ablation.tuning else "."),
         "",
         "## Findings",
         "",
@@ -141,6 +147,15 @@ def build_markdown(
         "",
         *findings(ablation, table, compare),
         "",
+    ]
+    if ablation.tuning and untuned is not None:
+        parts += [
+            f"## Does the finding depend on {knob_words(ablation)}?",
+            "",
+            dependence_section(ablation, compare, untuned),
+            "",
+        ]
+    parts += [
         "## Figures",
         "",
     ]
@@ -182,6 +197,7 @@ def build_markdown(
     parts += ["## Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
     parts += ["## References", "", *[f"- {ref}" for ref in REFERENCES], ""]
     text = "\n".join(parts).replace("Figure {parameters}", f"Figure {numbers.get('performance_vs_parameters', '–')}")
+    text = text.replace("Figure {sensitivity}", f"Figure {numbers.get('tuning_sensitivity', '–')}")
     md_text, html_text = text, text
     for f in figures:
         md_text = md_text.replace(
@@ -304,6 +320,11 @@ def _build(ablation: Ablation, tracker: Tracker, folder: Path, pdf: bool, comman
     table.to_csv(folder / "tables" / "convergence.csv", index=False)
     compare.to_csv(folder / "tables" / "comparisons.csv", index=False)
     trials_table(ablation.trials).to_csv(folder / "tables" / "trials.csv", index=False)
+    untuned = None
+    if ablation.tuning_trials is not None:
+        ablation.tuning_trials.to_csv(folder / "tables" / "tuning.csv", index=False)
+    if ablation.untuned is not None:
+        untuned = comparisons(ablation.untuned)
     figures_folder = folder / "figures"
     candidates = [
         figure_overview(ablation, figures_folder),
@@ -312,6 +333,7 @@ def _build(ablation: Ablation, tracker: Tracker, folder: Path, pdf: bool, comman
         figure_per_seed(ablation, figures_folder),
         figure_improvement(ablation, compare, figures_folder),
         figure_parameters(ablation, table, figures_folder),
+        figure_sensitivity(ablation, figures_folder),
         figure_observation(ablation, tracker, figures_folder),
     ]
     figures = [f for f in candidates if f is not None]
@@ -320,7 +342,7 @@ def _build(ablation: Ablation, tracker: Tracker, folder: Path, pdf: bool, comman
         figure.caption = figure.caption.replace("{next}", str(number + 1))
         figure.caption = figure.caption.replace("Figures 1-2", f"Figures 1-{min(2, len(figures))}")
     videos = _videos(ablation, tracker, folder / "videos")
-    text, html_md = build_markdown(ablation, figures, videos, table, compare, command)
+    text, html_md = build_markdown(ablation, figures, videos, table, compare, command, untuned)
     (folder / "report.md").write_text(text)
     body = markdown.markdown(html_md, extensions=["tables"])
     page = (

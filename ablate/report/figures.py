@@ -20,6 +20,7 @@ import pandas as pd  # noqa: E402
 
 from ablate.report.results import Ablation  # noqa: E402
 from ablate.report.statistics import N_RESAMPLES, curve_band  # noqa: E402
+from ablate.report.tuning import METRICS, chosen_values, knobs, same_value, sensitivity  # noqa: E402
 from ablate.run.tracking import Tracker  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
@@ -308,3 +309,70 @@ def figure_observation(ablation: Ablation, tracker: Tracker, folder: Path) -> Fi
         )
         return Figure("figures/observation.png", caption, "Observation: raw, pre-processed, frame difference")
     return None
+
+
+def figure_sensitivity(ablation: Ablation, folder: Path) -> Figure | None:
+    """The tuning metric against every candidate, one panel per tuned variant: the mean over the tuning seeds
+    (line), each seed (dots) and their spread (bar: lowest to highest), the choice marked."""
+    tuning, table = ablation.tuning, ablation.tuning_trials
+    if not tuning or table is None or table.empty:
+        return None
+    names, metric = knobs(tuning), tuning.get("metric", "auc")
+    summary = sensitivity(table, tuning)
+    variants = [v for v in ablation.variants if v in set(summary.variant)]
+    if not variants:
+        return None
+    candidates = sorted({tuple(row) for row in summary[names].itertuples(index=False)})
+    numeric = len(names) == 1 and all(isinstance(c[0], int | float) and c[0] > 0 for c in candidates)
+    position = {c: (c[0] if numeric else i) for i, c in enumerate(candidates)}
+    columns = min(3, len(variants))
+    rows = int(np.ceil(len(variants) / columns))
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.0 * rows), sharey=True, squeeze=False)
+    done = table[table.status == "FINISHED"]
+    for ax, variant in zip(axes.flat, variants, strict=False):
+        colour = _colour(ablation, variant)
+        mine = summary[summary.variant == variant]
+        xs = [position[tuple(r)] for r in mine[names].itertuples(index=False)]
+        order = np.argsort(xs)
+        x, mean = np.asarray(xs, float)[order], mine["mean"].to_numpy(float)[order]
+        low, high = mine["low"].to_numpy(float)[order], mine["high"].to_numpy(float)[order]
+        ax.errorbar(x, mean, yerr=[mean - low, high - mean], color=colour, marker="o", capsize=3, linewidth=1.5)
+        seeds = done[done.variant == variant]
+        ax.scatter(
+            [position[tuple(r)] for r in seeds[names].itertuples(index=False)],
+            seeds[metric],
+            color=colour,
+            s=10,
+            alpha=0.5,
+            zorder=3,
+        )
+        wanted = [chosen_values(tuning, variant)[n] for n in names]
+        rows_ = mine[names].itertuples(index=False)
+        picked = [i for i, c in enumerate(rows_) if all(map(same_value, c, wanted))]
+        if picked:
+            at = mine.iloc[picked[0]]
+            ax.scatter([position[tuple(at[names])]], [at["mean"]], marker="*", s=220, color="black", zorder=4)
+        ax.set_title(variant, fontsize=10)
+        ax.grid(alpha=0.3)
+        if numeric:
+            ax.set_xscale("log")
+            ax.set_xticks([c[0] for c in candidates], [f"{c[0]:g}" for c in candidates])
+            ax.minorticks_off()
+        else:
+            ax.set_xticks(range(len(candidates)), [", ".join(f"{v:g}" for v in c) for c in candidates], fontsize=7)
+    for ax in axes.flat[len(variants) :]:
+        ax.set_visible(False)
+    words, direction = METRICS.get(metric, (metric, "max"))
+    for ax in axes[-1]:
+        ax.set_xlabel(", ".join(n.replace("_", " ") for n in names) + (" (log scale)" if numeric else ""))
+    for ax in axes[:, 0]:
+        ax.set_ylabel(words)
+    seeds = len(tuning.get("seeds", []))
+    caption = (
+        f"Sensitivity to {', '.join(esc(n.replace('_', ' ')) for n in names)}: the tuning metric ({esc(words)}, "
+        f"{'higher' if direction == 'max' else 'lower'} is better) of each tuned variant at every candidate, on the "
+        f"{seeds} tuning seed{'s' if seeds != 1 else ''} only. Line: the mean over the tuning seeds; bar: the lowest "
+        "to the highest seed; dots: each seed; star: the value chosen for the evaluation. A choice at the end of "
+        "the axis may not be the best value."
+    )
+    return Figure(_save(fig, folder, "tuning_sensitivity"), caption, "Sensitivity to the tuned settings")

@@ -309,7 +309,9 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
         trials[knob] = pd.to_numeric(trials[knob], errors="coerce")
 
     def part(mask: pd.Series) -> Ablation:
-        chosen = trials[mask].reset_index(drop=True)
+        order = {v["name"]: i for i, v in enumerate(grid["variants"])}
+        chosen = trials[mask].sort_values("seed", kind="stable")
+        chosen = chosen.iloc[chosen.variant.map(order).argsort(kind="stable")].reset_index(drop=True)
         return _ablation(name, grid, launch_info, chosen, [curves[k] for k in chosen.key if k in curves], params)
 
     overrides = {v["name"]: v.get("overrides", {}) for v in grid["variants"]}

@@ -140,6 +140,9 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     if ablation.env_id.startswith("ALE/Pong"):
         keep += ("action_set", "frameskip", "max_episode_steps")
     lines.append(_markdown_table(pd.DataFrame([{k: base[k] for k in keep if k in base}])))
+    if ablation.tuning:
+        tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
+        lines += ["", f"Tuned per variant (see Tuning): {_esc(tuned_knobs)}; the base value above is the untuned one."]
     lines += [
         "",
         "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
@@ -244,7 +247,17 @@ def limitations(ablation: Ablation, table: pd.DataFrame) -> list[str]:
     tuned = [k for k in ("learning_rate", "episodes_per_update", "gamma") if k in base]
     touched = [v["name"] for v in variants if any(k in v["overrides"] for k in tuned)]
     architectures = [v for v in variants if "architecture" in _setting_groups(v["overrides"])]
-    if tuned and architectures and len(touched) < len(variants):
+    if ablation.tuning:
+        tuning = ablation.tuning
+        n_candidates = max((len(c) for c in tuning.get("knobs", {}).values()), default=0)
+        n_seeds = len(tuning.get("seeds", []))
+        out.append(
+            f"**Tuned over {n_candidates} candidates on {n_seeds} tuning seed{'s' if n_seeds != 1 else ''}.** Each "
+            "variant's choice is the best of a few candidates on a few seeds: a value between or beyond them could do "
+            "better (the Tuning section flags choices at the edge of the grid), and so few seeds choose noisily. The "
+            "evaluation seeds never took part in the choice. Knobs not tuned are the base's for every variant."
+        )
+    elif tuned and architectures and len(touched) < len(variants):
         knobs = ", ".join(f"{k.replace('_', ' ')} {base[k]}" for k in tuned)
         out.append(
             "**One training setting for all architectures.** Every variant"
@@ -459,7 +472,8 @@ def _reproducibility(ablation: Ablation, command: str) -> str:
 def _generation_note(ablation: Ablation) -> str:
     generations = ablation.launch.get("generations", [])
     current = ablation.launch["tags"].get("ablate.generation", "")
-    total = len(ablation.grid["trials"])
+    # A tuned launch's grid also lists tuning trials; its evaluation trials at the chosen values are the report's.
+    total = len(ablation.trials) if ablation.tuning else len(ablation.grid["trials"])
     done = len(ablation.finished)
     if done >= total:
         return ""

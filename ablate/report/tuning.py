@@ -111,7 +111,7 @@ def edge(tuning: dict[str, Any], values: dict[str, Any]) -> list[str]:
         if len(numbers) < 2 or knob not in values:
             continue
         if same_value(values[knob], numbers[0]):
-            flags.append(f"{knob} at the lowest candidate")
+            flags.append(f"{knob.replace('_', ' ')} at the lowest candidate")
         elif same_value(values[knob], numbers[-1]):
-            flags.append(f"{knob} at the highest candidate")
+            flags.append(f"{knob.replace('_', ' ')} at the highest candidate")
     return flags
