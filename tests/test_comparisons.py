@@ -9,8 +9,9 @@ import pytest
 from test_results import _grid_ablation, _row
 
 from ablate.report.comparisons import compare_metric, comparisons
-from ablate.report.results import Ablation, convergence_table
+from ablate.report.results import Ablation
 from ablate.report.statistics import smallest_p_value
+from ablate.report.tables import convergence_table
 
 
 # honest findings on censored data (issue 8 item 8), small samples, one seed, Pong (issue 9 item 7) -------

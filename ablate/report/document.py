@@ -36,7 +36,7 @@ from ablate.report.figures import (
 from ablate.report.figures import esc as _esc
 from ablate.report.figures import fmt as _fmt
 from ablate.report.findings import _findings_intro, findings, summary
-from ablate.report.results import Ablation, NoResults, convergence_table, load_ablation, select, trials_table
+from ablate.report.results import Ablation, NoResults, load_ablation, select
 from ablate.report.sections import (
     GLOSSARY,
     REFERENCES,
@@ -47,6 +47,7 @@ from ablate.report.sections import (
     _sampling_videos,
     limitations,
 )
+from ablate.report.tables import convergence_table, trials_table
 from ablate.report.text import _metric_name
 from ablate.report.tuning_sections import dependence_section, knob_words, tuning_section
 from ablate.report.writers import CSS, _inline, print_pdf
