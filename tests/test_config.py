@@ -149,3 +149,20 @@ def test_a_file_starting_with_a_utf8_byte_order_mark_loads(tmp_path):
     path = tmp_path / "bom.toml"
     path.write_bytes('\ufeffname = "bom"\n[[variants]]\nname = "a"\n'.encode())
     assert load_experiment(path).name == "bom"
+
+
+@pytest.mark.parametrize("value", ["0", "1", "-0.1", "'ten'", "true", "1.5"])
+def test_a_bad_smallest_effect_is_one_line_exit_2_and_nothing_tracked(tmp_path, capsys, value):
+    from ablate.cli import main
+
+    path = _write(tmp_path, f"smallest_effect = {value}\n[[variants]]\nname = 'a'\n")
+    assert main(["run", str(path), "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "smallest_effect" in err and "a fraction in (0, 1)" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_smallest_effect_defaults_to_a_tenth(tmp_path):
+    assert load_experiment(_write(tmp_path, "[[variants]]\nname = 'a'\n")).smallest_effect == 0.1
+    path = _write(tmp_path, "smallest_effect = 0.25\n[[variants]]\nname = 'a'\n")
+    assert load_experiment(path).smallest_effect == 0.25
