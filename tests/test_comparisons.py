@@ -80,18 +80,20 @@ def test_three_seeds_against_three_support_no_claim():
     ablation = _frame({"a": [10, 11, 12], "b": [50, 60, 70]}, budget=100)
     assert compare_metric(ablation, "b", "episodes_to_solve").verdict == "no claim"
     assert "no ordering of the seeds can reach 95%" in _findings_text(ablation)
-    # ... but the reader still sees the estimate, its interval, and the direction worded as a suggestion
+    # ... one verdict a student can repeat, said once for all, and the estimate with no direction words
+    # (issue 19 item 6: "no claim" beside "the seeds suggest higher"); 3 seeds: the "IQM" is the mean, so named
     text = _findings_text(ablation)
-    assert "Estimate: IQM 60 vs 11 episodes" in text and "the seeds suggest more episodes for b" in text
-    assert "to be confirmed with more seeds" in text
+    assert text.count("no ordering of the seeds can reach 95%") == 1
+    (line,) = [x for x in text.splitlines() if "episodes to solve:" in x]
+    assert "**too few seeds to tell**. mean 60 vs 11 episodes" in line and "suggest" not in text
+    assert "IQM" not in line and "no claim" not in text
+    assert "Seeds needed: **too few seeds**: about 4 per variant" in line
     from ablate.report.findings import summary
 
-    assert "no claim; the seeds suggest worse" in summary(ablation, convergence_table(ablation), comparisons(ablation))
-    overlapping = _frame({"a": [10, 30, 50], "b": [20, 40, 60]}, budget=100)
-    assert "the interval includes no difference" in _findings_text(overlapping)
+    assert "| too few seeds to tell |" in summary(ablation, convergence_table(ablation), comparisons(ablation))
     never = _frame({"a": [None, None, None], "b": [None, None, 50]}, budget=100)  # both IQMs use the budget
     (episodes_line,) = [line for line in _findings_text(never).splitlines() if "episodes to solve" in line]
-    assert "episodes cannot separate them" in episodes_line and "Estimate" not in episodes_line
+    assert "episodes cannot separate them" in episodes_line and "vs" not in episodes_line.split("tell**.")[1]
 
 
 def test_leave_one_seed_out_marks_a_claim_that_rests_on_some_seeds():
@@ -120,6 +122,20 @@ def test_one_seed_gives_no_interval_and_no_crash():
     assert np.isnan(table.loc[0, "episodes_iqm_ci_low"])
     assert all(v == "no claim" for v in comparisons(ablation).verdict)
     assert "1 seed gives no interval" in _findings_text(ablation)
+
+
+def test_not_separated_reads_as_no_effect_this_large_or_too_few_seeds():
+    # issue 19 item 5: five seeds each, the same spread; one pair 1 point apart, one 15 points apart
+    close = _frame(
+        {"a": [100] * 5, "b": [100] * 5}, metric_values={"a": [10, 30, 50, 20, 40], "b": [11, 31, 51, 21, 41]}
+    )
+    (line,) = [x for x in _findings_text(close).splitlines() if "area under the curve" in x]
+    assert "not separated" in line and "**no effect this large**: even 50 seeds" in line, line
+    far = _frame({"a": [100] * 5, "b": [100] * 5}, metric_values={"a": [10, 30, 50, 20, 40], "b": [25, 45, 65, 35, 55]})
+    (line,) = [x for x in _findings_text(far).splitlines() if "area under the curve" in x]
+    assert "not separated" in line and "**too few seeds**: about" in line, line
+    row = comparisons(far).set_index("metric").loc["auc"]
+    assert 5 < row.seeds_needed <= 50 and row.seeds_needed_smallest > row.seeds_needed  # 10% of 30 < 15
 
 
 def test_comparisons_are_against_each_variants_reference():

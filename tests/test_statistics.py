@@ -76,3 +76,32 @@ def test_censored_statistics():
     assert is_censored_statistic(1, 5, "iqm") is False  # the one censored seed is trimmed
     assert is_censored_statistic(2, 5, "iqm") and not is_censored_statistic(2, 5, "median")
     assert is_censored_statistic(3, 5, "median")
+
+
+def test_seeds_needed_for_a_large_clear_effect_are_few():
+    from ablate.report.statistics import seeds_needed
+
+    assert seeds_needed(np.array([10.0, 11, 12]), np.array([50.0, 52, 54]), relative=True) == 4
+    assert seeds_needed(np.array([60.0, 61, 62]), np.array([20.0, 21, 22]), relative=False) == 4
+
+
+def test_no_effect_needs_more_than_the_cap():
+    from ablate.report.statistics import SEEDS_CAP, seeds_needed
+
+    same = np.array([10.0, 20, 30])
+    assert seeds_needed(same, same, relative=False) == SEEDS_CAP + 1
+    assert seeds_needed(np.array([10.0, 30, 50]), np.array([12.0, 28, 51]), relative=False) == SEEDS_CAP + 1
+
+
+def test_seeds_needed_for_the_smallest_effect_of_interest():
+    from ablate.report.statistics import SEEDS_CAP, seeds_needed
+
+    noisy = np.array([90.0, 100, 110, 95, 105]), np.array([91.0, 99, 111, 96, 104])
+    small = seeds_needed(*noisy, relative=False, effect=0.05)  # 5 points apart, seeds spread +-10
+    large = seeds_needed(*noisy, relative=False, effect=0.5)  # 50 points apart
+    assert large == 4 and large < small <= SEEDS_CAP + 1
+    # a variant that never solves against one that always does (episodes censored at 100): a claim of
+    # "fewer episodes" for the variant needs its IQM to be an estimate, which resampling never gives
+    assert seeds_needed(np.full(4, 100.0), np.array([40.0, 50, 60, 70]), True, np.ones(4, bool)) == 4
+    unsolved = seeds_needed(np.array([40.0, 50, 60, 70]), np.full(4, 100.0), True, np.ones(4, bool), np.zeros(4, bool))
+    assert unsolved == SEEDS_CAP + 1

@@ -17,6 +17,7 @@ from ablate.report.statistics import (
     iqm,
     probability_of_improvement,
     probability_of_improvement_interval,
+    seeds_needed,
 )
 
 
@@ -44,9 +45,16 @@ class Comparison:
     """Seeds whose removal changes the verdict (empty: the verdict holds leaving out any one seed)."""
     n_variant: int = 0
     n_reference: int = 0
+    seeds_needed: float = np.nan
+    """Where not separated: seeds per variant the decision rule would need to separate the observed difference
+    (``statistics.seeds_needed``; ``SEEDS_CAP + 1``: more than the cap); NaN where separated or not computed."""
+    seeds_needed_smallest: float = np.nan
+    """The same for a difference of the experiment's ``smallest_effect``."""
 
 
-def compare_metric(ablation: Ablation, variant: str, metric: str, stability: bool = True) -> Comparison:
+def compare_metric(
+    ablation: Ablation, variant: str, metric: str, stability: bool = True, power: bool = True
+) -> Comparison:
     """``variant`` against its reference on ``metric``, with a leave-one-seed-out check of the verdict."""
     done, reference = ablation.finished, ablation.reference(variant)
 
@@ -75,8 +83,13 @@ def compare_metric(ablation: Ablation, variant: str, metric: str, stability: boo
             return _episodes_comparison(x, y, x_cens, y_cens)
         return _return_comparison(x, y)
 
-    x, y, _, _ = samples(done)
+    x, y, x_cens, y_cens = samples(done)
     point, low, high, verdict, bound = judge(done)
+    needed = smallest = np.nan
+    if power and verdict not in (BETTER, WORSE) and bound != "censored" and min(len(x), len(y)) >= 2:
+        relative = x_cens is not None
+        needed = seeds_needed(x, y, relative, x_cens, y_cens)
+        smallest = seeds_needed(x, y, relative, x_cens, y_cens, effect=ablation.smallest_effect)
     fragile: list[int] = []
     if stability and verdict in (BETTER, WORSE):
         for seed in sorted(set(done.seed)):
@@ -95,6 +108,8 @@ def compare_metric(ablation: Ablation, variant: str, metric: str, stability: boo
         tuple(fragile),
         len(x),
         len(y),
+        needed,
+        smallest,
     )
 
 
@@ -111,7 +126,7 @@ def comparison_metrics(ablation: Ablation) -> list[str]:
     return [m for m in metrics if m == "episodes_to_solve" or m in ablation.trials]
 
 
-def comparisons(ablation: Ablation, stability: bool = True) -> pd.DataFrame:
+def comparisons(ablation: Ablation, stability: bool = True, power: bool = True) -> pd.DataFrame:
     """Each variant against its reference (``Ablation.reference``) on each metric of ``comparison_metrics``,
     plus the probability of improvement on episodes to solve (censored): one row per (variant, metric)."""
     done = ablation.finished
@@ -124,7 +139,7 @@ def comparisons(ablation: Ablation, stability: bool = True) -> pd.DataFrame:
         if len(sample) == 0 or len(reference) == 0:
             continue
         for metric in comparison_metrics(ablation):
-            c = compare_metric(ablation, variant, metric, stability)
+            c = compare_metric(ablation, variant, metric, stability, power)
             row = {k: getattr(c, k) for k in Comparison.__dataclass_fields__}
             row["fragile_seeds"] = " ".join(map(str, c.fragile_seeds))
             row["reference"] = ablation.reference(variant)

@@ -40,6 +40,7 @@ from ablate.report.results import Ablation, NoResults, load_ablation, select
 from ablate.report.sections import (
     GLOSSARY,
     REFERENCES,
+    TUNING_REFERENCES,
     _convergence_markdown,
     _generation_note,
     _method,
@@ -196,7 +197,8 @@ def build_markdown(
     parts += ["## Limitations", "", *[f"- {line}" for line in limitations(ablation, table)], ""]
     parts += ["## Reproducibility", "", _reproducibility(ablation, command), ""]
     parts += ["## Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
-    parts += ["## References", "", *[f"- {ref}" for ref in REFERENCES], ""]
+    references = REFERENCES + (TUNING_REFERENCES if ablation.tuning else [])
+    parts += ["## References", "", *[f"- {ref}" for ref in references], ""]
     text = "\n".join(parts).replace("Figure {parameters}", f"Figure {numbers.get('performance_vs_parameters', '–')}")
     text = text.replace("Figure {sensitivity}", f"Figure {numbers.get('tuning_sensitivity', '–')}")
     md_text, html_text = text, text
@@ -325,7 +327,7 @@ def _build(ablation: Ablation, tracker: Tracker, folder: Path, pdf: bool, comman
     if ablation.tuning_trials is not None:
         ablation.tuning_trials.to_csv(folder / "tables" / "tuning.csv", index=False)
     if ablation.untuned is not None:
-        untuned = comparisons(ablation.untuned)
+        untuned = comparisons(ablation.untuned, power=False)
     figures_folder = folder / "figures"
     candidates = [
         figure_overview(ablation, figures_folder),

@@ -190,41 +190,41 @@ def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
     return Figure(_save(fig, folder, "learning_curves_wallclock"), caption, "Learning curves against wall-clock")
 
 
+def per_seed_points(ablation: Ablation) -> pd.DataFrame:
+    """What Figure "every seed's outcome" draws: per finished seed its variant, seed, x (episodes to solve, or
+    the final rolling return where no seed solved) and ``bound``: a seed that never solved is drawn at the
+    budget, as a bound (its true value is only known to be larger), never beyond the budget line."""
+    episodes = ablation.any_solved
+    done = ablation.finished
+    x = done.censored_episodes if episodes else done.final_rolling_mean
+    bound = (done.solved != 1) if episodes else pd.Series(False, index=done.index)
+    return pd.DataFrame({"variant": done.variant, "seed": done.seed, "x": x.astype(float), "bound": bound.astype(bool)})
+
+
 def figure_per_seed(ablation: Ablation, folder: Path) -> Figure:
     fig, ax = plt.subplots(figsize=(9, 0.45 * len(ablation.variants) + 1.6))
     rng = np.random.default_rng(0)
     episodes = ablation.any_solved
     budget = ablation.finished.budget.max()
+    points = per_seed_points(ablation)
     for i, variant in enumerate(ablation.variants):
-        done = ablation.finished[ablation.finished.variant == variant]
-        y = np.full(len(done), i) + rng.uniform(-0.15, 0.15, len(done))
+        mine = points[points.variant == variant]
+        y = np.full(len(mine), i) + rng.uniform(-0.15, 0.15, len(mine))
         colour = _colour(ablation, variant)
-        if episodes:
-            solved = done.solved.to_numpy() == 1
-            ax.scatter(done.censored_episodes[solved], y[solved], color=colour, s=36, zorder=3)
-            ax.scatter(
-                done.censored_episodes[~solved] * (1 + rng.uniform(0.005, 0.04, (~solved).sum())),
-                y[~solved],
-                facecolors="none",
-                edgecolors=colour,
-                s=36,
-                zorder=3,
-                marker="s",
-            )
-            values = done.censored_episodes
-        else:
-            values = done.final_rolling_mean
-            ax.scatter(values, y, color=colour, s=36, zorder=3)
-        if len(done):
-            ax.plot([np.median(values)] * 2, [i - 0.3, i + 0.3], color="black", linewidth=1.5)
+        exact, bound = ~mine.bound.to_numpy(), mine.bound.to_numpy()
+        ax.scatter(mine.x[exact], y[exact], color=colour, s=36, zorder=3)
+        # never solved: at the budget, a hollow right-pointing triangle ("more than this"), jittered only upwards
+        ax.scatter(mine.x[bound], y[bound], facecolors="none", edgecolors=colour, s=48, zorder=3, marker=">")
+        if len(mine):
+            ax.plot([np.median(mine.x)] * 2, [i - 0.3, i + 0.3], color="black", linewidth=1.5)
     if episodes:
         ax.axvline(budget, color="grey", linestyle=":", linewidth=1)
         ax.text(budget, len(ablation.variants) - 0.4, " budget", color="grey", fontsize=8, va="bottom")
         ax.set_xlabel("episodes to solve")
         caption = (
-            "Episodes to solve, every seed of every variant (filled dots: solved; hollow squares: never solved, "
-            f"drawn at the budget of {fmt(budget)} episodes, slightly jittered: their true value is only known to "
-            "be larger). Black bar: the median over seeds, censored values included."
+            "Episodes to solve, every seed of every variant (filled dots: solved; hollow triangles: never solved, "
+            f"drawn at the budget of {fmt(budget)} episodes as bounds: their true value is only known to be larger). "
+            "Black bar: the median over seeds, censored values included (≥ where it is one of them)."
         )
     else:
         ax.set_xlabel(f"final rolling mean return ({ablation_window(ablation)} episodes)")

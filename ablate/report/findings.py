@@ -10,7 +10,7 @@ from ablate.report.figures import esc as _esc
 from ablate.report.figures import fmt as _fmt
 from ablate.report.results import Ablation
 from ablate.report.sections import _episodes_cell, _extends, _stat_cell
-from ablate.report.statistics import BETTER, NO_CLAIM, WORSE, smallest_p_value
+from ablate.report.statistics import BETTER, NO_CLAIM, SEEDS_CAP, WORSE, smallest_p_value
 from ablate.report.text import _interval, _markdown_table, _metric_name, _pct, _signed, _signed_pct
 
 
@@ -34,35 +34,49 @@ def _no_claim_reason(n: int, m: int) -> str:
     )
 
 
-def _suggestion(row: pd.Series) -> str:
-    """What the seeds suggest when too few of them support a claim: the estimate and its bootstrap interval,
-    worded as a direction only where the interval excludes no difference (a percentile bootstrap over 3 seeds
-    runs narrow, so it is a pointer for the next, larger run, never a result)."""
+def stat_name(n: int, m: int) -> str:
+    """What the report's "IQM" of ``n`` and ``m`` seeds is: with fewer than 4 seeds it trims nothing
+    (SciPy's ``trim_mean`` cuts ``int(0.25 n)`` from each end) and is the plain mean."""
+    if min(n, m) >= 4:
+        return "IQM"
+    return "mean" if max(n, m) < 4 else "IQM (the mean where fewer than 4 seeds)"
+
+
+def _estimate(row: pd.Series) -> str:
+    """The estimate and its bootstrap interval for a comparison the seeds cannot decide, with no direction
+    words: a percentile bootstrap over 3 seeds runs narrow, so it is a pointer for a larger run."""
     if any(np.isnan(v) for v in (row.point, row.low, row.high)):
         return ""
     if row.bound == "censored":
-        return " Both IQMs count seeds that never got there as the budget: episodes cannot separate them."
-    if row.bound:  # one side censored: the estimate is a bound, and a bound on a suggestion says too little
-        return ""
+        return " Both sides count seeds that never got there as the budget: episodes cannot separate them."
+    stat = stat_name(int(row.n_variant), int(row.n_reference))
     if row.metric.startswith("episodes_to_"):
-        estimate = (
-            f"IQM {_fmt(row.variant_value)} vs {_fmt(row.reference_value)} episodes, change {_signed_pct(-row.point)} "
-            f"(95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})"
+        bound = "≥ " if row.bound else ""
+        return (
+            f" {stat} {bound}{_fmt(row.variant_value)} vs {_fmt(row.reference_value)} episodes, change "
+            f"{_signed_pct(-row.point)} (95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})."
         )
-        better, worse = "fewer episodes", "more episodes"
-    else:
-        estimate = (
-            f"IQM {_fmt(row.variant_value, 1)} vs {_fmt(row.reference_value, 1)}, {_signed(row.point)} "
-            f"(95% bootstrap CI {_signed(row.low)} to {_signed(row.high)})"
+    return (
+        f" {stat} {_fmt(row.variant_value, 1)} vs {_fmt(row.reference_value, 1)}, {_signed(row.point)} "
+        f"(95% bootstrap CI {_signed(row.low)} to {_signed(row.high)})."
+    )
+
+
+def seeds_reading(row: pd.Series, effect: float) -> str:
+    """What "not separated" means for this comparison: too few seeds for a difference this large, or no
+    effect this large; and the seeds a difference of the smallest effect of interest would need."""
+    needed, smallest = row.get("seeds_needed", np.nan), row.get("seeds_needed_smallest", np.nan)
+    if pd.isna(needed):
+        return ""
+    if needed > SEEDS_CAP:
+        observed = (
+            f"**no effect this large**: even {SEEDS_CAP} seeds per variant would not separate a difference as small "
+            "as the one observed"
         )
-        better, worse = "higher", "lower"
-    if row.low > 0:
-        direction = f"the seeds suggest {better} for {_esc(row.variant)}"
-    elif row.high < 0:
-        direction = f"the seeds suggest {worse} for {_esc(row.variant)}"
     else:
-        direction = "the interval includes no difference"
-    return f" Estimate: {estimate}; {direction}, to be confirmed with more seeds."
+        observed = f"**too few seeds**: about {int(needed)} per variant would separate a difference this large"
+    wanted = f"more than {SEEDS_CAP}" if pd.isna(smallest) or smallest > SEEDS_CAP else f"about {int(smallest)}"
+    return f" Seeds needed: {observed}; {wanted} to separate the smallest effect of interest ({_pct(effect)})."
 
 
 def _stability(row: pd.Series) -> str:
@@ -82,8 +96,10 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     interval and whether it survives leaving out any one seed."""
     base, metric, name = _esc(row.reference), row.metric, _metric_name(row.metric)
     n, m = int(row.n_variant), int(row.n_reference)
+    stat = stat_name(n, m)
+    reading = seeds_reading(row, ablation.smallest_effect)
     if row.verdict == NO_CLAIM:
-        return f"{name}: no claim; {_no_claim_reason(n, m)}.{_suggestion(row)}"
+        return f"{name}: **too few seeds to tell**.{_estimate(row)}{reading}"
     if metric.startswith("episodes_to_"):
         x, y = _fmt(row.variant_value), _fmt(row.reference_value)
         unsolved = (
@@ -102,7 +118,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
                 f"{name}: cannot separate them: both IQMs count unsolved seeds as the budget ({counts}), so both are "
                 "lower bounds; see the returns below."
             )
-        change = f"IQM {'≥ ' if row.bound and row.verdict == WORSE else ''}{x} vs {y}"
+        change = f"{stat} {'≥ ' if row.bound and row.verdict == WORSE else ''}{x} vs {y}"
         if row.verdict == BETTER and row.bound:
             return (
                 f"{name}: **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: {base}'s IQM counts "
@@ -125,10 +141,10 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
                 f"{name}: **{_pct(-row.point)} more** than {base} ({change}; 95% CI {_pct(-row.high)} to "
                 f"{_pct(-row.low)} more).{_stability(row)}"
             )
-        bound = ", the variant's IQM a lower bound" if row.bound else ""
+        bound = f", the variant's {stat} a lower bound" if row.bound else ""
         return (
             f"{name}: not separated ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
-            f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''})."
+            f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''}).{reading}"
         )
     x, y = _fmt(row.variant_value, 1), _fmt(row.reference_value, 1)
     interval = f"95% CI {_signed(row.low)} to {_signed(row.high)}"
@@ -136,12 +152,22 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
         return f"{name}: **higher**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
     if row.verdict == WORSE:
         return f"{name}: **lower**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
-    return f"{name}: not separated, {x} vs {y} ({_signed(row.point)}; {interval})."
+    return f"{name}: not separated, {stat} {x} vs {y} ({_signed(row.point)}; {interval}).{reading}"
 
 
 def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[str]:
-    """Per variant, one line per metric; no claim without an interval, bounds worded as bounds."""
+    """Per variant, one line per metric; no claim without an interval, bounds worded as bounds. What holds
+    for every comparison (too few seeds for any claim) is said once, first."""
     lines = []
+    undecidable = compare[compare.verdict == NO_CLAIM] if len(compare) else compare
+    if len(undecidable):
+        pairs = sorted({(int(r.n_variant), int(r.n_reference)) for r in undecidable.itertuples()})
+        reasons = "; ".join(_no_claim_reason(n, m) for n, m in pairs)
+        lines.append(
+            f"- **Too few seeds for a claim** ({reasons}): {len(undecidable)} of {len(compare)} comparisons below "
+            "read *too few seeds to tell*. Their estimates are pointers for a larger run, not results; *seeds "
+            "needed* says how many would do."
+        )
     for variant in ablation.variants:
         rows = compare[compare.variant == variant] if len(compare) else compare
         if rows.empty:
@@ -187,10 +213,8 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> s
                 notes = (["a bound"] if first.bound else []) + (["fragile"] if first.fragile_seeds else [])
                 word = {BETTER: "better", WORSE: "worse"}[first.verdict]
                 verdict = word + (f" ({'; '.join(notes)})" if notes else "")
-            elif first.verdict == NO_CLAIM and not first.bound and first.low > 0:
-                verdict = "no claim; the seeds suggest better"
-            elif first.verdict == NO_CLAIM and not first.bound and first.high < 0:
-                verdict = "no claim; the seeds suggest worse"
+            elif first.verdict == NO_CLAIM:
+                verdict = "too few seeds to tell"
             else:
                 verdict = first.verdict
             if extends:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import tempfile
+import tomllib
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ablate.config import ConfigError
+from ablate.config import ConfigError, Experiment
 from ablate.report.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.report.tuning import knobs as tuning_knobs
 from ablate.run.tracking import Tracker
@@ -124,6 +125,16 @@ class Ablation:
     def budgets(self) -> list[int]:
         """Fixed episode budgets at which every variant's return is compared: a quarter, half and all of it."""
         return fixed_budgets(int(self.finished.budget.max())) if len(self.finished) else []
+
+    @property
+    def smallest_effect(self) -> float:
+        """The experiment file's ``smallest_effect`` (read from the file the launch ran), else the default."""
+        try:
+            value = tomllib.loads(self.launch.get("experiment_text") or "").get("smallest_effect")
+        except tomllib.TOMLDecodeError:
+            value = None
+        valid = isinstance(value, int | float) and not isinstance(value, bool) and 0 < value < 1
+        return float(value) if valid else Experiment.smallest_effect
 
     @property
     def levels(self) -> tuple[float, ...]:

@@ -14,7 +14,7 @@ from ablate.report.figures import ablation_window
 from ablate.report.figures import esc as _esc
 from ablate.report.figures import fmt as _fmt
 from ablate.report.results import INITIAL_EPISODES, Ablation
-from ablate.report.statistics import CONFIDENCE, N_RESAMPLES
+from ablate.report.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP
 from ablate.report.text import _interval, _markdown_table
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
@@ -147,7 +147,12 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
         "",
         "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
         f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, never "
-        "dropped: a statistic that uses one is a lower bound, marked ≥. The glossary at the end defines each term.",
+        "dropped: a statistic that uses one is a lower bound, marked ≥. The glossary at the end defines each term."
+        + (
+            " With fewer than 4 seeds the IQM trims nothing: it is the plain mean, and the findings call it so."
+            if len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
+            else ""
+        ),
     ]
     return "\n".join(lines)
 
@@ -339,7 +344,8 @@ GLOSSARY = [
     (
         "IQM (interquartile mean)",
         "The mean of the middle 50% of the seeds' values (25% trimmed from each end): "
-        "less sensitive to one outlying seed than the mean, more efficient than the median (Agarwal et al., 2021).",
+        "less sensitive to one outlying seed than the mean, more efficient than the median (Agarwal et al., 2021). "
+        "With fewer than 4 seeds it trims nothing and is the plain mean: the findings then say mean.",
     ),
     (
         "95% CI (percentile bootstrap)",
@@ -370,16 +376,37 @@ GLOSSARY = [
         "pair; there the interval is the exact Clopper-Pearson bound for min(n, m) successes in min(n, m) trials.",
     ),
     (
-        "No claim",
+        "Too few seeds to tell",
         "When a rank test could not reach 95% confidence even with the seeds perfectly ordered "
         f"(smallest two-sided p = 2 / C(n+m, n) > {1 - CONFIDENCE:.2f}, e.g. 3 seeds against 3), or one side has one "
-        "seed, the report makes no claim.",
+        "seed, the report makes no claim either way: the estimate is shown, the verdict is this.",
+    ),
+    (
+        "Seeds needed",
+        f"For a comparison not separated: how many seeds per variant the report's own rule (the 95% interval "
+        "excludes no difference, censoring permitting) would need to separate the difference in 80% of experiments, "
+        "found by drawing that many seeds with replacement from the observed ones, 100 times. More than "
+        f"{SEEDS_CAP}: no effect this large is in sight; fewer: the experiment had too few seeds.",
+    ),
+    (
+        "Smallest effect of interest",
+        "The smallest difference worth finding, as a fraction of the reference's value: 10% unless the experiment "
+        "file sets `smallest_effect` (episodes: 10% fewer or more; returns and AUC: 10% of the reference's value "
+        "apart). The report says how many seeds would separate a difference this large, resampled from the observed "
+        "seeds shifted to it.",
     ),
     (
         "Leave-one-seed-out",
         "Each claim is recomputed with every seed in turn removed from all variants; a claim "
         "that disappears for some seed is marked fragile.",
     ),
+]
+
+TUNING_REFERENCES = [
+    "Patterson, A., Neumann, S., White, M., & White, A. (2024). Empirical design in reinforcement learning. "
+    "*Journal of Machine Learning Research*, 25. (Tune each arm on its own seeds, compare on fresh ones.)",
+    "Eimer, T., Lindauer, M., & Raileanu, R. (2023). Hyperparameters in reinforcement learning and how to tune "
+    "them. *ICML 2023*. (Tuning and evaluation seeds kept apart.)",
 ]
 
 REFERENCES = [

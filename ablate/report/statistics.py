@@ -218,3 +218,65 @@ def curve_band(curves: pd.DataFrame, x: str, grid: np.ndarray) -> tuple[np.ndarr
         band_low, band_high = _percentile_bootstrap((matrix[full],), iqm, n_resamples=N_RESAMPLES // 4)
         low[full], high[full] = band_low, band_high
     return centre, low, high
+
+
+# --- seeds needed -------------------------------------------------------------------------------------------
+SEEDS_CAP = 50
+"""The most seeds per variant ``seeds_needed`` tries; past it the answer is "more than 50"."""
+SEED_COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50)
+"""Seeds per variant tried, smallest first (3 and 3 can never reach 95% with a rank test)."""
+POWER = 0.8
+"""The share of resampled experiments that must separate the difference: the usual 80% power."""
+SIMULATIONS, INNER_RESAMPLES = 100, 200
+
+
+def seeds_needed(
+    x: np.ndarray,
+    y: np.ndarray,
+    relative: bool,
+    x_censored: np.ndarray | None = None,
+    y_censored: np.ndarray | None = None,
+    effect: float | None = None,
+) -> int:
+    """How many seeds per variant the report's decision rule would need to separate the difference between
+    samples ``x`` (the variant) and ``y`` (its reference) at 95% in ``POWER`` of experiments, found by
+    resampling the observed seeds: draw n seeds of each with replacement, compute the 95% percentile bootstrap
+    interval of the difference (``relative``: 1 - IQM(x) / IQM(y), episodes; else IQM(x) - IQM(y), returns),
+    count a separation where it excludes 0 on the observed side and censoring allows the claim (as
+    ``_episodes_comparison``). ``effect``: first shift ``x`` so that the difference is ``effect`` times the
+    reference's IQM on the observed side (the smallest effect of interest). ``SEEDS_CAP + 1`` means more
+    than ``SEEDS_CAP``."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    x_censored = np.zeros(len(x), bool) if x_censored is None else np.asarray(x_censored, bool)
+    y_censored = np.zeros(len(y), bool) if y_censored is None else np.asarray(y_censored, bool)
+    if len(x) < 2 or len(y) < 2:
+        return SEEDS_CAP + 1
+    reference = float(iqm(y))
+    point = 1 - float(iqm(x)) / reference if relative else float(iqm(x)) - reference
+    if effect is not None:
+        side = 1.0 if point >= 0 else -1.0
+        if relative:
+            x = x * (1 - side * effect) * reference / float(iqm(x))
+        else:
+            x = x + side * effect * abs(reference) - point
+        point = side * effect
+    if point == 0 or not np.isfinite(point):
+        return SEEDS_CAP + 1
+
+    def power(n: int) -> float:
+        rng = np.random.default_rng([SEED, n])
+        ix, iy = rng.integers(0, len(x), (SIMULATIONS, n)), rng.integers(0, len(y), (SIMULATIONS, n))
+        bx, by = rng.integers(0, n, (INNER_RESAMPLES, n)), rng.integers(0, n, (INNER_RESAMPLES, n))
+        xs, ys = x[ix][:, bx], y[iy][:, by]  # (experiments, resamples, seeds)
+        stat = 1 - iqm(xs) / iqm(ys) if relative else iqm(xs) - iqm(ys)
+        low, high = np.percentile(stat, [2.5, 97.5], axis=1)
+        separated = low > 0 if point > 0 else high < 0
+        if relative:  # the IQM of a sample that uses a censored seed is a bound: as the findings' rule
+            x_bound = x_censored[ix].sum(axis=1) > int(np.floor(0.25 * n))
+            y_bound = y_censored[iy].sum(axis=1) > int(np.floor(0.25 * n))
+            separated &= ~(x_bound if point > 0 else y_bound)
+        return float(separated.mean())
+
+    if power(SEEDS_CAP) < POWER:
+        return SEEDS_CAP + 1
+    return next(n for n in SEED_COUNTS if smallest_p_value(n, n) <= 1 - CONFIDENCE and power(n) >= POWER)
