@@ -163,11 +163,12 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
     if len(undecidable):
         pairs = sorted({(int(r.n_variant), int(r.n_reference)) for r in undecidable.itertuples()})
         reasons = "; ".join(_no_claim_reason(n, m) for n, m in pairs)
-        lines.append(
-            f"- **Too few seeds for a claim** ({reasons}): {len(undecidable)} of {len(compare)} comparisons below "
+        lines += [
+            f"**Too few seeds for a claim** ({reasons}): {len(undecidable)} of {len(compare)} comparisons below "
             "read *too few seeds to tell*. Their estimates are pointers for a larger run, not results; *seeds "
-            "needed* says how many would do."
-        )
+            "needed* says how many would do.",
+            "",
+        ]
     for variant in ablation.variants:
         rows = compare[compare.variant == variant] if len(compare) else compare
         if rows.empty:
