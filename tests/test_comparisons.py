@@ -113,7 +113,14 @@ def test_leave_one_seed_out_marks_a_claim_that_rests_on_some_seeds():
         metric_values={"a": [10, 10.5, 11, 11.5, 12], "b": [20, 21, 22, 23, 24]},
     )
     assert compare_metric(robust, "b", "auc").fragile_seeds == ()
-    assert "Fragile" in _findings_text(ablation) and "Holds leaving out any one seed" in _findings_text(robust)
+    assert "Fragile" in _findings_text(ablation) and "holds leaving out any one seed" in _findings_text(robust)
+    assert _findings_text(robust).count("leaving out") == 1  # said once, not on every line
+    four = _frame(
+        {"a": [10] * 4, "b": [10] * 4}, budget=100, metric_values={"a": [10, 11, 12, 13], "b": [20, 21, 22, 23]}
+    )
+    comparison = compare_metric(four, "b", "auc")  # 3 and 3 seeds left: no claim could survive, none is checked
+    assert comparison.verdict == "better" and comparison.fragile_seeds == () and not comparison.loo_checked
+    assert "Fragile" not in _findings_text(four) and "were not checked that way" in _findings_text(four)
 
 
 def test_one_seed_gives_no_interval_and_no_crash():

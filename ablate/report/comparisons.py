@@ -11,6 +11,7 @@ import pandas as pd
 from ablate.report.results import Ablation
 from ablate.report.statistics import (
     BETTER,
+    CONFIDENCE,
     WORSE,
     _episodes_comparison,
     _return_comparison,
@@ -18,6 +19,7 @@ from ablate.report.statistics import (
     probability_of_improvement,
     probability_of_improvement_interval,
     seeds_needed,
+    smallest_p_value,
 )
 
 
@@ -45,6 +47,9 @@ class Comparison:
     """Seeds whose removal changes the verdict (empty: the verdict holds leaving out any one seed)."""
     n_variant: int = 0
     n_reference: int = 0
+    loo_checked: bool = True
+    """False where leaving out one seed leaves too few for any claim (4 and 4 seeds: 3 and 3 cannot reach 95%),
+    so the leave-one-seed-out check says nothing and is not made."""
     seeds_needed: float = np.nan
     """Where not separated: seeds per variant the decision rule would need to separate the observed difference
     (``statistics.seeds_needed``; ``SEEDS_CAP + 1``: more than the cap); NaN where separated or not computed."""
@@ -91,7 +96,8 @@ def compare_metric(
         needed = seeds_needed(x, y, relative, x_cens, y_cens)
         smallest = seeds_needed(x, y, relative, x_cens, y_cens, effect=ablation.smallest_effect)
     fragile: list[int] = []
-    if stability and verdict in (BETTER, WORSE):
+    loo_checked = smallest_p_value(len(x) - 1, len(y) - 1) <= 1 - CONFIDENCE
+    if stability and verdict in (BETTER, WORSE) and loo_checked:
         for seed in sorted(set(done.seed)):
             if judge(done[done.seed != seed])[3] != verdict:
                 fragile.append(int(seed))
@@ -108,6 +114,7 @@ def compare_metric(
         tuple(fragile),
         len(x),
         len(y),
+        loo_checked,
         needed,
         smallest,
     )

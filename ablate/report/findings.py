@@ -88,7 +88,7 @@ def _stability(row: pd.Series) -> str:
             f" **Fragile:** the claim does not survive leaving out seed{'s' if len(seeds) > 1 else ''} "
             f"{', '.join(seeds)}."
         )
-    return " Holds leaving out any one seed."
+    return ""  # holding is the rule, said once before the list
 
 
 def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
@@ -169,6 +169,21 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
             "needed* says how many would do.",
             "",
         ]
+    claims = compare[compare.verdict.isin([BETTER, WORSE])] if len(compare) else compare
+    if len(claims):
+        checked = claims[claims.loo_checked.astype(bool)] if "loo_checked" in claims else claims
+        notes = []
+        if len(checked):
+            notes.append(
+                "Each claim was recomputed without each seed in turn: it holds leaving out any one seed unless "
+                "marked **fragile**."
+            )
+        if len(checked) < len(claims):
+            notes.append(
+                "Leaving out one of so few seeds leaves too few for any claim, so the claims of a variant with 4 "
+                "seeds or fewer were not checked that way."
+            )
+        lines += [" ".join(notes), ""]
     for variant in ablation.variants:
         rows = compare[compare.variant == variant] if len(compare) else compare
         if rows.empty:
