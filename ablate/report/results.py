@@ -277,11 +277,12 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
 
     tuning = _tuning_document(tracker, launch_id)
     names = tuning_knobs(tuning) if tuning else []
-    planned = {trial["key"] for trial in grid["trials"]}
+    planned_trials = [*grid["trials"], *grid.get("tune_trials", [])]
+    planned = {trial["key"] for trial in planned_trials}
     # A tuned launch's evaluation trials at the chosen values are known only once tuning ends: not in grid.json.
     later = [{"key": r.key, "variant": r.variant, "seed": r.seed} for r in best_run.values() if r.key not in planned]
     rows, tune_rows, curves, params = [], [], {}, {}
-    for trial in [*grid["trials"], *later] if tuning else grid["trials"]:
+    for trial in [*planned_trials, *later] if tuning else grid["trials"]:
         run = best_run.get(trial["key"])
         row = {"key": trial["key"], "variant": trial["variant"], "seed": trial["seed"]}
         if tuning:
@@ -304,6 +305,8 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
             if row.get("stage") != TUNE:
                 params.setdefault(trial["variant"], run.params)
                 curves[trial["key"]] = curve
+            else:
+                row["tracked"] = dict(run.metrics)
         (tune_rows if row.get("stage") == TUNE else rows).append(row)
     launch_info = {
         "run_id": launch_id,

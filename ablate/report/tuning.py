@@ -65,6 +65,9 @@ def trial_metric(row: dict[str, Any], metric: str) -> float:
     censored at its budget, or the rolling return when it ended."""
     if row.get("status") != "FINISHED":
         return float("nan")
+    tracked = row.get("tracked", {}).get(metric)
+    if tracked is not None:  # what the tuning stage itself recorded and selected on
+        return float(tracked)
     if metric == "episodes_to_solve":
         return float(row["episodes_to_solve"] if row.get("solved") == 1 else row.get("budget", np.nan))
     if metric == "final_return":

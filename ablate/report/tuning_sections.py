@@ -48,6 +48,7 @@ def tuning_section(ablation: Ablation) -> str:
     seeds = tuning.get("seeds", [])
     evaluation = sorted(set(ablation.trials.seed)) if len(ablation.trials) else ablation.grid.get("seeds", [])
     budget = int(ablation.grid["base"].get("max_episodes", 0))
+    rule = tuning.get("rule", "the candidate with the best mean metric over the tuning seeds")
     tune_budget = tuning.get("max_episodes") or budget
     candidates = "; ".join(
         f"{k.replace('_', ' ')}: {', '.join(_value(c) for c in values)} (base value {_value(tuning['base'].get(k))})"
@@ -65,7 +66,7 @@ def tuning_section(ablation: Ablation) -> str:
         f"{len(evaluation)} evaluation seeds ({', '.join(map(str, evaluation))}).",
         f"- **Metric.** {words}, {'higher' if direction == 'max' else 'lower'} is better, over each tuning trial's "
         f"budget of {int(tune_budget):,} episodes.",
-        f"- **Rule.** {_esc(tuning.get('rule', 'the candidate with the best mean metric over the tuning seeds'))}.",
+        f"- **Rule.** {_esc(rule.rstrip('.'))}.",
     ]
     if tune_budget < budget:
         lines.append(
