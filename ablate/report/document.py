@@ -145,7 +145,7 @@ def build_markdown(
         + ", on "
         + ", ".join(_metric_name(m) for m in dict.fromkeys(compare.metric) if isinstance(m, str))
         + ". Episodes: the relative change of the IQM; returns: the difference of the IQMs; each with its 95% "
-        "interval, sized as a bound where censoring makes it one, and checked by leaving out each seed in turn.",
+        "interval, sized as a bound where censoring makes it one.",
         "",
         *findings(ablation, table, compare),
         "",
