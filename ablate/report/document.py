@@ -36,15 +36,14 @@ from ablate.report.figures import (
 from ablate.report.figures import esc as _esc
 from ablate.report.figures import fmt as _fmt
 from ablate.report.findings import _findings_intro, findings, summary
+from ablate.report.provenance import _generation_note, _reproducibility
 from ablate.report.results import Ablation, NoResults, load_ablation, select
 from ablate.report.sections import (
     GLOSSARY,
     REFERENCES,
     TUNING_REFERENCES,
     _convergence_markdown,
-    _generation_note,
     _method,
-    _reproducibility,
     _sampling_videos,
     limitations,
 )

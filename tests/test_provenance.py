@@ -1,8 +1,8 @@
-"""The report's sections on hand-made inputs: the reproducibility record against a real git clone."""
+"""The reproducibility record against a real git clone."""
 
 import subprocess
 
-from ablate.report.sections import experiment_file_state
+from ablate.report.provenance import experiment_file_state
 
 
 def _git(folder, *argv):
