@@ -352,6 +352,9 @@ def figure_sensitivity(ablation: Ablation, folder: Path) -> Figure | None:
         if picked:
             at = mine.iloc[picked[0]]
             ax.scatter([position[tuple(at[names])]], [at["mean"]], marker="*", s=220, color="black", zorder=4)
+        base = [tuning.get("base", {}).get(n) for n in names]
+        if numeric and base[0] is not None:  # the untuned comparison's value, for reference
+            ax.axvline(float(base[0]), color="grey", linestyle="--", linewidth=0.8)
         ax.set_title(variant, fontsize=10)
         ax.grid(alpha=0.3)
         if numeric:
@@ -372,7 +375,7 @@ def figure_sensitivity(ablation: Ablation, folder: Path) -> Figure | None:
         f"Sensitivity to {', '.join(esc(n.replace('_', ' ')) for n in names)}: the tuning metric ({esc(words)}, "
         f"{'higher' if direction == 'max' else 'lower'} is better) of each tuned variant at every candidate, on the "
         f"{seeds} tuning seed{'s' if seeds != 1 else ''} only. Line: the mean over the tuning seeds; bar: the lowest "
-        "to the highest seed; dots: each seed; star: the value chosen for the evaluation. A choice at the end of "
-        "the axis may not be the best value."
+        "to the highest seed; dots: each seed; star: the value chosen for the evaluation; dashed: the base value "
+        "(the untuned comparison's). A choice at the end of the axis may not be the best value."
     )
     return Figure(_save(fig, folder, "tuning_sensitivity"), caption, "Sensitivity to the tuned settings")
