@@ -346,6 +346,10 @@ class Experiment:
     gpus_per_trial: float = 0.0
     """GPUs Ray reserves per trial; fractions allowed (0.25 packs four trials per GPU). A trial puts its policy
     on CUDA whenever torch sees one."""
+    smallest_effect: float = 0.1
+    """The smallest difference worth finding, as a fraction of the reference variant's value (0.1: 10% fewer
+    or more episodes to solve; a return or AUC 10% of the reference's apart). The report says how many seeds
+    per variant would separate a difference this large; it changes no trial."""
     tune: TuneSpec | None = None
     """``[tune]``: tune each variant's optimisation knobs on tuning seeds first; ``None``: no tuning stage."""
 
@@ -362,6 +366,7 @@ EXPERIMENT_KEYS = (
     "baseline",
     "cpus_per_trial",
     "gpus_per_trial",
+    "smallest_effect",
     "base",
     "variants",
     "grid",
@@ -422,6 +427,13 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     gpus = data.get("gpus_per_trial", 0.0)
     if not (_is_number(gpus) and 0 <= gpus <= 16):
         raise ConfigError(f"{source}: gpus_per_trial = {gpus!r} is invalid; valid: a number in [0, 16]")
+
+    smallest_effect = data.get("smallest_effect", Experiment.smallest_effect)
+    if not (_is_number(smallest_effect) and 0 < smallest_effect < 1):
+        raise ConfigError(
+            f"{source}: smallest_effect = {smallest_effect!r} is invalid; valid: a fraction in (0, 1), e.g. 0.1 for "
+            "a difference of 10% of the reference variant's value"
+        )
 
     base_table = data.get("base", {})
     if not isinstance(base_table, dict):
@@ -485,7 +497,19 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             f"{source}: baseline = {baseline!r} is invalid; valid: one of the variant names {sorted(seen)}"
         )
     tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), seeds)
-    return Experiment(name, source, description, base, tuple(variants), seeds, baseline, float(cpus), float(gpus), tune)
+    return Experiment(
+        name,
+        source,
+        description,
+        base,
+        tuple(variants),
+        seeds,
+        baseline,
+        float(cpus),
+        float(gpus),
+        smallest_effect=smallest_effect,
+        tune=tune,
+    )
 
 
 def _parse_tune(

@@ -217,6 +217,23 @@ def test_bad_names_are_one_line_naming_the_problem(tmp_path, name, problem):
     assert f"is invalid ({problem}); valid: 1 to 100 characters in any script" in message
 
 
+@pytest.mark.parametrize("value", ["0", "1", "-0.1", "'ten'", "true", "1.5"])
+def test_a_bad_smallest_effect_is_one_line_exit_2_and_nothing_tracked(tmp_path, capsys, value):
+    from ablate.cli import main
+
+    path = _write(tmp_path, f"smallest_effect = {value}\n[[variants]]\nname = 'a'\n")
+    assert main(["run", str(path), "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "smallest_effect" in err and "a fraction in (0, 1)" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_smallest_effect_defaults_to_a_tenth(tmp_path):
+    assert load_experiment(_write(tmp_path, "[[variants]]\nname = 'a'\n")).smallest_effect == 0.1
+    path = _write(tmp_path, "smallest_effect = 0.25\n[[variants]]\nname = 'a'\n")
+    assert load_experiment(path).smallest_effect == 0.25
+
+
 # --- [tune] (issue 19) ---
 
 TUNED = """

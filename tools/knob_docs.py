@@ -43,6 +43,9 @@ TOP_LEVEL_MEANINGS = {
     "cpus_per_trial": "CPUs Ray reserves per trial; fractions pack several trials per core (0.5: two).",
     "gpus_per_trial": "GPUs Ray reserves per trial; fractions allowed (0.25: four per GPU). A trial puts its policy "
     "on CUDA whenever torch sees one.",
+    "smallest_effect": "The smallest difference worth finding, as a fraction of the reference's value (0.1: 10% "
+    "fewer or more episodes, or a return 10% of the reference's apart); the report says how many seeds would "
+    "separate it. Changes no trial.",
     "base": "A table of knobs (below) every variant starts from; the rest keep their defaults.",
     "variants": "An array of tables `[[variants]]`: each a `name` and the knobs it changes over `[base]`.",
     "grid": "A table of axes (knob = list of values) whose cartesian product adds one variant per combination, "
@@ -57,6 +60,7 @@ TOP_LEVEL_VALID = {
     "baseline": "a variant's name",
     "cpus_per_trial": "a number in (0, 64]",
     "gpus_per_trial": "a number in [0, 16]",
+    "smallest_effect": "a fraction in (0, 1)",
     "base": "knobs",
     "variants": f"names up to {config.MAX_VARIANT_NAME_LENGTH} characters, each unique",
     "grid": f"non-empty lists; at most {config.MAX_TRIALS:,} trials in all",
@@ -76,6 +80,7 @@ def top_level_defaults() -> dict[str, str]:
         "baseline": "the first variant" if minimal.baseline == "first" else _code(minimal.baseline),
         "cpus_per_trial": _code(minimal.resources_per_trial),
         "gpus_per_trial": _code(minimal.gpus_per_trial),
+        "smallest_effect": _code(minimal.smallest_effect),
         "base": "none: every knob at its default",
         "variants": "none",
         "grid": "none",
