@@ -9,7 +9,7 @@ import time
 from collections import Counter, defaultdict
 from collections.abc import Iterable
 
-from ablate.config import ConfigError, Experiment
+from ablate.config import ConfigError, Experiment, storage_name
 from ablate.run.grid import expand, tuning_trials
 from ablate.run.tracking import LaunchRun, Tracker, TrialRun, ablation_names, resolve_uri, store_exists
 
@@ -65,7 +65,7 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     generation per variant. With ``experiment`` (its file), trials of the file with no run count as pending."""
     uri = resolve_uri(tracking_uri)
     known = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
-    if name not in known:
+    if storage_name(name) not in known:  # the name as written or its storage form (``config.storage_name``)
         valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"
         raise ConfigError(f"{name!r} is not an ablation in the MLflow store {uri}; {valid}")
     tracker = Tracker(tracking_uri, name)
