@@ -16,6 +16,7 @@ import sqlalchemy
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import local_cluster  # noqa: E402
 
+from ablate.report.reader import RunReader  # noqa: E402
 from ablate.run.tracking import POINT_METRICS, Tracker  # noqa: E402
 
 pytestmark = pytest.mark.skipif(
@@ -202,7 +203,7 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     marker.write_text("go\n")
     code, output = local_cluster.finish_process(launch)
     assert code == 0, output
-    tracker = Tracker(cluster["uri"], spread)
+    tracker = RunReader(cluster["uri"], spread)
     runs = tracker.trial_runs(with_artifacts=True)
     assert len(runs) == 2 and {r.status for r in runs} == {"FINISHED"}
     tracked = {r.run_id for r in runs} | {launch.info.run_id for launch in tracker.launches()}

@@ -36,6 +36,7 @@ from ablate.report.figures import (
 )
 from ablate.report.figures import esc as _esc
 from ablate.report.figures import fmt as _fmt
+from ablate.report.reader import RunReader
 from ablate.report.results import (
     BETTER,
     CONFIDENCE,
@@ -51,7 +52,6 @@ from ablate.report.results import (
     select,
     smallest_p_value,
 )
-from ablate.run.tracking import Tracker
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
@@ -687,7 +687,7 @@ def _video_picks(ablation: Ablation, done: pd.DataFrame) -> list[tuple[pd.Series
     return picks
 
 
-def _videos(ablation: Ablation, tracker: Tracker, folder: Path) -> list[dict[str, str]]:
+def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[str, str]]:
     chosen = []
     folder.mkdir(parents=True, exist_ok=True)
     for variant in ablation.variants:
@@ -1021,7 +1021,7 @@ def build_report(
     Path(out_root).mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{name}.new-", dir=out_root))
     try:
-        tracker = Tracker(tracking_uri, name)
+        tracker = RunReader(tracking_uri, name)
         pdf_note = _build(ablation, tracker, staging, pdf, command)
         _swap(staging, folder)
     except BaseException:
@@ -1047,7 +1047,7 @@ def _swap(staging: Path, folder: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def _build(ablation: Ablation, tracker: Tracker, folder: Path, pdf: bool, command: str) -> str | None:
+def _build(ablation: Ablation, tracker: RunReader, folder: Path, pdf: bool, command: str) -> str | None:
     for sub in ("figures", "tables", "videos"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     table = convergence_table(ablation)

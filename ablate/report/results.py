@@ -19,7 +19,7 @@ import pandas as pd
 from scipy import stats
 
 from ablate.config import ConfigError
-from ablate.run.tracking import Tracker
+from ablate.report.reader import RunReader
 
 CONFIDENCE = 0.95
 N_RESAMPLES = 2000
@@ -290,11 +290,11 @@ def trial_measures(curve: pd.DataFrame, budget: int, levels: tuple[float, ...], 
     return measures
 
 
-def _launches(tracker: Tracker) -> list[Any]:
+def _launches(tracker: RunReader) -> list[Any]:
     return tracker.launches()
 
 
-def _generation_summary(tracker: Tracker, launches: list[Any]) -> list[dict[str, Any]]:
+def _generation_summary(tracker: RunReader, launches: list[Any]) -> list[dict[str, Any]]:
     """Every generation, newest first: its id, when it started, trials in its grid, trials finished."""
     runs = tracker.trial_runs()
     finished: dict[str, set[str]] = {}
@@ -342,7 +342,7 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
     answers it. Reads only; a missing store is a ``ConfigError``, a store without the experiment, its launches
     or the asked-for generation is ``NoResults``."""
     uri = check_store(tracking_uri)
-    tracker = Tracker(uri, name)
+    tracker = RunReader(uri, name)
     if tracker.experiment_id(create=False) is None:
         raise NoResults(
             f"no MLflow experiment named {name!r} at {tracker.uri}; run `ablate run experiments/{name}.toml` first"
@@ -365,7 +365,7 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
     return _read_launch(tracker, name, launch, generations)
 
 
-def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dict[str, Any]]) -> Ablation:
+def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[dict[str, Any]]) -> Ablation:
     launch_id = launch.info.run_id
     grid = json.loads(tracker.load_text(launch_id, "grid.json"))
     try:

@@ -10,8 +10,9 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable
 
 from ablate.config import ConfigError, Experiment
+from ablate.report.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 from ablate.run.grid import expand
-from ablate.run.tracking import LaunchRun, Tracker, TrialRun, ablation_names, resolve_uri, store_exists
+from ablate.run.tracking import resolve_uri
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
 """A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""
@@ -49,7 +50,7 @@ def overview(tracking_uri: str | None) -> str:
         return f"no ablations in the MLflow store {uri} yet; start one with: ablate run experiments/cartpole.toml"
     rows = [("experiment", "launches", "generations", "newest launch", "", "trials of the newest generation")]
     for name in names:
-        tracker = Tracker(tracking_uri, name)
+        tracker = RunReader(tracking_uri, name)
         launches = tracker.launch_runs()
         newest = launches[-1]
         counts = Counter(s for _, s in trial_states(tracker.trial_runs(newest.generation)).values())
@@ -68,7 +69,7 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     if name not in known:
         valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"
         raise ConfigError(f"{name!r} is not an ablation in the MLflow store {uri}; {valid}")
-    tracker = Tracker(tracking_uri, name)
+    tracker = RunReader(tracking_uri, name)
     launches = tracker.launch_runs()
     by_generation: dict[str, list[LaunchRun]] = defaultdict(list)
     for launch in launches:

@@ -1,4 +1,5 @@
-"""The only module that talks to MLflow: write launches and trials as runs, read them back.
+"""The driver's side of MLflow: open a store, write launches and trials as runs (``ablate.report.reader`` reads
+them back for the report; the two are the only modules that import MLflow).
 
 One writer: the driver process owns every write (trials run elsewhere and send their metrics through
 the scheduler), so an SQLite store never sees two writers; a tracking server works the same way.
@@ -61,7 +62,7 @@ class TrackingError(RuntimeError):
         self.exit_code = exit_code
 
 
-def _quiet_mlflow() -> None:
+def quiet_mlflow() -> None:
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
     for name in ("mlflow", "alembic"):
@@ -83,19 +84,6 @@ class TrialRun:
     tags: dict[str, str]
     start_time_ms: int
     artifacts: list[str] = field(default_factory=list)
-
-
-@dataclass
-class LaunchRun:
-    """A tracked launch (one ``ablate run``), as ``ablate status`` needs it."""
-
-    run_id: str
-    generation: str
-    status: str
-    """MLflow status: FINISHED, FAILED, KILLED, RUNNING (still going, or its process died)."""
-    start_time_ms: int
-    command: str
-    """The command line that started it."""
 
 
 def resolve_uri(tracking_uri: str | None) -> str:
@@ -200,27 +188,9 @@ def _first_line(error: BaseException) -> str:
     return text[:300]
 
 
-def store_exists(tracking_uri: str | None) -> bool:
-    """Whether there is a store to read: a local SQLite file must exist (opening one would create it)."""
-    db = sqlite_path(resolve_uri(tracking_uri))
-    return db is None or db.is_file()
-
-
-def ablation_names(tracking_uri: str | None) -> list[str]:
-    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted."""
-    from mlflow.tracking import MlflowClient
-
-    _quiet_mlflow()
-    client = MlflowClient(resolve_uri(tracking_uri))
-    names = []
-    for experiment in client.search_experiments():
-        if client.search_runs([experiment.experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", max_results=1):
-            names.append(experiment.name)
-    return sorted(names)
-
-
-class Tracker:
-    """Runs of one MLflow experiment (one per ablation): a parent run per launch, a child run per trial."""
+class Store:
+    """One MLflow experiment (one per ablation) in one store, opened: what the writer (``Tracker``, below) and
+    the report's reader (``ablate.report.reader``) share: the checks that open it, its experiment, its runs."""
 
     def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
         """Opens the store and reads the experiment once, so every reason the store cannot be used surfaces
@@ -236,7 +206,7 @@ class Tracker:
 
         from mlflow.tracking import MlflowClient
 
-        _quiet_mlflow()
+        quiet_mlflow()
         try:
             with _store_setup_lock(db), _fail_fast_http():
                 self.client = MlflowClient(self.uri)
@@ -251,13 +221,6 @@ class Tracker:
             )
         if existing is not None:
             self._experiment_id = existing.experiment_id
-        self.open_runs: dict[str, str] = {}
-        self.attempts: dict[str, int] = {}
-        self._points: dict[str, tuple[list[Any], float, int]] = {}
-        """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
-        self._artifact_uris: dict[str, str] = {}
-        """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
-        the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
 
     # --- experiment -------------------------------------------------------------------------------
     def _store_problem(self, error: BaseException) -> str:
@@ -301,6 +264,60 @@ class Tracker:
             return (db.parent / "mlartifacts" / self.experiment_name).as_uri()
         return None
 
+    # --- reading back (the writer resumes from what it wrote) -----------------------------------------
+    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
+        """Trial runs of this experiment (of one generation, if given), oldest first."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        query = f"tags.`{TAG_ROLE}` = 'trial'"
+        if generation is not None:
+            query += f" and tags.`{TAG_GENERATION}` = '{generation}'"
+        runs, token = [], None
+        while True:
+            page = self.client.search_runs(
+                [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
+            )
+            runs.extend(page)
+            token = page.token
+            if not token:
+                break
+        return [
+            TrialRun(
+                run_id=r.info.run_id,
+                key=r.data.tags.get(TAG_KEY, ""),
+                variant=r.data.tags.get(TAG_VARIANT, ""),
+                seed=int(r.data.tags.get(TAG_SEED, "-1")),
+                status=r.info.status,
+                params=dict(r.data.params),
+                metrics=dict(r.data.metrics),
+                tags=dict(r.data.tags),
+                start_time_ms=r.info.start_time,
+                artifacts=[a.path for a in self.client.list_artifacts(r.info.run_id)] if with_artifacts else [],
+            )
+            for r in runs
+        ]
+
+    def download(self, run_id: str, path: str, destination: str | Path | None = None) -> str:
+        import tempfile
+
+        destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
+        return self.client.download_artifacts(run_id, path, str(destination))
+
+
+class Tracker(Store):
+    """The driver's writer: a parent run per launch, a child run per trial (and what resuming reads back)."""
+
+    def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
+        super().__init__(tracking_uri, experiment_name, write)
+        self.open_runs: dict[str, str] = {}
+        self.attempts: dict[str, int] = {}
+        self._points: dict[str, tuple[list[Any], float, int]] = {}
+        """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
+        self._artifact_uris: dict[str, str] = {}
+        """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
+        the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
+
     def ui_link(self, port: int = 5000) -> str:
         base = self.uri if self.uri.startswith("http") else f"http://127.0.0.1:{port}"
         # MLflow 3 opens an experiment in its GenAI view unless told this is a machine-learning one.
@@ -320,17 +337,6 @@ class Tracker:
             [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"], max_results=1
         )
         return runs[0] if runs else None
-
-    def launches(self) -> list[Any]:
-        """Every launch (parent) run of this experiment, newest first (the report picks a generation from them)."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        return list(
-            self.client.search_runs(
-                [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"]
-            )
-        )
 
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
@@ -527,82 +533,6 @@ class Tracker:
                 batch = []
         if batch:
             self.client.log_batch(run_id, metrics=batch)
-
-    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ("videos",)) -> None:
-        """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables) as the ``report/``
-        artifacts of a launch run; ``skip`` leaves out folders already in the trial runs (the videos)."""
-        for path in sorted(Path(folder).iterdir()):
-            if path.is_dir() and path.name not in skip:
-                self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
-            elif path.is_file():
-                self.client.log_artifact(run_id, str(path), "report")
-
-    # --- reading back -----------------------------------------------------------------------------
-    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
-        """Trial runs of this experiment (of one generation, if given), oldest first."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        query = f"tags.`{TAG_ROLE}` = 'trial'"
-        if generation is not None:
-            query += f" and tags.`{TAG_GENERATION}` = '{generation}'"
-        runs, token = [], None
-        while True:
-            page = self.client.search_runs(
-                [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
-            )
-            runs.extend(page)
-            token = page.token
-            if not token:
-                break
-        return [
-            TrialRun(
-                run_id=r.info.run_id,
-                key=r.data.tags.get(TAG_KEY, ""),
-                variant=r.data.tags.get(TAG_VARIANT, ""),
-                seed=int(r.data.tags.get(TAG_SEED, "-1")),
-                status=r.info.status,
-                params=dict(r.data.params),
-                metrics=dict(r.data.metrics),
-                tags=dict(r.data.tags),
-                start_time_ms=r.info.start_time,
-                artifacts=[a.path for a in self.client.list_artifacts(r.info.run_id)] if with_artifacts else [],
-            )
-            for r in runs
-        ]
-
-    def launch_runs(self) -> list[LaunchRun]:
-        """Every launch of this experiment, oldest first."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        runs = self.client.search_runs(
-            [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time ASC"], max_results=5000
-        )
-        return [
-            LaunchRun(
-                run_id=r.info.run_id,
-                generation=r.data.tags.get(TAG_GENERATION, ""),
-                status=r.info.status,
-                start_time_ms=r.info.start_time,
-                command=r.data.tags.get("ablate.command", ""),
-            )
-            for r in runs
-        ]
-
-    def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:
-        """(step, value) pairs of one metric, by step."""
-        return sorted((m.step, m.value) for m in self.client.get_metric_history(run_id, key))
-
-    def load_text(self, run_id: str, filename: str) -> str:
-        """A small text artifact of a run (a launch's ``grid.json``, say)."""
-        return Path(self.download(run_id, filename)).read_text()
-
-    def download(self, run_id: str, path: str, destination: str | Path | None = None) -> str:
-        import tempfile
-
-        destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
-        return self.client.download_artifacts(run_id, path, str(destination))
 
 
 def _param_text(value: Any) -> str:
