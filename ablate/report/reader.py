@@ -16,9 +16,14 @@ from ablate.run.tracking import (
     Store,
     TrackingError,
     TrialRun,
+    check_uri,
+    fail_fast_http,
+    is_database,
+    probe_database,
     quiet_mlflow,
     resolve_uri,
     sqlite_path,
+    store_problem,
 )
 
 __all__ = ["LaunchRun", "RunReader", "TrackingError", "TrialRun", "ablation_names", "store_exists"]
@@ -44,13 +49,27 @@ def store_exists(tracking_uri: str | None) -> bool:
 
 
 def ablation_names(tracking_uri: str | None) -> list[str]:
-    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted."""
+    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted. A store that
+    cannot be read is a one-line ``TrackingError`` within seconds (a database or server that does not answer,
+    a login refused), as when the writer opens it."""
     from mlflow.tracking import MlflowClient
 
     quiet_mlflow()
-    client = MlflowClient(resolve_uri(tracking_uri))
+    uri = resolve_uri(tracking_uri)
+    check_uri(uri)
+    if is_database(uri):
+        probe_database(uri)
+    problem = None
+    try:
+        with fail_fast_http():
+            client = MlflowClient(uri)
+            experiments = client.search_experiments()
+    except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
+        problem = store_problem(uri, error)
+    if problem:  # raised outside the except: one line, not the chain of exceptions behind it
+        raise TrackingError(problem)
     names = []
-    for experiment in client.search_experiments():
+    for experiment in experiments:
         if client.search_runs([experiment.experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", max_results=1):
             names.append(experiment.name)
     return sorted(names)

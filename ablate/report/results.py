@@ -345,11 +345,11 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
     tracker = RunReader(uri, name)
     if tracker.experiment_id(create=False) is None:
         raise NoResults(
-            f"no MLflow experiment named {name!r} at {tracker.uri}; run `ablate run experiments/{name}.toml` first"
+            f"no MLflow experiment named {name!r} at {tracker.shown_uri}; run `ablate run experiments/{name}.toml` first"
         )
     launches = _launches(tracker)
     if not launches:
-        raise NoResults(f"experiment {name!r} at {tracker.uri} has no launches; run `ablate run` first")
+        raise NoResults(f"experiment {name!r} at {tracker.shown_uri} has no launches; run `ablate run` first")
     generations = _generation_summary(tracker, launches)
     if generation is None:
         launch = launches[0]

@@ -12,7 +12,7 @@ from collections.abc import Iterable
 from ablate.config import ConfigError, Experiment
 from ablate.report.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 from ablate.run.grid import expand
-from ablate.run.tracking import resolve_uri
+from ablate.run.store import mask_uri, resolve_uri
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
 """A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""
@@ -44,7 +44,7 @@ def _when(ms: int) -> str:
 
 def overview(tracking_uri: str | None) -> str:
     """One line per ablation in the store."""
-    uri = resolve_uri(tracking_uri)
+    uri = mask_uri(resolve_uri(tracking_uri))  # shown: its password masked
     names = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
     if not names:
         return f"no ablations in the MLflow store {uri} yet; start one with: ablate run experiments/cartpole.toml"
@@ -64,7 +64,7 @@ def overview(tracking_uri: str | None) -> str:
 def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = None) -> str:
     """An ablation's generations (newest first), each with its launches and trials by state; the newest
     generation per variant. With ``experiment`` (its file), trials of the file with no run count as pending."""
-    uri = resolve_uri(tracking_uri)
+    uri = mask_uri(resolve_uri(tracking_uri))  # shown: its password masked
     known = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
     if name not in known:
         valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"

@@ -8,19 +8,32 @@ the scheduler), so an SQLite store never sees two writers; a tracking server wor
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import logging
 import os
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlparse
 
-DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
+from ablate.run.store import (
+    PROBE_TIMEOUT_S,
+    TrackingError,
+    check_sqlite,
+    check_uri,
+    fail_fast_http,
+    first_line,
+    is_database,
+    mask_uri,
+    probe_database,
+    redact,
+    resolve_uri,
+    sqlite_path,
+    store_setup_lock,
+)
+
 # A trial's curve: one point per bin of episodes (``ablate.run.curve``: at most ~100 points however many episodes
 # run), step = the bin's last episode. MLflow's SQLite store costs ~4 ms per call plus ~55 us per value of
 # the writer's CPU, and one writer serves every trial: a value per episode capped it at ~10 concurrent
@@ -45,21 +58,6 @@ _BATCH = 1000  # MLflow's limit of metrics per log_batch call
 FLUSH_EVERY_S = 10.0
 """Seconds a trial's curve points wait to be written together: one MLflow call costs ~4 ms plus ~50 us per
 value, so a trial that reports every 2 s is written in a fifth of the calls; a trial's end flushes it."""
-SCHEMES = ("sqlite", "http", "https", "file", "postgresql", "mysql", "mssql", "databricks")
-"""URI schemes MLflow can track to (``file`` and a bare path: its folder store)."""
-PROBE_TIMEOUT_S = 5
-"""The first request to a tracking server: one try, this long. MLflow's defaults (7 retries with backoff,
-120 s timeout) are right mid-run but turn a mistyped server into four minutes of silence at the start."""
-SQLITE_MAGIC = b"SQLite format 3\x00"
-
-
-class TrackingError(RuntimeError):
-    """The tracking store cannot be used (unknown scheme, unreachable, corrupt, read-only, experiment deleted).
-    The message is one line naming the store and what to do; ``exit_code`` is 2 for a malformed URI, else 1."""
-
-    def __init__(self, message: str, exit_code: int = 1) -> None:
-        super().__init__(message)
-        self.exit_code = exit_code
 
 
 def quiet_mlflow() -> None:
@@ -86,108 +84,6 @@ class TrialRun:
     artifacts: list[str] = field(default_factory=list)
 
 
-def resolve_uri(tracking_uri: str | None) -> str:
-    """Explicit URI, else ``MLFLOW_TRACKING_URI``, else an SQLite file in the current folder."""
-    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
-
-
-def sqlite_path(uri: str) -> Path | None:
-    """The database file of an ``sqlite:///`` URI (relative to the current folder, or absolute with four
-    slashes); ``None`` for any other store."""
-    if not uri.startswith("sqlite:///"):
-        return None
-    return Path(uri.removeprefix("sqlite:///").split("?", 1)[0])
-
-
-def _check_uri(uri: str) -> None:
-    scheme = urlparse(uri).scheme
-    if scheme and scheme not in SCHEMES and not scheme.startswith(("postgresql+", "mysql+", "mssql+")):
-        raise TrackingError(
-            f"--tracking-uri {uri}: unknown scheme {scheme!r}; valid: sqlite:///path/to/mlflow.db, "
-            "http(s)://host:port of a tracking server, or another MLflow store URI (file, postgresql, mysql)",
-            exit_code=2,
-        )
-
-
-def _check_sqlite(path: Path, write: bool) -> None:
-    """Fail in a line, before MLflow tries (and retries) to use a file that cannot work as a store."""
-    folder = path.parent.resolve()
-    if not path.exists():
-        if not folder.is_dir():
-            raise TrackingError(f"MLflow store {path}: folder {folder} does not exist; create it or choose another")
-        if not write:
-            raise TrackingError(f"MLflow store {path}: no such file; `ablate run` creates it")
-        if not os.access(folder, os.W_OK | os.X_OK):
-            raise TrackingError(f"MLflow store {path}: folder {folder} is read-only; cannot create the store there")
-        return
-    if not path.is_file():
-        raise TrackingError(f"MLflow store {path}: not a file")
-    if not os.access(path, os.R_OK):
-        raise TrackingError(f"MLflow store {path}: not readable by this user")
-    if write and not (os.access(path, os.W_OK) and os.access(folder, os.W_OK | os.X_OK)):
-        what = "file" if not os.access(path, os.W_OK) else f"folder {folder}"
-        raise TrackingError(
-            f"MLflow store {path}: the {what} is read-only (SQLite writes a journal beside the file); "
-            "make it writable or point --tracking-uri at a writable store"
-        )
-    size = path.stat().st_size
-    if size == 0:
-        return  # SQLite treats an empty file as a new database
-    with path.open("rb") as file:
-        header = file.read(100)
-    if not header.startswith(SQLITE_MAGIC):
-        raise TrackingError(
-            f"MLflow store {path}: not an SQLite database (corrupt or another file); move it away to start a new "
-            "store, or point --tracking-uri at the right one"
-        )
-    # The header records the page size and the page count: a shorter file was truncated (an interrupted copy).
-    page_size = int.from_bytes(header[16:18], "big") if len(header) >= 18 else 0
-    page_size = 65536 if page_size == 1 else page_size
-    pages = int.from_bytes(header[28:32], "big") if len(header) >= 32 else 0
-    if len(header) < 100 or (page_size and pages and size < page_size * pages):
-        raise TrackingError(
-            f"MLflow store {path}: truncated ({size:,} of {page_size * pages:,} bytes); restore it from a copy "
-            "or move it away to start a new store"
-        )
-
-
-@contextlib.contextmanager
-def _store_setup_lock(path: Path | None) -> Iterator[None]:
-    """Serialises the first use of an SQLite store across processes: two launches in a fresh folder would
-    otherwise both run MLflow's schema migrations and one would die in them. A lock on the folder itself,
-    so no file is left behind; the kernel releases it if the process dies."""
-    if path is None:
-        yield
-        return
-    fd = os.open(path.parent.resolve(), os.O_RDONLY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(fd)
-
-
-@contextlib.contextmanager
-def _fail_fast_http() -> Iterator[None]:
-    names = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": str(PROBE_TIMEOUT_S)}
-    saved = {name: os.environ.get(name) for name in names}
-    os.environ.update(names)
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
-def _first_line(error: BaseException) -> str:
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    text = lines[0] if lines else type(error).__name__
-    return text[:300]
-
-
 class Store:
     """One MLflow experiment (one per ablation) in one store, opened: what the writer (``Tracker``, below) and
     the report's reader (``ablate.report.reader``) share: the checks that open it, its experiment, its runs."""
@@ -197,26 +93,30 @@ class Store:
         here as a one-line ``TrackingError``, before anything is written or started. ``write=False`` (a
         report) accepts a read-only store and refuses to create one."""
         self.uri = resolve_uri(tracking_uri)
+        self.shown_uri = mask_uri(self.uri)
+        """The URI as messages and records show it: its password masked."""
         self.experiment_name = experiment_name
         self._experiment_id: str | None = None
-        _check_uri(self.uri)
+        check_uri(self.uri)
         db = sqlite_path(self.uri)
         if db is not None:
-            _check_sqlite(db, write)
+            check_sqlite(db, write)
+        if is_database(self.uri):
+            probe_database(self.uri)
 
         from mlflow.tracking import MlflowClient
 
         quiet_mlflow()
         try:
-            with _store_setup_lock(db), _fail_fast_http():
+            with store_setup_lock(db), fail_fast_http():
                 self.client = MlflowClient(self.uri)
                 existing = self.client.get_experiment_by_name(experiment_name)
         except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
             raise TrackingError(self._store_problem(error)) from None
         if existing is not None and existing.lifecycle_stage == "deleted":
             raise TrackingError(
-                f"MLflow experiment {experiment_name!r} (id {existing.experiment_id}) at {self.uri} is deleted; "
-                f"restore it with `MLFLOW_TRACKING_URI={self.uri} mlflow experiments restore --experiment-id "
+                f"MLflow experiment {experiment_name!r} (id {existing.experiment_id}) at {self.shown_uri} is deleted; "
+                f"restore it with `MLFLOW_TRACKING_URI={self.shown_uri} mlflow experiments restore --experiment-id "
                 f"{existing.experiment_id}`, or give the experiment another name"
             )
         if existing is not None:
@@ -224,17 +124,7 @@ class Store:
 
     # --- experiment -------------------------------------------------------------------------------
     def _store_problem(self, error: BaseException) -> str:
-        text, full = _first_line(error), str(error).lower()
-        if self.uri.startswith(("http://", "https://")):
-            reason = text
-            if "refused" in full:
-                reason = "connection refused"
-            elif "timed out" in full or "timeout" in full:
-                reason = f"no answer in {PROBE_TIMEOUT_S} s"
-            elif "name or service not known" in full or "nodename nor servname" in full:
-                reason = "unknown host"
-            return f"MLflow tracking server {self.uri} is unreachable ({reason}); start it or check --tracking-uri"
-        return f"MLflow store {self.uri} cannot be used: {text}"
+        return store_problem(self.uri, error)
 
     def lock_path(self) -> Path:
         """The file that lets one launch at a time run this experiment on this store: beside an SQLite file;
@@ -319,7 +209,7 @@ class Tracker(Store):
         the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
 
     def ui_link(self, port: int = 5000) -> str:
-        base = self.uri if self.uri.startswith("http") else f"http://127.0.0.1:{port}"
+        base = self.shown_uri if self.uri.startswith("http") else f"http://127.0.0.1:{port}"
         # MLflow 3 opens an experiment in its GenAI view unless told this is a machine-learning one.
         return f"{base.rstrip('/')}/#/experiments/{self.experiment_id()}/runs?workflowType=machine_learning"
 
@@ -344,15 +234,18 @@ class Tracker(Store):
     def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
         """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid)."""
         run = self.client.create_run(
-            self.experiment_id(), run_name=name, tags={TAG_ROLE: "launch", TAG_GENERATION: generation, **tags}
+            self.experiment_id(),
+            run_name=name,
+            tags={TAG_ROLE: "launch", TAG_GENERATION: generation, **{k: redact(v) for k, v in tags.items()}},
         )
         for filename, text in files.items():
-            self.client.log_text(run.info.run_id, text, filename)
+            self.client.log_text(run.info.run_id, redact(text), filename)
         return run.info.run_id
 
     def finish_launch(self, run_id: str, status: str, summary: dict[str, float], note: str = "") -> None:
         """Close the launch's run; ``note`` (the run's description in MLflow) says what happened."""
         self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
+        note = redact(note)
         if note:
             self.client.set_tag(run_id, TAG_NOTE, note[:5000])
         if status != "FINISHED":
@@ -442,7 +335,7 @@ class Tracker(Store):
         self.client.log_batch(
             run_id,
             metrics=[Metric(k, float(v), now, 0) for k, v in summary.items()],
-            tags=[RunTag(k, v) for k, v in (tags or {}).items()],
+            tags=[RunTag(k, redact(v)) for k, v in (tags or {}).items()],
         )
         if artifacts is not None:
             self._log_artifacts(run_id, artifacts)
@@ -470,6 +363,7 @@ class Tracker(Store):
     def fail_trial(self, key: str, message: str) -> None:
         run_id = self._close(key)
         self._forget_artifact_uri(run_id)
+        message = redact(message)
         self.client.set_tag(run_id, TAG_ERROR, message[:5000])
         self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
         self.client.set_terminated(run_id, "FAILED")
@@ -515,6 +409,7 @@ class Tracker(Store):
                 return runs
 
     def kill_runs(self, run_ids: Iterable[str], reason: str) -> None:
+        reason = redact(reason)
         for run_id in run_ids:
             self.client.set_tag(run_id, TAG_ERROR, reason[:5000])
             self.client.set_tag(run_id, TAG_NOTE, f"Killed: {reason[:5000]}")
@@ -533,6 +428,33 @@ class Tracker(Store):
                 batch = []
         if batch:
             self.client.log_batch(run_id, metrics=batch)
+
+
+def store_problem(uri: str, error: BaseException) -> str:
+    """One line saying why the store at ``uri`` could not be opened, and what to set or start; the password
+    of the URI and every secret of this process masked."""
+    shown, text, full = mask_uri(uri), redact(first_line(error)), str(error).lower()
+    if not uri.startswith(("http://", "https://")):
+        return f"MLflow store {shown} cannot be used: {text}"
+    status = getattr(error, "get_http_status_code", lambda: None)()
+    if status == 401 or "401" in full and "authenticat" in full:
+        user = os.environ.get("MLFLOW_TRACKING_USERNAME")
+        given = f"refused the login of {user!r}" if user else "needs a login"
+        return (
+            f"MLflow tracking server {shown} {given} (HTTP 401); set MLFLOW_TRACKING_USERNAME and "
+            "MLFLOW_TRACKING_PASSWORD (or the [mlflow] section of ~/.mlflow/credentials) to your account on it"
+        )
+    if status == 403 or "403" in full and "permission" in full:
+        user = os.environ.get("MLFLOW_TRACKING_USERNAME", "this user")
+        return f"MLflow tracking server {shown}: {user!r} may not do this (HTTP 403, {text}); ask its admin for EDIT"
+    reason = text
+    if "refused" in full:
+        reason = "connection refused"
+    elif "timed out" in full or "timeout" in full:
+        reason = f"no answer in {PROBE_TIMEOUT_S} s"
+    elif "name or service not known" in full or "nodename nor servname" in full:
+        reason = "unknown host"
+    return f"MLflow tracking server {shown} is unreachable ({reason}); start it or check --tracking-uri"
 
 
 def _param_text(value: Any) -> str:
