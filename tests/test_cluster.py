@@ -336,6 +336,8 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
 
 def _assert_no_secret(cluster):
     planted = [secret.encode() for secret in cluster["secrets"]]
+    if os.environ.get("PGPASSFILE"):  # make test-cluster-postgres: the database's password too
+        planted.append(Path(os.environ["PGPASSFILE"]).read_text().strip().rsplit(":", 1)[1].encode())
     hits = []
     engine = sqlalchemy.create_engine(cluster["store"])
     try:
