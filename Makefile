@@ -7,6 +7,7 @@ PORT ?= 5000
 TRACKING_URI ?= sqlite:///mlflow.db
 RAY_PORT ?= 6390
 CLUSTER_MLFLOW_PORT ?= 5050
+EXPERIMENT ?= experiments/cartpole.toml
 
 .PHONY: help setup test test-fast test-cluster test-cluster-postgres cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
 
@@ -63,8 +64,8 @@ ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray, tra
 ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, 30 trials (~70 min on 2 idle cores)
 	$(BIN)/ablate run experiments/pong.toml --tracking-uri $(TRACKING_URI)
 
-report: $(STAMP) ## rebuild reports/cartpole/ from the MLflow store
-	$(BIN)/ablate report experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
+report: $(STAMP) ## rebuild reports/<name>/ from the MLflow store (EXPERIMENT=experiments/cartpole.toml by default)
+	$(BIN)/ablate report $(EXPERIMENT) --tracking-uri $(TRACKING_URI)
 
 mlflow-ui: $(STAMP) ## serve the MLflow UI at http://127.0.0.1:5000 (PORT=... for another port)
 	$(BIN)/mlflow ui --backend-store-uri $(TRACKING_URI) --host 127.0.0.1 --port $(PORT)

@@ -76,8 +76,9 @@ def _seed_list(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of seeds, e.g. 0,1") from None
 
 
-def field_docs() -> dict[str, str]:
-    """The docstring under each field of ``TrialConfig`` and ``ModelConfig`` (the flags' help), one line each."""
+def field_docs(code_mark: str = "") -> dict[str, str]:
+    """The docstring under each field of ``TrialConfig`` and ``ModelConfig`` (the flags' help), one line each;
+    the docstrings' ````code```` marks become ``code_mark`` (```` ` ```` for Markdown)."""
     docs: dict[str, str] = {}
     for node in ast.parse(inspect.getsource(config_module)).body:
         if not (isinstance(node, ast.ClassDef) and node.name in (TrialConfig.__name__, ModelConfig.__name__)):
@@ -90,8 +91,49 @@ def field_docs() -> dict[str, str]:
                 and isinstance(doc.value, ast.Constant)
                 and isinstance(doc.value.value, str)
             ):
-                docs[field_node.target.id] = " ".join(doc.value.value.replace("``", "").split())
+                docs[field_node.target.id] = " ".join(doc.value.value.replace("``", code_mark).split())
     return docs
+
+
+def knob_defaults() -> dict[str, Any]:
+    """Each knob of ``config.KNOBS`` at its typed default (``config.DEFAULT``): what an experiment file gets
+    for a knob it does not set."""
+    flat = {key.removeprefix("model."): value for key, value in config_module.flatten(config_module.DEFAULT).items()}
+    return {name: flat[name] for name in KNOBS}
+
+
+def format_value(value: Any) -> str:
+    """A value as an experiment file writes it (TOML): ``"relu"``, ``[32, 32]``, ``true``; ``None``: not set."""
+    if value is None:
+        return "not set"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(format_value(v) for v in value) + "]"
+    return repr(value)
+
+
+def _knobs_epilog() -> str:
+    """``ablate run --help``'s list of knobs with their defaults, from the config itself so it cannot go stale."""
+    defaults = knob_defaults()
+    # seed is the one knob a table may not set: seeds are the experiment's, at the top level.
+    items = [f"{name} = {format_value(defaults[name])}" for name in KNOBS if name not in (*TEST_ONLY_KNOBS, "seed")]
+    items += [
+        f"{name} (with {other}: instead of hidden_sizes)" for name, other in (("depth", "width"), ("width", "depth"))
+    ]
+    lines = [""]
+    for item in items:  # whole items per line: a knob and its default are never split
+        if lines[-1] and len(lines[-1]) + len(item) > 104:
+            lines.append("")
+        lines[-1] += ("; " if lines[-1] else "") + item
+    return (
+        "knobs an experiment file may set in [base], [[variants]] and [grid], with their defaults:\n"
+        + "\n".join(f"  {line}" for line in lines)
+        + f"\ntop-level keys: {', '.join(config_module.EXPERIMENT_KEYS)}.\n"
+        "Each knob's meaning and valid values, and the top-level keys' defaults: docs/experiments.md."
+    )
 
 
 def _field_types() -> dict[str, str]:
@@ -175,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run an ablation experiment file on Ray, tracked in MLflow",
         description="Run every trial of an experiment file that has no finished run yet, on a local Ray (or a "
         "cluster), track each in MLflow, show a live progress view, and write the report at the end.",
+        epilog=_knobs_epilog(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     run.add_argument("experiment", type=Path, help="e.g. experiments/cartpole.toml")
     run.add_argument(

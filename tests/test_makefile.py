@@ -22,3 +22,40 @@ def test_make_help_lists_every_target_with_a_description():
     described = dict(re.findall(r"^make (\S+)\s+(.+)$", out.stdout, re.M))
     assert sorted(described) == sorted(targets)
     assert all(len(description) > 10 for description in described.values()), described
+
+
+def _make_dry_run(*args: str) -> str:
+    out = subprocess.run(
+        ["make", "--no-print-directory", "-C", str(ROOT), "-n", *args], capture_output=True, text=True, check=True
+    )
+    return out.stdout
+
+
+def test_make_report_takes_the_experiment_as_a_variable():
+    """`make report` rebuilt only reports/cartpole/ (issue 18 item 7): EXPERIMENT names any experiment."""
+    if shutil.which("make") is None:
+        pytest.skip("make is not installed")
+    mine = _make_dry_run("report", "EXPERIMENT=experiments/mine.toml").splitlines()[-1]
+    assert re.search(r"ablate report experiments/mine\.toml( |$)", mine), mine
+    default = _make_dry_run("report").splitlines()[-1]
+    assert re.search(r"ablate report experiments/cartpole\.toml( |$)", default), default
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["mlflow.db", "mlflow.db.cartpole.lock", "mlflow.db.my-own_3.lock", "mlflow.db.实验é.lock", "other.db.mine.lock"],
+)
+def test_runtime_state_and_launch_locks_are_ignored_by_git(name):
+    """`ablate run` leaves `<store>.<experiment>.lock` beside an SQLite store: runtime state, never committed."""
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    out = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "--no-index", "-q", name], capture_output=True)
+    assert out.returncode == 0, f"{name} is not in .gitignore"
+
+
+def test_gitignore_keeps_other_lock_files_tracked():
+    """The lock rule is narrow: a package manager's lock file (say uv.lock) may still be committed."""
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    out = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "--no-index", "-q", "uv.lock"], capture_output=True)
+    assert out.returncode == 1
