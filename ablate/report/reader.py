@@ -20,6 +20,7 @@ from ablate.run.tracking import (
     fail_fast_http,
     is_database,
     probe_database,
+    probe_server,
     quiet_mlflow,
     resolve_uri,
     sqlite_path,
@@ -59,6 +60,8 @@ def ablation_names(tracking_uri: str | None) -> list[str]:
     check_uri(uri)
     if is_database(uri):
         probe_database(uri)
+    elif uri.startswith(("http://", "https://")):
+        probe_server(uri)
     problem = None
     try:
         with fail_fast_http():

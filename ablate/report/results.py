@@ -345,7 +345,8 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
     tracker = RunReader(uri, name)
     if tracker.experiment_id(create=False) is None:
         raise NoResults(
-            f"no MLflow experiment named {name!r} at {tracker.shown_uri}; run `ablate run experiments/{name}.toml` first"
+            f"no MLflow experiment named {name!r} at {tracker.shown_uri}; "
+            f"run `ablate run experiments/{name}.toml` first"
         )
     launches = _launches(tracker)
     if not launches:

@@ -38,9 +38,9 @@ import ray
 from ray import tune
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
+from ablate.agent.trial import run_trial
 from ablate.run.curve import CurvePoint, CurveReducer
 from ablate.run.grid import GridTrial
-from ablate.agent.trial import run_trial
 
 REPORT_EVERY_S = 2.0
 """Seconds between metric reports from a trial: each ``tune.report`` costs ~2 ms, so never per episode."""

@@ -8,16 +8,22 @@ import contextlib
 import fcntl
 import os
 import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 from urllib.parse import urlparse
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 SCHEMES = ("sqlite", "http", "https", "file", "postgresql", "mysql", "mssql", "databricks")
 """URI schemes MLflow can track to (``file`` and a bare path: its folder store)."""
 PROBE_TIMEOUT_S = 10
-"""The first request to a tracking server: one try, this long. MLflow's defaults (7 retries with backoff,
-120 s timeout) are right mid-run but turn a mistyped server into four minutes of silence at the start."""
+"""Seconds to connect to a store (a tracking server's port, a database) when it is opened. MLflow's defaults
+(7 retries with backoff, 120 s timeout) are right mid-run but turn a mistyped server into minutes of silence."""
+ANSWER_TIMEOUT_S = 60
+"""The first request to a tracking server that accepted the connection: one try, this long. A basic-auth
+server hashes the password of a login it has not seen (scrypt: ~0.1 s of CPU, 10-20 s on a machine loaded
+20 times over), so a server that is there is given longer to answer than to be reached."""
 SQLITE_MAGIC = b"SQLite format 3\x00"
 
 DATABASE_SCHEMES = ("postgresql", "mysql", "mssql")
@@ -120,7 +126,7 @@ def store_setup_lock(path: Path | None) -> Iterator[None]:
 
 @contextlib.contextmanager
 def fail_fast_http() -> Iterator[None]:
-    names = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": str(PROBE_TIMEOUT_S)}
+    names = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": str(ANSWER_TIMEOUT_S)}
     saved = {name: os.environ.get(name) for name in names}
     os.environ.update(names)
     try:
@@ -212,3 +218,66 @@ def _database_problem(shown: str, error: BaseException, url) -> str:
     if "timeout" in full or "timed out" in full:
         return f"MLflow store {shown}: no answer in {PROBE_TIMEOUT_S} s ({text}); start the database or fix the URI"
     return f"MLflow store {shown} cannot be reached ({text}); start the database or fix the URI"
+
+
+STORE_RETRY_S = 60.0
+"""How long the driver retries a write whose store stopped answering (a database restarting, a network blip)
+before it stops the launch: trials not recorded by then run again on the next launch."""
+_LOST = ("operationalerror", "connection", "refused", "timed out", "timeout", "server closed", "max retries")
+
+
+class RetryingClient:
+    """The writer's MlflowClient, each call retried for up to ``STORE_RETRY_S`` while the store does not
+    answer, then a one-line ``TrackingError``; after that every call fails at once (the store is gone: the
+    launch stops without waiting again for each trial). Other errors pass through unchanged."""
+
+    def __init__(self, client: Any, shown_uri: str) -> None:
+        self._client, self._shown_uri, self._lost = client, shown_uri, ""
+
+    def __getattr__(self, name: str) -> Any:
+        method = getattr(self._client, name)
+        if not callable(method):
+            return method
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            deadline = time.monotonic() + STORE_RETRY_S
+            while True:
+                if self._lost:
+                    raise TrackingError(self._lost)
+                try:
+                    return method(*args, **kwargs)
+                except Exception as error:  # noqa: BLE001 - SQLAlchemy's and requests' errors alike
+                    text = f"{type(error).__name__} {error}".lower()
+                    if not any(word in text for word in _LOST):
+                        raise
+                    if time.monotonic() >= deadline:
+                        self._lost = (
+                            f"MLflow store {self._shown_uri} stopped answering ({redact(first_line(error))}); "
+                            f"retried for {STORE_RETRY_S:.0f} s, the launch stops: run the same command again "
+                            "once it is back (trials not recorded run again)"
+                        )
+                        raise TrackingError(self._lost) from None
+                time.sleep(min(2.0, max(0.0, deadline - time.monotonic())))
+
+        return call
+
+
+def probe_server(uri: str) -> None:
+    """A TCP connection to the tracking server of an ``http(s)://`` ``uri`` within ``PROBE_TIMEOUT_S``, else a
+    one-line ``TrackingError``: a server that is not there is told in seconds, however long one that is there
+    may take to answer (``ANSWER_TIMEOUT_S``)."""
+    import socket
+
+    parsed = urlparse(uri)
+    port = parsed.port or (443 if parsed.scheme == "https" else 80)
+    try:
+        socket.create_connection((parsed.hostname or "", port), timeout=PROBE_TIMEOUT_S).close()
+    except OSError as error:
+        reason = "connection refused" if isinstance(error, ConnectionRefusedError) else error.strerror or str(error)
+        if isinstance(error, TimeoutError | socket.timeout):
+            reason = f"no answer in {PROBE_TIMEOUT_S} s"
+        elif isinstance(error, socket.gaierror):
+            reason = "unknown host"
+        raise TrackingError(
+            f"MLflow tracking server {mask_uri(uri)} is unreachable ({reason}); start it or check --tracking-uri"
+        ) from None

@@ -20,6 +20,7 @@ from typing import Any
 
 from ablate.run.store import (
     PROBE_TIMEOUT_S,
+    RetryingClient,
     TrackingError,
     check_sqlite,
     check_uri,
@@ -28,6 +29,7 @@ from ablate.run.store import (
     is_database,
     mask_uri,
     probe_database,
+    probe_server,
     redact,
     resolve_uri,
     sqlite_path,
@@ -103,6 +105,8 @@ class Store:
             check_sqlite(db, write)
         if is_database(self.uri):
             probe_database(self.uri)
+        elif self.uri.startswith(("http://", "https://")):
+            probe_server(self.uri)
 
         from mlflow.tracking import MlflowClient
 
@@ -200,6 +204,7 @@ class Tracker(Store):
 
     def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
         super().__init__(tracking_uri, experiment_name, write)
+        self.client = RetryingClient(self.client, self.shown_uri)
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
         self._points: dict[str, tuple[list[Any], float, int]] = {}
