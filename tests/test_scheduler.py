@@ -88,3 +88,18 @@ def test_an_unreachable_cluster_is_one_line_and_exit_1_within_seconds(tmp_path):
     assert output.strip().splitlines()[-1].startswith("ablate run: cannot reach the Ray cluster at 127.0.0.1:"), output
     assert "Traceback" not in output
     assert Tracker(f"sqlite:///{tmp_path / 'x' / 'mlflow.db'}", "x").latest_launch() is None  # nothing recorded
+
+
+def test_what_ray_prints_while_joining_is_kept_aside_and_passed_on_when_the_join_succeeds(capfd):
+    import os
+
+    from ablate.run.scheduler import _stderr_kept
+
+    with _stderr_kept() as kept:
+        os.write(2, b"gcs_client.cc:210: Failed to get cluster ID: InvalidAuthToken\n")
+    assert "InvalidAuthToken" in kept.text
+    assert "InvalidAuthToken" in capfd.readouterr().err  # a join that succeeded: passed on as it was
+    with pytest.raises(ConnectionError), _stderr_kept() as kept:
+        os.write(2, b"InvalidAuthToken\n")
+        raise ConnectionError("Failed to connect to Ray cluster")
+    assert "InvalidAuthToken" in kept.text and "InvalidAuthToken" not in capfd.readouterr().err  # kept for the line

@@ -216,7 +216,8 @@ def ensure_ray(address: str | None) -> bool:
     sigterm = signal.getsignal(signal.SIGTERM)
     problem = None
     try:
-        with _stderr_kept() as kept:
+        # Only a join is refused for a token; a local start's daemons would inherit the kept descriptor.
+        with _stderr_kept() if address else contextlib.nullcontext(_Kept()) as kept:
             ray.init(
                 address=address or "local",
                 num_cpus=None if address else os.cpu_count(),
