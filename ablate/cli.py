@@ -18,7 +18,7 @@ from typing import Any, NoReturn
 
 from ablate import config as config_module
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, Experiment, ModelConfig, TrialConfig, apply_knobs
-from ablate.run.grid import GridTrial, expand, select
+from ablate.run.grid import GridTrial, expand, select, tuning_trials
 from ablate.run.lock import LaunchLocked
 from ablate.run.tracking import TrackingError
 
@@ -398,18 +398,54 @@ def cmd_status(args: argparse.Namespace) -> int:
 
 
 def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
-    """``ablate run --dry-run``: the trials a run would consider, and nothing started or written."""
+    """``ablate run --dry-run``: the trials a run would consider, and nothing started or written. With
+    ``[tune]``: stage 1 (every candidate on the tuning seeds), then stage 2, whose chosen values are known only
+    after tuning (listed "after tuning"; the base-value trials are the untuned ones, with their keys)."""
     overrides = {v.name: ", ".join(f"{k}={json.dumps(x)}" for k, x in v.overrides) for v in experiment.variants}
     total = len(expand(experiment))
-    print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
-    rows = [("variant", "seed", "key", "overrides")] + [
-        (t.variant, str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials
-    ]
+    rows = [("variant", "seed", "key", "overrides")]
+    if experiment.tune is None:
+        print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
+        rows += [(t.variant, str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials]
+    else:
+        spec = experiment.tune
+        wanted = {t.variant for t in trials}
+        tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
+        tuned = {v.name for v in experiment.variants if v.name in wanted and spec.tuned_knobs(v)}
+        after = [t for t in trials if t.variant in tuned]
+        print(
+            f"{experiment.name}: {len(tuning)} tuning trials, then {len(trials)} at the base values and up to "
+            f"{len(after)} at the chosen values (dry run: nothing started or written)"
+        )
+        rows += [
+            (
+                f"{t.variant} [tune]",
+                str(t.seed),
+                t.key,
+                ", ".join(
+                    f"{k}={getattr(t.config, k)}"
+                    for k in spec.tuned_knobs(next(v for v in experiment.variants if v.name == t.variant))
+                )
+                or "its own values",
+            )
+            for t in tuning
+        ]
+        rows += [(f"{t.variant} [base]", str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials]
+        rows += [(f"{t.variant} [chosen]", str(t.seed), "after tuning", "the chosen values") for t in after]
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3])
     print("a real run skips the trials already finished in the newest generation (see: ablate status)")
     return EXIT_OK
+
+
+def warn_design(experiment: Experiment) -> None:
+    """Before any compute: say when the design cannot reach a claim at 95% under the report's rule."""
+    from ablate.design import design_warning
+
+    warning = design_warning(len(experiment.seeds))
+    if warning:
+        print(f"warning: {warning}", flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -426,8 +462,14 @@ def main(argv: list[str] | None = None) -> int:
             experiment = load_experiment(args.experiment)  # bad input: one line, before Ray or MLflow is imported
             trials = select(expand(experiment), args.only, args.seeds)
             if args.dry_run:
-                return dry_run(experiment, trials)
-            print(f"ablate run {experiment.name}: {len(trials)} trials; starting MLflow and Ray ...", flush=True)
+                code = dry_run(experiment, trials)
+                warn_design(experiment)
+                return code
+            warn_design(experiment)  # before any compute
+            wanted = {t.variant for t in trials}
+            tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
+            count = f"{len(tuning)} tuning trials, then {len(trials)}" if tuning else f"{len(trials)}"
+            print(f"ablate run {experiment.name}: {count} trials; reading the MLflow store ...", flush=True)
             from ablate.run.runner import cmd_run
 
             return cmd_run(args, started_at)

@@ -28,6 +28,18 @@ MAX_TRIALS = 10_000
 intent, and expanding it would take minutes and gigabytes before the first trial starts."""
 # --- Pong env knobs (issue 9) ---
 PONG_ACTION_SETS = ("all", "move")
+# --- tuning (issue 19) ---
+TUNABLE_KNOBS = ("learning_rate", "episodes_per_update")
+"""Optimisation knobs ``[tune]`` may search; architecture and regularisation knobs are what an ablation
+compares, so tuning them would tune away the effect being measured."""
+TUNE_METRICS = {"auc": "max", "episodes_to_solve": "min", "final_return": "max"}
+"""What "best" means for a tuning candidate, and its direction: ``auc`` (mean rolling return over the budget),
+``episodes_to_solve`` (censored at the budget when a seed never solves), ``final_return`` (the rolling mean
+return at the end of the budget)."""
+TUNE_SEED_START = 10_000
+"""Tuning seeds are ``TUNE_SEED_START``, ``+1``, ...; evaluation seeds must stay below it, so the comparison
+never sees a seed its settings were chosen on."""
+MAX_TUNE_SEEDS = 100
 """``all``: Pong's 6 actions; ``move``: only UP and DOWN (ALE actions 2 and 3), as in Karpathy's pg-pong."""
 
 
@@ -279,6 +291,41 @@ class Variant:
 
 
 @dataclass(frozen=True)
+class TuneSpec:
+    """``[tune]``: per variant, which values of the optimisation knobs to try on the tuning seeds, and how to
+    pick one (see ``ablate.run.tuning``)."""
+
+    knobs: tuple[tuple[str, tuple[Any, ...]], ...]
+    """``(knob, candidate values)`` pairs, in file order; a variant tries every combination."""
+    seeds: tuple[int, ...]
+    """Tuning seeds, from ``TUNE_SEED_START`` up: disjoint from every evaluation seed."""
+    metric: str = "auc"
+    """A key of ``TUNE_METRICS``."""
+    max_episodes: int | None = None
+    """Tuning trials' episode budget; ``None``: the evaluation budget (each variant's ``max_episodes``)."""
+
+    @property
+    def direction(self) -> str:
+        """``max`` or ``min``: which way the metric is better."""
+        return TUNE_METRICS[self.metric]
+
+    @property
+    def knob_names(self) -> tuple[str, ...]:
+        return tuple(name for name, _ in self.knobs)
+
+    def tuned_knobs(self, variant: Variant) -> tuple[str, ...]:
+        """The knobs this variant is tuned on: those it does not set itself (``course`` keeps its own rate)."""
+        own = {key for key, _ in variant.overrides}
+        return tuple(name for name in self.knob_names if name not in own)
+
+    def candidates(self, variant: Variant) -> list[dict[str, Any]]:
+        """Every combination of candidate values of the variant's tuned knobs (``[{}]`` when it tunes none)."""
+        tuned = self.tuned_knobs(variant)
+        values = dict(self.knobs)
+        return [dict(zip(tuned, combo, strict=True)) for combo in itertools.product(*(values[k] for k in tuned))]
+
+
+@dataclass(frozen=True)
 class Experiment:
     """An ablation: a base trial config, variants over it, seeds, and the variant the others are compared to."""
 
@@ -294,6 +341,8 @@ class Experiment:
     gpus_per_trial: float = 0.0
     """GPUs Ray reserves per trial; fractions allowed (0.25 packs four trials per GPU). A trial puts its policy
     on CUDA whenever torch sees one."""
+    tune: TuneSpec | None = None
+    """``[tune]``: tune each variant's optimisation knobs on tuning seeds first; ``None``: no tuning stage."""
 
 
 EXPERIMENT_KEYS = (
@@ -306,6 +355,7 @@ EXPERIMENT_KEYS = (
     "base",
     "variants",
     "grid",
+    "tune",
 )
 
 
@@ -429,7 +479,80 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         raise ConfigError(
             f"{source}: baseline = {baseline!r} is invalid; valid: one of the variant names {sorted(seen)}"
         )
-    return Experiment(name, source, description, base, tuple(variants), seeds, baseline, float(cpus), float(gpus))
+    tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), seeds)
+    return Experiment(name, source, description, base, tuple(variants), seeds, baseline, float(cpus), float(gpus), tune)
+
+
+def _parse_tune(
+    table: Any, source: str, grid: Mapping[str, Any], variants: tuple[Variant, ...], seeds: tuple[int, ...]
+) -> TuneSpec | None:
+    """``[tune]`` checked as a whole: each bad value is one ``ConfigError`` naming ``tune.<key>``."""
+    if table is None:
+        return None
+    where = f"{source}: tune"
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where} must be a table, e.g. [tune] learning_rate = [0.01, 0.03, 0.1]")
+    knobs: list[tuple[str, tuple[Any, ...]]] = []
+    tunable = ", ".join(TUNABLE_KNOBS)
+    for key, value in table.items():
+        if key in ("seeds", "metric", "max_episodes"):
+            continue
+        if key in TUNABLE_KNOBS:
+            if key in grid:
+                raise ConfigError(
+                    f"{where}.{key}: also a [grid] axis; valid: a knob is either compared ([grid]) or tuned ([tune])"
+                )
+            if not isinstance(value, list) or not value:
+                raise ConfigError(
+                    f"{where}.{key} = {_clip(value)} is invalid; valid: a non-empty list of candidate values"
+                )
+            knob = KNOBS[key]
+            for candidate in value:
+                if not knob.check(candidate):
+                    raise ConfigError(f"{where}.{key}: candidate {_clip(candidate)} is invalid; valid: {knob.valid}")
+            converted = tuple(knob.convert(v) for v in value)
+            if len(set(converted)) != len(converted):
+                raise ConfigError(f"{where}.{key} = {_clip(value)} is invalid; valid: distinct candidate values")
+            knobs.append((key, converted))
+        elif key in KNOBS or key in SHORTHANDS:
+            raise ConfigError(
+                f"{where}.{key}: not tunable (architecture, regularisation and setting knobs are what the ablation "
+                f"compares); valid: optimisation knobs {tunable}, and seeds, metric, max_episodes"
+            )
+        else:
+            raise ConfigError(
+                f"{where}.{key}: unknown key; valid: {tunable} (candidate lists), seeds, metric, max_episodes"
+            )
+    if not knobs:
+        raise ConfigError(f"{where}: no knob to tune; valid: e.g. learning_rate = [0.01, 0.03, 0.1]")
+    count = table.get("seeds", 3)
+    if not (_is_int(count) and 1 <= count <= MAX_TUNE_SEEDS):
+        raise ConfigError(
+            f"{where}.seeds = {_clip(count)} is invalid; valid: a count of tuning seeds in [1, {MAX_TUNE_SEEDS}] "
+            f"(they are {TUNE_SEED_START}, {TUNE_SEED_START + 1}, ...)"
+        )
+    metric = table.get("metric", "auc")
+    if metric not in TUNE_METRICS:
+        raise ConfigError(f"{where}.metric = {_clip(metric)} is invalid; valid: one of {', '.join(TUNE_METRICS)}")
+    budget = table.get("max_episodes")
+    if budget is not None and not KNOBS["max_episodes"].check(budget):
+        raise ConfigError(f"{where}.max_episodes = {_clip(budget)} is invalid; valid: {KNOBS['max_episodes'].valid}")
+    high = [s for s in seeds if s >= TUNE_SEED_START]
+    if high:
+        raise ConfigError(
+            f"{source}: seeds: {high[0]} is invalid with [tune]; valid: evaluation seeds below {TUNE_SEED_START:,} "
+            f"(tuning seeds are {TUNE_SEED_START:,} up)"
+        )
+    spec = TuneSpec(tuple(knobs), tuple(range(TUNE_SEED_START, TUNE_SEED_START + count)), metric, budget)
+    # Stage 1 (every candidate on every tuning seed) and stage 2 (the choice and the base value per seed).
+    tuning = sum(len(spec.candidates(v)) for v in variants if spec.tuned_knobs(v)) * count
+    evaluation = 2 * len(variants) * len(seeds)
+    if tuning + evaluation > MAX_TRIALS:
+        raise ConfigError(
+            f"{where}: {tuning:,} tuning trials and up to {evaluation:,} evaluation trials is more than "
+            f"{MAX_TRIALS:,} trials; valid: fewer candidates, tuning seeds or variants"
+        )
+    return spec
 
 
 def _without_seed(table: Mapping[str, Any], where: str) -> dict[str, Any]:

@@ -689,6 +689,71 @@ def bench_pong_memory(episodes: int = 1000, variant: str = "cnn", max_episode_st
     RESULTS["pong-memory"] = {"variant": variant, "rss_mb": samples, "peak_rss_mb": peak_mb}
 
 
+def without_tune(text: str) -> str:
+    """An experiment file's text without its ``[tune]`` table (its header up to the next table header): the
+    same ablation, untuned."""
+    kept, inside = [], False
+    for line in text.splitlines(keepends=True):
+        if line.startswith("["):
+            inside = line.strip() == "[tune]"
+        if not inside:
+            kept.append(line)
+    return "".join(kept)
+
+
+def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> None:
+    """The tuned default ablation end to end (both stages, base-value trials included) against the same file
+    without ``[tune]``, each into a fresh store on one running Ray, alternating, medians of ``repeats``;
+    the ratio's target is at most 3x (issue 19)."""
+    import shutil
+    import tempfile
+
+    from ablate.config import load_experiment
+    from ablate.run.runner import run_experiment
+    from ablate.run.scheduler import ensure_ray
+    from ablate.run.tracking import Tracker
+
+    ensure_ray(None)
+    folder = Path(tempfile.mkdtemp(prefix="ablate-bench-"))
+    text = Path(path).read_text()
+    (folder / "tuned.toml").write_text(text)
+    (folder / "untuned.toml").write_text(without_tune(text))
+    tuned_experiment = load_experiment(folder / "tuned.toml")
+    assert tuned_experiment.tune is not None, f"{path} has no [tune] table"
+    walls: dict[str, list[float]] = {"untuned": [], "tuned": []}
+    counts: dict[str, int] = {}
+    try:
+        for i in range(repeats):
+            for kind in ("untuned", "tuned"):
+                store = folder / f"{kind}-{i}"
+                store.mkdir()
+                uri = f"sqlite:///{store / 'mlflow.db'}"
+                Tracker(uri, "warm").experiment_id()  # the store's tables exist, as in a user's store
+                started = time.perf_counter()
+                outcome = run_experiment(
+                    load_experiment(folder / f"{kind}.toml"),
+                    tracking_uri=uri,
+                    storage_path=str(folder / "ray"),
+                    show_progress=False,
+                )
+                walls[kind].append(time.perf_counter() - started)
+                assert outcome.exit_code == 0, outcome.failed
+                counts[kind] = len(outcome.finished)
+            print(
+                f"  {counts['untuned']} untuned trials {walls['untuned'][-1]:.0f} s; tuned launch {counts['tuned']} "
+                f"trials {walls['tuned'][-1]:.0f} s (ratio {walls['tuned'][-1] / walls['untuned'][-1]:.2f}x)",
+                flush=True,
+            )
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    untuned, tuned = statistics.median(walls["untuned"]), statistics.median(walls["tuned"])
+    print(
+        f"tuning: {path} end to end, median of {repeats}: untuned {untuned:.0f} s, tuned {tuned:.0f} s "
+        f"(both stages, base-value trials included): {tuned / untuned:.2f}x (target <= 3x)"
+    )
+    RESULTS["tuning"] = {"untuned_s": walls["untuned"], "tuned_s": walls["tuned"], "ratio": tuned / untuned}
+
+
 SECTIONS = {
     "core": bench_core,
     "runner": bench_runner,
@@ -697,6 +762,7 @@ SECTIONS = {
     "cluster": bench_cluster,
     "pong": bench_pong,
     "pong-memory": bench_pong_memory,
+    "tuning": bench_tuning,
 }
 
 
@@ -708,6 +774,9 @@ def main() -> int:
         "--ablation-repeats", type=int, default=1, help="repeats of the default ablation's three runs (~11 min each)"
     )
     parser.add_argument(
+        "--tuning-repeats", type=int, default=3, help="tuning: pairs of untuned and tuned ablations (~6 min each)"
+    )
+    parser.add_argument(
         "--pong-memory-cap", type=int, default=0, help="pong-memory: cut episodes at this many steps (0: none)"
     )
     args = parser.parse_args()
@@ -717,11 +786,14 @@ def main() -> int:
         parser.error(f"unknown section {unknown[0]!r}; valid: {', '.join(SECTIONS)}")
     if args.ablation_repeats < 1:
         parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
+    if args.tuning_repeats < 1:
+        parser.error(f"--tuning-repeats must be at least 1, got {args.tuning_repeats}")
     for name in args.sections or SECTIONS:
         print(f"== {name}", flush=True)
         kwargs = {
             "ablation": {"repeats": args.ablation_repeats},
             "pong-memory": {"max_episode_steps": args.pong_memory_cap},
+            "tuning": {"repeats": args.tuning_repeats},
         }
         SECTIONS[name](**kwargs.get(name, {}))
     if args.json:

@@ -12,7 +12,7 @@ BENCH = Path(__file__).parent.parent / "benchmarks" / "bench.py"
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["nope"], "unknown section 'nope'; valid: core, runner, ablation, tracking, cluster, pong, pong-memory"),
+        (["nope"], "unknown section 'nope'; valid: core, runner, ablation, tracking, cluster, pong, pong-memory, tuning"),
         (["ablation", "--ablation-repeats", "0"], "--ablation-repeats must be at least 1, got 0"),
     ],
 )

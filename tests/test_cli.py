@@ -83,6 +83,9 @@ BAD_EXPERIMENTS = [
     ("[[variants]]\nname='a'\ngamma = 1.2\n", "variants[0].gamma = 1.2 is invalid; valid: a number in (0, 1]"),
     ("[grid]\ndropout = [0.0, 1.5]\n", "grid.dropout = 1.5 is invalid; valid: a number in [0, 1)"),
     ("[[variants]]\nname='a'\n[[variants]]\nname='a'\n", "duplicate variant name 'a'"),
+    # [tune] (issue 19): a refused knob, and a knob both compared and tuned
+    ("[[variants]]\nname='a'\n[tune]\ndropout = [0.0, 0.2]\n", "tune.dropout: not tunable"),
+    ("[grid]\nlearning_rate = [0.1]\n[tune]\nlearning_rate = [0.1]\n", "tune.learning_rate: also a [grid] axis"),
 ]
 
 
@@ -290,3 +293,76 @@ def test_train_from_runs_that_trial_with_its_key_and_config_and_no_sdl_noise(tmp
     with open(out / "episodes.csv") as table:
         returns = [float(row["episode_return"]) for row in csv.DictReader(table)]
     assert returns == [m.episode_return for m in reference.episodes] and len(returns) == 16
+
+
+DESIGN = """
+seeds = {seeds}
+[base]
+max_episodes = 10
+[[variants]]
+name = "a"
+[[variants]]
+name = "b"
+hidden_sizes = [8]
+"""
+
+
+@pytest.mark.parametrize(("seeds", "warned"), [(3, True), (4, False), ("[0, 1, 2, 3, 4]", False), (1, True)])
+def test_dry_run_warns_before_any_compute_when_the_design_cannot_reach_a_claim(tmp_path, capsys, seeds, warned):
+    from ablate.cli import main
+
+    path = tmp_path / "design.toml"
+    path.write_text(DESIGN.format(seeds=seeds))
+    assert main(["run", str(path), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    if warned:
+        first = out.splitlines()[-1]
+        assert first.startswith(f"warning: design: with {seeds} seeds per variant no comparison can reach a claim")
+        assert "it takes at least 4 seeds per variant (seeds = 4)" in first
+    else:
+        assert "warning" not in out
+
+
+TUNED = """
+seeds = 2
+[base]
+max_episodes = 10
+[[variants]]
+name = "a"
+[[variants]]
+name = "own"
+learning_rate = 0.001
+[tune]
+learning_rate = [0.01, 0.1]
+seeds = 2
+"""
+
+
+def test_dry_run_of_a_tuned_file_lists_stage_1_then_stage_2_after_tuning(tmp_path, capsys):
+    from ablate.cli import main
+    from ablate.run.grid import tuning_trials
+
+    path = tmp_path / "tuned.toml"
+    path.write_text(TUNED)
+    assert main(["run", str(path), "--dry-run", "--seeds", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert (
+        lines[0] == "tuned: 4 tuning trials, then 2 at the base values and up to 1 at the chosen values (dry run: "
+        "nothing started or written)"
+    )
+    rows = [line.split() for line in lines[2:-2]]
+    experiment = load_experiment(path)
+    tuning = tuning_trials(experiment)  # --seeds never narrows the tuning seeds
+    assert [(r[0], r[2], r[3]) for r in rows[:4]] == [(t.variant, str(t.seed), t.key) for t in tuning]
+    assert [r[:3] for r in rows[4:6]] == [["a", "[base]", "1"], ["own", "[base]", "1"]]
+    assert rows[6][:5] == ["a", "[chosen]", "1", "after", "tuning"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tuned.toml"]
+
+
+def test_dry_run_only_narrows_both_stages_to_the_variants_asked_for(tmp_path, capsys):
+    path = tmp_path / "tuned.toml"
+    path.write_text(TUNED.replace('name = "own"\nlearning_rate = 0.001', 'name = "b"\nhidden_sizes = [8]'))
+    assert main(["run", str(path), "--dry-run", "--only", "b"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("tuned: 4 tuning trials, then 2 at the base values and up to 2 at the chosen values")
+    assert {line.split()[0] for line in lines[2:-2]} == {"b"}

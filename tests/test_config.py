@@ -149,3 +149,89 @@ def test_a_file_starting_with_a_utf8_byte_order_mark_loads(tmp_path):
     path = tmp_path / "bom.toml"
     path.write_bytes('\ufeffname = "bom"\n[[variants]]\nname = "a"\n'.encode())
     assert load_experiment(path).name == "bom"
+
+
+# --- [tune] (issue 19) ---
+
+TUNED = """
+name = "tuned"
+seeds = 3
+[base]
+learning_rate = 0.03
+[[variants]]
+name = "baseline"
+[[variants]]
+name = "course"
+learning_rate = 0.001
+[tune]
+learning_rate = [0.01, 0.1, 1]
+seeds = 2
+metric = "episodes_to_solve"
+max_episodes = 200
+"""
+
+
+def test_tune_parses_to_a_tune_spec_and_a_variant_setting_the_knob_keeps_it(tmp_path):
+    from ablate.config import TUNE_SEED_START
+
+    experiment = load_experiment(_write(tmp_path, TUNED))
+    spec = experiment.tune
+    assert spec.knobs == (("learning_rate", (0.01, 0.1, 1.0)),)
+    assert spec.seeds == (TUNE_SEED_START, TUNE_SEED_START + 1) == (10_000, 10_001)
+    assert (spec.metric, spec.direction, spec.max_episodes) == ("episodes_to_solve", "min", 200)
+    baseline, course = experiment.variants
+    assert spec.tuned_knobs(baseline) == ("learning_rate",) and spec.tuned_knobs(course) == ()
+    assert spec.candidates(baseline) == [{"learning_rate": v} for v in (0.01, 0.1, 1.0)]
+    assert spec.candidates(course) == [{}]
+    defaults = load_experiment(_write(tmp_path, "[[variants]]\nname='a'\n[tune]\nepisodes_per_update = [8, 16]\n"))
+    assert (defaults.tune.seeds, defaults.tune.metric, defaults.tune.max_episodes) == (
+        (10_000, 10_001, 10_002),
+        "auc",
+        None,
+    )
+    assert load_experiment(_write(tmp_path, "[[variants]]\nname='a'\n")).tune is None
+
+
+_V = "[[variants]]\nname = 'a'\n"
+BAD_TUNE = [
+    (_V + "[tune]\nwidht = [1]\n", "tune.widht: unknown key; valid: learning_rate, episodes_per_update"),
+    (_V + "[tune]\ndropout = [0.0, 0.2]\n", "tune.dropout: not tunable (architecture, regularisation"),
+    (_V + "[tune]\nhidden_sizes = [[8], [16]]\n", "tune.hidden_sizes: not tunable"),
+    (_V + "[tune]\nl2 = [0.0]\n", "tune.l2: not tunable"),
+    (
+        _V + "[grid]\nlearning_rate = [0.01, 0.1]\n[tune]\nlearning_rate = [0.01]\n",
+        "tune.learning_rate: also a [grid] axis",
+    ),
+    (_V + "[tune]\nlearning_rate = []\n", "tune.learning_rate = [] is invalid; valid: a non-empty list"),
+    (_V + "[tune]\nlearning_rate = 0.1\n", "tune.learning_rate = 0.1 is invalid; valid: a non-empty list"),
+    (
+        _V + "[tune]\nlearning_rate = [0.1, 2.0]\n",
+        "tune.learning_rate: candidate 2.0 is invalid; valid: a number in (0, 1]",
+    ),
+    (_V + "[tune]\nlearning_rate = [0.1, 'x']\n", "tune.learning_rate: candidate 'x' is invalid"),
+    (
+        _V + "[tune]\nepisodes_per_update = [8, 0]\n",
+        "tune.episodes_per_update: candidate 0 is invalid; valid: an integer",
+    ),
+    (_V + "[tune]\nlearning_rate = [0.1, 0.1]\n", "valid: distinct candidate values"),
+    (_V + "[tune]\nseeds = 3\n", "tune: no knob to tune"),
+    (_V + "[tune]\nlearning_rate = [0.1]\nseeds = 0\n", "tune.seeds = 0 is invalid; valid: a count of tuning seeds"),
+    (_V + "[tune]\nlearning_rate = [0.1]\nmetric = 'iqm'\n", "tune.metric = 'iqm' is invalid; valid: one of auc, "),
+    (_V + "[tune]\nlearning_rate = [0.1]\nmax_episodes = 0\n", "tune.max_episodes = 0 is invalid"),
+    ("seeds = [0, 10000]\n" + _V + "[tune]\nlearning_rate = [0.1]\n", "seeds: 10000 is invalid with [tune]"),
+    (
+        "seeds = 1000\n[grid]\nwidth = [1, 2, 3, 4, 5]\n[tune]\nlearning_rate = [0.1, 0.2]\n",
+        "is more than 10,000 trials",
+    ),
+    ("tune = 3\n" + _V, "tune must be a table"),
+]
+
+
+@pytest.mark.parametrize(("text", "message"), BAD_TUNE)
+def test_bad_tune_input_is_one_line_naming_file_and_key(tmp_path, text, message):
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError) as error:
+        load_experiment(path)
+    assert str(path) in str(error.value)
+    assert message in str(error.value)
+    assert "\n" not in str(error.value)

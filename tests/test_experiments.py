@@ -53,3 +53,24 @@ def test_pong_smoke_ablation_through_ray_and_mlflow(run_quiet, tmp_path, trackin
         }
         videos = [a.path for a in tracker.client.list_artifacts(run.run_id, "videos")]
         assert videos[0] == "videos/episode_00001.mp4" and len(videos) >= 2
+
+
+def test_cartpole_ablation_tunes_each_variants_learning_rate_past_the_probes_best(tmp_path):
+    import importlib.util
+
+    experiment = load_experiment(EXPERIMENTS / "cartpole.toml")
+    spec = experiment.tune
+    (rates,) = [values for knob, values in spec.knobs if knob == "learning_rate"]
+    assert min(rates) < experiment.base.learning_rate < max(rates) and max(rates) > 0.1  # the probe: best at 0.1
+    assert 2 <= len(spec.seeds) <= 3 and spec.max_episodes < experiment.base.max_episodes
+    variants = {v.name: v for v in experiment.variants}
+    assert spec.tuned_knobs(variants["course"]) == () and variants["course"].config.learning_rate == 1e-3
+    assert all(spec.tuned_knobs(v) == ("learning_rate",) for name, v in variants.items() if name != "course")
+    # The bench's untuned twin is the same ablation: the same trials, no [tune].
+    loader = importlib.util.spec_from_file_location("bench", EXPERIMENTS.parent / "benchmarks" / "bench.py")
+    bench = importlib.util.module_from_spec(loader)
+    loader.loader.exec_module(bench)
+    untuned = tmp_path / "cartpole.toml"
+    untuned.write_text(bench.without_tune((EXPERIMENTS / "cartpole.toml").read_text()))
+    twin = load_experiment(untuned)
+    assert twin.tune is None and [t.key for t in expand(twin)] == [t.key for t in expand(experiment)]

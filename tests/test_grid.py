@@ -45,3 +45,52 @@ def test_select_by_variants_and_seeds():
     assert len(select(trials, ["base", "deep"], [1])) == 2  # --only repeated
     with pytest.raises(ConfigError, match="--seeds: 7 is not a seed of this experiment; valid: 0, 1, 2"):
         select(trials, None, [7])
+
+
+# --- [tune] (issue 19): stage lists, and keys of untuned trials unchanged ---
+
+
+def _untuned_and_tuned(path):
+    import tomllib
+
+    data = tomllib.loads(path.read_text())
+    data.pop("tune", None)
+    tuned = dict(data, tune={"learning_rate": [0.01, 0.1], "seeds": 2, "max_episodes": 50})
+    return parse_experiment(data, str(path)), parse_experiment(tuned, str(path))
+
+
+@pytest.mark.parametrize("name", ["cartpole", "smoke", "pong", "pong-smoke"])
+def test_tune_leaves_every_untuned_trial_key_unchanged(name):
+    from pathlib import Path
+
+    untuned, tuned = _untuned_and_tuned(Path(__file__).parent.parent / "experiments" / f"{name}.toml")
+    assert untuned.tune is None
+    # The base-value trials of a tuned launch are exactly the untuned ablation's: same keys, same configs.
+    assert [(t.key, t.config) for t in expand(tuned)] == [(t.key, t.config) for t in expand(untuned)]
+
+
+def test_tuning_trials_use_tuning_seeds_disjoint_from_evaluation_seeds():
+    from ablate.run.grid import chosen_trials, tuning_trials
+
+    experiment = parse_experiment(
+        {
+            "seeds": [0, 1, 9999],
+            "variants": [{"name": "a"}, {"name": "own", "learning_rate": 0.001}],
+            "tune": {"learning_rate": [0.01, 0.1], "seeds": 3, "max_episodes": 40},
+        },
+        "exp.toml",
+    )
+    tuning = tuning_trials(experiment)
+    # "own" sets learning_rate itself: it has no stage 1.
+    assert len(tuning) == 2 * 3 and {t.variant for t in tuning} == {"a"}
+    assert {t.seed for t in tuning} == {10_000, 10_001, 10_002}
+    assert not {t.seed for t in tuning} & set(experiment.seeds)
+    assert all(t.stage == "tune" and t.config.max_episodes == 40 and not t.config.record_video for t in tuning)
+    evaluation = expand(experiment)
+    assert not {t.key for t in tuning} & {t.key for t in evaluation}
+    chosen = chosen_trials(experiment, {"a": {"learning_rate": 0.1}})
+    assert [(t.variant, t.seed, t.config.learning_rate, t.stage) for t in chosen] == [
+        ("a", s, 0.1, "eval") for s in (0, 1, 9999)
+    ]
+    at_base = chosen_trials(experiment, {"a": {"learning_rate": 0.03}})
+    assert [t.key for t in at_base] == [t.key for t in evaluation if t.variant == "a"]

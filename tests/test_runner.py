@@ -76,6 +76,7 @@ def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tracking_uri):
         assert run.metrics["episodes_run"] == 20 and run.metrics["solved"] == 0
         assert set(run.artifacts) == {"episodes.csv", "weights.pt", "video.mp4", "learning_curve.png"}
         assert run.tags["ablate.node"]  # the Ray node that ran it
+        assert run.tags["ablate.stage"] == "eval"  # no [tune]: every trial is an evaluation trial
         with tempfile.TemporaryDirectory() as folder:
             table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
         assert list(table["episode"]) == list(range(1, 21)) and list(table["episode_return"]) == returns
@@ -490,3 +491,182 @@ def test_a_cluster_whose_nodes_are_all_too_small_is_refused_before_a_launch_is_r
     ):
         run_experiment(experiment, tracking_uri=tracking_uri, address="auto", show_progress=False)
     assert not _launches(Tracker(tracking_uri, "tiny"))
+
+
+# --- [tune] (issue 19): two stages in one launch ---
+
+TUNE = """
+[tune]
+learning_rate = [0.01, 0.1]
+seeds = 2
+max_episodes = 10
+"""
+
+
+def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_choice(
+    run_quiet, tmp_path, tracking_uri, monkeypatch
+):
+    import json
+
+    untuned = _experiment(tmp_path)
+    run_quiet(untuned, tmp_path, tracking_uri)
+    base_keys = {t.key for t in expand(untuned)}
+
+    tuned = _experiment(tmp_path, TINY + TUNE, name="tuned.toml")
+    outcome = run_quiet(tuned, tmp_path, tracking_uri)
+    assert outcome.exit_code == 0 and not outcome.failed
+    # The store's untuned trials are the base-value trials: not run again.
+    assert outcome.skipped == 4 and not base_keys & set(outcome.finished)
+    assert len(outcome.finished) == 8 + 4 and outcome.total == 16
+
+    tracker = RunReader(tracking_uri, "tiny")
+    runs = [r for r in tracker.trial_runs() if r.status == "FINISHED"]
+    assert len({r.key for r in runs}) == len(runs) == 16  # no trial ran twice
+    stages = [r.tags.get("ablate.stage") for r in runs]
+    assert stages.count("tune") == 2 * 2 * 2 and stages.count("eval") == 4 + 4 + 0
+    tuning_runs = [r for r in runs if r.tags["ablate.stage"] == "tune"]
+    assert {r.seed for r in tuning_runs} == {10_000, 10_001} and all(
+        r.params["max_episodes"] == "10" for r in tuning_runs
+    )
+
+    launch = _launches(tracker)[0]  # the newest
+    document = json.loads(tracker.load_text(launch.info.run_id, "tuning.json"))
+    assert document["metric"] == "auc" and document["seeds"] == [10_000, 10_001]
+    for variant in ("narrow", "deep"):
+        means = {}
+        for lr in (0.01, 0.1):
+            aucs = [
+                r.metrics["auc"] for r in tuning_runs if r.variant == variant and float(r.params["learning_rate"]) == lr
+            ]
+            means[lr] = sum(aucs) / len(aucs)
+        best = max(means, key=means.get)
+        assert document["choices"][variant]["values"] == {"learning_rate": best}, means
+        evaluated = sorted(
+            r.seed
+            for r in runs
+            if r.variant == variant and r.tags["ablate.stage"] == "eval" and float(r.params["learning_rate"]) == best
+        )
+        assert evaluated == [0, 1]
+
+    # Nothing left: the answer comes from the store, without starting (or even asking for) Ray.
+    from ablate.run import scheduler
+
+    def no_ray(address):
+        raise AssertionError("a finished ablation started Ray")
+
+    monkeypatch.setattr(scheduler, "ensure_ray", no_ray)
+    again = run_quiet(tuned, tmp_path, tracking_uri)
+    assert again.launch_run_id is None and again.skipped == again.total == 16 and not again.finished
+
+    from ablate.report.status import detail
+
+    status = detail(tracking_uri, "tiny", tuned)
+    assert "of which tuning (stage 1): 8 trials: 8 finished" in status and "16 trials: 16 finished" in status
+
+
+def test_ctrl_c_during_tuning_then_a_rerun_finishes_both_stages_running_no_trial_twice(tmp_path, tracking_uri):
+    release = tmp_path / "release"
+    text = f"""
+name = "tuneint"
+seeds = 1
+[base]
+env_id = "CartPole-v1"
+max_episodes = 20
+episodes_per_update = 10
+record_video = false
+[[variants]]
+name = "quick"
+[[variants]]
+name = "blocked"
+fault = "block"
+fault_marker = "{release}"
+[tune]
+learning_rate = [0.01, 0.1]
+seeds = 1
+max_episodes = 10
+"""
+    path = tmp_path / "tuneint.toml"
+    path.write_text(text)
+    command = [sys.executable, "-m", "ablate.cli", "run", str(path), "--tracking-uri", tracking_uri, "--no-report"]
+    command += ["--max-concurrent", "2"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        command,
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env=env,
+        text=True,
+        preexec_fn=_restore_sigint,
+    )
+    tracker = Tracker(tracking_uri, "tuneint")
+    # Stage 1 runs first (variant-major: quick's two candidates, then blocked's): with two slots, quick's
+    # tuning trials finish and blocked's block, so the signal lands in stage 1 with both stages unfinished.
+    wanted = {("quick", "tune", "FINISHED"): 2, ("blocked", "tune", "RUNNING"): 2}
+    try:
+        deadline = time.monotonic() + 240
+        seen: dict = {}
+        while time.monotonic() < deadline and proc.poll() is None:
+            if tracker.experiment_id(create=False):
+                seen = {}
+                for r in tracker.trial_runs():
+                    state = (r.variant, r.tags.get("ablate.stage"), r.status)
+                    seen[state] = seen.get(state, 0) + 1
+                if seen == wanted:
+                    break
+            time.sleep(0.5)
+        assert proc.poll() is None, "the run ended before it could be interrupted: " + proc.stdout.read()
+        assert seen == wanted, seen
+        proc.send_signal(signal.SIGINT)
+        output, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 130, output
+    finally:
+        release.write_text("go\n")
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.communicate(timeout=60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
+    finished_first = {r.key for r in tracker.trial_runs() if r.status == "FINISHED"}
+    assert len(finished_first) == 2
+
+    rerun = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, env=env, timeout=300)
+    assert rerun.returncode == 0, rerun.stdout + rerun.stderr
+    finished = [r for r in tracker.trial_runs() if r.status == "FINISHED"]
+    keys = [r.key for r in finished]
+    assert len(keys) == len(set(keys))  # no finished trial ran twice
+    assert finished_first <= set(keys)
+    stages = [r.tags["ablate.stage"] for r in finished]
+    # 2 variants x 2 candidates x 1 tuning seed; the base value on seed 0; the choice on seed 0 (never 0.03)
+    assert stages.count("tune") == 4 and stages.count("eval") == 2 + 2
+
+    # Re-running a finished experiment answers from the store without starting, or even importing, Ray.
+    code = (
+        "import sys; from ablate.cli import main; "
+        f"rc = main({command[3:]!r}); print('RAY IMPORTED' if 'ray' in sys.modules else 'NO RAY'); sys.exit(rc)"
+    )
+    noop = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert noop.returncode == 0, noop.stdout + noop.stderr
+    assert "all 8 trials of tuneint already finished" in noop.stdout and noop.stdout.splitlines()[-1] == "NO RAY"
+
+
+def test_rerunning_a_finished_ablation_answers_from_the_store_without_importing_ray(tmp_path, tracking_uri):
+    # The store is written directly (no Ray): one launch, every trial of the file FINISHED.
+    experiment = _experiment(tmp_path)
+    tracker = Tracker(tracking_uri, "tiny")
+    launch = tracker.start_launch("g1", "tiny", {}, {})
+    for trial in expand(experiment):
+        tracker.start_trial(launch, "g1", trial.key, trial.variant, trial.seed, {}, "abc")
+        tracker.finish_trial(trial.key, {"solved": 0.0}, None)
+    tracker.finish_launch(launch, "FINISHED", {})
+    code = (
+        "import sys; from ablate.cli import main; "
+        f"rc = main(['run', {experiment.path!r}, '--tracking-uri', {tracking_uri!r}, '--no-report']); "
+        "print('RAY IMPORTED' if 'ray' in sys.modules else 'NO RAY'); sys.exit(rc)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "all 4 trials of tiny already finished" in proc.stdout and "starting" not in proc.stdout
+    assert proc.stdout.splitlines()[-1] == "NO RAY"

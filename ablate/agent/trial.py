@@ -97,6 +97,13 @@ class TrialResult:
             "steps_per_s": self.env_steps / self.wall_s if self.wall_s > 0 else 0.0,
             "parameter_count": float(self.parameter_count),
         }
+        if self.episodes:
+            # The area under the rolling-mean curve over the whole budget (as ``report.results`` computes it),
+            # here so that tuning selects from the summary alone: a trial that stopped when solved keeps its
+            # last rolling mean for the rest of the budget.
+            rolling = [m.rolling_mean for m in self.episodes][: self.config.max_episodes]
+            padding = max(self.config.max_episodes - len(rolling), 0)
+            summary["auc"] = (sum(rolling) + padding * rolling[-1]) / (len(rolling) + padding)
         if solve is not None:
             summary |= {
                 "episodes_to_solve": float(solve.episode),

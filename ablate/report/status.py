@@ -11,7 +11,7 @@ from collections.abc import Iterable
 
 from ablate.config import ConfigError, Experiment
 from ablate.report.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
-from ablate.run.grid import expand
+from ablate.run.grid import expand, tuning_trials
 from ablate.run.store import mask_uri, resolve_uri
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
@@ -80,14 +80,22 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     ]
     newest_generation = launches[-1].generation
     for generation in sorted(by_generation, key=lambda g: by_generation[g][-1].start_time_ms, reverse=True):
-        states = trial_states(r for r in runs if r.tags.get("ablate.generation") == generation)
+        in_generation = [r for r in runs if r.tags.get("ablate.generation") == generation]
+        states = trial_states(in_generation)
         newest = generation == newest_generation
+        tuning = {r.key for r in in_generation if r.tags.get("ablate.stage") == "tune"}
         if newest and experiment is not None:
-            for trial in expand(experiment):
+            # Stage 2's trials at the chosen values are known only after tuning: not counted until they run.
+            for trial in [*tuning_trials(experiment), *expand(experiment)]:
                 states.setdefault(trial.key, (trial.variant, "PENDING"))
+                if trial.stage == "tune":
+                    tuning.add(trial.key)
         counts = Counter(s for _, s in states.values())
         lines.append("")
         lines.append(f"generation {generation}{' (newest)' if newest else ''}: {describe(counts)}")
+        if tuning:
+            stage_counts = Counter(s for key, (_, s) in states.items() if key in tuning)
+            lines.append(f"  of which tuning (stage 1): {describe(stage_counts)}")
         for launch in by_generation[generation]:
             lines.append(f"  launch {_when(launch.start_time_ms)}  {launch.status:<8}  {launch.command}".rstrip())
         if newest:

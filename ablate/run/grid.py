@@ -8,7 +8,9 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from typing import Any
 
 from ablate.config import ConfigError, Experiment, TrialConfig, flatten
 
@@ -23,6 +25,8 @@ class GridTrial:
     variant: str
     seed: int
     config: TrialConfig
+    stage: str = "eval"
+    """``tune`` (stage 1: a candidate on a tuning seed) or ``eval`` (stage 2, and every untuned trial)."""
 
 
 def config_hash(config: TrialConfig) -> str:
@@ -57,6 +61,39 @@ def expand(experiment: Experiment) -> list[GridTrial]:
     for variant in experiment.variants:
         for seed in experiment.seeds:
             config = replace(variant.config, seed=seed)
+            trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
+    return trials
+
+
+def tuning_trials(experiment: Experiment) -> list[GridTrial]:
+    """Stage 1 of a ``[tune]`` experiment: every tuned variant x candidate x tuning seed, variant-major; ``[]``
+    without ``[tune]``. A variant that sets every tuned knob itself has no stage 1. Tuning trials record no
+    video (nobody watches them) and use the tuning budget; their seeds (10,000 up)
+    keep their keys apart from every evaluation trial's."""
+    spec = experiment.tune
+    if spec is None:
+        return []
+    trials = []
+    budget = {"max_episodes": spec.max_episodes} if spec.max_episodes is not None else {}
+    for variant in experiment.variants:
+        if not spec.tuned_knobs(variant):
+            continue  # it sets every tuned knob itself: nothing to choose
+        for values in spec.candidates(variant):
+            for seed in spec.seeds:
+                config = replace(variant.config, seed=seed, record_video=False, **budget, **values)
+                trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config, "tune"))
+    return trials
+
+
+def chosen_trials(experiment: Experiment, choices: Mapping[str, Mapping[str, Any]]) -> list[GridTrial]:
+    """Stage 2 at the chosen values: each variant in ``choices`` on every evaluation seed with its chosen
+    knob values (a choice equal to the base value gives exactly the untuned trial, same key)."""
+    trials = []
+    for variant in experiment.variants:
+        if variant.name not in choices:
+            continue
+        for seed in experiment.seeds:
+            config = replace(variant.config, seed=seed, **choices[variant.name])
             trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
     return trials
 

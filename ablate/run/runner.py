@@ -24,11 +24,14 @@ from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
 from ablate.run.curve import CurvePoint
-from ablate.run.grid import GridTrial, expand, select
+from ablate.run.grid import GridTrial, expand, select, tuning_trials
 from ablate.run.lock import launch_lock
 from ablate.run.progress import ProgressView, clock, stage
-from ablate.run.scheduler import ClusterOptions, ClusterUnavailable, ensure_ray, largest_node_cpus, run_trials, stop_ray
 from ablate.run.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
+from ablate.run.tuning import StagePlan, tuning_document, unique
+
+# ``ablate.run.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
+# re-run with nothing left answers from the store alone.
 
 
 class Interrupted(KeyboardInterrupt):
@@ -147,7 +150,16 @@ def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
         "variants": [{"name": v.name, "overrides": dict(v.overrides)} for v in experiment.variants],
         "base": {k: list(v) if isinstance(v, tuple) else v for k, v in flatten(experiment.base).items()},
         "trials": [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in trials],
-    }
+    } | (
+        {
+            "tune_trials": [
+                {"key": t.key, "variant": t.variant, "seed": t.seed, "stage": t.stage}
+                for t in tuning_trials(experiment)
+            ]
+        }
+        if experiment.tune
+        else {}
+    )
 
 
 PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", "scipy", "matplotlib", "imageio")
@@ -196,6 +208,8 @@ class _Recorder:
         self.trials, self.commit, self.view, self.outcome = trials, commit, view, outcome
         self.closed = False
         """Set once the launch stops: a late event from the scheduler then opens no run."""
+        self.summaries: dict[str, dict[str, float]] = {}
+        """Summary metrics of the trials this launch finished (tuning selection reads them)."""
 
     def _open(self, key: str) -> bool:
         """Open the trial's run if needed; ``False`` once the launch has stopped (the event is dropped)."""
@@ -204,7 +218,9 @@ class _Recorder:
         if key not in self.tracker.open_runs:
             trial = self.trials[key]
             params = tracked_params(trial.variant, trial.config)
-            self.tracker.start_trial(self.launch, self.generation, key, trial.variant, trial.seed, params, self.commit)
+            self.tracker.start_trial(
+                self.launch, self.generation, key, trial.variant, trial.seed, params, self.commit, trial.stage
+            )
         return True
 
     def started(self, key: str) -> None:
@@ -231,6 +247,7 @@ class _Recorder:
             return
         self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
         self.outcome.finished.append(key)
+        self.summaries[key] = dict(summary)
         self.view.finished(key, bool(summary.get("solved")))
 
     def failed(self, key: str, message: str) -> None:
@@ -342,19 +359,29 @@ def _run_locked(
     started_at: float | None,
 ) -> RunOutcome:
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
-    finished_before = tracker.finished_keys(generation)
-    chosen = trials if only is None else list(only)
-    todo = [t for t in chosen if t.key not in finished_before]
+    evaluation = trials if only is None else list(only)
+    wanted = {t.variant for t in evaluation}
+    plan = StagePlan(experiment, evaluation, [t for t in tuning_trials(experiment) if t.variant in wanted])
+    # Selection on resume reads the tuning trials finished by earlier launches back from the store.
+    finished_runs = {r.key: r.metrics for r in tracker.trial_runs(generation) if r.status == "FINISHED"}
+    finished_before = set(finished_runs)
+    choices = plan.choices(finished_runs)
+    known = unique([*plan.tuning, *evaluation, *plan.chosen(choices)], set())
+    todo = [t for t in known if t.key not in finished_before]
     outcome = RunOutcome(
         experiment.name,
         generation,
         None,
-        skipped=len(chosen) - len(todo),
-        total=len(chosen),
+        skipped=len(known) - len(todo),
+        total=len(known),
         ui_link=tracker.ui_link(ui_port()),
     )
     if not todo:
         return outcome
+    from ablate.run.scheduler import ClusterOptions, ensure_ray, largest_node_cpus, run_trials, stop_ray
+
+    if show_progress:
+        print(f"{len(todo)} trial(s) to run; starting Ray ...", flush=True)
     started_ray = ensure_ray(address)  # an unreachable cluster fails here, in seconds, before a launch is recorded
     biggest = largest_node_cpus()
     if experiment.resources_per_trial > biggest:  # a joined cluster: no node could ever start a trial
@@ -396,9 +423,28 @@ def _run_locked(
         experiment.gpus_per_trial,
         storage_path,
     )
+    run_name = tune_run_name(experiment.name, launch)
     try:
+        if plan.tuning and wanted <= set(choices):
+            tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
         with view:
-            run_trials(todo, recorder, options, run_name=tune_run_name(experiment.name, launch), resume=resume)
+            run_trials(todo, recorder, options, run_name=run_name, resume=resume)
+        if plan.tuning and not wanted <= set(choices):
+            # Stage 2: every variant whose tuning trials all finished, at its chosen values.
+            choices = plan.choices(finished_runs | recorder.summaries)
+            tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
+            later = unique(plan.chosen(choices), {t.key for t in known})
+            todo_after = [t for t in later if t.key not in finished_before]
+            outcome.total += len(later)
+            outcome.skipped += len(later) - len(todo_after)
+            if todo_after:
+                done = len(finished_before) + len(outcome.finished)
+                view = ProgressView(experiment.name, todo_after, done, show_progress, slots, started_at)
+                outcome.view = recorder.view = view
+                recorder.trials |= {t.key: t for t in todo_after}
+                with view:
+                    resume = tracker.latest_checkpoints(generation, (t.key for t in todo_after))
+                    run_trials(todo_after, recorder, options, run_name=run_name, resume=resume)
     except KeyboardInterrupt as interrupt:
         outcome.interrupted = True
         signum = getattr(interrupt, "signum", None) or (_signals_received[-1] if _signals_received else signal.SIGINT)
@@ -468,7 +514,11 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
             started_at=started_at,
             storage_path=args.storage_path,
         )
-    except ClusterUnavailable as error:
+    except Exception as error:
+        # The scheduler (and Ray) is only imported when trials run: its error class is known only then.
+        scheduler = sys.modules.get("ablate.run.scheduler")
+        if scheduler is None or not isinstance(error, scheduler.ClusterUnavailable):
+            raise
         sys.stderr.write(f"ablate run: {error}\n")
         return 1
     total = outcome.total

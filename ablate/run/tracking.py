@@ -56,6 +56,8 @@ TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed",
 TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
 TAG_HOST, TAG_PID = "ablate.host", "ablate.pid"
 TAG_NODE = "ablate.node"
+TAG_STAGE = "ablate.stage"
+"""``tune`` (a tuning trial, stage 1 of a ``[tune]`` experiment) or ``eval``; runs without it are ``eval``."""
 _BATCH = 1000  # MLflow's limit of metrics per log_batch call
 FLUSH_EVERY_S = 10.0
 """Seconds a trial's curve points wait to be written together: one MLflow call costs ~4 ms plus ~50 us per
@@ -247,6 +249,10 @@ class Tracker(Store):
             self.client.log_text(run.info.run_id, redact(text), filename)
         return run.info.run_id
 
+    def log_file(self, run_id: str, filename: str, text: str) -> None:
+        """A small text artifact on a run (a launch's ``tuning.json``, written once its choices are known)."""
+        self.client.log_text(run_id, text, filename)
+
     def finish_launch(self, run_id: str, status: str, summary: dict[str, float], note: str = "") -> None:
         """Close the launch's run; ``note`` (the run's description in MLflow) says what happened."""
         self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
@@ -259,7 +265,15 @@ class Tracker(Store):
 
     # --- trials -----------------------------------------------------------------------------------
     def start_trial(
-        self, parent_id: str, generation: str, key: str, variant: str, seed: int, params: dict[str, Any], commit: str
+        self,
+        parent_id: str,
+        generation: str,
+        key: str,
+        variant: str,
+        seed: int,
+        params: dict[str, Any],
+        commit: str,
+        stage: str = "eval",
     ) -> str:
         from mlflow.entities import Param
 
@@ -276,6 +290,7 @@ class Tracker(Store):
                 TAG_SEED: str(seed),
                 TAG_ATTEMPT: str(self.attempts[key]),
                 TAG_COMMIT: commit,
+                TAG_STAGE: stage,
             },
         )
         run_id = run.info.run_id

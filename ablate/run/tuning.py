@@ -1,0 +1,215 @@
+"""Stage 1 -> stage 2 of a tuned ablation: pick each variant's knob values from its finished tuning trials,
+and the trials each stage runs. Pure: no Ray, no MLflow, no file.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from ablate.config import Experiment, TuneSpec, Variant
+from ablate.run.grid import GridTrial, chosen_trials
+
+RULE = (
+    "Each variant takes the candidate with the best mean {metric} over its tuning seeds; where that leaves a tie "
+    "(or, for episodes to solve, the best mean is a bound because a seed never solved within the tuning budget), "
+    "the tied candidates are ranked by mean AUC, then by nearness to the base value (distance in log space, the "
+    "smaller value first on equal distance). A variant that sets a tuned knob itself keeps its value."
+)
+SUMMARY_NAMES = {"auc": "auc", "episodes_to_solve": "episodes_to_solve", "final_return": "final_rolling_mean"}
+"""Each tuning metric's name among a trial's summary metrics (``TrialResult.summary``)."""
+_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class TuningResult:
+    """One finished stage-1 trial, as selection needs it."""
+
+    variant: str
+    values: Mapping[str, Any]
+    """The candidate: the tuned knobs' values."""
+    seed: int
+    metrics: Mapping[str, float]
+    """The trial's summary metrics (``auc``, ``episodes_to_solve`` when solved, ``final_rolling_mean``, ...)."""
+    budget: int
+    """The trial's ``max_episodes``: an unsolved trial's episodes to solve are censored here."""
+
+
+@dataclass(frozen=True)
+class Choice:
+    """A variant's values for stage 2, and why."""
+
+    values: dict[str, Any]
+    tuned: bool
+    reason: str
+    scores: dict[str, float] = field(default_factory=dict)
+    """Mean metric per candidate (``"learning_rate=0.1"``), for the record."""
+
+
+def metric_value(metrics: Mapping[str, float], metric: str, budget: int) -> tuple[float, bool]:
+    """A trial's value of ``metric`` and whether it is censored (episodes to solve of a trial that never
+    solved: the budget, a lower bound). A missing or NaN value is NaN (ranked last)."""
+    if metric == "episodes_to_solve":
+        value = metrics.get("episodes_to_solve")
+        if value is None or not math.isfinite(value) or metrics.get("solved", 1.0) != 1.0:
+            return float(budget), True
+        return float(value), False
+    value = metrics.get(SUMMARY_NAMES[metric], float("nan"))
+    return float(value), False
+
+
+def _label(values: Mapping[str, Any]) -> str:
+    return ",".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items()) or "-"
+
+
+def _distance(values: Mapping[str, Any], base: Mapping[str, Any]) -> float:
+    """How far a candidate is from the base values: summed |log ratio| (every tunable knob is positive)."""
+    return sum(abs(math.log(float(v)) - math.log(float(base[k]))) for k, v in values.items())
+
+
+def choose(spec: TuneSpec, tuned: tuple[str, ...], base: Mapping[str, Any], results: Iterable[TuningResult]) -> Choice:
+    """One variant's choice from its finished tuning trials (every candidate on every tuning seed): see ``RULE``.
+    ``tuned``: the knobs it is tuned on; ``base``: its own values of every knob of ``[tune]``."""
+    if not tuned:
+        return Choice({k: base[k] for k in spec.knob_names}, False, "set by the variant")
+    by_candidate: dict[tuple, list[TuningResult]] = {}
+    for result in results:
+        by_candidate.setdefault(tuple((k, result.values[k]) for k in tuned), []).append(result)
+    sign = -1.0 if spec.direction == "max" else 1.0  # lower key is better
+
+    def mean(rows: list[TuningResult], metric: str) -> tuple[float, bool]:
+        pairs = [metric_value(r.metrics, metric, r.budget) for r in rows]
+        values = [v for v, _ in pairs]
+        value = sum(values) / len(values) if values and all(math.isfinite(v) for v in values) else float("nan")
+        return value, any(c for _, c in pairs)
+
+    scores = {cand: mean(rows, spec.metric) for cand, rows in by_candidate.items()}
+    keyed = {cand: (sign * v if math.isfinite(v) else math.inf) for cand, (v, _) in scores.items()}
+    best = min(keyed.values())
+    best_censored = any(scores[c][1] for c, k in keyed.items() if abs(k - best) <= _TOLERANCE * max(1.0, abs(best)))
+    if spec.metric == "episodes_to_solve" and best_censored:
+        # The lowest mean uses a never-solved seed: its true mean is higher by an unknown amount, so episodes
+        # cannot order the candidates at all.
+        tied = list(keyed)
+        reason = "episodes to solve censored (a tuning seed never solved)"
+    else:
+        tied = [c for c, k in keyed.items() if abs(k - best) <= _TOLERANCE * max(1.0, abs(best))]
+        reason = f"tie on mean {spec.metric}"
+    if len(tied) == 1:
+        chosen, why = tied[0], f"best mean {spec.metric}"
+    else:
+        if spec.metric != "auc":
+            auc = {c: mean(by_candidate[c], "auc")[0] for c in tied}
+            auc_key = {c: (-v if math.isfinite(v) else math.inf) for c, v in auc.items()}
+            top = min(auc_key.values())
+            by_auc = [c for c in tied if abs(auc_key[c] - top) <= _TOLERANCE * max(1.0, abs(top))]
+        else:
+            by_auc = tied
+        if len(by_auc) == 1:
+            chosen, why = by_auc[0], f"{reason}: best mean auc"
+        else:
+            chosen = min(by_auc, key=lambda c: (_distance(dict(c), base), [float(v) for _, v in c]))
+            why = f"{reason}{' and on mean auc' if spec.metric != 'auc' else ''}: nearest the base value"
+    values = {k: base[k] for k in spec.knob_names} | dict(chosen)
+    return Choice(values, True, why, {_label(dict(c)): scores[c][0] for c in by_candidate})
+
+
+def base_values(spec: TuneSpec, variant: Variant) -> dict[str, Any]:
+    """The variant's own values of the knobs in ``[tune]`` (the base's unless it sets them)."""
+    return {k: getattr(variant.config, k) for k in spec.knob_names}
+
+
+def choose_all(experiment: Experiment, results: Iterable[TuningResult]) -> dict[str, Choice]:
+    """A choice for every variant whose stage 1 is complete (every candidate on every tuning seed finished);
+    variants still missing tuning trials are left out. Requires ``experiment.tune``."""
+    spec = experiment.tune
+    assert spec is not None
+    by_variant: dict[str, list[TuningResult]] = {}
+    for result in results:
+        by_variant.setdefault(result.variant, []).append(result)
+    choices = {}
+    for variant in experiment.variants:
+        tuned = spec.tuned_knobs(variant)
+        rows = by_variant.get(variant.name, [])
+        done = {(tuple(sorted(r.values.items())), r.seed) for r in rows}
+        wanted = {(tuple(sorted(c.items())), s) for c in spec.candidates(variant) for s in spec.seeds}
+        if tuned and not wanted <= done:
+            continue
+        choices[variant.name] = choose(spec, tuned, base_values(spec, variant), rows)
+    return choices
+
+
+def finished_results(
+    experiment: Experiment, plan: Iterable[Any], finished: Mapping[str, Mapping[str, float]]
+) -> list[TuningResult]:
+    """The stage-1 trials of ``plan`` (``GridTrial``s of stage ``tune``) that have finished, with their summary
+    metrics from ``finished`` (trial key -> metrics, from this launch or read back from the store)."""
+    spec = experiment.tune
+    assert spec is not None
+    variants = {v.name: v for v in experiment.variants}
+    results = []
+    for trial in plan:
+        if trial.key in finished:
+            tuned = spec.tuned_knobs(variants[trial.variant])
+            values = {k: getattr(trial.config, k) for k in tuned}
+            results.append(
+                TuningResult(trial.variant, values, trial.seed, finished[trial.key], trial.config.max_episodes)
+            )
+    return results
+
+
+def tuning_document(experiment: Experiment, choices: Mapping[str, Choice]) -> dict[str, Any]:
+    """``tuning.json`` of a launch run (the contract other modules read): candidates, seeds, metric, rule,
+    base values and each variant's choice."""
+    spec = experiment.tune
+    assert spec is not None
+    return {
+        "knobs": {k: list(v) for k, v in spec.knobs},
+        "seeds": list(spec.seeds),
+        "metric": spec.metric,
+        "direction": spec.direction,
+        "max_episodes": spec.max_episodes,
+        "rule": RULE.format(metric=spec.metric.replace("_", " ")),
+        "base": {k: getattr(experiment.base, k) for k in spec.knob_names},
+        "choices": {
+            name: {"values": c.values, "tuned": c.tuned, "reason": c.reason, "scores": c.scores}
+            for name, c in choices.items()
+        },
+    }
+
+
+@dataclass
+class StagePlan:
+    """What a launch runs: stage 1 (tuning) and the evaluation trials known now; the rest of stage 2 (each
+    variant at its chosen values) once stage 1 is done. Without ``[tune]``: the evaluation trials alone."""
+
+    experiment: Experiment
+    evaluation: list[GridTrial]
+    """The untuned trials asked for (``--only``, ``--seeds``): in a tuned launch, the base-value trials."""
+    tuning: list[GridTrial]
+    """Stage 1 of the variants asked for (``--seeds`` never narrows it)."""
+
+    def chosen(self, choices: dict[str, Choice]) -> list[GridTrial]:
+        """Stage 2 at the chosen values, for the variants and evaluation seeds asked for."""
+        pairs = {(t.variant, t.seed) for t in self.evaluation}
+        values = {name: c.values for name, c in choices.items() if c.tuned}
+        return [t for t in chosen_trials(self.experiment, values) if (t.variant, t.seed) in pairs]
+
+    def choices(self, finished: dict[str, dict[str, float]]) -> dict[str, Choice]:
+        """Choices of the variants whose stage 1 has finished (``finished``: key -> summary metrics)."""
+        if not self.tuning:
+            return {}
+        return choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished))
+
+
+def unique(trials: list[GridTrial], skip: set[str]) -> list[GridTrial]:
+    """``trials`` without repeated keys and without the keys in ``skip``, in order (a chosen value equal to the
+    base value gives the base-value trial again)."""
+    seen, out = set(skip), []
+    for trial in trials:
+        if trial.key not in seen:
+            seen.add(trial.key)
+            out.append(trial)
+    return out
