@@ -207,9 +207,9 @@ def _finish(cluster, process):
 
 
 def _refused(output):
-    """The one line a refusal prints after ``ablate run``'s own first line."""
-    lines = [line for line in output.splitlines() if line.strip() and "starting MLflow and Ray" not in line]
-    assert len(lines) == 1, output
+    """The one error line of a refused ``ablate run`` (its progress lines and warnings aside)."""
+    lines = [line for line in output.splitlines() if line.startswith("ablate run: ")]  # the error line(s)
+    assert len(lines) == 1 and "Traceback" not in output, output
     return lines[0]
 
 
