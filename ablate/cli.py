@@ -432,6 +432,11 @@ def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
         ]
         rows += [(f"{t.variant} [base]", str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials]
         rows += [(f"{t.variant} [chosen]", str(t.seed), "after tuning", "the chosen values") for t in after]
+    if experiment.storage_name != experiment.name:
+        print(
+            f"stored as {experiment.storage_name!r}: reports/{experiment.storage_name}/, the MLflow experiment "
+            f"and Tune's folders (the name in a form every file system takes)"
+        )
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3])

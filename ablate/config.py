@@ -6,9 +6,12 @@ Standard library only. Every bad value raises ``ConfigError`` naming the key, th
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import math
+import re
 import tomllib
+import unicodedata
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -19,8 +22,10 @@ ARCHITECTURES = ("mlp", "cnn")
 ACTIVATIONS = ("relu", "tanh", "elu", "gelu")
 FAULTS = ("", "crash_once", "crash_after_checkpoint", "raise", "block")
 MAX_NAME_LENGTH = 100
-"""Characters in an experiment's name: it names folders (``reports/<name>``, ``mlartifacts/<name>``, Tune's
-``ray_results/<name>-<launch>``) and file systems refuse a component over 255 bytes."""
+"""Characters in an experiment's name (any script). Where it names a folder, an MLflow experiment or a lock
+file, ``storage_name`` stands in for it: a component of at most 57 ASCII bytes."""
+_SAFE_NAME = re.compile(r"[A-Za-z0-9_-]{1,100}")
+"""Names used as they are where a name becomes a folder: every name valid before names in any script were."""
 MAX_VARIANT_NAME_LENGTH = 200
 """Characters in a variant's name: it starts every trial key, which names a folder of its own."""
 MAX_TRIALS = 10_000
@@ -341,8 +346,17 @@ class Experiment:
     gpus_per_trial: float = 0.0
     """GPUs Ray reserves per trial; fractions allowed (0.25 packs four trials per GPU). A trial puts its policy
     on CUDA whenever torch sees one."""
+    smallest_effect: float = 0.1
+    """The smallest difference worth finding, as a fraction of the reference variant's value (0.1: 10% fewer
+    or more episodes to solve; a return or AUC 10% of the reference's apart). The report says how many seeds
+    per variant would separate a difference this large; it changes no trial."""
     tune: TuneSpec | None = None
     """``[tune]``: tune each variant's optimisation knobs on tuning seeds first; ``None``: no tuning stage."""
+
+    @property
+    def storage_name(self) -> str:
+        """The name where it names a folder, an MLflow experiment or a lock file (see ``storage_name``)."""
+        return storage_name(self.name)
 
 
 EXPERIMENT_KEYS = (
@@ -352,6 +366,7 @@ EXPERIMENT_KEYS = (
     "baseline",
     "cpus_per_trial",
     "gpus_per_trial",
+    "smallest_effect",
     "base",
     "variants",
     "grid",
@@ -381,15 +396,10 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         if key not in EXPERIMENT_KEYS:
             raise ConfigError(f"{source}: {key}: unknown key; valid top-level keys: {', '.join(EXPERIMENT_KEYS)}")
     name = data.get("name", Path(source).stem)
-    if (
-        not isinstance(name, str)
-        or not name.replace("-", "").replace("_", "").isascii()
-        or not name.replace("-", "").replace("_", "").isalnum()
-        or len(name) > MAX_NAME_LENGTH
-    ):
-        raise ConfigError(
-            f"{source}: name = {_clip(name)} is invalid; valid: up to {MAX_NAME_LENGTH} letters, digits, '-' and '_'"
-        )
+    problem = name_problem(name)
+    if problem:
+        raise ConfigError(f"{source}: name = {_clip(name)} is invalid ({problem}); valid: {NAME_RULE}")
+    name = unicodedata.normalize("NFC", name)
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ConfigError(f"{source}: description = {description!r} is invalid; valid: a string")
@@ -417,6 +427,13 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     gpus = data.get("gpus_per_trial", 0.0)
     if not (_is_number(gpus) and 0 <= gpus <= 16):
         raise ConfigError(f"{source}: gpus_per_trial = {gpus!r} is invalid; valid: a number in [0, 16]")
+
+    smallest_effect = data.get("smallest_effect", Experiment.smallest_effect)
+    if not (_is_number(smallest_effect) and 0 < smallest_effect < 1):
+        raise ConfigError(
+            f"{source}: smallest_effect = {smallest_effect!r} is invalid; valid: a fraction in (0, 1), e.g. 0.1 for "
+            "a difference of 10% of the reference variant's value"
+        )
 
     base_table = data.get("base", {})
     if not isinstance(base_table, dict):
@@ -480,7 +497,19 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             f"{source}: baseline = {baseline!r} is invalid; valid: one of the variant names {sorted(seen)}"
         )
     tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), seeds)
-    return Experiment(name, source, description, base, tuple(variants), seeds, baseline, float(cpus), float(gpus), tune)
+    return Experiment(
+        name,
+        source,
+        description,
+        base,
+        tuple(variants),
+        seeds,
+        baseline,
+        float(cpus),
+        float(gpus),
+        smallest_effect=smallest_effect,
+        tune=tune,
+    )
 
 
 def _parse_tune(
@@ -559,6 +588,45 @@ def _without_seed(table: Mapping[str, Any], where: str) -> dict[str, Any]:
     if "seed" in table:
         raise ConfigError(f"{where}seed: set seeds at the top level (seeds = 5 or seeds = [0, 1, 2])")
     return dict(table)
+
+
+NAME_RULE = f"1 to {MAX_NAME_LENGTH} characters in any script, without control characters, '/' or '\\'"
+
+
+def name_problem(name: Any) -> str:
+    """Why ``name`` cannot name an experiment ("" when it can): ``NAME_RULE``, and not only dots (``.`` and
+    ``..`` are folders already). Judged on its NFC form, the form it is stored under."""
+    if not isinstance(name, str):
+        return "not a string"
+    name = unicodedata.normalize("NFC", name)
+    if not name.strip():
+        return "empty"
+    if len(name) > MAX_NAME_LENGTH:
+        return f"{len(name)} characters"
+    if any(unicodedata.category(c) in ("Cc", "Cs", "Cn") for c in name):
+        return "a control or unassigned character"
+    if "/" in name or "\\" in name:
+        return "a path separator"
+    if not name.strip("."):
+        return "only dots"
+    return ""
+
+
+def storage_name(name: str) -> str:
+    """The form of an experiment's name where it names a folder (``reports/<this>``, ``mlartifacts/<this>``,
+    Tune's ``<this>-<launch>``), an MLflow experiment or a lock file: the name itself when it is 1 to 100
+    ASCII letters, digits, '-' and '_' (so every name valid before keeps its folders and its MLflow
+    experiment), else a readable ASCII slug of it and 8 hex digits of its NFC form's SHA-1: ``实验é`` is
+    ``e-<hash>``. At most 57 bytes: within any file system's 255 for one component. A storage name maps to
+    itself, so a report asked for by it finds the same experiment."""
+    name = unicodedata.normalize("NFC", name)
+    if _SAFE_NAME.fullmatch(name):
+        return name
+    digest = hashlib.sha1(name.encode()).hexdigest()[:8]
+    # é -> e, ﬁ -> fi: letters with marks keep their base letter; other scripts drop out (the hash tells apart).
+    ascii_text = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode()
+    slug = re.sub(r"[^A-Za-z0-9_]+", "-", ascii_text).strip("-_")[:48].strip("-_")
+    return f"{slug or 'experiment'}-{digest}"
 
 
 def _clip(value: Any, limit: int = 60) -> str:

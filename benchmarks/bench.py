@@ -3,7 +3,8 @@
 Sections: `core` (course-style loop vs our trial, time to solve CartPole-v1), `runner`, `ablation` (the
 default ablation: speed-up, tracking overhead, memory), `tracking` (the single writer with 256 synthetic
 trials), `cluster` (a tiny ablation on the local default vs a joined head and a tracking server), `pong`
-and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial).
+and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial), `tuning`, `eta` (the
+time-left estimate against the time that actually remained).
 `python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
 """
 
@@ -754,6 +755,92 @@ def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> N
     RESULTS["tuning"] = {"untuned_s": walls["untuned"], "tuned_s": walls["tuned"], "ratio": tuned / untuned}
 
 
+def _eta_errors(view) -> dict:
+    """Each estimate logged once a quarter of the trials had ended, against the time that actually remained
+    until the last trial ended; the bound is the issue's: +-30% or +-20 s, whichever is larger."""
+    total = len(view.trials)
+    end = view.trials_end - view.start
+    points = [
+        (t, est, end - t) for t, ended, est in view.estimates if est is not None and ended >= total / 4 and t < end
+    ]
+    if not points:
+        return {"points": 0}
+    over = [(abs(est - truth) / max(0.3 * truth, 20.0), t, est, truth) for t, est, truth in points]
+    worst = max(over)
+    relative = max(points, key=lambda p: abs(p[1] - p[2]) / p[2] if p[2] > 0 else 0)
+    first_quarter = next(t for t, ended, _ in view.estimates if ended >= total / 4)
+    return {
+        "points": len(points),
+        "within_bound": sum(o <= 1 for o, *_ in over),
+        "worst_over_bound": worst[0],
+        "worst_at_s": worst[1],
+        "worst_estimate_s": worst[2],
+        "worst_truth_s": worst[3],
+        "worst_relative_error": (relative[1] - relative[2]) / relative[2] if relative[2] > 0 else 0.0,
+        "quarter_at_s": first_quarter,
+        "trials_end_s": end,
+    }
+
+
+def bench_eta(
+    experiments: tuple[str, ...] = ("experiments/cartpole.toml", "experiments/pong-smoke.toml"),
+    launches: tuple[str, ...] = ("cold", "warm"),
+) -> None:
+    """The time-left estimate against the truth: each experiment run twice into a fresh store, cold (no
+    earlier launch to learn costs from) then warm (``--fresh`` on the same store: the first launch's costs
+    are the prior), every estimate logged. Printed: the worst error after a quarter of the trials ended, as a
+    fraction of the bound (<= 1.00 keeps the promise) and as a relative error."""
+    import shutil
+    import tempfile
+
+    from ablate.config import load_experiment
+    from ablate.run.runner import run_experiment
+
+    folder = Path(tempfile.mkdtemp(prefix="ablate-bench-eta-"))
+    figures = {}
+    try:
+        for path in experiments:
+            experiment = load_experiment(path)
+            store = folder / experiment.name
+            store.mkdir()
+            for launch in launches:
+                started = time.monotonic()
+                outcome = run_experiment(
+                    experiment,
+                    tracking_uri=f"sqlite:///{store / 'mlflow.db'}",
+                    storage_path=str(store / "ray"),
+                    show_progress=False,
+                    fresh=launch == "warm",
+                    started_at=started,
+                    log_estimates=True,
+                )
+                assert outcome.exit_code == 0 and outcome.view is not None, outcome.failed
+                view = outcome.view
+                errors = _eta_errors(view)
+                trace = [
+                    (round(t, 2), ended, None if est is None else round(est, 2)) for t, ended, est in view.estimates
+                ]
+                figures[f"{experiment.name}/{launch}"] = {**errors, "trace": trace}
+                print(f"  trace (s since start, trials ended, estimate s): {json.dumps(trace)}", flush=True)
+                if not errors["points"]:
+                    print(f"  {path} {launch}: no estimate after a quarter of the trials", flush=True)
+                    continue
+                e = errors
+                print(
+                    f"  {path} {launch}: {len(view.trials)} trials ended at {e['trials_end_s']:.0f} s (a quarter "
+                    f"at {e['quarter_at_s']:.0f} s); {e['within_bound']}/{e['points']} estimates after a quarter "
+                    f"within +-30% or +-20 s; worst {e['worst_over_bound']:.2f} of the bound (said "
+                    f"{e['worst_estimate_s']:.0f} s at {e['worst_at_s']:.0f} s, {e['worst_truth_s']:.0f} s remained); "
+                    f"worst relative error {100 * e['worst_relative_error']:+.0f}%",
+                    flush=True,
+                )
+        worst = max(f.get("worst_over_bound", 0.0) for f in figures.values())
+        print(f"eta: worst error after 25% of the trials: {worst:.2f} of the bound (+-30% or +-20 s; <= 1.00 keeps it)")
+        RESULTS["eta"] = figures
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 SECTIONS = {
     "core": bench_core,
     "runner": bench_runner,
@@ -763,6 +850,7 @@ SECTIONS = {
     "pong": bench_pong,
     "pong-memory": bench_pong_memory,
     "tuning": bench_tuning,
+    "eta": bench_eta,
 }
 
 
@@ -777,6 +865,17 @@ def main() -> int:
         "--tuning-repeats", type=int, default=3, help="tuning: pairs of untuned and tuned ablations (~6 min each)"
     )
     parser.add_argument(
+        "--eta-experiment",
+        action="append",
+        dest="eta_experiments",
+        help="eta: an experiment file to measure (repeatable; default: cartpole.toml and pong-smoke.toml)",
+    )
+    parser.add_argument(
+        "--eta-launches",
+        default="cold,warm",
+        help="eta: cold (a fresh store), warm (--fresh on it: earlier costs known) or both, comma-separated",
+    )
+    parser.add_argument(
         "--pong-memory-cap", type=int, default=0, help="pong-memory: cut episodes at this many steps (0: none)"
     )
     args = parser.parse_args()
@@ -784,6 +883,9 @@ def main() -> int:
     unknown = [name for name in args.sections if name not in SECTIONS]
     if unknown:
         parser.error(f"unknown section {unknown[0]!r}; valid: {', '.join(SECTIONS)}")
+    bad_launches = [x for x in args.eta_launches.split(",") if x not in ("cold", "warm")]
+    if bad_launches:
+        parser.error(f"--eta-launches: {bad_launches[0]!r} is not a launch; valid: cold, warm")
     if args.ablation_repeats < 1:
         parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
     if args.tuning_repeats < 1:
@@ -794,6 +896,10 @@ def main() -> int:
             "ablation": {"repeats": args.ablation_repeats},
             "pong-memory": {"max_episode_steps": args.pong_memory_cap},
             "tuning": {"repeats": args.tuning_repeats},
+            "eta": {
+                "launches": tuple(args.eta_launches.split(",")),
+                **({"experiments": tuple(args.eta_experiments)} if args.eta_experiments else {}),
+            },
         }
         SECTIONS[name](**kwargs.get(name, {}))
     if args.json:

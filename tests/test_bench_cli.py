@@ -12,8 +12,12 @@ BENCH = Path(__file__).parent.parent / "benchmarks" / "bench.py"
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["nope"], "unknown section 'nope'; valid: core, runner, ablation, tracking, cluster, pong, pong-memory, tuning"),
+        (
+            ["nope"],
+            "unknown section 'nope'; valid: core, runner, ablation, tracking, cluster, pong, pong-memory, tuning, eta",
+        ),
         (["ablation", "--ablation-repeats", "0"], "--ablation-repeats must be at least 1, got 0"),
+        (["eta", "--eta-launches", "hot"], "--eta-launches: 'hot' is not a launch; valid: cold, warm"),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(args, message):

@@ -295,6 +295,30 @@ def test_train_from_runs_that_trial_with_its_key_and_config_and_no_sdl_noise(tmp
     assert returns == [m.episode_return for m in reference.episodes] and len(returns) == 16
 
 
+def test_run_dry_run_takes_a_name_in_any_script_and_shows_its_storage_name(tmp_path, capsys, monkeypatch):
+    from ablate.config import storage_name
+
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "实验.toml"
+    # NFD in the file (as some editors write it): the experiment is the NFC name.
+    path.write_text('name = "实验e\u0301"\nseeds = 2\n[[variants]]\nname = "基线"\n', encoding="utf-8")
+    assert main(["run", str(path), "--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    stored = storage_name("实验é")
+    assert lines[0] == "实验é: 2 of 2 trials (dry run: nothing started or written)"
+    assert lines[1].startswith(f"stored as {stored!r}: reports/{stored}/, the MLflow experiment")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["实验.toml"]  # nothing written
+
+
+@pytest.mark.parametrize("name", ["", "a/b", "bell\u0007", "x" * 101])
+def test_run_bad_name_is_one_line_exit_2(tmp_path, capsys, name):
+    path = tmp_path / "bad.toml"
+    path.write_text(f"name = {json.dumps(name)}\n[[variants]]\nname = 'a'\n", encoding="utf-8")
+    assert main(["run", str(path), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{path}: name = " in err and "is invalid (" in err
+
+
 DESIGN = """
 seeds = {seeds}
 [base]

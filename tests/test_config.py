@@ -1,8 +1,12 @@
 """Config knobs and experiment files: valid values load, bad ones give one actionable line."""
 
+import json
+import re
+import unicodedata
+
 import pytest
 
-from ablate.config import COURSE, DEFAULT, ConfigError, apply_knobs, flatten, load_experiment
+from ablate.config import COURSE, DEFAULT, ConfigError, apply_knobs, flatten, load_experiment, storage_name
 
 
 def test_course_preset_is_the_labs_setting():
@@ -149,6 +153,85 @@ def test_a_file_starting_with_a_utf8_byte_order_mark_loads(tmp_path):
     path = tmp_path / "bom.toml"
     path.write_bytes('\ufeffname = "bom"\n[[variants]]\nname = "a"\n'.encode())
     assert load_experiment(path).name == "bom"
+
+
+# --- experiment names in any script (issue 18, item 6) ----------------------------------------------------
+
+
+def _named(tmp_path, name: str, file: str = "exp.toml"):
+    path = tmp_path / file
+    path.write_text(f"name = {json.dumps(name)}\n[[variants]]\nname = 'a'\n", encoding="utf-8")
+    return load_experiment(path)
+
+
+@pytest.mark.parametrize("name", ["cartpole", "pong", "smoke", "pong-smoke", "A_b-9", "x" * 100])
+def test_every_name_valid_before_is_its_own_storage_name(tmp_path, name):
+    assert storage_name(name) == name
+    assert _named(tmp_path, name).storage_name == name
+
+
+def test_a_name_in_any_script_loads_nfc_normalised_with_a_safe_stable_storage_name(tmp_path):
+    nfc, nfd = "实验é", unicodedata.normalize("NFD", "实验é")
+    assert nfc != nfd
+    first, second = _named(tmp_path, nfc, "a.toml"), _named(tmp_path, nfd, "b.toml")
+    assert first.name == second.name == nfc  # one experiment, whichever form the editor wrote
+    assert first.storage_name == second.storage_name == storage_name(nfd)
+    assert re.fullmatch(r"e-[0-9a-f]{8}", first.storage_name)  # é keeps its letter; the hash tells names apart
+    assert storage_name(first.storage_name) == first.storage_name  # a report asked for by it finds the same
+    assert storage_name("实验") != storage_name("实验二")
+    assert storage_name("Größe über alles") == f"Groe-uber-alles-{storage_name('Größe über alles')[-8:]}"
+
+
+def test_a_100_character_cjk_name_stores_within_one_folder_names_255_bytes(tmp_path):
+    name = "实" * 100
+    assert len(name.encode()) == 300  # the name itself would not fit in a folder name
+    stored = _named(tmp_path, name).storage_name
+    assert stored.isascii() and len(stored.encode()) <= 57
+    (tmp_path / stored).mkdir()  # the file system takes it
+    from ablate.report.document import report_folder
+
+    assert report_folder(name, tmp_path) == tmp_path / stored
+
+
+@pytest.mark.parametrize(
+    ("name", "problem"),
+    [
+        ("", "empty"),
+        ("   ", "empty"),
+        ("a\nb", "a control or unassigned character"),
+        ("tab\there", "a control or unassigned character"),
+        ("a/b", "a path separator"),
+        ("a\\b", "a path separator"),
+        ("..", "only dots"),
+        ("实" * 101, "101 characters"),
+        (5, "not a string"),
+    ],
+)
+def test_bad_names_are_one_line_naming_the_problem(tmp_path, name, problem):
+    path = tmp_path / "bad.toml"
+    path.write_text(f"name = {json.dumps(name)}\n[[variants]]\nname = 'a'\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as error:
+        load_experiment(path)
+    message = str(error.value)
+    assert "\n" not in message and message.startswith(f"{path}: name = ")
+    assert f"is invalid ({problem}); valid: 1 to 100 characters in any script" in message
+
+
+@pytest.mark.parametrize("value", ["0", "1", "-0.1", "'ten'", "true", "1.5"])
+def test_a_bad_smallest_effect_is_one_line_exit_2_and_nothing_tracked(tmp_path, capsys, value):
+    from ablate.cli import main
+
+    path = _write(tmp_path, f"smallest_effect = {value}\n[[variants]]\nname = 'a'\n")
+    assert main(["run", str(path), "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "smallest_effect" in err and "a fraction in (0, 1)" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_smallest_effect_defaults_to_a_tenth(tmp_path):
+    assert load_experiment(_write(tmp_path, "[[variants]]\nname = 'a'\n")).smallest_effect == 0.1
+    path = _write(tmp_path, "smallest_effect = 0.25\n[[variants]]\nname = 'a'\n")
+    assert load_experiment(path).smallest_effect == 0.25
 
 
 # --- [tune] (issue 19) ---

@@ -213,3 +213,128 @@ def test_progress_view_in_tmux_clock_runs_before_any_trial_ends_and_running_rows
         assert re.search(r"^total \d+:\d\d \(until the first trial started \d+:\d\d, trials", screen, re.M), screen
     finally:
         tmux_run("kill-server", check=False)
+
+
+def test_schedule_order_interleaves_seeds_across_variants_and_keeps_every_key():
+    from ablate.run.grid import schedule_order
+
+    trials = _trials(variants=("a", "slow", "c"), seeds=(0, 1))
+    ordered = schedule_order(trials)
+    assert [t.key for t in ordered] == ["a-s0", "slow-s0", "c-s0", "a-s1", "slow-s1", "c-s1"]
+    assert sorted(ordered, key=trials.index) == trials  # the same trials, keys untouched
+    # Known slow trials first within a round, so none starts last and runs alone.
+    costs = {"slow-s0": 30.0, "slow-s1": 30.0, "c-s1": 5.0}
+    assert [t.key for t in schedule_order(trials, costs)] == ["slow-s0", "a-s0", "c-s0", "slow-s1", "c-s1", "a-s1"]
+
+
+def test_costs_from_an_earlier_launch_are_scaled_to_this_launchs_pace(clock):
+    prior = {"fast-s0": 2.0, "fast-s1": 4.0, "slow-s0": 20.0, "slow-s1": 40.0}
+    view = ProgressView("x", _trials(), 0, enabled=False, slots=1, prior_costs=prior)
+    # Before anything reported: the earlier launch's seconds, one slot, one after another.
+    assert view.seconds_left() == pytest.approx(2 + 4 + 20 + 40)
+    view.started("fast-s0")
+    clock.now += 3  # this launch runs 1.5x slower than the earlier one
+    view.finished("fast-s0", solved=True)
+    view.started("fast-s1")
+    assert view.seconds_left() == pytest.approx(1.5 * (4 + 20 + 40))
+    clock.now += 1  # one second into fast-s1, expected 6 s in all
+    assert view.seconds_left() == pytest.approx(1.5 * (4 + 20 + 40) - 1)
+
+
+def test_the_idle_time_between_one_trial_and_the_next_counts_per_pending_trial(clock):
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1)
+    view.started("a-s0")
+    clock.now += 4
+    view.finished("a-s0", solved=True)
+    clock.now += 1  # the slot stays idle a second before the next trial starts
+    view.started("a-s1")
+    assert view.dispatch_s() == pytest.approx(1)
+    # a-s1 has 4 s left (the mean of a's finished trials); the two pending ones take 4 s + 1 s idle each.
+    assert view.seconds_left() == pytest.approx(4 + 2 * (4 + 1))
+
+
+def test_peers_share_a_budget_a_trial_with_another_budget_is_costed_apart(clock):
+    short = replace(TrialConfig(), max_episodes=10)
+    trials = [GridTrial("a-s0", "a", 0, short), GridTrial("a-s1", "a", 1, replace(short, seed=1))]
+    trials.append(GridTrial("a-s2-long", "a", 2, replace(short, seed=2, max_episodes=1000)))
+    view = ProgressView("x", trials, 0, enabled=False, slots=1)
+    view.started("a-s0")
+    clock.now += 1
+    view.episodes("a-s0", [_row(10, 1.0)])  # 0.1 s per episode
+    view.finished("a-s0", solved=False)
+    assert view.expected_cost("a") == pytest.approx(1.0)  # a-s1: a finished peer took 1 s
+    view.started("a-s1")
+    view.finished("a-s1", solved=False)
+    # The 1,000-episode trial has no finished peer: its budget at the pace seen, not the 10-episode mean.
+    assert view.expected_cost("a") == pytest.approx(0.1 * 1000)
+
+
+def test_every_estimate_is_logged_against_the_clock_when_asked(clock):
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, start=clock.now)
+    view.log_estimates = True
+    view.started("a-s0")
+    clock.now += 2
+    view.episodes("a-s0", [_row(50, 1.0)])
+    view.finished("a-s0", solved=False)
+    assert view.estimates == [(0.0, 0, None), (2.0, 0, pytest.approx(2.0)), (2.0, 1, 0.0)]
+
+
+def test_a_later_stage_counts_after_this_one_and_keeps_what_was_learned(clock):
+    # Stage 1: two tuning trials of "a"; stage 2 (not known yet): two trials of "a" at the same budget.
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=2, later=[("a", 100)] * 2)
+    view.started("a-s0")
+    view.started("a-s1")
+    clock.now += 4
+    view.episodes("a-s0", [_row(50, 1.0)])  # 0.08 s per episode; 4 s left of its 100-episode budget
+    view.episodes("a-s1", [_row(50, 1.0)])
+    # Stage 2 starts only when both have ended (4 s), then its two trials run side by side (8 s each).
+    assert view.seconds_left() == pytest.approx(4 + 8)
+    clock.now += 2
+    view.finished("a-s0", solved=True)  # 6 s
+    view.finished("a-s1", solved=True)
+    assert "all trials ended" not in view.headline() and view.seconds_left() == pytest.approx(6)
+    stage_2 = [GridTrial(f"a-lr-s{s}", "a", s, replace(TrialConfig(), max_episodes=100, seed=s)) for s in (0, 1)]
+    view.add_trials(stage_2)
+    assert view.seconds_left() == pytest.approx(6)  # the finished trials' cost carries over
+    view.started("a-lr-s0")
+    view.started("a-lr-s1")
+    view.finished("a-lr-s0", solved=True)
+    view.finished("a-lr-s1", solved=True)
+    assert "all trials ended" in view.headline() and view.seconds_left() == 0
+
+
+def test_a_later_stage_with_nothing_to_run_ends_the_trials(clock):
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, later=[("a", 100)])
+    view.started("a-s0")
+    clock.now += 3
+    view.finished("a-s0", solved=True)
+    clock.now += 1
+    view.add_trials([])  # every choice was the base value: no stage-2 trials
+    assert "all trials ended" in view.headline() and view.trials_end == clock.now - 1
+
+
+def test_a_workers_start_paid_by_its_first_trial_is_not_charged_to_the_trials_after_it(clock):
+    view = ProgressView("x", _trials(variants=("a", "b"), seeds=(0, 1, 2)), 0, enabled=False, slots=2)
+    view.started("a-s0")  # both first on their workers: each pays a 20 s worker start
+    view.started("b-s0")
+    clock.now += 25
+    view.finished("a-s0", solved=True, wall_s=5.0)
+    view.started("a-s1")
+    clock.now += 1
+    view.finished("b-s0", solved=True, wall_s=4.0)
+    view.started("b-s1")
+    # No trial without a worker start has ended: a's trials cost their training time (5 s), not 25 s.
+    assert view.expected_cost("a") == pytest.approx(5.0)
+    clock.now += 6
+    view.finished("a-s1", solved=True, wall_s=5.0)  # 7 s since it started: 2 s beside its training
+    assert view.expected_cost("a") == pytest.approx((7 + 7) / 2)  # a-s0 counts as 5 s + the 2 s beside
+    assert view.expected_cost("b") == pytest.approx(4 + 2)
+
+
+def test_the_pace_of_a_trial_with_one_report_is_read_off_its_own_clock(clock):
+    view = ProgressView("x", _trials(budget=40, variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=1)
+    view.started("a-s0")
+    clock.now += 21  # 20 s of its worker's start, then 10 episodes in 1 s by the trial's own clock
+    view.episodes("a-s0", [_row(10, 1.0)._replace(wall_s=1.0)])
+    # 30 episodes left at 0.1 s, then a-s1's 40 episodes: not 2.1 s per episode from the wall since its start.
+    assert view.seconds_left() == pytest.approx(0.1 * 30 + 0.1 * 40)

@@ -493,6 +493,32 @@ def test_a_cluster_whose_nodes_are_all_too_small_is_refused_before_a_launch_is_r
     assert not _launches(Tracker(tracking_uri, "tiny"))
 
 
+def test_a_name_in_any_script_runs_under_its_storage_name_and_its_costs_are_read_back(
+    run_quiet, tmp_path, tracking_uri
+):
+    import unicodedata
+
+    from ablate.config import storage_name
+
+    text = 'name = "实验é"\nseeds = 1\n[base]\nmax_episodes = 4\nrecord_video = false\n[[variants]]\nname = "a"\n'
+    experiment = _experiment(tmp_path, text)
+    outcome = run_quiet(experiment, tmp_path, tracking_uri)
+    assert outcome.exit_code == 0 and len(outcome.finished) == 1
+    stored = storage_name("实验é")
+    # Asked for by its NFD form, its NFC form or its storage name: one MLflow experiment, named by the last.
+    for asked in (unicodedata.normalize("NFD", "实验é"), "实验é", stored):
+        tracker = Tracker(tracking_uri, asked)
+        assert tracker.experiment_name == stored and len(tracker.trial_runs()) == 1
+    mlflow_experiment = tracker.client.get_experiment(tracker.experiment_id())
+    assert mlflow_experiment.name == stored and mlflow_experiment.tags["ablate.name"] == "实验é"
+    assert (tmp_path / "mlartifacts" / stored).is_dir()
+    assert tracker.lock_path().name == f"mlflow.db.{stored}.lock"
+    # What the trial took, for the next launch's time-left estimate and order.
+    key = expand(experiment)[0].key
+    costs = tracker.trial_costs([key, "not-a-key"])
+    assert list(costs) == [key] and 0 < costs[key] < 600
+
+
 # --- [tune] (issue 19): two stages in one launch ---
 
 TUNE = """

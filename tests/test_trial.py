@@ -152,3 +152,16 @@ def test_importing_ablate_puts_torch_tensors_on_huge_pages_unless_told_otherwise
     code = "import sys, os, ablate.agent.trial; print(os.environ['THP_MEM_ALLOC_ENABLE'], 'torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.split() == [expected, "True"]
+
+
+def test_summary_auc_is_the_rolling_mean_over_the_whole_budget_a_solved_trial_holding_its_last_value():
+    from ablate.agent.trial import EpisodeMetrics, TrialResult
+
+    def episode(i, rolling):
+        return EpisodeMetrics(i, 0.0, 1, 0.0, 0.0, rolling, i, 0.0, i)
+
+    config = replace(DEFAULT, max_episodes=5)
+    result = TrialResult(config, [episode(1, 10.0), episode(2, 20.0), episode(3, 30.0)], 3, 20.0, 3, 1.0, 0)
+    assert result.summary()["auc"] == (10 + 20 + 30 + 30 + 30) / 5  # stopped at 3 of 5: padded with 30
+    full = TrialResult(config, [episode(i, float(i)) for i in range(1, 6)], None, 20.0, 5, 1.0, 0)
+    assert full.summary()["auc"] == 3.0

@@ -31,13 +31,21 @@ SHORTHAND_MEANINGS = {
 }
 
 TOP_LEVEL_MEANINGS = {
-    "name": "The ablation's name: it names the MLflow experiment and `reports/<name>/`.",
+    "name": (
+        "The ablation's name, in any script (NFC-normalised). Where it names a folder (`reports/`, "
+        "`mlartifacts/`), the MLflow experiment or the lock file, its storage form stands in: the name itself "
+        "when it is ASCII letters, digits, `-` and `_`, else an ASCII slug and 8 hex digits (`ablate run "
+        "--dry-run` shows it)."
+    ),
     "description": "One line that opens the report.",
     "seeds": "Evaluation seeds: a count `n` (seeds 0 to n-1) or a list of distinct integers, e.g. `[0, 1, 2]`.",
     "baseline": "The variant the others are compared with, directly or [through another](report.md#references).",
     "cpus_per_trial": "CPUs Ray reserves per trial; fractions pack several trials per core (0.5: two).",
     "gpus_per_trial": "GPUs Ray reserves per trial; fractions allowed (0.25: four per GPU). A trial puts its policy "
     "on CUDA whenever torch sees one.",
+    "smallest_effect": "The smallest difference worth finding, as a fraction of the reference's value (0.1: 10% "
+    "fewer or more episodes, or a return 10% of the reference's apart); the report says how many seeds would "
+    "separate it. Changes no trial.",
     "base": "A table of knobs (below) every variant starts from; the rest keep their defaults.",
     "variants": "An array of tables `[[variants]]`: each a `name` and the knobs it changes over `[base]`.",
     "grid": "A table of axes (knob = list of values) whose cartesian product adds one variant per combination, "
@@ -46,12 +54,13 @@ TOP_LEVEL_MEANINGS = {
     "see [tuning](tuning.md).",
 }
 TOP_LEVEL_VALID = {
-    "name": f"up to {config.MAX_NAME_LENGTH} characters",
+    "name": f"1 to {config.MAX_NAME_LENGTH} characters; no control characters, `/` or `\\`",
     "description": "a string",
     "seeds": "a count in [1, 1000] or a list of distinct integers >= 0",
     "baseline": "a variant's name",
     "cpus_per_trial": "a number in (0, 64]",
     "gpus_per_trial": "a number in [0, 16]",
+    "smallest_effect": "a fraction in (0, 1)",
     "base": "knobs",
     "variants": f"names up to {config.MAX_VARIANT_NAME_LENGTH} characters, each unique",
     "grid": f"non-empty lists; at most {config.MAX_TRIALS:,} trials in all",
@@ -71,6 +80,7 @@ def top_level_defaults() -> dict[str, str]:
         "baseline": "the first variant" if minimal.baseline == "first" else _code(minimal.baseline),
         "cpus_per_trial": _code(minimal.resources_per_trial),
         "gpus_per_trial": _code(minimal.gpus_per_trial),
+        "smallest_effect": _code(minimal.smallest_effect),
         "base": "none: every knob at its default",
         "variants": "none",
         "grid": "none",

@@ -19,7 +19,9 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ablate.report.reader import RunReader  # noqa: E402
-from ablate.report.results import N_RESAMPLES, Ablation, curve_band  # noqa: E402
+from ablate.report.results import Ablation  # noqa: E402
+from ablate.report.statistics import N_RESAMPLES, curve_band  # noqa: E402
+from ablate.report.tuning import METRICS, chosen_values, knobs, same_value, sensitivity  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
 COLOURS = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7]
@@ -188,41 +190,41 @@ def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
     return Figure(_save(fig, folder, "learning_curves_wallclock"), caption, "Learning curves against wall-clock")
 
 
+def per_seed_points(ablation: Ablation) -> pd.DataFrame:
+    """What Figure "every seed's outcome" draws: per finished seed its variant, seed, x (episodes to solve, or
+    the final rolling return where no seed solved) and ``bound``: a seed that never solved is drawn at the
+    budget, as a bound (its true value is only known to be larger), never beyond the budget line."""
+    episodes = ablation.any_solved
+    done = ablation.finished
+    x = done.censored_episodes if episodes else done.final_rolling_mean
+    bound = (done.solved != 1) if episodes else pd.Series(False, index=done.index)
+    return pd.DataFrame({"variant": done.variant, "seed": done.seed, "x": x.astype(float), "bound": bound.astype(bool)})
+
+
 def figure_per_seed(ablation: Ablation, folder: Path) -> Figure:
     fig, ax = plt.subplots(figsize=(9, 0.45 * len(ablation.variants) + 1.6))
     rng = np.random.default_rng(0)
     episodes = ablation.any_solved
     budget = ablation.finished.budget.max()
+    points = per_seed_points(ablation)
     for i, variant in enumerate(ablation.variants):
-        done = ablation.finished[ablation.finished.variant == variant]
-        y = np.full(len(done), i) + rng.uniform(-0.15, 0.15, len(done))
+        mine = points[points.variant == variant]
+        y = np.full(len(mine), i) + rng.uniform(-0.15, 0.15, len(mine))
         colour = _colour(ablation, variant)
-        if episodes:
-            solved = done.solved.to_numpy() == 1
-            ax.scatter(done.censored_episodes[solved], y[solved], color=colour, s=36, zorder=3)
-            ax.scatter(
-                done.censored_episodes[~solved] * (1 + rng.uniform(0.005, 0.04, (~solved).sum())),
-                y[~solved],
-                facecolors="none",
-                edgecolors=colour,
-                s=36,
-                zorder=3,
-                marker="s",
-            )
-            values = done.censored_episodes
-        else:
-            values = done.final_rolling_mean
-            ax.scatter(values, y, color=colour, s=36, zorder=3)
-        if len(done):
-            ax.plot([np.median(values)] * 2, [i - 0.3, i + 0.3], color="black", linewidth=1.5)
+        exact, bound = ~mine.bound.to_numpy(), mine.bound.to_numpy()
+        ax.scatter(mine.x[exact], y[exact], color=colour, s=36, zorder=3)
+        # never solved: at the budget, a hollow right-pointing triangle ("more than this"), jittered only upwards
+        ax.scatter(mine.x[bound], y[bound], facecolors="none", edgecolors=colour, s=48, zorder=3, marker=">")
+        if len(mine):
+            ax.plot([np.median(mine.x)] * 2, [i - 0.3, i + 0.3], color="black", linewidth=1.5)
     if episodes:
         ax.axvline(budget, color="grey", linestyle=":", linewidth=1)
         ax.text(budget, len(ablation.variants) - 0.4, " budget", color="grey", fontsize=8, va="bottom")
         ax.set_xlabel("episodes to solve")
         caption = (
-            "Episodes to solve, every seed of every variant (filled dots: solved; hollow squares: never solved, "
-            f"drawn at the budget of {fmt(budget)} episodes, slightly jittered: their true value is only known to "
-            "be larger). Black bar: the median over seeds, censored values included."
+            "Episodes to solve, every seed of every variant (filled dots: solved; hollow triangles: never solved, "
+            f"drawn at the budget of {fmt(budget)} episodes as bounds: their true value is only known to be larger). "
+            "Black bar: the median over seeds, censored values included (≥ where it is one of them)."
         )
     else:
         ax.set_xlabel(f"final rolling mean return ({ablation_window(ablation)} episodes)")
@@ -307,3 +309,73 @@ def figure_observation(ablation: Ablation, tracker: RunReader, folder: Path) -> 
         )
         return Figure("figures/observation.png", caption, "Observation: raw, pre-processed, frame difference")
     return None
+
+
+def figure_sensitivity(ablation: Ablation, folder: Path) -> Figure | None:
+    """The tuning metric against every candidate, one panel per tuned variant: the mean over the tuning seeds
+    (line), each seed (dots) and their spread (bar: lowest to highest), the choice marked."""
+    tuning, table = ablation.tuning, ablation.tuning_trials
+    if not tuning or table is None or table.empty:
+        return None
+    names, metric = knobs(tuning), tuning.get("metric", "auc")
+    summary = sensitivity(table, tuning)
+    variants = [v for v in ablation.variants if v in set(summary.variant)]
+    if not variants:
+        return None
+    candidates = sorted({tuple(row) for row in summary[names].itertuples(index=False)})
+    numeric = len(names) == 1 and all(isinstance(c[0], int | float) and c[0] > 0 for c in candidates)
+    position = {c: (c[0] if numeric else i) for i, c in enumerate(candidates)}
+    columns = min(3, len(variants))
+    rows = int(np.ceil(len(variants) / columns))
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.0 * rows), sharey=True, squeeze=False)
+    done = table[table.status == "FINISHED"]
+    for ax, variant in zip(axes.flat, variants, strict=False):
+        colour = _colour(ablation, variant)
+        mine = summary[summary.variant == variant]
+        xs = [position[tuple(r)] for r in mine[names].itertuples(index=False)]
+        order = np.argsort(xs)
+        x, mean = np.asarray(xs, float)[order], mine["mean"].to_numpy(float)[order]
+        low, high = mine["low"].to_numpy(float)[order], mine["high"].to_numpy(float)[order]
+        ax.errorbar(x, mean, yerr=[mean - low, high - mean], color=colour, marker="o", capsize=3, linewidth=1.5)
+        seeds = done[done.variant == variant]
+        ax.scatter(
+            [position[tuple(r)] for r in seeds[names].itertuples(index=False)],
+            seeds[metric],
+            color=colour,
+            s=10,
+            alpha=0.5,
+            zorder=3,
+        )
+        wanted = [chosen_values(tuning, variant)[n] for n in names]
+        rows_ = mine[names].itertuples(index=False)
+        picked = [i for i, c in enumerate(rows_) if all(map(same_value, c, wanted))]
+        if picked:
+            at = mine.iloc[picked[0]]
+            ax.scatter([position[tuple(at[names])]], [at["mean"]], marker="*", s=220, color="black", zorder=4)
+        base = [tuning.get("base", {}).get(n) for n in names]
+        if numeric and base[0] is not None:  # the untuned comparison's value, for reference
+            ax.axvline(float(base[0]), color="grey", linestyle="--", linewidth=0.8)
+        ax.set_title(variant, fontsize=10)
+        ax.grid(alpha=0.3)
+        if numeric:
+            ax.set_xscale("log")
+            ax.set_xticks([c[0] for c in candidates], [f"{c[0]:g}" for c in candidates])
+            ax.minorticks_off()
+        else:
+            ax.set_xticks(range(len(candidates)), [", ".join(f"{v:g}" for v in c) for c in candidates], fontsize=7)
+    for ax in axes.flat[len(variants) :]:
+        ax.set_visible(False)
+    words, direction = METRICS.get(metric, (metric, "max"))
+    for ax in axes[-1]:
+        ax.set_xlabel(", ".join(n.replace("_", " ") for n in names) + (" (log scale)" if numeric else ""))
+    for ax in axes[:, 0]:
+        ax.set_ylabel(words)
+    seeds = len(tuning.get("seeds", []))
+    caption = (
+        f"Sensitivity to {', '.join(esc(n.replace('_', ' ')) for n in names)}: the tuning metric ({esc(words)}, "
+        f"{'higher' if direction == 'max' else 'lower'} is better) of each tuned variant at every candidate, on the "
+        f"{seeds} tuning seed{'s' if seeds != 1 else ''} only. Line: the mean over the tuning seeds; bar: the lowest "
+        "to the highest seed; dots: each seed; star: the value chosen for the evaluation; dashed: the base value "
+        "(the untuned comparison's). A choice at the end of the axis may not be the best value."
+    )
+    return Figure(_save(fig, folder, "tuning_sensitivity"), caption, "Sensitivity to the tuned settings")

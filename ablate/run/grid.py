@@ -44,7 +44,7 @@ def trial_key(variant: str, config: TrialConfig) -> str:
 
 
 def expand(experiment: Experiment) -> list[GridTrial]:
-    """Every (variant, seed) pair, variant-major: the order trials are scheduled in.
+    """Every (variant, seed) pair, variant-major (``schedule_order`` gives the order they start in).
 
     Two variant names with one slug (``"a b"`` and ``"a_b"``) are refused rather than told apart: with equal
     knobs they would share keys (one trial answering for both), and keys must stay what earlier launches
@@ -63,6 +63,21 @@ def expand(experiment: Experiment) -> list[GridTrial]:
             config = replace(variant.config, seed=seed)
             trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
     return trials
+
+
+def schedule_order(trials: list[GridTrial], costs: dict[str, float] | None = None) -> list[GridTrial]:
+    """The order trials are started in: seeds interleaved across variants (every variant's first seed, then
+    every variant's second ...), so a quarter into a launch every variant's cost has been seen and the
+    time-left estimate need not guess a slow variant from its budget. Within a round, trials known to be
+    slow (``costs``: seconds by key, from earlier launches) go first, so no long trial starts last and runs
+    alone. Only the order changes: every trial and its key stay as ``expand`` made them."""
+    costs = costs or {}
+    rounds: dict[str, int] = {}
+    numbered = []
+    for position, trial in enumerate(trials):
+        rounds[trial.variant] = rounds.get(trial.variant, -1) + 1
+        numbered.append((rounds[trial.variant], -costs.get(trial.key, 0.0), position, trial))
+    return [trial for *_, trial in sorted(numbered, key=lambda item: item[:3])]
 
 
 def tuning_trials(experiment: Experiment) -> list[GridTrial]:

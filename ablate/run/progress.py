@@ -12,7 +12,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -50,6 +50,13 @@ class _Trial:
     state: str = "pending"
     """pending, running, done, failed."""
     solved: bool = False
+    first_on_worker: bool = False
+    """Started before any trial had ended: its time holds its worker's start (imports, the emulator's ROMs),
+    which the trials after it on that worker do not pay."""
+    wall_s: float | None = None
+    """The trial's own training time (its summary's ``wall_s``), once finished."""
+    train_s: float | None = None
+    """The trial's own clock at the last episode reported (seconds since its training began)."""
     reports: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=RATE_REPORTS))
     """(time, episode) of the newest reports: the recent pace, which slows as a CartPole agent's episodes grow."""
 
@@ -58,13 +65,29 @@ class _Trial:
         return self.trial.config.max_episodes
 
     def seconds_per_episode(self, now: float) -> float | None:
-        """Over the newest reports when there are two, else since the trial started."""
+        """Over the newest reports when there are two, else by the trial's own clock (a worker's start and
+        Tune's scheduling are not episodes: in a 4-episode Pong trial they are most of its time), else since
+        the trial started."""
         if len(self.reports) >= 2 and self.reports[-1][1] > self.reports[0][1]:
             (t0, e0), (t1, e1) = self.reports[0], self.reports[-1]
             return (t1 - t0) / (e1 - e0)
         if self.started_at is None or not self.episode:
             return None
+        if self.train_s:
+            return self.train_s / self.episode
         return ((self.ended_at or now) - self.started_at) / self.episode
+
+
+@dataclass(frozen=True)
+class _CostsSeen:
+    means: dict[tuple[str, int], float]
+    """Mean seconds of the finished trials per (variant, episode budget)."""
+    rates: dict[str | None, float]
+    """Mean seconds per episode per variant (``None``: over every variant)."""
+    prior_scale: float
+    """This launch's seconds over the earlier runs' seconds, for the trials both finished; 1 before one has."""
+    overhead_s: float
+    """What a trial costs beside its training (median over the finished trials that paid no worker start)."""
 
 
 def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], slots: int) -> float:
@@ -92,9 +115,16 @@ class ProgressView:
         enabled: bool = True,
         slots: int | None = None,
         start: float | None = None,
+        prior_costs: Mapping[str, float] | None = None,
+        log_estimates: bool = False,
+        later: Sequence[tuple[str, int]] = (),
     ) -> None:
-        """``slots``: trials that can run at once (``None``: the most seen running at once). ``start``: the
-        ``time.monotonic()`` the command started at, so the clock includes imports and Ray's start."""
+        """``trials`` in the order they will start. ``slots``: trials that can run at once (``None``: the most
+        seen running at once). ``start``: the ``time.monotonic()`` the command started at, so the clock
+        includes imports and Ray's start. ``prior_costs``: seconds by trial key that earlier launches took
+        (``Tracker.trial_costs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``).
+        ``later``: (variant, episode budget) of trials not known yet that start once every trial here has ended
+        (a tuned ablation's trials at the chosen values); ``add_trials`` puts them in when they are known."""
         self.name = name
         self.trials = {t.key: _Trial(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
@@ -110,6 +140,15 @@ class ProgressView:
         self.live: Live | None = None
         self.last_line = 0.0
         self.lock = threading.Lock()
+        self.prior = dict(prior_costs or {})
+        self.gaps: list[float] = []
+        """Seconds between a slot freeing and the next trial starting, one per start after an end."""
+        self._freed: deque[float] = deque()
+        """When slots freed that no trial has taken yet."""
+        self.log_estimates = log_estimates
+        self.later = list(later)
+        self.estimates: list[tuple[float, int, float | None]] = []
+        """(seconds since ``start``, trials ended, the estimate in seconds) after every event."""
 
     # --- events -----------------------------------------------------------------------------------
     def started(self, key: str) -> None:
@@ -119,7 +158,11 @@ class ProgressView:
             trial.state, trial.started_at, trial.episode, trial.rolling_mean = "running", now, 0, None
             trial.reports.clear()
             self.first_start = self.first_start or now
+            trial.first_on_worker = not any(t.ended_at for t in self.trials.values())
             self.max_running = max(self.max_running, self._count("running"))
+            if self._freed:
+                self.gaps.append(now - self._freed.popleft())
+            self._log_estimate(now)
         self.refresh()
 
     def episodes(self, key: str, rows: Sequence[Any]) -> None:
@@ -129,10 +172,14 @@ class ProgressView:
         with self.lock:
             trial = self.trials[key]
             trial.episode, trial.rolling_mean = rows[-1].episode, rows[-1].rolling_mean
+            trial.train_s = getattr(rows[-1], "wall_s", None)
             trial.reports.append((time.monotonic(), trial.episode))
+            self._log_estimate(time.monotonic())
         self.refresh()
 
-    def finished(self, key: str, solved: bool) -> None:
+    def finished(self, key: str, solved: bool, wall_s: float | None = None) -> None:
+        """``wall_s``: the trial's own training time (its summary's), which tells its worker's start apart."""
+        self.trials[key].wall_s = wall_s
         self._end(key, "done", solved)
 
     def failed(self, key: str) -> None:
@@ -142,49 +189,98 @@ class ProgressView:
         with self.lock:
             trial = self.trials[key]
             trial.state, trial.solved, trial.ended_at = state, solved, time.monotonic()
-            if not self._count("pending") and not self._count("running"):
+            if not self._count("pending") and not self._count("running") and not self.later:
                 self.trials_end = trial.ended_at
+            if self._count("pending"):
+                self._freed.append(trial.ended_at)
+            self._log_estimate(trial.ended_at)
+        self.refresh()
+
+    def add_trials(self, trials: Sequence[GridTrial]) -> None:
+        """The next stage's trials, now known, in the order they will start (none: it has nothing to run).
+        They replace the ``later`` guesses; what this launch learned of costs carries over."""
+        with self.lock:
+            for t in trials:
+                self.trials[t.key] = _Trial(t)
+                if t.variant not in self.variants:
+                    self.variants.append(t.variant)
+            self.later = []
+            self._freed.clear()  # the next stage starts on slots that are all free: no wait to count
+            if trials:
+                self.trials_end = None
+            elif not self._count("pending") and not self._count("running"):
+                self.trials_end = max((t.ended_at for t in self.trials.values() if t.ended_at), default=None)
+            self._log_estimate(time.monotonic())
         self.refresh()
 
     def _count(self, state: str) -> int:
         return sum(t.state == state for t in self.trials.values())
 
     # --- the estimate -----------------------------------------------------------------------------
-    def _seconds_per_episode(self, variant: str | None, now: float) -> float | None:
-        """The mean pace (wall seconds per episode) of this variant's trials so far (every variant's when
-        ``None``): recent for running trials, whole for ended ones."""
-        rates = [
-            rate
-            for t in self.trials.values()
-            if variant is None or t.trial.variant == variant
-            if (rate := t.seconds_per_episode(now)) is not None
-        ]
-        return statistics.fmean(rates) if rates else None
+    def _costs_seen(self, now: float) -> _CostsSeen:
+        """What this launch has shown so far of its trials' costs (once per estimate: the trials are many)."""
+        by_group: dict[tuple[str, int], list[float]] = {}
+        rates: dict[str | None, list[float]] = {}
+        observed = earlier = 0.0
+        done = [t for t in self.trials.values() if t.state == "done" and t.started_at and t.ended_at]
+        # What a trial costs beside its training (Tune, the driver's writes), from the trials that paid no
+        # worker start; a trial that did pay one counts as its training time plus that.
+        beside = [t.ended_at - t.started_at - t.wall_s for t in done if not t.first_on_worker and t.wall_s is not None]
+        overhead = statistics.median(beside) if beside else 0.0
+        for t in done:
+            cost = t.ended_at - t.started_at  # type: ignore[operator]
+            if t.first_on_worker and t.wall_s is not None:
+                cost = min(cost, t.wall_s + max(overhead, 0.0))
+            by_group.setdefault((t.trial.variant, t.budget), []).append(cost)
+            if t.trial.key in self.prior:  # as the earlier launch measured it: start to end, a worker start too
+                observed, earlier = observed + t.ended_at - t.started_at, earlier + self.prior[t.trial.key]  # type: ignore[operator]
+        for t in self.trials.values():
+            if (rate := t.seconds_per_episode(now)) is not None:
+                rates.setdefault(t.trial.variant, []).append(rate)
+                rates.setdefault(None, []).append(rate)
+        return _CostsSeen(
+            means={group: statistics.fmean(costs) for group, costs in by_group.items()},
+            rates={variant: statistics.fmean(r) for variant, r in rates.items()},
+            # How this launch's trials compare with their earlier runs (a busier machine, another CPU).
+            prior_scale=observed / earlier if earlier > 0 else 1.0,
+            overhead_s=max(overhead, 0.0),
+        )
+
+    def _trial_cost(self, trial: _Trial, seen: _CostsSeen) -> float | None:
+        """Expected seconds of a trial that has not started: its earlier run's (scaled to this launch's pace),
+        else the mean of its finished peers (same variant, same episode budget), else its whole budget at the
+        seconds per episode seen so far (its variant's own, else every variant's); ``None`` before any trial
+        has reported an episode."""
+        if trial.trial.key in self.prior:
+            return self.prior[trial.trial.key] * seen.prior_scale
+        mean = seen.means.get((trial.trial.variant, trial.budget))
+        if mean is not None:
+            return mean
+        rate = seen.rates.get(trial.trial.variant) or seen.rates.get(None)
+        return None if rate is None else rate * trial.budget + seen.overhead_s
 
     def expected_cost(self, variant: str, now: float | None = None) -> float | None:
-        """Expected seconds of a trial of ``variant`` that has not started: the mean of its finished trials;
-        before one has finished, its whole episode budget at the seconds per episode seen so far (the
-        variant's own, else every variant's); ``None`` before any trial has reported an episode."""
+        """Expected seconds of a trial of ``variant`` that has not started (its first pending one)."""
         now = time.monotonic() if now is None else now
-        done = [t for t in self.trials.values() if t.trial.variant == variant and t.state == "done"]
-        if done:
-            return statistics.fmean(t.ended_at - t.started_at for t in done if t.started_at and t.ended_at)
-        rate = self._seconds_per_episode(variant, now) or self._seconds_per_episode(None, now)
-        if rate is None:
-            return None
-        budget = next(t.budget for t in self.trials.values() if t.trial.variant == variant)
-        return rate * budget
+        trials = [t for t in self.trials.values() if t.trial.variant == variant]
+        trial = next((t for t in trials if t.state == "pending"), trials[0])
+        return self._trial_cost(trial, self._costs_seen(now))
 
-    def _left_of_running(self, trial: _Trial, now: float) -> float | None:
+    def dispatch_s(self) -> float:
+        """Mean seconds a slot stays idle between one trial's end and the next trial's start (Tune's loop, the
+        driver writing the ended trial's artifacts): with trials of a second or two, a third of the time."""
+        return statistics.fmean(self.gaps) if self.gaps else 0.0
+
+    def _left_of_running(self, trial: _Trial, now: float, seen: _CostsSeen) -> float | None:
         elapsed = now - (trial.started_at or now)
-        expected = self.expected_cost(trial.trial.variant, now)
-        if (
-            expected is not None
-            and expected > elapsed
-            and any(t.state == "done" for t in self.trials.values() if t.trial.variant == trial.trial.variant)
-        ):
+        if trial.trial.key in self.prior:
+            expected = self.prior[trial.trial.key] * seen.prior_scale
+        else:
+            expected = seen.means.get((trial.trial.variant, trial.budget))
+        if expected is not None and expected > elapsed:
             return expected - elapsed
-        rate = trial.seconds_per_episode(now) or self._seconds_per_episode(None, now)
+        # Past what its peers took (or none has ended): the rest of its budget at its own recent pace.
+        rate = trial.seconds_per_episode(now) or seen.rates.get(None)
         if rate is None:
             return None
         return rate * max(trial.budget - trial.episode, 0)
@@ -194,14 +290,35 @@ class ProgressView:
         now = time.monotonic() if now is None else now
         running = [t for t in self.trials.values() if t.state == "running"]
         pending = [t for t in self.trials.values() if t.state == "pending"]
-        if not running and not pending:
+        if not running and not pending and not self.later:
             return 0.0
-        running_left = [self._left_of_running(t, now) for t in running]
-        costs = {v: self.expected_cost(v, now) for v in {t.trial.variant for t in pending}}
-        if any(x is None for x in running_left) or any(c is None for c in costs.values()):
+        seen = self._costs_seen(now)
+        running_left = [self._left_of_running(t, now, seen) for t in running]
+        costs = [self._trial_cost(t, seen) for t in pending]
+        later = [self._later_cost(variant, budget, seen) for variant, budget in self.later]
+        if any(x is None for x in [*running_left, *costs, *later]):
             return None
         slots = self.slots or max(self.max_running, 1)
-        return makespan(running_left, [costs[t.trial.variant] for t in pending], slots)  # type: ignore[misc]
+        gap = self.dispatch_s()
+        # Pending trials start in the order the scheduler was given them (``grid.schedule_order``); the later
+        # stage once every one of them has ended.
+        now_stage = makespan(running_left, [c + gap for c in costs], slots)  # type: ignore[misc, operator]
+        return now_stage + (makespan([], [c + gap for c in later], slots) if later else 0.0)  # type: ignore[misc, operator]
+
+    def _later_cost(self, variant: str, budget: int, seen: _CostsSeen) -> float | None:
+        """A trial not known yet: its variant's finished trials at its budget, else the budget at the pace seen."""
+        mean = seen.means.get((variant, budget))
+        if mean is not None:
+            return mean
+        rate = seen.rates.get(variant) or seen.rates.get(None)
+        return None if rate is None else rate * budget + seen.overhead_s
+
+    def _log_estimate(self, now: float) -> None:
+        """Called with the lock held after every event: (seconds since the command started, trials ended,
+        the estimate) for ``make bench`` to hold against the time that actually remained."""
+        if self.log_estimates:
+            ended = self._count("done") + self._count("failed")
+            self.estimates.append((now - self.start, ended, self.seconds_left(now)))
 
     # --- rendering --------------------------------------------------------------------------------
     def headline(self) -> str:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ablate.config import ConfigError, Experiment, flatten, load_experiment
 from ablate.run.curve import CurvePoint
-from ablate.run.grid import GridTrial, expand, select, tuning_trials
+from ablate.run.grid import GridTrial, expand, schedule_order, select, tuning_trials
 from ablate.run.lock import launch_lock
 from ablate.run.progress import ProgressView, clock, stage
 from ablate.run.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
@@ -248,7 +248,7 @@ class _Recorder:
         self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
         self.outcome.finished.append(key)
         self.summaries[key] = dict(summary)
-        self.view.finished(key, bool(summary.get("solved")))
+        self.view.finished(key, bool(summary.get("solved")), summary.get("wall_s"))
 
     def failed(self, key: str, message: str) -> None:
         if not self._open(key):
@@ -260,7 +260,7 @@ class _Recorder:
 
 def tune_run_name(experiment: str, launch_id: str) -> str:
     """Tune's folder for one launch, ``<storage_path>/<this>``: removed when the launch ends, or by the next
-    launch if this one died."""
+    launch if this one died. ``experiment``: its storage name (``config.storage_name``)."""
     return f"{experiment}-{launch_id[:8]}"
 
 
@@ -317,9 +317,11 @@ def run_experiment(
     command: str = "",
     only: Sequence[GridTrial] | None = None,
     started_at: float | None = None,
+    log_estimates: bool = False,
 ) -> RunOutcome:
     """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
     current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock.
+    ``log_estimates``: keep every time-left estimate in ``outcome.view.estimates`` (``make bench``).
 
     Every check that can fail without Ray (the grid, the CPUs, the store, another launch) fails first. Holds
     the experiment's launch lock throughout (``LaunchLocked`` if another launch has it)."""
@@ -340,6 +342,7 @@ def run_experiment(
             command,
             only,
             started_at,
+            log_estimates,
         )
         outcome.reaped = reaped
         return outcome
@@ -357,6 +360,7 @@ def _run_locked(
     command: str,
     only: Sequence[GridTrial] | None,
     started_at: float | None,
+    log_estimates: bool = False,
 ) -> RunOutcome:
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     evaluation = trials if only is None else list(only)
@@ -413,7 +417,16 @@ def _run_locked(
     )
     outcome.launch_run_id = launch
     slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
-    view = ProgressView(experiment.name, todo, len(finished_before), show_progress, slots, started_at)
+    # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
+    prior = tracker.trial_costs(t.key for t in todo)
+    todo = schedule_order(todo, prior)
+    # Stage 2 of the tuned variants not chosen yet: one trial per evaluation trial, at its budget (fewer
+    # where a choice is the base value: the estimate errs long there).
+    unchosen = {t.variant for t in plan.tuning} - set(choices)
+    later = [(t.variant, t.config.max_episodes) for t in evaluation if t.variant in unchosen]
+    view = ProgressView(
+        experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates, later
+    )
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
     options = ClusterOptions(
@@ -423,7 +436,7 @@ def _run_locked(
         experiment.gpus_per_trial,
         storage_path,
     )
-    run_name = tune_run_name(experiment.name, launch)
+    run_name = tune_run_name(tracker.experiment_name, launch)
     try:
         if plan.tuning and wanted <= set(choices):
             tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
@@ -437,10 +450,9 @@ def _run_locked(
             todo_after = [t for t in later if t.key not in finished_before]
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)
+            # The same view: what stage 1 taught of costs carries into stage 2's estimate.
+            view.add_trials(schedule_order(todo_after, tracker.trial_costs(t.key for t in todo_after)))
             if todo_after:
-                done = len(finished_before) + len(outcome.finished)
-                view = ProgressView(experiment.name, todo_after, done, show_progress, slots, started_at)
-                outcome.view = recorder.view = view
                 recorder.trials |= {t.key: t for t in todo_after}
                 with view:
                     resume = tracker.latest_checkpoints(generation, (t.key for t in todo_after))
@@ -545,7 +557,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         from ablate.report.document import NoResults, terminal_summary, write_report
 
         try:
-            with stage(f"writing the report into reports/{experiment.name}/") as report_s:
+            with stage(f"writing the report into reports/{experiment.storage_name}/") as report_s:
                 folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
         except NoResults as error:  # every trial failed: say so, and leave the last good report in place
             print(f"no report: {error}")

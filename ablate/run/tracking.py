@@ -13,11 +13,13 @@ import json
 import logging
 import os
 import time
+import unicodedata
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ablate.config import storage_name
 from ablate.run.store import (
     PROBE_TIMEOUT_S,
     RetryingClient,
@@ -56,6 +58,8 @@ TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed",
 TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
 TAG_HOST, TAG_PID = "ablate.host", "ablate.pid"
 TAG_NODE = "ablate.node"
+TAG_NAME = "ablate.name"
+"""On an MLflow experiment whose name is a storage name (``config.storage_name``): the name as written."""
 TAG_STAGE = "ablate.stage"
 """``tune`` (a tuning trial, stage 1 of a ``[tune]`` experiment) or ``eval``; runs without it are ``eval``."""
 _BATCH = 1000  # MLflow's limit of metrics per log_batch call
@@ -99,7 +103,10 @@ class Store:
         self.uri = resolve_uri(tracking_uri)
         self.shown_uri = mask_uri(self.uri)
         """The URI as messages and records show it: its password masked."""
-        self.experiment_name = experiment_name
+        self.display_name = unicodedata.normalize("NFC", experiment_name)
+        # The MLflow experiment, its artifact folder and its lock file: the name's safe form (the name itself
+        # for every name valid before names in any script were), whichever form the caller gave.
+        self.experiment_name = storage_name(experiment_name)
         self._experiment_id: str | None = None
         check_uri(self.uri)
         db = sqlite_path(self.uri)
@@ -116,12 +123,13 @@ class Store:
         try:
             with store_setup_lock(db), fail_fast_http():
                 self.client = MlflowClient(self.uri)
-                existing = self.client.get_experiment_by_name(experiment_name)
+                existing = self.client.get_experiment_by_name(self.experiment_name)
         except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
             raise TrackingError(self._store_problem(error)) from None
         if existing is not None and existing.lifecycle_stage == "deleted":
             raise TrackingError(
-                f"MLflow experiment {experiment_name!r} (id {existing.experiment_id}) at {self.shown_uri} is deleted; "
+                f"MLflow experiment {self.experiment_name!r} (id {existing.experiment_id}) at {self.shown_uri} "
+                "is deleted; "
                 f"restore it with `MLFLOW_TRACKING_URI={self.shown_uri} mlflow experiments restore --experiment-id "
                 f"{existing.experiment_id}`, or give the experiment another name"
             )
@@ -136,7 +144,7 @@ class Store:
         """The file that lets one launch at a time run this experiment on this store: beside an SQLite file;
         for a server, in this user's cache (it serialises launches from this machine only)."""
         db = sqlite_path(self.uri)
-        safe = self.experiment_name  # config allows letters, digits, '-' and '_' only
+        safe = self.experiment_name  # a storage name: ASCII letters, digits, '-' and '_' only
         if db is not None:
             return db.with_name(f"{db.name}.{safe}.lock")
         digest = hashlib.sha1(self.uri.encode()).hexdigest()[:12]
@@ -148,8 +156,10 @@ class Store:
             if existing is not None:
                 self._experiment_id = existing.experiment_id
             elif create:
+                # The name as written, on the experiment, where MLflow's name is its storage form.
+                tags = {TAG_NAME: self.display_name} if self.display_name != self.experiment_name else None
                 self._experiment_id = self.client.create_experiment(
-                    self.experiment_name, artifact_location=self._artifact_location()
+                    self.experiment_name, artifact_location=self._artifact_location(), tags=tags
                 )
         return self._experiment_id
 
@@ -237,6 +247,29 @@ class Tracker(Store):
 
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
+
+    def trial_costs(self, keys: Iterable[str]) -> dict[str, float]:
+        """Seconds each of ``keys`` took (its run's start to end) when an earlier launch, of any generation,
+        finished it; the newest such run counts. A trial key fixes everything that shapes the trial, so an
+        earlier run of it is the best guess of its cost: the time-left estimate starts from these."""
+        wanted = set(keys)
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None or not wanted:
+            return {}
+        query = f"tags.`{TAG_ROLE}` = 'trial' and attributes.status = 'FINISHED'"
+        costs: dict[str, float] = {}
+        token = None
+        while True:
+            page = self.client.search_runs(
+                [experiment_id], query, order_by=["attributes.start_time DESC"], max_results=1000, page_token=token
+            )
+            for r in page:
+                key = r.data.tags.get(TAG_KEY, "")
+                if key in wanted and key not in costs and r.info.end_time and r.info.start_time:
+                    costs[key] = max(r.info.end_time - r.info.start_time, 0) / 1000
+            token = page.token
+            if not token:
+                return costs
 
     def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
         """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid)."""

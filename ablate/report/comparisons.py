@@ -1,0 +1,170 @@
+"""Each variant against its reference on each metric: the estimate, its 95% interval, the verdict and whether
+it survives leaving out any one seed (the report's findings and ``tables/comparisons.csv``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ablate.report.results import Ablation
+from ablate.report.statistics import (
+    BETTER,
+    CONFIDENCE,
+    WORSE,
+    _episodes_comparison,
+    _return_comparison,
+    iqm,
+    probability_of_improvement,
+    probability_of_improvement_interval,
+    seeds_needed,
+    smallest_p_value,
+)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """One variant against its reference (the baseline, or the variant it extends) on one metric: the
+    estimate, its 95% interval, what may be claimed and whether the claim survives leaving out any one seed."""
+
+    variant: str
+    metric: str
+    """``episodes_to_solve``, ``auc``, ``return_at_<E>``, ``episodes_to_<L>``."""
+    point: float
+    """Episodes metrics: 1 - IQM(variant) / IQM(reference) (positive: fewer episodes). Return metrics:
+    IQM(variant) - IQM(reference) (positive: higher return)."""
+    low: float
+    high: float
+    verdict: str
+    """``better``, ``worse``, ``not separated`` or ``no claim``."""
+    bound: str
+    """``""`` (an estimate), ``"at least"`` (censoring makes the point a bound on the size of the
+    difference) or ``"censored"`` (both sides censored: episodes cannot separate them)."""
+    variant_value: float
+    reference_value: float
+    fragile_seeds: tuple[int, ...] = ()
+    """Seeds whose removal changes the verdict (empty: the verdict holds leaving out any one seed)."""
+    n_variant: int = 0
+    n_reference: int = 0
+    loo_checked: bool = True
+    """False where leaving out one seed leaves too few for any claim (4 and 4 seeds: 3 and 3 cannot reach 95%),
+    so the leave-one-seed-out check says nothing and is not made."""
+    seeds_needed: float = np.nan
+    """Where not separated: seeds per variant the decision rule would need to separate the observed difference
+    (``statistics.seeds_needed``; ``SEEDS_CAP + 1``: more than the cap); NaN where separated or not computed."""
+    seeds_needed_smallest: float = np.nan
+    """The same for a difference of the experiment's ``smallest_effect``."""
+
+
+def compare_metric(
+    ablation: Ablation, variant: str, metric: str, stability: bool = True, power: bool = True
+) -> Comparison:
+    """``variant`` against its reference on ``metric``, with a leave-one-seed-out check of the verdict."""
+    done, reference = ablation.finished, ablation.reference(variant)
+
+    def samples(frame: pd.DataFrame):
+        v, b = frame[frame.variant == variant], frame[frame.variant == reference]
+        if metric == "episodes_to_solve":
+            return (
+                v.censored_episodes.to_numpy(float),
+                b.censored_episodes.to_numpy(float),
+                (v.solved != 1).to_numpy(),
+                (b.solved != 1).to_numpy(),
+            )
+        if metric.startswith("episodes_to_"):
+            level = metric.removeprefix("episodes_to_")
+            return (
+                v[metric].to_numpy(float),
+                b[metric].to_numpy(float),
+                (v[f"reached_{level}"] != 1).to_numpy(),
+                (b[f"reached_{level}"] != 1).to_numpy(),
+            )
+        return v[metric].to_numpy(float), b[metric].to_numpy(float), None, None
+
+    def judge(frame: pd.DataFrame):
+        x, y, x_cens, y_cens = samples(frame)
+        if x_cens is not None:
+            return _episodes_comparison(x, y, x_cens, y_cens)
+        return _return_comparison(x, y)
+
+    x, y, x_cens, y_cens = samples(done)
+    point, low, high, verdict, bound = judge(done)
+    needed = smallest = np.nan
+    if power and verdict not in (BETTER, WORSE) and bound != "censored" and min(len(x), len(y)) >= 2:
+        relative = x_cens is not None
+        needed = seeds_needed(x, y, relative, x_cens, y_cens)
+        smallest = seeds_needed(x, y, relative, x_cens, y_cens, effect=ablation.smallest_effect)
+    fragile: list[int] = []
+    loo_checked = smallest_p_value(len(x) - 1, len(y) - 1) <= 1 - CONFIDENCE
+    if stability and verdict in (BETTER, WORSE) and loo_checked:
+        for seed in sorted(set(done.seed)):
+            if judge(done[done.seed != seed])[3] != verdict:
+                fragile.append(int(seed))
+    return Comparison(
+        variant,
+        metric,
+        point,
+        low,
+        high,
+        verdict,
+        bound,
+        float(iqm(x)) if len(x) else np.nan,
+        float(iqm(y)) if len(y) else np.nan,
+        tuple(fragile),
+        len(x),
+        len(y),
+        loo_checked,
+        needed,
+        smallest,
+    )
+
+
+def comparison_metrics(ablation: Ablation) -> list[str]:
+    """Which metrics the findings rest on: episodes to solve where a threshold exists and some seed solved;
+    always the area under the curve and the return after the whole budget; episodes to reach the env's
+    return levels where no seed solved."""
+    metrics = ["episodes_to_solve"] if ablation.any_solved else []
+    metrics.append("auc")
+    if ablation.budgets:
+        metrics.append(f"return_at_{ablation.budgets[-1]}")
+    if not ablation.any_solved:
+        metrics += [f"episodes_to_{level:g}" for level in ablation.levels]
+    return [m for m in metrics if m == "episodes_to_solve" or m in ablation.trials]
+
+
+def comparisons(ablation: Ablation, stability: bool = True, power: bool = True) -> pd.DataFrame:
+    """Each variant against its reference (``Ablation.reference``) on each metric of ``comparison_metrics``,
+    plus the probability of improvement on episodes to solve (censored): one row per (variant, metric)."""
+    done = ablation.finished
+    rows = []
+    for variant in ablation.variants:
+        if variant == ablation.baseline:
+            continue
+        reference = done[done.variant == ablation.reference(variant)].censored_episodes.to_numpy(float)
+        sample = done[done.variant == variant].censored_episodes.to_numpy(float)
+        if len(sample) == 0 or len(reference) == 0:
+            continue
+        for metric in comparison_metrics(ablation):
+            c = compare_metric(ablation, variant, metric, stability, power)
+            row = {k: getattr(c, k) for k in Comparison.__dataclass_fields__}
+            row["fragile_seeds"] = " ".join(map(str, c.fragile_seeds))
+            row["reference"] = ablation.reference(variant)
+            if metric == "episodes_to_solve":
+                row["p_improvement"] = probability_of_improvement(sample, reference)
+                row["p_improvement_ci_low"], row["p_improvement_ci_high"] = probability_of_improvement_interval(
+                    sample, reference
+                )
+            rows.append(row)
+    columns = [
+        *Comparison.__dataclass_fields__,
+        "reference",
+        "p_improvement",
+        "p_improvement_ci_low",
+        "p_improvement_ci_high",
+    ]
+    frame = pd.DataFrame(rows)
+    for column in columns:
+        if column not in frame:
+            frame[column] = np.nan if column.startswith("p_") else ""
+    return frame

@@ -1,0 +1,262 @@
+"""The findings (one line per comparison and metric, in words) and the summary (variants ranked, with what
+the data support against each one's reference)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ablate.report.figures import esc as _esc
+from ablate.report.figures import fmt as _fmt
+from ablate.report.results import Ablation
+from ablate.report.sections import _episodes_cell, _extends, _stat_cell
+from ablate.report.statistics import BETTER, NO_CLAIM, SEEDS_CAP, WORSE, smallest_p_value
+from ablate.report.text import _interval, _markdown_table, _metric_name, _pct, _signed, _signed_pct
+
+
+def _findings_intro(ablation: Ablation) -> str:
+    extends = _extends(ablation)
+    if not extends:
+        return f"Each variant against {_esc(ablation.baseline)}"
+    pairs = ", ".join(f"{_esc(v)} against {_esc(ablation.reference(v))}" for v in extends)
+    return (
+        f"Each variant against its reference: {_esc(ablation.baseline)}, or, for a variant that adds one change to "
+        f"another variant's, that variant, so each comparison isolates one change ({pairs})"
+    )
+
+
+def _no_claim_reason(n: int, m: int) -> str:
+    if min(n, m) < 2:
+        return f"{min(n, m)} seed{'s give' if min(n, m) != 1 else ' gives'} no interval"
+    return (
+        f"with {n} and {m} seeds no ordering of the seeds can reach 95% confidence (smallest possible "
+        f"p = {smallest_p_value(n, m):.2f})"
+    )
+
+
+def stat_name(n: int, m: int) -> str:
+    """What the report's "IQM" of ``n`` and ``m`` seeds is: with fewer than 4 seeds it trims nothing
+    (SciPy's ``trim_mean`` cuts ``int(0.25 n)`` from each end) and is the plain mean."""
+    if min(n, m) >= 4:
+        return "IQM"
+    return "mean" if max(n, m) < 4 else "IQM (the mean where fewer than 4 seeds)"
+
+
+def _estimate(row: pd.Series) -> str:
+    """The estimate and its bootstrap interval for a comparison the seeds cannot decide, with no direction
+    words: a percentile bootstrap over 3 seeds runs narrow, so it is a pointer for a larger run."""
+    if any(np.isnan(v) for v in (row.point, row.low, row.high)):
+        return ""
+    if row.bound == "censored":
+        return " Both sides count seeds that never got there as the budget: episodes cannot separate them."
+    stat = stat_name(int(row.n_variant), int(row.n_reference))
+    if row.metric.startswith("episodes_to_"):
+        bound = "≥ " if row.bound else ""
+        return (
+            f" {stat} {bound}{_fmt(row.variant_value)} vs {_fmt(row.reference_value)} episodes, change "
+            f"{_signed_pct(-row.point)} (95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})."
+        )
+    return (
+        f" {stat} {_fmt(row.variant_value, 1)} vs {_fmt(row.reference_value, 1)}, {_signed(row.point)} "
+        f"(95% bootstrap CI {_signed(row.low)} to {_signed(row.high)})."
+    )
+
+
+def seeds_reading(row: pd.Series, effect: float) -> str:
+    """What "not separated" means for this comparison: too few seeds for a difference this large, or no
+    effect this large; and the seeds a difference of the smallest effect of interest would need."""
+    needed, smallest = row.get("seeds_needed", np.nan), row.get("seeds_needed_smallest", np.nan)
+    if pd.isna(needed):
+        return ""
+    if needed > SEEDS_CAP:
+        observed = (
+            f"**no effect this large**: even {SEEDS_CAP} seeds per variant would not separate a difference as small "
+            "as the one observed"
+        )
+    else:
+        observed = f"**too few seeds**: about {int(needed)} per variant would separate a difference this large"
+    wanted = f"more than {SEEDS_CAP}" if pd.isna(smallest) or smallest > SEEDS_CAP else f"about {int(smallest)}"
+    return f" Seeds needed: {observed}; {wanted} to separate the smallest effect of interest ({_pct(effect)})."
+
+
+def _stability(row: pd.Series) -> str:
+    if row.verdict not in (BETTER, WORSE):
+        return ""
+    if row.fragile_seeds:
+        seeds = str(row.fragile_seeds).split()
+        return (
+            f" **Fragile:** the claim does not survive leaving out seed{'s' if len(seeds) > 1 else ''} "
+            f"{', '.join(seeds)}."
+        )
+    return ""  # holding is the rule, said once before the list
+
+
+def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
+    """One metric's comparison in words: what may be claimed, sized as an estimate or as a bound, with its
+    interval and whether it survives leaving out any one seed."""
+    base, metric, name = _esc(row.reference), row.metric, _metric_name(row.metric)
+    n, m = int(row.n_variant), int(row.n_reference)
+    stat = stat_name(n, m)
+    reading = seeds_reading(row, ablation.smallest_effect)
+    if row.verdict == NO_CLAIM:
+        return f"{name}: **too few seeds to tell**.{_estimate(row)}{reading}"
+    if metric.startswith("episodes_to_"):
+        x, y = _fmt(row.variant_value), _fmt(row.reference_value)
+        unsolved = (
+            (lambda v: int(table.loc[table.variant == v, "unsolved_censored"].iloc[0]))
+            if metric == "episodes_to_solve"
+            else None
+        )
+        counts = ""
+        if unsolved is not None:
+            counts = (
+                f"{unsolved(row.variant)} of {n} {_esc(row.variant)} seeds and {unsolved(row.reference)} of {m} "
+                f"{base} seeds never solved"
+            )
+        if row.bound == "censored":
+            return (
+                f"{name}: cannot separate them: both IQMs count unsolved seeds as the budget ({counts}), so both are "
+                "lower bounds; see the returns below."
+            )
+        change = f"{stat} {'≥ ' if row.bound and row.verdict == WORSE else ''}{x} vs {y}"
+        if row.verdict == BETTER and row.bound:
+            return (
+                f"{name}: **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: {base}'s IQM counts "
+                f"unsolved seeds as the budget ({counts}), so the true gap is larger; 95% lower bound "
+                f"{_pct(row.low)} fewer).{_stability(row)}"
+            )
+        if row.verdict == WORSE and row.bound:
+            return (
+                f"{name}: **at least {_pct(-row.point)} more** than {base} ({change}; a lower bound, since unsolved "
+                f"seeds count as the budget: {counts}; 95% lower bound {_pct(-row.high)} more; no upper bound can be "
+                f"given).{_stability(row)}"
+            )
+        if row.verdict == BETTER:
+            return (
+                f"{name}: **{_pct(row.point)} fewer** than {base} ({change}; 95% CI {_pct(row.low)} to "
+                f"{_pct(row.high)} fewer).{_stability(row)}"
+            )
+        if row.verdict == WORSE:
+            return (
+                f"{name}: **{_pct(-row.point)} more** than {base} ({change}; 95% CI {_pct(-row.high)} to "
+                f"{_pct(-row.low)} more).{_stability(row)}"
+            )
+        bound = f", the variant's {stat} a lower bound" if row.bound else ""
+        return (
+            f"{name}: not separated ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
+            f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''}).{reading}"
+        )
+    x, y = _fmt(row.variant_value, 1), _fmt(row.reference_value, 1)
+    interval = f"95% CI {_signed(row.low)} to {_signed(row.high)}"
+    if row.verdict == BETTER:
+        return f"{name}: **higher**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
+    if row.verdict == WORSE:
+        return f"{name}: **lower**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
+    return f"{name}: not separated, {stat} {x} vs {y} ({_signed(row.point)}; {interval}).{reading}"
+
+
+def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[str]:
+    """Per variant, one line per metric; no claim without an interval, bounds worded as bounds. What holds
+    for every comparison (too few seeds for any claim) is said once, first."""
+    lines = []
+    undecidable = compare[compare.verdict == NO_CLAIM] if len(compare) else compare
+    if len(undecidable):
+        pairs = sorted({(int(r.n_variant), int(r.n_reference)) for r in undecidable.itertuples()})
+        reasons = "; ".join(_no_claim_reason(n, m) for n, m in pairs)
+        lines += [
+            f"**Too few seeds for a claim** ({reasons}): {len(undecidable)} of {len(compare)} comparisons below "
+            "read *too few seeds to tell*. Their estimates are pointers for a larger run, not results; *seeds "
+            "needed* says how many would do.",
+            "",
+        ]
+    claims = compare[compare.verdict.isin([BETTER, WORSE])] if len(compare) else compare
+    if len(claims):
+        checked = claims[claims.loo_checked.astype(bool)] if "loo_checked" in claims else claims
+        notes = []
+        if len(checked):
+            notes.append(
+                "Each claim was recomputed without each seed in turn: it holds leaving out any one seed unless "
+                "marked **fragile**."
+            )
+        if len(checked) < len(claims):
+            notes.append(
+                "Leaving out one of so few seeds leaves too few for any claim, so the claims of a variant with 4 "
+                "seeds or fewer were not checked that way."
+            )
+        lines += [" ".join(notes), ""]
+    for variant in ablation.variants:
+        rows = compare[compare.variant == variant] if len(compare) else compare
+        if rows.empty:
+            continue
+        lines.append(f"- **{_esc(variant)}** vs {_esc(ablation.reference(variant))}:")
+        for _, row in rows.iterrows():
+            text = finding(row, ablation, table)
+            if row.metric == "episodes_to_solve" and not pd.isna(row.p_improvement):
+                text += (
+                    f" P(fewer episodes) = {row.p_improvement:.2f} "
+                    f"{_interval(row.p_improvement_ci_low, row.p_improvement_ci_high, 2)}."
+                )
+            lines.append(f"    - {text}")
+    for _, row in table.iterrows():
+        if row.seeds_run and ablation.threshold is not None and row.solved < row.seeds_run:
+            lines.append(
+                f"- **{_esc(row.variant)}**: {int(row.seeds_run - row.solved)} of {int(row.seeds_run)} seeds did "
+                f"not solve within {_fmt(row.budget)} episodes."
+            )
+    return lines
+
+
+def _rank_key(ablation: Ablation, row: pd.Series) -> tuple:
+    if ablation.any_solved:
+        return (row.episodes_iqm, -row.auc_iqm)
+    return (-row.auc_iqm if not pd.isna(row.auc_iqm) else np.inf,)
+
+
+def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> str:
+    """Variants ranked on the primary metric (episodes to solve where seeds solved, else AUC), with intervals
+    and the verdict against each variant's reference (the baseline unless the variant extends another)."""
+    ran = table[table.seeds_run > 0]
+    ranked = sorted(ran.iterrows(), key=lambda item: _rank_key(ablation, item[1]))
+    primary = "episodes_to_solve" if ablation.any_solved else "auc"
+    extends = _extends(ablation)
+    rows = []
+    for rank, (_, row) in enumerate(ranked, 1):
+        verdict = "reference" if row.variant == ablation.baseline else "–"
+        match = compare[(compare.variant == row.variant) & (compare.metric == primary)] if len(compare) else compare
+        if len(match):
+            first = match.iloc[0]
+            if first.verdict in (BETTER, WORSE):
+                notes = (["a bound"] if first.bound else []) + (["fragile"] if first.fragile_seeds else [])
+                word = {BETTER: "better", WORSE: "worse"}[first.verdict]
+                verdict = word + (f" ({'; '.join(notes)})" if notes else "")
+            elif first.verdict == NO_CLAIM:
+                verdict = "too few seeds to tell"
+            else:
+                verdict = first.verdict
+            if extends:
+                verdict = f"vs {_esc(ablation.reference(row.variant))}: {verdict}"
+        entry = {"rank": rank, "variant": _esc(row.variant)}
+        if ablation.threshold is not None:
+            entry["solved"] = f"{int(row.solved)}/{int(row.seeds_run)}"
+        if ablation.any_solved:
+            entry["episodes to solve, IQM [95% CI]"] = _episodes_cell(row, "iqm")
+        entry["AUC, IQM [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
+        against = "its reference" if extends else _esc(ablation.baseline)
+        entry[f"vs {against} on {_metric_name(primary)}"] = verdict
+        rows.append(entry)
+    how = (
+        "fewest episodes to solve (IQM, censored), ties by AUC"
+        if ablation.any_solved
+        else "highest area under the learning curve (IQM)"
+    )
+    return "\n".join(
+        [
+            f"Variants ranked by {how}. A rank orders point estimates only: where intervals overlap, the seeds do not "
+            "separate the variants, and the last column says what the data support against the "
+            + ("variant's reference" if extends else "baseline")
+            + " (Findings "
+            "gives each comparison with its interval).",
+            "",
+            _markdown_table(pd.DataFrame(rows)),
+        ]
+    )

@@ -1,0 +1,103 @@
+"""Where a report comes from: the reproducibility record (command, commit and whether the experiment file is
+the committed one, machine, packages, launch run) and the note on which generation it covers."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from pathlib import Path
+
+from ablate.report.figures import esc as _esc
+from ablate.report.results import Ablation
+
+
+def experiment_file_state(commit: str, path: str, text: str | None, cwd: str | Path | None = None) -> str:
+    """Whether the experiment file that ran is the one in the recorded commit, as a sentence for the
+    reproducibility record: a run from a file never committed, or edited since, cannot be rebuilt from the
+    commit alone. Checked in the git clone at ``cwd`` (the report's folder); ``""`` when nothing can be said."""
+    commit = commit.removesuffix("-dirty")
+    if not path or not commit or commit == "unknown":
+        return ""
+
+    def git(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", *argv], cwd=cwd, capture_output=True, text=True, timeout=30, check=False)
+
+    try:
+        top = git("rev-parse", "--show-toplevel")
+        if top.returncode != 0:
+            return f"Not checked whether the experiment file {_esc(path)} is in that commit: no git clone here."
+        if git("cat-file", "-e", f"{commit}^{{commit}}").returncode != 0:
+            return f"Not checked whether the experiment file {_esc(path)} is in that commit: this clone lacks it."
+        where = Path(path)
+        if where.is_absolute():
+            try:
+                where = where.resolve().relative_to(Path(top.stdout.strip()).resolve())
+            except ValueError:
+                return f"**The experiment file {_esc(path)} is outside the git clone**: the commit does not hold it."
+        committed = git("show", f"{commit}:./{where.as_posix()}")
+    except (OSError, subprocess.TimeoutExpired):
+        return ""
+    if committed.returncode != 0:
+        return (
+            f"**The experiment file {_esc(path)} was not committed at {_esc(commit[:12])}**: the commit alone cannot "
+            "rebuild this run; the launch run's <code>experiment.toml</code> artifact holds the file as it ran."
+        )
+    if text is not None and committed.stdout.strip() != text.strip():
+        return (
+            f"**The experiment file {_esc(path)} had uncommitted changes** when it ran: it differs from the file at "
+            f"{_esc(commit[:12])}; the launch run's <code>experiment.toml</code> artifact holds the file as it ran."
+        )
+    return f"The experiment file {_esc(path)} is the one committed at {_esc(commit[:12])}."
+
+
+def _reproducibility(ablation: Ablation, command: str) -> str:
+    tags = ablation.launch["tags"]
+    environment = ablation.launch["environment"]
+    versions = environment.get("packages", {})
+    cpu = environment.get("cpu_model", "not recorded")
+    capability = environment.get("torch_cpu_capability", "not recorded")
+    state = experiment_file_state(
+        tags.get("mlflow.source.git.commit", ""),
+        tags.get("ablate.experiment_file", ""),
+        ablation.launch.get("experiment_text"),
+    )
+    lines = [
+        f"- Command: <code>{_esc(tags.get('ablate.command') or 'ablate run ' + tags.get('ablate.experiment_file', ''))}"
+        "</code>",
+        f"- Code version (git commit): <code>{_esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>"
+        + (f". {state}" if state else ""),
+        f"- Machine: {_esc(environment.get('machine', 'unknown'))}; CPU model: {_esc(cpu)}; torch CPU capability "
+        f"(the vector kernels torch picked): {_esc(capability)}",
+        f"- Python {_esc(environment.get('python', '?'))}; "
+        + ", ".join(f"{_esc(k)} {_esc(v)}" for k, v in versions.items()),
+        f"- MLflow launch run: <code>{_esc(ablation.launch['run_id'])}</code> (generation "
+        f"<code>{_esc(tags.get('ablate.generation', ''))}</code>); this report is attached to it as artifacts.",
+        f"- Report written {time.strftime('%Y-%m-%d %H:%M')}, from the tracking store only: "
+        f"<code>{_esc(command)}</code>",
+        "",
+        '**What "the same results" means here.** A trial is deterministic given its config and seed on one '
+        "machine: the test suite runs a trial twice and checks identical returns. Nothing else was verified. Float "
+        "kernels differ between CPU models and torch CPU capabilities, so on a machine other than the one above "
+        f"(CPU model {_esc(cpu)}, capability {_esc(capability)}, the package versions above) a seed can follow "
+        "another trajectory and the numbers here will differ; the leave-one-seed-out check in the findings shows how "
+        "much each conclusion depends on any one seed.",
+    ]
+    return "\n".join(lines)
+
+
+def _generation_note(ablation: Ablation) -> str:
+    generations = ablation.launch.get("generations", [])
+    current = ablation.launch["tags"].get("ablate.generation", "")
+    # A tuned launch's grid also lists tuning trials; its evaluation trials at the chosen values are the report's.
+    total = len(ablation.trials) if ablation.tuning else len(ablation.grid["trials"])
+    done = len(ablation.finished)
+    if done >= total:
+        return ""
+    others = [g for g in generations if g["generation"] != current and g["finished"] > done]
+    note = f"> This report covers generation {_esc(current)}, where {done} of {total} trials finished."
+    if others:
+        note += (
+            f" Generation {_esc(others[0]['generation'])} has {others[0]['finished']} finished trials: "
+            f"<code>ablate report {_esc(ablation.name)} --generation {_esc(others[0]['generation'])}</code> reports it."
+        )
+    return note

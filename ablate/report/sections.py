@@ -1,0 +1,418 @@
+"""What the report's sections say, besides the findings: the method (environment, algorithm, seeds, variants),
+the results tables, the limitations, the reproducibility record, the glossary and the references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ablate.report.figures import ablation_window
+from ablate.report.figures import esc as _esc
+from ablate.report.figures import fmt as _fmt
+from ablate.report.results import INITIAL_EPISODES, Ablation
+from ablate.report.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP
+from ablate.report.text import _interval, _markdown_table
+
+# Knobs that together make one architecture: a variant changing several of them changes one thing.
+ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
+
+
+def _sizes(params: dict[str, str], key: str = "model.hidden_sizes") -> list[int]:
+    text = params.get(key, "[]").strip("[]() ")
+    return [int(x) for x in text.replace(",", " ").split()]
+
+
+def architecture(params: dict[str, str], env_id: str) -> str:
+    """The policy in words, as ``policies.py`` builds it for ``env_id``."""
+    arch = params.get("model.architecture", "mlp")
+    activation = params.get("model.activation", "relu")
+    hidden = _sizes(params)
+    dense = f"dense {' → '.join(map(str, hidden))} ({activation})" if hidden else "no hidden layer"
+    if env_id.startswith("ALE/Pong"):
+        if arch == "cnn":
+            text = (
+                f"2-D CNN over the 80×80 frame difference: conv 16@7×7 stride 4, 32@5×5 stride 2, "
+                f"48@3×3 stride 2 ({activation}), then {dense}"
+            )
+        elif hidden:
+            text = f"MLP over the 6,400 pixels of the 80×80 frame difference: {dense}"
+        else:
+            text = "linear policy over the 6,400 pixels of the 80×80 frame difference (no hidden layer)"
+        actions = {"all": "6 actions", "move": "2 actions (up, down)"}.get(params.get("action_set", ""), "")
+        text += f"; {actions}" if actions else ""
+    elif arch == "cnn":
+        conv = _sizes(params, "model.conv_channels")
+        text = (
+            f"1-D CNN over the last {params.get('model.history')} observations: conv "
+            f"{', '.join(map(str, conv))} channels, kernel {params.get('model.kernel_size')} along time "
+            f"({activation}), then {dense}"
+        )
+    else:
+        text = f"MLP, {dense}" if hidden else "linear policy: observation → action logits, no hidden layer"
+    if float(params.get("model.dropout", 0) or 0) > 0:
+        text += f"; dropout {params['model.dropout']}"
+    if float(params.get("l2", 0) or 0) > 0:
+        text += f"; L2 {params['l2']}"
+    return text
+
+
+def _setting_groups(overrides: dict) -> list[str]:
+    """The separate settings a variant changes (an architecture's knobs count as one)."""
+    groups = sorted({"architecture" if k in ARCHITECTURE_KNOBS else k for k in overrides})
+    return groups
+
+
+def _sampling_videos(ablation: Ablation) -> bool:
+    """Pong's end-of-trial videos are of the sampling policy (``trial.record_pong_episode``), others greedy."""
+    return ablation.env_id.startswith("ALE/Pong")
+
+
+def _extends(ablation: Ablation) -> list[str]:
+    """The variants compared with another variant than the baseline, because they extend its changes."""
+    return [v for v in ablation.variants if v != ablation.baseline and ablation.reference(v) != ablation.baseline]
+
+
+def _role(ablation: Ablation, variant: str) -> str:
+    if variant == ablation.baseline:
+        return "baseline (reference)"
+    users = [v for v in ablation.variants if v != variant and ablation.reference(v) == variant]
+    role = [f"compared with {_esc(ablation.reference(variant))}"] if variant in _extends(ablation) else []
+    return "; ".join(role + ([f"reference of {', '.join(map(_esc, users))}"] if users else []))
+
+
+def _method(ablation: Ablation, table: pd.DataFrame) -> str:
+    base = ablation.grid["base"]
+    threshold = ablation.threshold
+    seeds = ablation.grid["seeds"]
+    budget = int(base.get("max_episodes", 0))
+    if threshold is not None:
+        env = (
+            f"**Environment.** `{_esc(base['env_id'])}`. Solved when the mean return over "
+            f"{ablation_window(ablation)} consecutive episodes reaches {threshold:g}; a trial stops then, or at "
+            f"its budget of {budget:,} episodes."
+        )
+    else:
+        env = (
+            f"**Environment.** `{_esc(base['env_id'])}`. No solve threshold: every trial runs its whole budget of "
+            f"{budget:,} episodes, and variants are compared on their returns (area under the curve, the return "
+            "after fixed budgets, episodes to reach return levels, the improvement over the untrained policy)."
+        )
+    reset = (
+        " Pong's discounted return restarts at every point scored." if ablation.env_id.startswith("ALE/Pong") else ""
+    )
+    lines = [
+        env,
+        "",
+        "**Algorithm.** REINFORCE (Williams, 1992), the vanilla policy gradient: actions sampled from the softmax "
+        "of the policy's logits; each episode's rewards discounted (gamma "
+        f"{base.get('gamma', '?')}), the returns normalised by mean and standard deviation across the update's "
+        "batch; loss = softmax cross-entropy of the taken actions weighted by those returns; one Adam step per "
+        f"update of {base.get('episodes_per_update', '?')} episodes. L2 is a loss term over weight matrices; "
+        f"dropout is active in updates and off while acting.{reset}",
+        "",
+        f"**Seeds.** {len(seeds)} per variant ({', '.join(map(str, seeds))}): each seeds torch, the action sampler "
+        "and the environment.",
+        "",
+        "**Variants.** Each changes the listed knobs over the base; every other knob is the base's.",
+        "",
+    ]
+    rows = []
+    for variant in ablation.grid["variants"]:
+        params = ablation.params.get(variant["name"], {})
+        count = table.loc[table.variant == variant["name"], "parameter_count"]
+        overrides = ", ".join(f"{k} = {v}" for k, v in variant["overrides"].items()) or "nothing (the base)"
+        rows.append(
+            {
+                "variant": _esc(variant["name"]),
+                "role": _role(ablation, variant["name"]),
+                "changes": _esc(overrides),
+                "policy": _esc(architecture(params, ablation.env_id)) if params else "–",
+                "parameters": _fmt(count.iloc[0]) if len(count) and not pd.isna(count.iloc[0]) else "–",
+            }
+        )
+    lines.append(_markdown_table(pd.DataFrame(rows)))
+    lines += ["", "**Base hyper-parameters.**", ""]
+    keep = ("learning_rate", "gamma", "episodes_per_update", "max_episodes", "solve_window", "l2")
+    if ablation.env_id.startswith("ALE/Pong"):
+        keep += ("action_set", "frameskip", "max_episode_steps")
+    lines.append(_markdown_table(pd.DataFrame([{k: base[k] for k in keep if k in base}])))
+    if ablation.tuning:
+        tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
+        lines += ["", f"Tuned per variant (see Tuning): {_esc(tuned_knobs)}; the base value above is the untuned one."]
+    lines += [
+        "",
+        "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
+        f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, never "
+        "dropped: a statistic that uses one is a lower bound, marked ≥. The glossary at the end defines each term."
+        + (
+            " With fewer than 4 seeds the IQM trims nothing: it is the plain mean, and the findings call it so."
+            if len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
+            else ""
+        ),
+    ]
+    return "\n".join(lines)
+
+
+def _episodes_cell(row: pd.Series, stat: str) -> str:
+    value, low, high = row[f"episodes_{stat}"], row[f"episodes_{stat}_ci_low"], row[f"episodes_{stat}_ci_high"]
+    bound = "≥ " if row[f"{stat}_censored"] else ""
+    return f"{bound}{_fmt(value)} {_interval(low, high, 0, int(row.seeds_run))}"
+
+
+def _stat_cell(row: pd.Series, prefix: str, digits: int = 1, low_key: str = "", high_key: str = "") -> str:
+    low = row.get(low_key or f"{prefix}_ci_low", np.nan)
+    high = row.get(high_key or f"{prefix}_ci_high", np.nan)
+    return f"{_fmt(row.get(prefix, np.nan), digits)} {_interval(low, high, digits, int(row.seeds_run))}"
+
+
+def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
+    parts = []
+    ran = table[table.seeds_run > 0]
+    if ablation.threshold is not None and len(ran):
+        rows = [
+            {
+                "variant": _esc(row.variant),
+                "seeds": int(row.seeds_run),
+                "solved": f"{int(row.solved)}/{int(row.seeds_run)}",
+                "episodes to solve, median [95% CI]": _episodes_cell(row, "median"),
+                "episodes to solve, IQM [95% CI]": _episodes_cell(row, "iqm"),
+                "env steps to solve (median of solved)": _fmt(row.env_steps_to_solve_median),
+                "seconds to solve (median of solved)": _fmt(row.wall_s_to_solve_median, 1),
+            }
+            for _, row in ran.iterrows()
+        ]
+        parts += [
+            "**Episodes to solve.** Unsolved seeds count as the budget (censored); a statistic that uses such a "
+            "value is a lower bound, marked ≥, and its interval's upper end is no bound at all. Steps and "
+            "seconds are over solved seeds only (– where none solved); seconds come from CPUs the trials shared.",
+            "",
+            _markdown_table(pd.DataFrame(rows)),
+            "",
+        ]
+    budgets = ablation.budgets
+    rows = []
+    for _, row in ran.iterrows():
+        entry = {
+            "variant": _esc(row.variant),
+            f"untrained (first {INITIAL_EPISODES} episodes)": _fmt(row.get("initial_return_iqm", np.nan), 1),
+        }
+        for episodes in budgets:
+            entry[f"after {episodes:,} episodes [95% CI]"] = _stat_cell(row, f"return_at_{episodes}_iqm")
+        entry["improvement over untrained [95% CI]"] = _stat_cell(row, "improvement_iqm")
+        entry["AUC [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
+        rows.append(entry)
+    parts += [
+        f"**Returns.** IQM over seeds of the rolling mean return ({ablation_window(ablation)} episodes) of the "
+        f"untrained policy, after fixed episode budgets (a seed that stopped because it solved keeps its last value), "
+        "the improvement over the untrained policy, and the area under the learning curve (AUC: the mean rolling "
+        "return over the whole budget, which rewards learning early).",
+        "",
+        _markdown_table(pd.DataFrame(rows)),
+        "",
+    ]
+    if ablation.levels and len(ran):
+        rows = []
+        for _, row in ran.iterrows():
+            entry = {"variant": _esc(row.variant)}
+            for level in ablation.levels:
+                key = f"episodes_to_{level:g}"
+                if f"{key}_median" not in row or pd.isna(row[f"{key}_median"]):
+                    entry[f"episodes to reach {level:g}"] = "–"
+                    continue
+                bound = "≥ " if row[f"{key}_median_censored"] else ""
+                entry[f"episodes to reach {level:g} (median; seeds that reached it)"] = (
+                    f"{bound}{_fmt(row[f'{key}_median'])} ({int(row[f'{key}_reached'])}/{int(row.seeds_run)})"
+                )
+            rows.append(entry)
+        parts += [
+            "**Episodes to reach a return level.** The first episode at which the rolling mean return reaches the "
+            "level; a seed that never does counts as the budget (censored, ≥).",
+            "",
+            _markdown_table(pd.DataFrame(rows)),
+            "",
+        ]
+    return "\n".join(parts)
+
+
+def limitations(ablation: Ablation, table: pd.DataFrame) -> list[str]:
+    """What the experiment's design itself limits, read off the grid and the results."""
+    base, variants = ablation.grid["base"], ablation.grid["variants"]
+    out = []
+    seeds = len(ablation.grid["seeds"])
+    out.append(
+        f"**{seeds} seed{'s' if seeds != 1 else ''} per variant.** Percentile bootstrap intervals over so few seeds "
+        "are too narrow more often than 5% of the time, and one unusual seed can move an IQM; each finding says "
+        "whether it survives leaving out any one seed."
+        + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else "")
+    )
+    tuned = [k for k in ("learning_rate", "episodes_per_update", "gamma") if k in base]
+    touched = [v["name"] for v in variants if any(k in v["overrides"] for k in tuned)]
+    architectures = [v for v in variants if "architecture" in _setting_groups(v["overrides"])]
+    if ablation.tuning:
+        tuning = ablation.tuning
+        n_candidates = max((len(c) for c in tuning.get("knobs", {}).values()), default=0)
+        n_seeds = len(tuning.get("seeds", []))
+        out.append(
+            f"**Tuned over {n_candidates} candidates on {n_seeds} tuning seed{'s' if n_seeds != 1 else ''}.** Each "
+            "variant's choice is the best of a few candidates on a few seeds: a value between or beyond them could do "
+            "better (the Tuning section flags choices at the edge of the grid), and so few seeds choose noisily. The "
+            "evaluation seeds never took part in the choice. Knobs not tuned are the base's for every variant."
+        )
+    elif tuned and architectures and len(touched) < len(variants):
+        knobs = ", ".join(f"{k.replace('_', ' ')} {base[k]}" for k in tuned)
+        out.append(
+            "**One training setting for all architectures.** Every variant"
+            + (f" except {', '.join(_esc(t) for t in touched)}" if touched else "")
+            + f" trains with the base {knobs}, chosen for the baseline and not tuned per architecture: one that "
+            "would learn better at its own learning rate is judged at the baseline's."
+        )
+    counts = table.parameter_count.dropna()
+    if len(counts) and counts.min() > 0 and counts.max() / counts.min() >= 10:
+        out.append(
+            f"**Parameter counts span {_fmt(counts.min())} to {_fmt(counts.max())}** "
+            f"({counts.max() / counts.min():,.0f}x): a difference between architectures mixes capacity with "
+            "optimisation (one learning rate moves small and large networks differently); Figure "
+            "{parameters} plots performance against size."
+        )
+    for variant in ablation.variants:
+        reference = ablation.reference(variant)
+        groups = _setting_groups(ablation.changes(variant, reference))
+        if variant != ablation.baseline and len(groups) > 1:
+            out.append(
+                f"**{_esc(variant)} changes {len(groups)} settings at once** against {_esc(reference)} "
+                f"({', '.join(groups)}): its difference from {_esc(reference)} cannot be attributed to any one of "
+                "them."
+            )
+    finished = ablation.finished
+    if ablation.threshold is not None and len(finished) and (finished.solved != 1).any():
+        unsolved = int((finished.solved != 1).sum())
+        out.append(
+            f"**Censoring.** {unsolved} of {len(finished)} trials did not solve within the budget; for them episodes "
+            "to solve is only known to exceed it, so statistics that use them are bounds, and a longer budget could "
+            "reorder those variants."
+        )
+    if ablation.threshold is None:
+        out.append(
+            "**No solve threshold.** No trial stops early; comparisons rest on returns within this budget, and a "
+            "longer budget could reorder variants that are still improving."
+        )
+    out.append(
+        "**Wall-clock times come from contended CPUs.** Trials ran several at a time on "
+        f"{_esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
+        "its tracking; seconds move between runs and machines. Compare variants on episodes; read seconds as rough "
+        "cost."
+    )
+    if _sampling_videos(ablation):
+        out.append(
+            "**Videos show one stretch of play** per chosen seed (the trained policy sampling its actions, up to "
+            f"{_fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average."
+        )
+    else:
+        out.append(
+            "**Videos show one greedy episode** per chosen seed (the most likely action at every step, after "
+            "training): a single episode, not an average, and not the sampling policy that was trained."
+        )
+    out.append(
+        f"**One environment and budget** ({_esc(ablation.env_id)}, {_fmt(base.get('max_episodes'))} "
+        "episodes): the findings say nothing about other tasks or longer training."
+    )
+    return out
+
+
+GLOSSARY = [
+    ("Return", "The sum of an episode's rewards (CartPole: steps balanced; Pong: points won minus points lost)."),
+    ("Rolling mean return", "The mean return of the last W episodes (W = the solve window); learning curves plot it."),
+    (
+        "Solved; episodes to solve",
+        "The first episode at which the rolling mean over a full window reaches the threshold; the trial stops there.",
+    ),
+    (
+        "Censored (≥)",
+        "A seed that never solved has an episodes-to-solve value only known to exceed the budget; it "
+        "is counted as the budget. A median or IQM that uses such a value is a lower bound, written ≥, and the upper "
+        "end of its interval is no bound on the truth.",
+    ),
+    (
+        "At least",
+        "A difference sized by a bound: censoring can only make the true gap larger, so the report gives "
+        "its lower end (and the 95% lower bound of that), never an upper end.",
+    ),
+    (
+        "IQM (interquartile mean)",
+        "The mean of the middle 50% of the seeds' values (25% trimmed from each end): "
+        "less sensitive to one outlying seed than the mean, more efficient than the median (Agarwal et al., 2021). "
+        "With fewer than 4 seeds it trims nothing and is the plain mean: the findings then say mean.",
+    ),
+    (
+        "95% CI (percentile bootstrap)",
+        f"Resample the seeds with replacement {N_RESAMPLES:,} times (seeded), "
+        "recompute the statistic each time, and take the 2.5th and 97.5th percentiles. Two variants are resampled "
+        "independently. With few seeds these intervals are optimistic.",
+    ),
+    (
+        "AUC (area under the curve)",
+        "The mean rolling return over the whole budget; a trial that stopped because it "
+        "solved keeps its last value. Higher is better; it rewards learning early and separates variants that never "
+        "solve.",
+    ),
+    (
+        "Return after E episodes",
+        "The rolling mean return at episode E, compared at the same budgets for every variant.",
+    ),
+    (
+        "Improvement over the untrained policy",
+        f"Final rolling mean return minus the mean return of the first "
+        f"{INITIAL_EPISODES} episodes (before the policy has learnt much).",
+    ),
+    (
+        "Probability of improvement",
+        "P(X < Y) + P(X = Y)/2 for X a random seed of the variant and Y one of the "
+        "baseline, on episodes to solve (Agarwal et al., 2021); 0.5 means no difference. Where every pair is ordered "
+        "the same way the bootstrap collapses to a point (1.00 [1.00, 1.00]), which only says the sample has no other "
+        "pair; there the interval is the exact Clopper-Pearson bound for min(n, m) successes in min(n, m) trials.",
+    ),
+    (
+        "Too few seeds to tell",
+        "When a rank test could not reach 95% confidence even with the seeds perfectly ordered "
+        f"(smallest two-sided p = 2 / C(n+m, n) > {1 - CONFIDENCE:.2f}, e.g. 3 seeds against 3), or one side has one "
+        "seed, the report makes no claim either way: the estimate is shown, the verdict is this.",
+    ),
+    (
+        "Seeds needed",
+        f"For a comparison not separated: how many seeds per variant the report's own rule (the 95% interval "
+        "excludes no difference, censoring permitting) would need to separate the difference in 80% of experiments, "
+        "found by drawing that many seeds with replacement from the observed ones, 100 times. More than "
+        f"{SEEDS_CAP}: no effect this large is in sight; fewer: the experiment had too few seeds.",
+    ),
+    (
+        "Smallest effect of interest",
+        "The smallest difference worth finding, as a fraction of the reference's value: 10% unless the experiment "
+        "file sets `smallest_effect` (episodes: 10% fewer or more; returns and AUC: 10% of the reference's value "
+        "apart). The report says how many seeds would separate a difference this large, resampled from the observed "
+        "seeds shifted to it.",
+    ),
+    (
+        "Leave-one-seed-out",
+        "Each claim is recomputed with every seed in turn removed from all variants; a claim "
+        "that disappears for some seed is marked fragile.",
+    ),
+]
+
+TUNING_REFERENCES = [
+    "Patterson, A., Neumann, S., White, M., & White, A. (2024). Empirical design in reinforcement learning. "
+    "*Journal of Machine Learning Research*, 25. (Tune each arm on its own seeds, compare on fresh ones.)",
+    "Eimer, T., Lindauer, M., & Raileanu, R. (2023). Hyperparameters in reinforcement learning and how to tune "
+    "them. *ICML 2023*. (Tuning and evaluation seeds kept apart.)",
+]
+
+REFERENCES = [
+    "Williams, R. J. (1992). Simple statistical gradient-following algorithms for connectionist reinforcement "
+    "learning. *Machine Learning*, 8(3-4), 229-256. (REINFORCE.)",
+    "Agarwal, R., Schwarzer, M., Castro, P. S., Courville, A., & Bellemare, M. G. (2021). Deep reinforcement "
+    "learning at the edge of the statistical precipice. *Advances in Neural Information Processing Systems 34*. "
+    "(IQM, bootstrap intervals, probability of improvement.)",
+    "Efron, B., & Tibshirani, R. J. (1993). *An Introduction to the Bootstrap*. Chapman & Hall. (Percentile "
+    "intervals.)",
+    "Mnih, V., et al. (2015). Human-level control through deep reinforcement learning. *Nature*, 518, 529-533. "
+    "(Atari pre-processing and frame-based policies.)",
+]

@@ -1,0 +1,282 @@
+"""The statistics the report rests on: interquartile means, percentile bootstrap intervals, the probability
+of improvement, the smallest p-value a rank test can give, and the decision rule that turns them into a verdict.
+
+SciPy: ``trim_mean`` for the IQM, ``bootstrap`` for 95% intervals, ``mannwhitneyu`` for the probability of
+improvement. Pure functions of arrays (and one of a curves frame); nothing here reads the tracking store.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+CONFIDENCE = 0.95
+N_RESAMPLES = 2000
+SEED = 12345  # bootstrap resampling is seeded: the same runs give the same report
+
+
+def iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Interquartile mean: the mean of the middle 50% (25% trimmed from each end)."""
+    return stats.trim_mean(values, 0.25, axis=axis)
+
+
+def _percentile_bootstrap(samples: tuple, statistic, n_resamples: int = N_RESAMPLES):
+    """SciPy's percentile bootstrap, 95%, seeded, vectorised along the last axis; independent samples are
+    resampled independently."""
+    result = stats.bootstrap(
+        samples,
+        statistic,
+        confidence_level=CONFIDENCE,
+        n_resamples=n_resamples,
+        method="percentile",
+        vectorized=True,
+        paired=False,
+        axis=-1,
+        rng=np.random.default_rng(SEED),
+    )
+    return result.confidence_interval.low, result.confidence_interval.high
+
+
+def bootstrap_interval(values: np.ndarray, statistic=iqm) -> tuple[float, float]:
+    """Percentile bootstrap 95% interval of ``statistic`` over one sample (NaNs when fewer than 2 values:
+    no interval can be computed from one seed)."""
+    values = np.asarray(values, dtype=float)
+    values = values[~np.isnan(values)]
+    if len(values) < 2:
+        return (float("nan"), float("nan"))
+    if np.all(values == values[0]):
+        return (float(values[0]), float(values[0]))
+    low, high = _percentile_bootstrap((values,), statistic)
+    return (float(low), float(high))
+
+
+def probability_of_improvement(lower_is_better: np.ndarray, reference: np.ndarray) -> float:
+    """P(X < Y) + P(X = Y) / 2 for X from the variant, Y from the reference: the chance that a random seed
+    of the variant needs fewer episodes than a random seed of the reference. Identical samples give 0.5."""
+    x, y = np.asarray(lower_is_better, float), np.asarray(reference, float)
+    # Mann-Whitney's U for (y, x) counts pairs with y > x, ties counting one half.
+    return float(stats.mannwhitneyu(y, x, alternative="two-sided").statistic / (len(x) * len(y)))
+
+
+def _pairwise_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
+    """P(X < Y) + P(X = Y) / 2 over all pairs, vectorised over leading (resample) axes."""
+    x, y = np.moveaxis(x, axis, -1), np.moveaxis(y, axis, -1)
+    less = (x[..., :, None] < y[..., None, :]).mean(axis=(-2, -1))
+    ties = (x[..., :, None] == y[..., None, :]).mean(axis=(-2, -1))
+    return less + 0.5 * ties
+
+
+def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """95% interval of P(X < Y) + P(X = Y) / 2. The percentile bootstrap collapses to a point when every
+    pair is ordered the same way (5 seeds each give "1.00 [1.00, 1.00]"), which only says the sample has no
+    other pair to resample; there the interval is the exact Clopper-Pearson one for ``min(n, m)`` successes
+    in ``min(n, m)`` independent comparisons, as if only that many pairs carried information."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if len(x) < 2 or len(y) < 2:
+        return (float("nan"), float("nan"))
+    point = _pairwise_improvement(x, y)
+    if np.all(np.concatenate([x, y]) == x[0]):
+        return (0.5, 0.5)
+    low, high = _percentile_bootstrap((x, y), _pairwise_improvement)
+    n = min(len(x), len(y))
+    edge = (1 - CONFIDENCE) / 2
+    if point >= 1.0 or high - low < 1e-12 and point > 0.5:
+        low, high = edge ** (1 / n), 1.0
+    elif point <= 0.0 or high - low < 1e-12 and point < 0.5:
+        low, high = 0.0, 1 - edge ** (1 / n)
+    return (float(low), float(high))
+
+
+def smallest_p_value(n: int, m: int) -> float:
+    """The smallest two-sided p-value a rank test can give with ``n`` and ``m`` seeds (complete separation):
+    above 0.05, no ordering of the seeds can support a claim at 95%."""
+    if n < 1 or m < 1:
+        return 1.0
+    return min(1.0, 2 / math.comb(n + m, n))
+
+
+def relative_reduction(variant: np.ndarray, reference: np.ndarray) -> tuple[float, float, float]:
+    """1 - IQM(variant) / IQM(reference), with a 95% bootstrap interval (samples resampled independently).
+    Positive: the variant needs fewer (episodes); negative: more."""
+    variant, reference = np.asarray(variant, float), np.asarray(reference, float)
+
+    def statistic(a, b, axis=-1):
+        return 1 - iqm(a, axis=axis) / iqm(b, axis=axis)
+
+    point = float(statistic(variant, reference))
+    if len(variant) < 2 or len(reference) < 2:
+        return point, float("nan"), float("nan")
+    if np.all(np.concatenate([variant, reference]) == variant[0]):
+        return point, point, point
+    low, high = _percentile_bootstrap((variant, reference), statistic)
+    return point, float(low), float(high)
+
+
+def iqm_difference(variant: np.ndarray, reference: np.ndarray) -> tuple[float, float, float]:
+    """IQM(variant) - IQM(reference), with a 95% bootstrap interval: for returns, which can be negative
+    (Pong), where a ratio means nothing."""
+    variant, reference = np.asarray(variant, float), np.asarray(reference, float)
+
+    def statistic(a, b, axis=-1):
+        return iqm(a, axis=axis) - iqm(b, axis=axis)
+
+    point = float(statistic(variant, reference))
+    if len(variant) < 2 or len(reference) < 2:
+        return point, float("nan"), float("nan")
+    if np.all(variant == variant[0]) and np.all(reference == reference[0]):
+        return point, point, point
+    low, high = _percentile_bootstrap((variant, reference), statistic)
+    return point, float(low), float(high)
+
+
+def is_censored_statistic(n_censored: int, n: int, statistic: str) -> bool:
+    """Does the median or IQM of ``n`` values use one of the ``n_censored`` largest (censored) ones? Then it
+    is a lower bound, not an estimate. The median uses the middle one or two; the IQM the middle 50%
+    (SciPy's ``trim_mean`` cuts ``int(0.25 n)`` from each end)."""
+    if n == 0:
+        return False
+    if statistic == "median":
+        return n_censored >= n - n // 2
+    return n_censored > int(np.floor(0.25 * n))
+
+
+def _median(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    return np.median(values, axis=axis)
+
+
+# --- comparisons --------------------------------------------------------------------------------------------
+BETTER, WORSE, UNSEPARATED, NO_CLAIM = "better", "worse", "not separated", "no claim"
+
+
+def _verdict(low: float, high: float) -> str:
+    if np.isnan(low) or np.isnan(high):
+        return NO_CLAIM
+    if low > 0:
+        return BETTER
+    if high < 0:
+        return WORSE
+    return UNSEPARATED
+
+
+def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cens: np.ndarray):
+    """Episodes (lower is better) censored at the budget. Returns (point, low, high, verdict, bound). The
+    IQM of a sample whose IQM uses a censored value is a lower bound on the true IQM: with only the variant
+    censored, the variant is at least as slow as measured (a claim "worse" holds, sized "at least"); with only
+    the baseline censored, a claim "better" holds the same way; with both, episodes say nothing."""
+    point, low, high = relative_reduction(x, y)
+    x_bound = is_censored_statistic(int(x_cens.sum()), len(x), "iqm")
+    y_bound = is_censored_statistic(int(y_cens.sum()), len(y), "iqm")
+    verdict = _verdict(low, high)
+    if verdict == NO_CLAIM or min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
+        return (
+            point,
+            low,
+            high,
+            NO_CLAIM,
+            "censored" if x_bound and y_bound else "at least" if x_bound or y_bound else "",
+        )
+    if x_bound and y_bound:
+        return point, low, high, UNSEPARATED, "censored"
+    if x_bound:  # the variant's true IQM is larger: "worse" can only grow; "better" is not supported
+        return point, low, high, (WORSE if verdict == WORSE else UNSEPARATED), "at least"
+    if y_bound:
+        return point, low, high, (BETTER if verdict == BETTER else UNSEPARATED), "at least"
+    return point, low, high, verdict, ""
+
+
+def _return_comparison(x: np.ndarray, y: np.ndarray):
+    point, low, high = iqm_difference(x, y)
+    if min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
+        return point, low, high, NO_CLAIM, ""
+    return point, low, high, _verdict(low, high), ""
+
+
+def curve_band(curves: pd.DataFrame, x: str, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IQM across seeds of the rolling mean at each point of ``grid`` (of column ``x``), with a 95% bootstrap
+    band. A seed that stopped because it solved carries its last value forward; one that ran out of budget
+    ends there. Where fewer than half the seeds have a value, the curve stops. One seed: no band."""
+    per_seed = []
+    for _, seed_curve in curves.groupby("seed"):
+        seed_curve = seed_curve.sort_values(x)
+        xs, ys = seed_curve[x].to_numpy(float), seed_curve.rolling_mean.to_numpy(float)
+        carry = ys[-1] if bool(seed_curve.solved.iloc[-1]) or x == "episode" else np.nan
+        per_seed.append(np.interp(grid, xs, ys, left=np.nan, right=carry))
+    matrix = np.array(per_seed).T  # (points, seeds)
+    enough = (~np.isnan(matrix)).sum(axis=1) * 2 >= matrix.shape[1]
+    centre = np.full(len(grid), np.nan)
+    low, high = centre.copy(), centre.copy()
+    for i in np.flatnonzero(enough):
+        values = matrix[i][~np.isnan(matrix[i])]
+        centre[i] = iqm(values)
+        low[i], high[i] = centre[i], centre[i]
+    # One vectorised bootstrap over the points where every seed has a value and they are not all equal.
+    full = enough & ~np.isnan(matrix).any(axis=1) & (np.ptp(np.nan_to_num(matrix), axis=1) > 0)
+    if full.any() and matrix.shape[1] >= 2:
+        band_low, band_high = _percentile_bootstrap((matrix[full],), iqm, n_resamples=N_RESAMPLES // 4)
+        low[full], high[full] = band_low, band_high
+    return centre, low, high
+
+
+# --- seeds needed -------------------------------------------------------------------------------------------
+SEEDS_CAP = 50
+"""The most seeds per variant ``seeds_needed`` tries; past it the answer is "more than 50"."""
+SEED_COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50)
+"""Seeds per variant tried, smallest first (3 and 3 can never reach 95% with a rank test)."""
+POWER = 0.8
+"""The share of resampled experiments that must separate the difference: the usual 80% power."""
+SIMULATIONS, INNER_RESAMPLES = 100, 200
+
+
+def seeds_needed(
+    x: np.ndarray,
+    y: np.ndarray,
+    relative: bool,
+    x_censored: np.ndarray | None = None,
+    y_censored: np.ndarray | None = None,
+    effect: float | None = None,
+) -> int:
+    """How many seeds per variant the report's decision rule would need to separate the difference between
+    samples ``x`` (the variant) and ``y`` (its reference) at 95% in ``POWER`` of experiments, found by
+    resampling the observed seeds: draw n seeds of each with replacement, compute the 95% percentile bootstrap
+    interval of the difference (``relative``: 1 - IQM(x) / IQM(y), episodes; else IQM(x) - IQM(y), returns),
+    count a separation where it excludes 0 on the observed side and censoring allows the claim (as
+    ``_episodes_comparison``). ``effect``: first shift ``x`` so that the difference is ``effect`` times the
+    reference's IQM on the observed side (the smallest effect of interest). ``SEEDS_CAP + 1`` means more
+    than ``SEEDS_CAP``."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    x_censored = np.zeros(len(x), bool) if x_censored is None else np.asarray(x_censored, bool)
+    y_censored = np.zeros(len(y), bool) if y_censored is None else np.asarray(y_censored, bool)
+    if len(x) < 2 or len(y) < 2:
+        return SEEDS_CAP + 1
+    reference = float(iqm(y))
+    point = 1 - float(iqm(x)) / reference if relative else float(iqm(x)) - reference
+    if effect is not None:
+        side = 1.0 if point >= 0 else -1.0
+        if relative:
+            x = x * (1 - side * effect) * reference / float(iqm(x))
+        else:
+            x = x + side * effect * abs(reference) - point
+        point = side * effect
+    if point == 0 or not np.isfinite(point):
+        return SEEDS_CAP + 1
+
+    def power(n: int) -> float:
+        rng = np.random.default_rng([SEED, n])
+        ix, iy = rng.integers(0, len(x), (SIMULATIONS, n)), rng.integers(0, len(y), (SIMULATIONS, n))
+        bx, by = rng.integers(0, n, (INNER_RESAMPLES, n)), rng.integers(0, n, (INNER_RESAMPLES, n))
+        xs, ys = x[ix][:, bx], y[iy][:, by]  # (experiments, resamples, seeds)
+        stat = 1 - iqm(xs) / iqm(ys) if relative else iqm(xs) - iqm(ys)
+        low, high = np.percentile(stat, [2.5, 97.5], axis=1)
+        separated = low > 0 if point > 0 else high < 0
+        if relative:  # the IQM of a sample that uses a censored seed is a bound: as the findings' rule
+            x_bound = x_censored[ix].sum(axis=1) > int(np.floor(0.25 * n))
+            y_bound = y_censored[iy].sum(axis=1) > int(np.floor(0.25 * n))
+            separated &= ~(x_bound if point > 0 else y_bound)
+        return float(separated.mean())
+
+    if power(SEEDS_CAP) < POWER:
+        return SEEDS_CAP + 1
+    return next(n for n in SEED_COUNTS if smallest_p_value(n, n) <= 1 - CONFIDENCE and power(n) >= POWER)

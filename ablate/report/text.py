@@ -1,0 +1,55 @@
+"""Small pieces of the report's wording: percentages, signed numbers, intervals, metric names, Markdown tables."""
+
+from __future__ import annotations
+
+import re
+
+import pandas as pd
+
+from ablate.report.figures import fmt as _fmt
+
+
+def _pct(x: float) -> str:
+    return f"{int(round(100 * x))}%"
+
+
+def _signed(x: float, digits: int = 1) -> str:
+    return "–" if pd.isna(x) else f"{x:+,.{digits}f}"
+
+
+def _signed_pct(x: float) -> str:
+    if pd.isna(x):
+        return "–"
+    value = int(round(100 * x))
+    return f"{value:+d}%" if value else "0%"
+
+
+def _interval(low: float, high: float, digits: int = 0, n: int | None = None) -> str:
+    if pd.isna(low) or pd.isna(high):
+        return "[no interval: 1 seed]" if n == 1 else "[no interval]"
+    return f"[{_fmt(low, digits)}, {_fmt(high, digits)}]"
+
+
+# --- text ------------------------------------------------------------------------------------------------
+def _is_text(values) -> bool:
+    """A column of words (left-aligned) rather than of numbers, intervals and counts (right-aligned)."""
+    return any(re.search(r"[A-Za-z]", re.sub(r"\[[^\]]*\]|\([^)]*\)", "", str(v))) for v in values)
+
+
+def _markdown_table(frame: pd.DataFrame) -> str:
+    """A Markdown table: text columns left-aligned, numbers right-aligned."""
+    header = "| " + " | ".join(frame.columns) + " |"
+    rule = "| " + " | ".join(":---" if _is_text(frame[c]) else "---:" for c in frame.columns) + " |"
+    rows = ["| " + " | ".join(str(v) for v in row) + " |" for row in frame.itertuples(index=False)]
+    return "\n".join([header, rule, *rows])
+
+
+METRIC_NAMES = {"episodes_to_solve": "episodes to solve", "auc": "area under the curve (AUC)"}
+
+
+def _metric_name(metric: str) -> str:
+    if metric.startswith("return_at_"):
+        return f"return after {int(metric.removeprefix('return_at_')):,} episodes"
+    if metric.startswith("episodes_to_") and metric != "episodes_to_solve":
+        return f"episodes to reach a rolling return of {metric.removeprefix('episodes_to_')}"
+    return METRIC_NAMES.get(metric, metric)

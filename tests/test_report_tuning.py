@@ -1,0 +1,137 @@
+"""The report of a tuned ablation (issue 19) from a hand-made store: the tuning table, the Tuning section, the
+sensitivity figure, findings on the evaluation seeds at the chosen values, and the comparison at the base value."""
+
+import json
+import re
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from test_report import rising, write_trial
+
+from ablate.report.document import write_report
+from ablate.report.results import load_ablation
+from ablate.report.tuning import at_values, base_values, chosen_values, edge, tuning_table
+from ablate.run.tracking import Tracker
+
+BASE_LR, CANDIDATES, TUNE_SEEDS, EVAL_SEEDS = 0.03, [0.01, 0.03, 0.1], [10000, 10001], [0, 1, 2, 3]
+TUNING = {
+    "knobs": {"learning_rate": CANDIDATES},
+    "seeds": TUNE_SEEDS,
+    "metric": "auc",
+    "direction": "max",
+    "max_episodes": 30,
+    "rule": "the candidate with the best mean AUC over the tuning seeds; ties: the candidate nearest the base value",
+    "base": {"learning_rate": BASE_LR},
+    "choices": {
+        "baseline": {"values": {"learning_rate": 0.1}, "tuned": True, "reason": "best mean auc"},
+        "deep": {"values": {"learning_rate": 0.03}, "tuned": True, "reason": "best mean auc"},
+        "course": {"values": {"learning_rate": 0.001}, "tuned": False, "reason": "set by the variant"},
+    },
+}
+# Returns by (variant, learning rate): at the base value deep beats the baseline; at each one's own best
+# rate the baseline (at 0.1) beats deep: the finding flips with the learning rate.
+LEVEL = {("baseline", 0.01): 12, ("baseline", 0.03): 20, ("baseline", 0.1): 60, ("deep", 0.01): 15}
+LEVEL |= {("deep", 0.03): 40, ("deep", 0.1): 30, ("course", 0.001): 14}
+
+
+def curve(variant, lr, seed, n):
+    return rising(5, LEVEL[(variant, lr)] + seed % 100, n)(seed)
+
+
+def make_tuned_store(folder: Path) -> str:
+    """A tuned launch as issue 19's contract has it: tune-stage runs on seeds 10000+ (shorter budget),
+    evaluation runs at the base value (the grid's trials, untuned keys) and at each variant's choice."""
+    uri = f"sqlite:///{folder / 'mlflow.db'}"
+    tracker = Tracker(uri, "tuned")
+    base = {"env_id": "CartPole-v1", "max_episodes": 40, "solve_window": 8, "solve_threshold": 1000.0}
+    base |= {"learning_rate": BASE_LR, "gamma": 0.95, "episodes_per_update": 4}
+    variants = {"baseline": {}, "deep": {"hidden_sizes": [8, 8]}, "course": {"preset": "course"}}
+    trials = [{"key": f"{v}-s{s}", "variant": v, "seed": s} for v in variants for s in EVAL_SEEDS]
+    grid = {"experiment": "tuned", "description": "tuned", "seeds": EVAL_SEEDS, "baseline": "baseline"}
+    grid |= {"base": base, "trials": trials, "variants": [{"name": v, "overrides": o} for v, o in variants.items()]}
+    files = {"grid.json": json.dumps(grid), "environment.json": json.dumps({"machine": "m"})}
+    files["tuning.json"] = json.dumps(TUNING)
+    launch = (tracker.start_launch("g1", "tuned", {"ablate.command": "ablate run tuned.toml"}, files), "g1")
+    for variant in ("baseline", "deep"):
+        for lr in CANDIDATES:
+            for seed in TUNE_SEEDS:
+                trial = {"key": f"{variant}-lr{lr}-s{seed}", "variant": variant, "seed": seed, "stage": "tune"}
+                params = {"learning_rate": lr}
+                write_trial(tracker, launch, trial, curve(variant, lr, seed, 30), params, (30, 8, 1000.0))
+    for variant in variants:
+        own = TUNING["choices"][variant]["values"]["learning_rate"]
+        for lr in sorted({own, BASE_LR if variant != "course" else own}):
+            for seed in EVAL_SEEDS:
+                key = f"{variant}-s{seed}" if lr in (BASE_LR, 0.001) else f"{variant}-lr{lr}-s{seed}"
+                trial = {"key": key, "variant": variant, "seed": seed, "stage": "eval"}
+                params = {"learning_rate": lr}
+                write_trial(tracker, launch, trial, curve(variant, lr, seed, 40), params, (40, 8, 1000.0))
+    tracker.finish_launch(launch[0], "FINISHED", {})
+    return uri
+
+
+@pytest.fixture(scope="module")
+def tuned(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("tuned")
+    uri = make_tuned_store(folder)
+    return folder, uri
+
+
+def test_the_evaluation_uses_the_chosen_values_and_the_untuned_comparison_the_base_value(tuned):
+    _, uri = tuned
+    ablation = load_ablation("tuned", uri)
+    assert set(ablation.trials.seed) == set(EVAL_SEEDS)  # never a tuning seed
+    chosen = ablation.trials.groupby("variant").learning_rate.unique().map(list).to_dict()
+    assert chosen == {"baseline": [0.1], "deep": [0.03], "course": [0.001]}
+    base = ablation.untuned.trials.groupby("variant").learning_rate.unique().map(list).to_dict()
+    assert base == {"baseline": [0.03], "deep": [0.03], "course": [0.001]}  # course keeps its own value
+    assert len(ablation.curves) and set(ablation.curves.seed) == set(EVAL_SEEDS)
+    table = ablation.tuning_trials
+    assert len(table) == 12 and list(table.columns) == ["variant", "seed", "learning_rate", "auc", "status"]
+    assert set(table.seed) == set(TUNE_SEEDS) and set(table.variant) == {"baseline", "deep"}
+
+
+def test_the_tuning_table_ranks_what_tuning_chose(tuned):
+    _, uri = tuned
+    table = load_ablation("tuned", uri).tuning_trials
+    means = table.groupby(["variant", "learning_rate"]).auc.mean()
+    assert means["baseline"].idxmax() == 0.1 and means["deep"].idxmax() == 0.03
+
+
+def test_selection_helpers_on_a_hand_made_frame():
+    assert chosen_values(TUNING, "deep") == {"learning_rate": 0.03}
+    assert base_values(TUNING, "baseline", {}) == {"learning_rate": BASE_LR}
+    assert base_values(TUNING, "course", {"preset": "course"}) == {"learning_rate": 0.001}
+    assert base_values(TUNING, "wide", {"learning_rate": 0.5}) == {"learning_rate": 0.5}
+    trials = pd.DataFrame({"variant": ["baseline", "baseline", "deep"], "learning_rate": ["0.1", "0.03", "0.03"]})
+    assert at_values(trials, lambda v: chosen_values(TUNING, v)).tolist() == [True, False, True]
+    assert edge(TUNING, {"learning_rate": 0.1}) == ["learning rate at the highest candidate"]
+    assert edge(TUNING, {"learning_rate": 0.03}) == []
+    rows = [{"variant": "deep", "seed": 10000, "learning_rate": 0.1, "status": "FINISHED", "solved": 0, "budget": 30}]
+    censored = tuning_table(rows, TUNING | {"metric": "episodes_to_solve"}, ["deep"])
+    assert censored.episodes_to_solve.tolist() == [30.0]  # never solved: censored at its own budget
+
+
+def test_the_tuned_report(tuned, tmp_path, monkeypatch):
+    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test")
+    _, uri = tuned
+    folder = write_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False)
+    text = (folder / "report.md").read_text()
+    tuning = text.split("## Tuning")[1].split("\n## ")[0]
+    assert "0.01, 0.03, 0.1 (base value 0.03)" in tuning and "2 per candidate (10000, 10001)" in tuning
+    assert "area under the curve (AUC), higher is better" in tuning and TUNING["rule"] in tuning
+    assert "Short horizon" in tuning  # tuning ran 30 episodes, the evaluation 40
+    assert "| baseline | 0.1 |" in tuning and "at the highest candidate" in tuning
+    assert "course (learning rate 0.001)" in tuning and "set by the variant" in tuning
+    figure = re.search(r"Figure (\d+) shows each variant's metric", tuning)
+    assert figure and f"*Figure {figure.group(1)}. Sensitivity to learning rate" in text
+    assert (folder / "figures" / "tuning_sensitivity.png").stat().st_size > 5000
+    table = pd.read_csv(folder / "tables" / "tuning.csv")
+    assert list(table.columns) == ["variant", "seed", "learning_rate", "auc", "status"] and len(table) == 12
+    assert set(pd.read_csv(folder / "tables" / "trials.csv").seed) == set(EVAL_SEEDS)
+    depends = text.split("## Does the finding depend on the learning rate?")[1].split("\n## ")[0]
+    assert "deep vs baseline on area under the curve (AUC) (flips)" in depends
+    (line,) = [x for x in depends.splitlines() if x.startswith("- deep vs baseline, area under")]
+    assert "**better**" in line.split("; at the chosen")[0] and "**worse**" in line.split("; at the chosen")[1]
+    assert "One training setting for all architectures" not in text and "Tuned over 3 candidates" in text
