@@ -29,20 +29,20 @@ test: $(STAMP) ## the whole test suite (a few minutes on 2 cores)
 test-fast: $(STAMP) ## the test suite without the slow learning tests
 	$(BIN)/python -m pytest -q -m "not slow"
 
-test-cluster: $(STAMP) ## two Ray nodes (one sees none of the driver's files), an mlflow server, a lost node (~1 min, root)
+test-cluster: $(STAMP) ## two token-authenticated Ray nodes (one sees none of the driver's files), a basic-auth mlflow server, a lost node, refusals (root)
 	ABLATE_CLUSTER_TESTS=1 $(BIN)/python -m pytest -q tests/test_cluster.py
 
 test-cluster-postgres: $(STAMP) ## test-cluster with the server's store in a private PostgreSQL (apt-get installs it; skipped where it can't)
 	tools/postgres_test.sh
 
-cluster-up: $(STAMP) ## a Ray head and an mlflow server on 127.0.0.1 (ports RAY_PORT=6390, CLUSTER_MLFLOW_PORT=5050)
+cluster-up: $(STAMP) ## a Ray head (token) and an mlflow server (basic-auth) on 127.0.0.1 (RAY_PORT=6390, CLUSTER_MLFLOW_PORT=5050); credentials in .cluster/credentials.env
 	$(BIN)/python tools/local_cluster.py up --ray-port $(RAY_PORT) --mlflow-port $(CLUSTER_MLFLOW_PORT)
 
 cluster-down: $(STAMP) ## stop what make cluster-up started
 	$(BIN)/python tools/local_cluster.py down
 
-ablation-cartpole-cluster: $(STAMP) ## experiments/cartpole.toml on the make cluster-up head, tracked on its server
-	$(BIN)/ablate run experiments/cartpole.toml --address 127.0.0.1:$(RAY_PORT) --tracking-uri http://127.0.0.1:$(CLUSTER_MLFLOW_PORT)
+ablation-cartpole-cluster: $(STAMP) ## experiments/cartpole.toml on the make cluster-up head, tracked on its server (its credentials)
+	. .cluster/credentials.env && $(BIN)/ablate run experiments/cartpole.toml --address 127.0.0.1:$(RAY_PORT) --tracking-uri http://127.0.0.1:$(CLUSTER_MLFLOW_PORT)
 
 lint: $(STAMP) ## ruff check and format check
 	$(BIN)/ruff check ablate tests benchmarks tools

@@ -475,7 +475,7 @@ def main(argv: list[str] | None = None) -> int:
             tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
             count = f"{len(tuning)} tuning trials, then {len(trials)}" if tuning else f"{len(trials)}"
             print(f"ablate run {experiment.name}: {count} trials; reading the MLflow store ...", flush=True)
-            from ablate.run.runner import cmd_run
+            from ablate.commands import cmd_run
 
             return cmd_run(args, started_at)
         from ablate.report.document import cmd_report

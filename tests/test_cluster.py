@@ -1,6 +1,9 @@
 """``make test-cluster``: a two-node Ray cluster on this machine whose worker node cannot see the driver's
 files, a real ``mlflow server`` on a free loopback port, a tiny ablation tracked on the server, then a node
-lost mid-run. Every process it starts listens on 127.0.0.1 and is stopped, pass or fail."""
+lost mid-run. Locked as the team recipe says: Ray token authentication on both nodes and the driver, the server
+running MLflow's basic-auth app; a driver without the token and a client without a login are refused in one
+line, and the planted password and token are found nowhere ablate records or prints. Every process it starts
+listens on 127.0.0.1 and is stopped, pass or fail."""
 
 import os
 import secrets
@@ -16,6 +19,7 @@ import sqlalchemy
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import local_cluster  # noqa: E402
 
+from ablate.report.reader import RunReader  # noqa: E402
 from ablate.run.tracking import POINT_METRICS, Tracker  # noqa: E402
 
 pytestmark = pytest.mark.skipif(
@@ -58,24 +62,37 @@ hidden_sizes = [8]
 """
 
 
+USER = "ablate-ci"
+
+
 @pytest.fixture
-def cluster(tmp_path):
-    """mlflow server, a head node (1 CPU), a worker node (1 CPU) in its own mount namespace; all stopped after."""
+def cluster(tmp_path, monkeypatch):
+    """mlflow server (basic-auth), a head node (1 CPU), a worker node (1 CPU) in its own mount namespace, both
+    requiring a Ray token; all stopped after. This process holds the MLflow login (to read what was tracked)."""
     log = open(tmp_path / "cluster.log", "w")  # noqa: SIM115 - closed at the end
     processes = []
+    # The planted secrets: searched for afterwards in everything ablate recorded or printed.
+    password, token = f"planted-pw-{secrets.token_hex(12)}", f"plantedtoken{secrets.token_hex(24)}"
+    control = tmp_path / "control"  # the worker node sees this folder (and so the token's file) only
+    control.mkdir()
+    token_file = local_cluster.write_secret(control / "ray_token", token + "\n")
+    monkeypatch.setenv("MLFLOW_TRACKING_USERNAME", USER)
+    monkeypatch.setenv("MLFLOW_TRACKING_PASSWORD", password)
+    for name in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):
+        monkeypatch.delenv(name, raising=False)
     try:
         port = local_cluster.free_port()
         # ABLATE_TEST_BACKEND=postgresql+psycopg://...: the server's store in PostgreSQL instead of an SQLite file
         # (make test-cluster-postgres starts a private one)
         store = os.environ.get("ABLATE_TEST_BACKEND") or f"sqlite:///{tmp_path / 'server' / 'mlflow.db'}"
         _check_store(store)
-        server = local_cluster.mlflow_server(tmp_path / "server", port, backend=store, log=log)
+        server = local_cluster.mlflow_server(tmp_path / "server", port, backend=store, log=log, auth=(USER, password))
         processes.append(server)
-        head, head_id, gcs = local_cluster.start_node_process(True, 1, port=local_cluster.free_port(), log=log)
+        head, head_id, gcs = local_cluster.start_node_process(
+            True, 1, port=local_cluster.free_port(), log=log, token_file=token_file
+        )
         processes.append(head)
         probe = tmp_path / "server"  # the tracking server's files: the worker node must not see them
-        control = tmp_path / "control"
-        control.mkdir()
         wrap = [
             "env",
             f"PROBE={probe}",
@@ -89,7 +106,9 @@ def cluster(tmp_path):
             PRIVATE_MOUNTS,
             "sh",
         ]
-        worker, worker_id, _ = local_cluster.start_node_process(False, 1, address=gcs, wrap=wrap, log=log)
+        worker, worker_id, _ = local_cluster.start_node_process(
+            False, 1, address=gcs, wrap=wrap, log=log, token_file=token_file
+        )
         processes.append(worker)
         problem = None
         try:
@@ -110,6 +129,9 @@ def cluster(tmp_path):
             "processes": processes,
             "tmp": tmp_path,
             "control": control,
+            "token_file": token_file,
+            "secrets": (password, token),
+            "outputs": [],
         }
     finally:
         for process in reversed(processes):
@@ -156,14 +178,39 @@ def _store_run_ids(store, experiment):
         engine.dispose()
 
 
-def _ablate(cluster, name, episodes, extra=""):
+def _env(cluster, ray_token=True, login=True):
+    """A client's environment: the MLflow login (as the test process has it) and Ray's token file, or not."""
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env["HOME"] = str(cluster["tmp"] / "home")  # no ~/.ray/auth_token or ~/.mlflow/credentials of this machine
+    if ray_token:
+        env.update(local_cluster.ray_token_env(cluster["token_file"]))
+    if not login:
+        env.pop("MLFLOW_TRACKING_USERNAME")
+        env.pop("MLFLOW_TRACKING_PASSWORD")
+    return env
+
+
+def _ablate(cluster, name, episodes, extra="", env=None, **credentials):
     folder = cluster["tmp"] / name
     folder.mkdir()
     (folder / "exp.toml").write_text(EXPERIMENT.format(name=name, episodes=episodes, extra=extra))
     command = [sys.executable, "-m", "ablate.cli", "run", "exp.toml", "--address", cluster["gcs"]]
     command += ["--tracking-uri", cluster["uri"], "--no-report"]
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env = env or _env(cluster, **credentials)
     return subprocess.Popen(command, cwd=folder, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _finish(cluster, process):
+    code, output = local_cluster.finish_process(process)
+    cluster["outputs"].append(output)
+    return code, output
+
+
+def _refused(output):
+    """The one error line of a refused ``ablate run`` (its progress lines and warnings aside)."""
+    lines = [line for line in output.splitlines() if line.startswith("ablate run: ")]  # the error line(s)
+    assert len(lines) == 1 and "Traceback" not in output, output
+    return lines[0]
 
 
 def _wait_running(tracker, count, launch, timeout_s=300):
@@ -200,9 +247,9 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     launch = _ablate(cluster, spread, episodes=200, extra=f'fault = "block"\nfault_marker = "{marker}"')
     _wait_running(Tracker(cluster["uri"], spread), 2, launch)
     marker.write_text("go\n")
-    code, output = local_cluster.finish_process(launch)
+    code, output = _finish(cluster, launch)
     assert code == 0, output
-    tracker = Tracker(cluster["uri"], spread)
+    tracker = RunReader(cluster["uri"], spread)
     runs = tracker.trial_runs(with_artifacts=True)
     assert len(runs) == 2 and {r.status for r in runs} == {"FINISHED"}
     tracked = {r.run_id for r in runs} | {launch.info.run_id for launch in tracker.launches()}
@@ -227,7 +274,7 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
         assert addresses and set(addresses) <= {"127.0.0.1", "[::ffff:127.0.0.1]"}, addresses
         local_cluster.stop_process(cluster["worker_process"])  # kills the node's raylet and workers
         marker.write_text("go\n")
-        code, output = local_cluster.finish_process(launch)
+        code, output = _finish(cluster, launch)
     finally:
         marker.write_text("go\n")
         if launch.poll() is None:
@@ -240,3 +287,76 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     assert max(int(r.tags["ablate.attempt"]) for r in finished) == 2  # the lost trial ran again
     launches = lost.client.search_runs([lost.experiment_id()], "tags.`ablate.role` = 'launch'")
     assert [launch.info.status for launch in launches] == ["FINISHED"]
+
+    # 3. Refusals, each one line, exit 1, nothing tracked: a driver without the Ray token; a client without
+    #    the MLflow login (before Ray starts), with a wrong password; `ablate status` without the login.
+    refused = f"refused-{secrets.token_hex(4)}"
+    started = time.monotonic()
+    code, output = _finish(cluster, _ablate(cluster, refused, episodes=10, ray_token=False))
+    assert code == 1 and "refused this driver: its token is missing or wrong" in _refused(output), output
+    assert "RAY_AUTH_TOKEN_PATH" in _refused(output)
+    ray_refusal_s = time.monotonic() - started
+    wrong = _env(cluster) | {"MLFLOW_TRACKING_PASSWORD": "not-the-password"}
+    for name, env in (("nologin", _env(cluster, login=False)), ("wrongpw", wrong)):
+        started = time.monotonic()
+        launch = _ablate(cluster, f"{refused}-{name}", episodes=10, env=env)
+        code, output = _finish(cluster, launch)
+        line = _refused(output)
+        assert code == 1 and "(HTTP 401)" in line and "MLFLOW_TRACKING_PASSWORD" in line, output
+        assert cluster["uri"] in line and "Ray" not in output.split("\n", 1)[1], output  # before Ray starts
+        assert time.monotonic() - started < 60, time.monotonic() - started  # MLflow's own retries: minutes
+    for command in (["status"], ["report", spread, "--no-pdf"]):
+        refusal = subprocess.run(
+            [sys.executable, "-m", "ablate.cli", *command, "--tracking-uri", cluster["uri"]],
+            cwd=cluster["tmp"],
+            env=_env(cluster, login=False),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        cluster["outputs"].append(refusal.stdout + refusal.stderr)
+        assert refusal.returncode == 1 and len((refusal.stdout + refusal.stderr).strip().splitlines()) == 1, refusal
+        expected = f"ablate {command[0]}: MLflow tracking server {cluster['uri']} needs a login (HTTP 401)"
+        assert expected in refusal.stderr
+    assert not (cluster["tmp"] / "reports").exists()  # the refused report wrote nothing
+    client = RunReader(cluster["uri"], spread).client
+    refused_ids = [e.experiment_id for e in client.search_experiments() if e.name.startswith(refused)]
+    # nothing tracked (the Ray refusal leaves its experiment, empty: the launch names its MLflow link first)
+    assert not refused_ids or not client.search_runs(refused_ids)
+    print(f"a driver without the Ray token refused after {ray_refusal_s:.1f} s")
+
+    # 4. The planted password and token appear nowhere: the store's tags and params, every artifact and file
+    #    the runs and the report left, and every command's output.
+    report = subprocess.run(
+        [sys.executable, "-m", "ablate.cli", "report", spread, "--tracking-uri", cluster["uri"], "--no-pdf"],
+        cwd=cluster["tmp"] / spread,
+        env=_env(cluster),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    cluster["outputs"].append(report.stdout + report.stderr)
+    assert report.returncode == 0, report.stdout + report.stderr
+    _assert_no_secret(cluster)
+
+
+def _assert_no_secret(cluster):
+    planted = [secret.encode() for secret in cluster["secrets"]]
+    if os.environ.get("PGPASSFILE"):  # make test-cluster-postgres: the database's password too
+        planted.append(Path(os.environ["PGPASSFILE"]).read_text().strip().rsplit(":", 1)[1].encode())
+    hits = []
+    engine = sqlalchemy.create_engine(cluster["store"])
+    try:
+        with engine.connect() as connection:
+            for table in ("tags", "params", "experiment_tags"):
+                for key, value in connection.execute(sqlalchemy.text(f"SELECT key, value FROM {table}")):
+                    hits += [f"{table}.{key}" for secret in planted if secret in str(value).encode()]
+    finally:
+        engine.dispose()
+    for path in cluster["tmp"].rglob("*"):
+        if path.is_file() and path != cluster["token_file"] and not path.is_symlink():
+            data = path.read_bytes()
+            hits += [str(path) for secret in planted if secret in data]
+    for output in cluster["outputs"]:
+        hits += ["a command's output" for secret in planted if secret.decode() in output]
+    assert not hits, hits

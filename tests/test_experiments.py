@@ -4,8 +4,8 @@ through real Ray and a real MLflow store (the report is tested with the report).
 from pathlib import Path
 
 from ablate.config import load_experiment
+from ablate.report.reader import RunReader
 from ablate.run.grid import expand
-from ablate.run.tracking import Tracker
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 
@@ -50,7 +50,7 @@ def test_pong_smoke_ablation_through_ray_and_mlflow(run_quiet, tmp_path, trackin
     assert experiment.base.max_episode_steps > 0  # capped episodes: seconds per trial
     outcome = run_quiet(experiment, tmp_path, tracking_uri)
     assert outcome.exit_code == 0 and len(outcome.finished) == 4 and not outcome.failed
-    tracker = Tracker(tracking_uri, "pong-smoke")
+    tracker = RunReader(tracking_uri, "pong-smoke")
     runs = tracker.trial_runs(with_artifacts=True)
     assert sorted((r.variant, r.seed) for r in runs) == [("cnn", 0), ("cnn", 1), ("mlp", 0), ("mlp", 1)]
     for run in runs:

@@ -21,6 +21,7 @@ from scipy import stats
 from ablate.cli import main
 from ablate.config import load_experiment
 from ablate.report.document import write_report
+from ablate.report.reader import RunReader
 from ablate.report.writers import chromium_flags
 from ablate.run.curve import CurveReducer
 from ablate.run.tracking import Tracker
@@ -111,7 +112,7 @@ def test_html_is_self_contained(built_report):
 
 def test_report_is_attached_to_the_launch_run(built_report):
     folder, uri = built_report
-    tracker = Tracker(uri, "reportable")
+    tracker = RunReader(uri, "reportable")
     launch = tracker.launches()[0].info.run_id
     attached = {a.path for a in tracker.client.list_artifacts(launch, "report")}
     assert {"report/report.md", "report/report.html", "report/figures", "report/tables"} <= attached

@@ -14,6 +14,7 @@ import torch
 from mlflow.entities import ViewType
 
 from ablate.config import load_experiment
+from ablate.report.reader import RunReader
 from ablate.run.grid import expand
 from ablate.run.tracking import POINT_METRICS, Tracker
 
@@ -50,7 +51,7 @@ def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tracking_uri):
     outcome = run_quiet(experiment, tmp_path, tracking_uri)
     assert outcome.exit_code == 0 and len(outcome.finished) == 4 and not outcome.failed
 
-    tracker = Tracker(tracking_uri, "tiny")
+    tracker = RunReader(tracking_uri, "tiny")
     launches = _launches(tracker)
     assert len(launches) == 1
     launch_id = launches[0].info.run_id
@@ -241,7 +242,7 @@ def test_a_trial_whose_process_died_resumes_from_its_checkpoint_in_one_continuou
     experiment = _experiment(tmp_path, RESUMABLE.format(marker=tmp_path / "crashed"))
     outcome = run_quiet(experiment, tmp_path, tracking_uri)
     assert outcome.exit_code == 0 and len(outcome.finished) == 1
-    tracker = Tracker(tracking_uri, "resumable")
+    tracker = RunReader(tracking_uri, "resumable")
     (run,) = tracker.trial_runs(with_artifacts=True)
     assert run.status == "FINISHED" and run.tags["ablate.attempt"] == "2"  # the process died once
     wall = tracker.metric_history(run.run_id, "episode/wall_s")
@@ -544,7 +545,7 @@ def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_
     assert outcome.skipped == 4 and not base_keys & set(outcome.finished)
     assert len(outcome.finished) == 8 + 4 and outcome.total == 16
 
-    tracker = Tracker(tracking_uri, "tiny")
+    tracker = RunReader(tracking_uri, "tiny")
     runs = [r for r in tracker.trial_runs() if r.status == "FINISHED"]
     assert len({r.key for r in runs}) == len(runs) == 16  # no trial ran twice
     stages = [r.tags.get("ablate.stage") for r in runs]

@@ -104,3 +104,18 @@ def test_gpus_per_trial_reaches_ray_tunes_resource_request(gpus, expected):
     options = ClusterOptions(cpus_per_trial=1.0, gpus_per_trial=gpus)
     trainable = wrap_function(tune.with_resources(train, trial_resources(options)))
     assert trainable.default_resource_request({}).required_resources == expected
+
+
+def test_what_ray_prints_while_joining_is_kept_aside_and_passed_on_when_the_join_succeeds(capfd):
+    import os
+
+    from ablate.run.scheduler import _stderr_kept
+
+    with _stderr_kept() as kept:
+        os.write(2, b"gcs_client.cc:210: Failed to get cluster ID: InvalidAuthToken\n")
+    assert "InvalidAuthToken" in kept.text
+    assert "InvalidAuthToken" in capfd.readouterr().err  # a join that succeeded: passed on as it was
+    with pytest.raises(ConnectionError), _stderr_kept() as kept:
+        os.write(2, b"InvalidAuthToken\n")
+        raise ConnectionError("Failed to connect to Ray cluster")
+    assert "InvalidAuthToken" in kept.text and "InvalidAuthToken" not in capfd.readouterr().err  # kept for the line

@@ -3,6 +3,7 @@
 import pytest
 from test_curve import rows
 
+from ablate.report.reader import RunReader
 from ablate.run.curve import CurveReducer
 from ablate.run.tracking import POINT_METRICS, Tracker
 
@@ -23,7 +24,7 @@ def test_each_point_logs_every_curve_metric_at_its_last_episode(tracking_uri):
     points = reducer.add(rows(20, per_update=1)) + reducer.flush()
     tracker, run_id = _track(tracking_uri, points)
     for metric, attr in POINT_METRICS.items():
-        history = tracker.metric_history(run_id, metric)
+        history = RunReader(tracking_uri, "layout").metric_history(run_id, metric)
         assert history == [(p.episode, pytest.approx(float(getattr(p, attr)))) for p in points], metric
     assert tracker.client.get_run(run_id).data.tags["ablate.node"] == "n1"
     start_ms = tracker.client.get_run(run_id).info.start_time
@@ -85,3 +86,22 @@ def test_first_launches_racing_on_a_fresh_folder_all_open_the_store(tmp_path):
     results = [c.communicate(timeout=120) for c in children]
     assert [c.returncode for c in children] == [0, 0], [err[-2000:] for _, err in results]
     assert Tracker(f"sqlite:///{tmp_path}/mlflow.db", "race").experiment_id(create=False) is None
+
+
+def test_only_the_writer_and_the_reader_import_mlflow_and_run_never_imports_report():
+    import ast
+    from pathlib import Path
+
+    package = Path(__file__).resolve().parents[1] / "ablate"
+    importers, upward = set(), set()
+    for path in package.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            names += [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            relative = path.relative_to(package).as_posix()
+            if any(n == "mlflow" or n.startswith("mlflow.") for n in names):
+                importers.add(relative)
+            if relative.startswith("run/") and any(n.startswith("ablate.report") for n in names):
+                upward.add(relative)
+    assert importers == {"run/tracking.py", "report/reader.py"}
+    assert not upward  # the report after a launch is written by ablate/commands.py, above both layers

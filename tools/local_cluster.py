@@ -4,6 +4,8 @@
 ``node``: one Ray node (head, or a worker joining ``--address``) in the foreground until SIGTERM, SIGINT or
 end of stdin, then all of its processes are killed (to a cluster, a node that died). ``up``/``down``: a head
 node and ``mlflow server`` (served artifacts) in the background, their process ids in ``.cluster/state.json``.
+Locked as a team's cluster should be: the Ray nodes require a token (``RAY_AUTH_MODE=token``, the token in a
+file) and the server runs MLflow's basic-auth app; secrets travel in files and the environment, never in argv.
 ``ray start``/``ray stop`` are not used: ``ray stop`` kills every Ray on the machine, not just this one, and
 ``ray start`` binds a worker node to the machine's address on every interface.
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -86,14 +89,36 @@ def wait_http(url: str, timeout_s: float, process: subprocess.Popen | None = Non
         time.sleep(0.2)
 
 
-def mlflow_server(folder: Path, port: int, backend: str | None = None, log=None) -> subprocess.Popen:
-    """``mlflow server`` on 127.0.0.1:``port``, serving artifacts from ``folder/artifacts``."""
+AUTH_CONFIG = """[mlflow]
+default_permission = READ
+database_uri = sqlite:///{folder}/basic_auth.db
+admin_username = {username}
+authorization_function = mlflow.server.auth:authenticate_request_basic_auth
+# A checked password is remembered this long: MLflow hashes every request's password (PBKDF2, ~1 s of CPU on a
+# busy machine), which made each of the driver's writes wait on it.
+auth_cache_ttl_seconds = 300
+"""
+
+
+def mlflow_server(
+    folder: Path, port: int, backend: str | None = None, log=None, auth: tuple[str, str] | None = None
+) -> subprocess.Popen:
+    """``mlflow server`` on 127.0.0.1:``port``, serving artifacts from ``folder/artifacts``. ``auth``: (user,
+    password) of its admin, and the server runs MLflow's basic-auth app (users kept in ``folder``). The store
+    URI and the password reach the server through its environment, not its command line (``ps`` shows that)."""
     folder.mkdir(parents=True, exist_ok=True)
-    command = [
-        str(Path(sys.executable).parent / "mlflow"),
-        "server",
-        "--backend-store-uri",
-        backend or f"sqlite:///{folder / 'mlflow.db'}",
+    env = dict(os.environ, MLFLOW_BACKEND_STORE_URI=backend or f"sqlite:///{folder / 'mlflow.db'}")
+    command = [str(Path(sys.executable).parent / "mlflow"), "server"]
+    if auth is not None:
+        config = folder / "basic_auth.ini"
+        config.write_text(AUTH_CONFIG.format(folder=folder.resolve(), username=auth[0]))
+        env.update(
+            MLFLOW_AUTH_CONFIG_PATH=str(config),
+            MLFLOW_AUTH_ADMIN_PASSWORD=auth[1],
+            MLFLOW_FLASK_SERVER_SECRET_KEY=secrets.token_hex(16),
+        )
+        command += ["--app-name", "basic-auth"]
+    command += [
         "--serve-artifacts",
         "--artifacts-destination",
         str(folder / "artifacts"),
@@ -105,8 +130,22 @@ def mlflow_server(folder: Path, port: int, backend: str | None = None, log=None)
         "1",
     ]
     return subprocess.Popen(
-        command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+        command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env
     )
+
+
+def ray_token_env(token_file: Path) -> dict[str, str]:
+    """What a Ray node or driver needs in its environment to join a cluster that requires ``token_file``'s token."""
+    return {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN_PATH": str(token_file)}
+
+
+def write_secret(path: Path, text: str) -> Path:
+    """``text`` into ``path``, readable by this user only."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.touch(mode=0o600)
+    path.chmod(0o600)
+    path.write_text(text)
+    return path
 
 
 def start_node_process(
@@ -117,9 +156,11 @@ def start_node_process(
     wrap: list[str] | None = None,
     log=None,
     detached: bool = False,
+    token_file: Path | None = None,
 ) -> tuple[subprocess.Popen, str, str]:
     """``node`` in a child process (inside ``wrap``, e.g. an ``unshare`` command); returns it, its node id and
-    the cluster's GCS address once the node is up."""
+    the cluster's GCS address once the node is up. ``token_file``: the node requires (a head) or presents (a
+    worker) that Ray token."""
     command = [sys.executable, str(Path(__file__).resolve()), "node", "--cpus", str(cpus)]
     command += ["--head", "--port", str(port)] if head else ["--address", address]
     command += ["--detached"] if detached else []
@@ -130,6 +171,7 @@ def start_node_process(
         stderr=log,
         text=True,
         start_new_session=True,
+        env=dict(os.environ, **(ray_token_env(token_file) if token_file else {})),
     )
     line = process.stdout.readline().split()
     if len(line) != 3 or line[0] != "ready":
@@ -165,10 +207,13 @@ def up(ray_port: int, mlflow_port: int, cpus: float) -> int:
         return 1
     folder = STATE.parent
     folder.mkdir(exist_ok=True)
+    token_file, credentials = credentials_files(folder)
     log = open(folder / "cluster.log", "a")  # noqa: SIM115 - stays open in the children
-    server = mlflow_server(folder / "mlflow", mlflow_port, log=log)
+    server = mlflow_server(folder / "mlflow", mlflow_port, log=log, auth=credentials)
     try:
-        head, node_id, gcs = start_node_process(True, cpus, port=ray_port, log=log, detached=True)
+        head, node_id, gcs = start_node_process(
+            True, cpus, port=ray_port, log=log, detached=True, token_file=token_file
+        )
     except RuntimeError as error:
         stop_process(server)
         print(f"{error} ({folder}/cluster.log)", file=sys.stderr)
@@ -183,8 +228,31 @@ def up(ray_port: int, mlflow_port: int, cpus: float) -> int:
         print(f"mlflow server: {error} (port {mlflow_port} taken? see {folder}/cluster.log)", file=sys.stderr)
         return 1
     print(f"Ray head {gcs} (node {node_id[:8]}), MLflow http://127.0.0.1:{mlflow_port}; logs in {folder}/cluster.log")
+    print(f"both require credentials: . {folder / ENV_FILE} (MLflow user {credentials[0]!r}, the Ray token's file)")
     print(f"  ablate run experiments/cartpole.toml --address {gcs} --tracking-uri http://127.0.0.1:{mlflow_port}")
     return 0
+
+
+ENV_FILE = "credentials.env"
+
+
+def credentials_files(folder: Path) -> tuple[Path, tuple[str, str]]:
+    """The Ray token's file and the MLflow admin (user, password) of ``make cluster-up``, made once (random)
+    and kept in ``folder`` (this user only), with ``credentials.env``: the environment a client needs."""
+    token_file = folder / "ray_token"
+    if not token_file.is_file():
+        write_secret(token_file, secrets.token_hex(32) + "\n")
+    env_file = folder / ENV_FILE
+    if not env_file.is_file():
+        write_secret(
+            env_file,
+            f"export MLFLOW_TRACKING_USERNAME=ablate\nexport MLFLOW_TRACKING_PASSWORD={secrets.token_urlsafe(24)}\n"
+            f"export RAY_AUTH_MODE=token\nexport RAY_AUTH_TOKEN_PATH={token_file.resolve()}\n",
+        )
+    values = dict(
+        line.removeprefix("export ").split("=", 1) for line in env_file.read_text().splitlines() if "=" in line
+    )
+    return token_file, (values["MLFLOW_TRACKING_USERNAME"], values["MLFLOW_TRACKING_PASSWORD"])
 
 
 def down() -> int:

@@ -72,12 +72,19 @@ password=$("$PYTHON" -c 'import secrets; print(secrets.token_hex(16))')
     || { cat "$folder/server.log"; exit 1; }
 "$PGBIN/pg_isready" -q -h 127.0.0.1 -p "$port" -t 60 || { cat "$folder/server.log"; exit 1; }
 psql_admin=("$PGBIN/psql" -X -q -v ON_ERROR_STOP=1 -h "$folder" -p "$port" -U postgres)
-"${psql_admin[@]}" -c "CREATE USER mlflow PASSWORD '$password'" -c "CREATE DATABASE mlflow OWNER mlflow"
+# The password goes through psql's standard input and a password file, never a command line (ps shows those)
+# nor the store's URL (the test's server and clients read it from PGPASSFILE, as the team recipe does).
+"${psql_admin[@]}" <<SQL
+CREATE USER mlflow PASSWORD '$password';
+CREATE DATABASE mlflow OWNER mlflow;
+SQL
+pgpass=$folder/pgpass
+(umask 077 && echo "127.0.0.1:$port:mlflow:mlflow:$password" >"$pgpass")
 echo "test-cluster-postgres: PostgreSQL $("$PGBIN/postgres" --version | awk '{print $3}') on 127.0.0.1:$port" \
     "ready after $((SECONDS - started)) s"
 
 code=0
-ABLATE_CLUSTER_TESTS=1 ABLATE_TEST_BACKEND="postgresql+psycopg://mlflow:$password@127.0.0.1:$port/mlflow" \
+ABLATE_CLUSTER_TESTS=1 PGPASSFILE="$pgpass" ABLATE_TEST_BACKEND="postgresql+psycopg://mlflow@127.0.0.1:$port/mlflow" \
     "$PYTHON" -m pytest -q tests/test_cluster.py || code=$?
 # What the server wrote, read from PostgreSQL itself.
 runs=$("${psql_admin[@]}" -d mlflow -At -c "SELECT count(*) FROM runs" 2>/dev/null) || runs="?"

@@ -37,6 +37,7 @@ from ablate.report.figures import esc as _esc
 from ablate.report.figures import fmt as _fmt
 from ablate.report.findings import _findings_intro, findings, summary
 from ablate.report.provenance import _generation_note, _reproducibility
+from ablate.report.reader import RunReader
 from ablate.report.results import Ablation, NoResults, load_ablation, select
 from ablate.report.sections import (
     GLOSSARY,
@@ -51,7 +52,6 @@ from ablate.report.tables import convergence_table, trials_table
 from ablate.report.text import _metric_name
 from ablate.report.tuning_sections import dependence_section, knob_words, tuning_section
 from ablate.report.writers import CSS, _inline, print_pdf
-from ablate.run.tracking import Tracker
 
 
 def _video_picks(ablation: Ablation, done: pd.DataFrame) -> list[tuple[pd.Series, str]]:
@@ -69,7 +69,7 @@ def _video_picks(ablation: Ablation, done: pd.DataFrame) -> list[tuple[pd.Series
     return picks
 
 
-def _videos(ablation: Ablation, tracker: Tracker, folder: Path) -> list[dict[str, str]]:
+def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[str, str]]:
     chosen = []
     folder.mkdir(parents=True, exist_ok=True)
     for variant in ablation.variants:
@@ -288,7 +288,7 @@ def build_report(
     Path(out_root).mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=out_root))
     try:
-        tracker = Tracker(tracking_uri, name)
+        tracker = RunReader(tracking_uri, name)
         pdf_note = _build(ablation, tracker, staging, pdf, command)
         _swap(staging, folder)
     except BaseException:
@@ -314,7 +314,7 @@ def _swap(staging: Path, folder: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def _build(ablation: Ablation, tracker: Tracker, folder: Path, pdf: bool, command: str) -> str | None:
+def _build(ablation: Ablation, tracker: RunReader, folder: Path, pdf: bool, command: str) -> str | None:
     for sub in ("figures", "tables", "videos"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     table = convergence_table(ablation)

@@ -18,10 +18,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from ablate.report.reader import RunReader  # noqa: E402
 from ablate.report.results import Ablation  # noqa: E402
 from ablate.report.statistics import N_RESAMPLES, curve_band  # noqa: E402
 from ablate.report.tuning import METRICS, chosen_values, knobs, same_value, sensitivity  # noqa: E402
-from ablate.run.tracking import Tracker  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
 COLOURS = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7]
@@ -294,7 +294,7 @@ def figure_parameters(ablation: Ablation, table: pd.DataFrame, folder: Path) -> 
     return Figure(_save(fig, folder, "performance_vs_parameters"), caption, "Performance against parameter count")
 
 
-def figure_observation(ablation: Ablation, tracker: Tracker, folder: Path) -> Figure | None:
+def figure_observation(ablation: Ablation, tracker: RunReader, folder: Path) -> Figure | None:
     """The trial's own picture of one observation (raw, pre-processed, frame difference), where it logged one."""
     for run_id in ablation.finished.run_id.dropna():
         try:

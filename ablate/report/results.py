@@ -17,9 +17,9 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import ConfigError, Experiment
+from ablate.report.reader import RunReader
 from ablate.report.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.report.tuning import knobs as tuning_knobs
-from ablate.run.tracking import Tracker
 
 INITIAL_EPISODES = 10
 """The untrained policy's return: the mean of a trial's first 10 episodes."""
@@ -179,11 +179,11 @@ def trial_measures(curve: pd.DataFrame, budget: int, levels: tuple[float, ...], 
     return measures
 
 
-def _launches(tracker: Tracker) -> list[Any]:
+def _launches(tracker: RunReader) -> list[Any]:
     return tracker.launches()
 
 
-def _generation_summary(tracker: Tracker, launches: list[Any]) -> list[dict[str, Any]]:
+def _generation_summary(tracker: RunReader, launches: list[Any]) -> list[dict[str, Any]]:
     """Every generation, newest first: its id, when it started, trials in its grid, trials finished."""
     runs = tracker.trial_runs()
     finished: dict[str, set[str]] = {}
@@ -231,14 +231,15 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
     answers it. Reads only; a missing store is a ``ConfigError``, a store without the experiment, its launches
     or the asked-for generation is ``NoResults``."""
     uri = check_store(tracking_uri)
-    tracker = Tracker(uri, name)
+    tracker = RunReader(uri, name)
     if tracker.experiment_id(create=False) is None:
         raise NoResults(
-            f"no MLflow experiment named {name!r} at {tracker.uri}; run `ablate run experiments/{name}.toml` first"
+            f"no MLflow experiment named {name!r} at {tracker.shown_uri}; "
+            f"run `ablate run experiments/{name}.toml` first"
         )
     launches = _launches(tracker)
     if not launches:
-        raise NoResults(f"experiment {name!r} at {tracker.uri} has no launches; run `ablate run` first")
+        raise NoResults(f"experiment {name!r} at {tracker.shown_uri} has no launches; run `ablate run` first")
     generations = _generation_summary(tracker, launches)
     if generation is None:
         launch = launches[0]
@@ -254,7 +255,7 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
     return _read_launch(tracker, name, launch, generations)
 
 
-def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dict[str, Any]]) -> Ablation:
+def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[dict[str, Any]]) -> Ablation:
     launch_id = launch.info.run_id
     grid = json.loads(tracker.load_text(launch_id, "grid.json"))
     try:
@@ -334,7 +335,7 @@ def _read_launch(tracker: Tracker, name: str, launch: Any, generations: list[dic
     return replace(tuned, tuning=tuning, tuning_trials=tuning_table(tune_rows, tuning, variants), untuned=untuned)
 
 
-def _tuning_document(tracker: Tracker, launch_id: str) -> dict[str, Any] | None:
+def _tuning_document(tracker: RunReader, launch_id: str) -> dict[str, Any] | None:
     """The launch's ``tuning.json``; None for a launch without ``[tune]``."""
     try:
         return json.loads(tracker.load_text(launch_id, "tuning.json"))
@@ -342,7 +343,7 @@ def _tuning_document(tracker: Tracker, launch_id: str) -> dict[str, Any] | None:
         return None
 
 
-def _curve(tracker: Tracker, run: Any, trial: dict[str, Any], grid: dict[str, Any]) -> pd.DataFrame:
+def _curve(tracker: RunReader, run: Any, trial: dict[str, Any], grid: dict[str, Any]) -> pd.DataFrame:
     """One finished trial's learning curve. The exact per-episode table is the run's episodes.csv (MLflow holds
     a bounded curve); the rolling mean is recomputed from the returns with the trial's own window, exactly as
     the trial computed it."""

@@ -10,8 +10,9 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable
 
 from ablate.config import ConfigError, Experiment, storage_name
+from ablate.report.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 from ablate.run.grid import expand, tuning_trials
-from ablate.run.tracking import LaunchRun, Tracker, TrialRun, ablation_names, resolve_uri, store_exists
+from ablate.run.store import mask_uri, resolve_uri
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
 """A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""
@@ -43,13 +44,13 @@ def _when(ms: int) -> str:
 
 def overview(tracking_uri: str | None) -> str:
     """One line per ablation in the store."""
-    uri = resolve_uri(tracking_uri)
+    uri = mask_uri(resolve_uri(tracking_uri))  # shown: its password masked
     names = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
     if not names:
         return f"no ablations in the MLflow store {uri} yet; start one with: ablate run experiments/cartpole.toml"
     rows = [("experiment", "launches", "generations", "newest launch", "", "trials of the newest generation")]
     for name in names:
-        tracker = Tracker(tracking_uri, name)
+        tracker = RunReader(tracking_uri, name)
         launches = tracker.launch_runs()
         newest = launches[-1]
         counts = Counter(s for _, s in trial_states(tracker.trial_runs(newest.generation)).values())
@@ -63,12 +64,12 @@ def overview(tracking_uri: str | None) -> str:
 def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = None) -> str:
     """An ablation's generations (newest first), each with its launches and trials by state; the newest
     generation per variant. With ``experiment`` (its file), trials of the file with no run count as pending."""
-    uri = resolve_uri(tracking_uri)
+    uri = mask_uri(resolve_uri(tracking_uri))  # shown: its password masked
     known = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
     if storage_name(name) not in known:  # the name as written or its storage form (``config.storage_name``)
         valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"
         raise ConfigError(f"{name!r} is not an ablation in the MLflow store {uri}; {valid}")
-    tracker = Tracker(tracking_uri, name)
+    tracker = RunReader(tracking_uri, name)
     launches = tracker.launch_runs()
     by_generation: dict[str, list[LaunchRun]] = defaultdict(list)
     for launch in launches:

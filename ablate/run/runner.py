@@ -5,28 +5,25 @@ The glue of ``ablate run``; it imports neither Ray nor MLflow (``scheduler`` and
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import os
 import platform
-import shlex
 import shutil
 import signal
 import socket
 import subprocess
-import sys
 import time
 import uuid
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ablate.config import ConfigError, Experiment, flatten, load_experiment
+from ablate.config import ConfigError, Experiment, flatten
 from ablate.run.curve import CurvePoint
-from ablate.run.grid import GridTrial, expand, schedule_order, select, tuning_trials
+from ablate.run.grid import GridTrial, expand, schedule_order, tuning_trials
 from ablate.run.lock import launch_lock
-from ablate.run.progress import ProgressView, clock, stage
+from ablate.run.progress import ProgressView
 from ablate.run.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
 from ablate.run.tuning import StagePlan, tuning_document, unique
 
@@ -44,12 +41,12 @@ class Interrupted(KeyboardInterrupt):
         self.exit_code = 128 + signum
 
 
-_signals_received: list[int] = []
-"""Signals ``_raise_interrupted`` turned into ``Interrupted``: Tune re-raises a plain ``KeyboardInterrupt``."""
+signals_received: list[int] = []
+"""Signals ``raise_interrupted`` turned into ``Interrupted``: Tune re-raises a plain ``KeyboardInterrupt``."""
 
 
-def _raise_interrupted(signum: int, frame: object) -> None:
-    _signals_received.append(signum)
+def raise_interrupted(signum: int, frame: object) -> None:
+    signals_received.append(signum)
     raise Interrupted(signum)
 
 
@@ -459,7 +456,7 @@ def _run_locked(
                     run_trials(todo_after, recorder, options, run_name=run_name, resume=resume)
     except KeyboardInterrupt as interrupt:
         outcome.interrupted = True
-        signum = getattr(interrupt, "signum", None) or (_signals_received[-1] if _signals_received else signal.SIGINT)
+        signum = getattr(interrupt, "signum", None) or (signals_received[-1] if signals_received else signal.SIGINT)
         outcome.signal_name = signal.Signals(signum).name
     except Exception as error:  # noqa: BLE001 - any scheduler or Ray error: the launch is recorded FAILED, with it
         outcome.error = f"{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
@@ -492,81 +489,3 @@ def _run_locked(
             if started_ray:
                 stop_ray()
     return outcome
-
-
-def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
-    # SIGTERM (a supervisor, `kill`, a CI timeout) stops the launch as Ctrl-C does, with exit code 143 (the
-    # shell's 128 + 15, so a supervisor sees which signal ended it). The scheduler keeps this handler across
-    # ray.init, which would install one that exits mid-call and aborts in C++.
-    previous = signal.signal(signal.SIGTERM, _raise_interrupted)
-    _signals_received.clear()
-    try:
-        return _cmd_run(args, started_at)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
-    started_at = time.monotonic() if started_at is None else started_at
-    experiment = load_experiment(args.experiment)
-    chosen = select(expand(experiment), args.only, args.seeds)
-    if args.max_concurrent is not None and args.max_concurrent < 1:
-        raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
-    command = " ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]])
-    try:
-        outcome = run_experiment(
-            experiment,
-            tracking_uri=args.tracking_uri,
-            address=args.address,
-            fresh=args.fresh,
-            max_concurrent=args.max_concurrent,
-            show_progress=True,
-            command=command,
-            only=chosen,
-            started_at=started_at,
-            storage_path=args.storage_path,
-        )
-    except Exception as error:
-        # The scheduler (and Ray) is only imported when trials run: its error class is known only then.
-        scheduler = sys.modules.get("ablate.run.scheduler")
-        if scheduler is None or not isinstance(error, scheduler.ClusterUnavailable):
-            raise
-        sys.stderr.write(f"ablate run: {error}\n")
-        return 1
-    total = outcome.total
-    if outcome.reaped:
-        print(f"marked {outcome.reaped} run(s) KILLED that a launch which died had left RUNNING")
-    if outcome.interrupted:
-        print(
-            f"interrupted: {len(outcome.killed)} running trial(s) marked killed ({outcome.signal_name}); "
-            f"run the same command again to finish the remaining {total - len(outcome.finished) - outcome.skipped}"
-        )
-    elif outcome.error:
-        print(
-            f"the scheduler failed: {outcome.error}; {len(outcome.finished)} finished, {len(outcome.killed)} "
-            "running trial(s) marked killed, launch recorded FAILED; run the same command again to finish the rest"
-        )
-    elif outcome.launch_run_id is None:
-        print(f"all {total} trials of {experiment.name} already finished; --fresh starts over")
-    else:
-        print(f"{len(outcome.finished)} finished, {len(outcome.failed)} failed, {outcome.skipped} finished before")
-    for key, message in outcome.failed.items():
-        print(f"  FAILED {key}: {message}")
-    print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
-    if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
-        from ablate.report.document import NoResults, terminal_summary, write_report
-
-        try:
-            with stage(f"writing the report into reports/{experiment.storage_name}/") as report_s:
-                folder = write_report(experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"))
-        except NoResults as error:  # every trial failed: say so, and leave the last good report in place
-            print(f"no report: {error}")
-            return outcome.exit_code
-        print(terminal_summary(folder))
-        pdf = " and report.pdf" if (folder / "report.pdf").is_file() else ""
-        print(f"report: {folder}/report.md, report.html{pdf}")
-    else:
-        report_s = []
-    report_seconds = report_s[0] if report_s else None
-    print(outcome.view.total_line(report_seconds) if outcome.view else f"total {clock(time.monotonic() - started_at)}")
-    return outcome.exit_code

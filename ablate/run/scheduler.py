@@ -19,15 +19,17 @@ driver; a user with NFS or ``s3://`` can still point it there.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import shutil
 import signal
 import socket
+import sys
 import tempfile
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -36,9 +38,9 @@ import ray
 from ray import tune
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
+from ablate.agent.trial import run_trial
 from ablate.run.curve import CurvePoint, CurveReducer
 from ablate.run.grid import GridTrial
-from ablate.agent.trial import run_trial
 
 REPORT_EVERY_S = 2.0
 """Seconds between metric reports from a trial: each ``tune.report`` costs ~2 ms, so never per episode."""
@@ -220,20 +222,60 @@ def ensure_ray(address: str | None) -> bool:
     # ray.init installs a SIGTERM handler that calls sys.exit() wherever the driver is, which skips the
     # caller's cleanup and ends in a C++ abort (exit 134); the caller's own handler stays.
     sigterm = signal.getsignal(signal.SIGTERM)
+    problem = None
     try:
-        ray.init(
-            address=address or "local",
-            num_cpus=None if address else os.cpu_count(),
-            include_dashboard=False,
-            log_to_driver=False,  # workers' prints stay in Ray's log files, not on the progress view
-            logging_level=logging.ERROR,
-            configure_logging=True,
-        )
+        # Only a join is refused for a token; a local start's daemons would inherit the kept descriptor.
+        with _stderr_kept() if address else contextlib.nullcontext(_Kept()) as kept:
+            ray.init(
+                address=address or "local",
+                num_cpus=None if address else os.cpu_count(),
+                include_dashboard=False,
+                log_to_driver=False,  # workers' prints stay in Ray's log files, not on the progress view
+                logging_level=logging.ERROR,
+                configure_logging=True,
+            )
     except ConnectionError as error:
-        raise ClusterUnavailable(f"cannot join the Ray cluster at {address}: {error}".splitlines()[0]) from None
+        problem = f"cannot join the Ray cluster at {address}: {error}".splitlines()[0]
+        if "InvalidAuthToken" in kept.text:
+            problem = (
+                f"the Ray cluster at {address} refused this driver: its token is missing or wrong; set "
+                "RAY_AUTH_MODE=token and RAY_AUTH_TOKEN_PATH to the cluster's token file (or RAY_AUTH_TOKEN)"
+            )
+    if problem:  # raised outside the except: one line, not the chain of exceptions behind it
+        raise ClusterUnavailable(problem)
     if callable(sigterm) and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, sigterm)
     return True
+
+
+class _Kept:
+    text = ""
+
+
+@contextlib.contextmanager
+def _stderr_kept() -> Iterator[_Kept]:
+    """Ray's C++ client prints a warning a second to file descriptor 2 while a cluster refuses it (a missing
+    token: ``InvalidAuthToken``) before ``ray.init`` gives up: keep them aside, to name the cause in one line;
+    on success they are passed on as they were."""
+    kept = _Kept()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as buffer:
+        os.dup2(buffer.fileno(), 2)
+        failed = False
+        try:
+            yield kept
+        except BaseException:
+            failed = True
+            raise
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            buffer.seek(0)
+            kept.text = buffer.read().decode(errors="replace")
+            if not failed and kept.text:
+                sys.stderr.write(kept.text)
 
 
 def largest_node_cpus() -> float:

@@ -1,4 +1,5 @@
-"""The only module that talks to MLflow: write launches and trials as runs, read them back.
+"""The driver's side of MLflow: open a store, write launches and trials as runs (``ablate.report.reader`` reads
+them back for the report; the two are the only modules that import MLflow).
 
 One writer: the driver process owns every write (trials run elsewhere and send their metrics through
 the scheduler), so an SQLite store never sees two writers; a tracking server works the same way.
@@ -7,22 +8,36 @@ the scheduler), so an SQLite store never sees two writers; a tracking server wor
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import logging
 import os
 import time
 import unicodedata
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlparse
 
 from ablate.config import storage_name
+from ablate.run.store import (
+    PROBE_TIMEOUT_S,
+    RetryingClient,
+    TrackingError,
+    check_sqlite,
+    check_uri,
+    fail_fast_http,
+    first_line,
+    is_database,
+    mask_uri,
+    probe_database,
+    probe_server,
+    redact,
+    resolve_uri,
+    sqlite_path,
+    store_setup_lock,
+)
 
-DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 # A trial's curve: one point per bin of episodes (``ablate.run.curve``: at most ~100 points however many episodes
 # run), step = the bin's last episode. MLflow's SQLite store costs ~4 ms per call plus ~55 us per value of
 # the writer's CPU, and one writer serves every trial: a value per episode capped it at ~10 concurrent
@@ -51,24 +66,9 @@ _BATCH = 1000  # MLflow's limit of metrics per log_batch call
 FLUSH_EVERY_S = 10.0
 """Seconds a trial's curve points wait to be written together: one MLflow call costs ~4 ms plus ~50 us per
 value, so a trial that reports every 2 s is written in a fifth of the calls; a trial's end flushes it."""
-SCHEMES = ("sqlite", "http", "https", "file", "postgresql", "mysql", "mssql", "databricks")
-"""URI schemes MLflow can track to (``file`` and a bare path: its folder store)."""
-PROBE_TIMEOUT_S = 5
-"""The first request to a tracking server: one try, this long. MLflow's defaults (7 retries with backoff,
-120 s timeout) are right mid-run but turn a mistyped server into four minutes of silence at the start."""
-SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
-class TrackingError(RuntimeError):
-    """The tracking store cannot be used (unknown scheme, unreachable, corrupt, read-only, experiment deleted).
-    The message is one line naming the store and what to do; ``exit_code`` is 2 for a malformed URI, else 1."""
-
-    def __init__(self, message: str, exit_code: int = 1) -> None:
-        super().__init__(message)
-        self.exit_code = exit_code
-
-
-def _quiet_mlflow() -> None:
+def quiet_mlflow() -> None:
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
     for name in ("mlflow", "alembic"):
@@ -92,196 +92,53 @@ class TrialRun:
     artifacts: list[str] = field(default_factory=list)
 
 
-@dataclass
-class LaunchRun:
-    """A tracked launch (one ``ablate run``), as ``ablate status`` needs it."""
-
-    run_id: str
-    generation: str
-    status: str
-    """MLflow status: FINISHED, FAILED, KILLED, RUNNING (still going, or its process died)."""
-    start_time_ms: int
-    command: str
-    """The command line that started it."""
-
-
-def resolve_uri(tracking_uri: str | None) -> str:
-    """Explicit URI, else ``MLFLOW_TRACKING_URI``, else an SQLite file in the current folder."""
-    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
-
-
-def sqlite_path(uri: str) -> Path | None:
-    """The database file of an ``sqlite:///`` URI (relative to the current folder, or absolute with four
-    slashes); ``None`` for any other store."""
-    if not uri.startswith("sqlite:///"):
-        return None
-    return Path(uri.removeprefix("sqlite:///").split("?", 1)[0])
-
-
-def _check_uri(uri: str) -> None:
-    scheme = urlparse(uri).scheme
-    if scheme and scheme not in SCHEMES and not scheme.startswith(("postgresql+", "mysql+", "mssql+")):
-        raise TrackingError(
-            f"--tracking-uri {uri}: unknown scheme {scheme!r}; valid: sqlite:///path/to/mlflow.db, "
-            "http(s)://host:port of a tracking server, or another MLflow store URI (file, postgresql, mysql)",
-            exit_code=2,
-        )
-
-
-def _check_sqlite(path: Path, write: bool) -> None:
-    """Fail in a line, before MLflow tries (and retries) to use a file that cannot work as a store."""
-    folder = path.parent.resolve()
-    if not path.exists():
-        if not folder.is_dir():
-            raise TrackingError(f"MLflow store {path}: folder {folder} does not exist; create it or choose another")
-        if not write:
-            raise TrackingError(f"MLflow store {path}: no such file; `ablate run` creates it")
-        if not os.access(folder, os.W_OK | os.X_OK):
-            raise TrackingError(f"MLflow store {path}: folder {folder} is read-only; cannot create the store there")
-        return
-    if not path.is_file():
-        raise TrackingError(f"MLflow store {path}: not a file")
-    if not os.access(path, os.R_OK):
-        raise TrackingError(f"MLflow store {path}: not readable by this user")
-    if write and not (os.access(path, os.W_OK) and os.access(folder, os.W_OK | os.X_OK)):
-        what = "file" if not os.access(path, os.W_OK) else f"folder {folder}"
-        raise TrackingError(
-            f"MLflow store {path}: the {what} is read-only (SQLite writes a journal beside the file); "
-            "make it writable or point --tracking-uri at a writable store"
-        )
-    size = path.stat().st_size
-    if size == 0:
-        return  # SQLite treats an empty file as a new database
-    with path.open("rb") as file:
-        header = file.read(100)
-    if not header.startswith(SQLITE_MAGIC):
-        raise TrackingError(
-            f"MLflow store {path}: not an SQLite database (corrupt or another file); move it away to start a new "
-            "store, or point --tracking-uri at the right one"
-        )
-    # The header records the page size and the page count: a shorter file was truncated (an interrupted copy).
-    page_size = int.from_bytes(header[16:18], "big") if len(header) >= 18 else 0
-    page_size = 65536 if page_size == 1 else page_size
-    pages = int.from_bytes(header[28:32], "big") if len(header) >= 32 else 0
-    if len(header) < 100 or (page_size and pages and size < page_size * pages):
-        raise TrackingError(
-            f"MLflow store {path}: truncated ({size:,} of {page_size * pages:,} bytes); restore it from a copy "
-            "or move it away to start a new store"
-        )
-
-
-@contextlib.contextmanager
-def _store_setup_lock(path: Path | None) -> Iterator[None]:
-    """Serialises the first use of an SQLite store across processes: two launches in a fresh folder would
-    otherwise both run MLflow's schema migrations and one would die in them. A lock on the folder itself,
-    so no file is left behind; the kernel releases it if the process dies."""
-    if path is None:
-        yield
-        return
-    fd = os.open(path.parent.resolve(), os.O_RDONLY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(fd)
-
-
-@contextlib.contextmanager
-def _fail_fast_http() -> Iterator[None]:
-    names = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": str(PROBE_TIMEOUT_S)}
-    saved = {name: os.environ.get(name) for name in names}
-    os.environ.update(names)
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
-def _first_line(error: BaseException) -> str:
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    text = lines[0] if lines else type(error).__name__
-    return text[:300]
-
-
-def store_exists(tracking_uri: str | None) -> bool:
-    """Whether there is a store to read: a local SQLite file must exist (opening one would create it)."""
-    db = sqlite_path(resolve_uri(tracking_uri))
-    return db is None or db.is_file()
-
-
-def ablation_names(tracking_uri: str | None) -> list[str]:
-    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted."""
-    from mlflow.tracking import MlflowClient
-
-    _quiet_mlflow()
-    client = MlflowClient(resolve_uri(tracking_uri))
-    names = []
-    for experiment in client.search_experiments():
-        if client.search_runs([experiment.experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", max_results=1):
-            names.append(experiment.name)
-    return sorted(names)
-
-
-class Tracker:
-    """Runs of one MLflow experiment (one per ablation): a parent run per launch, a child run per trial."""
+class Store:
+    """One MLflow experiment (one per ablation) in one store, opened: what the writer (``Tracker``, below) and
+    the report's reader (``ablate.report.reader``) share: the checks that open it, its experiment, its runs."""
 
     def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
         """Opens the store and reads the experiment once, so every reason the store cannot be used surfaces
         here as a one-line ``TrackingError``, before anything is written or started. ``write=False`` (a
         report) accepts a read-only store and refuses to create one."""
         self.uri = resolve_uri(tracking_uri)
+        self.shown_uri = mask_uri(self.uri)
+        """The URI as messages and records show it: its password masked."""
         self.display_name = unicodedata.normalize("NFC", experiment_name)
         # The MLflow experiment, its artifact folder and its lock file: the name's safe form (the name itself
         # for every name valid before names in any script were), whichever form the caller gave.
         self.experiment_name = storage_name(experiment_name)
         self._experiment_id: str | None = None
-        _check_uri(self.uri)
+        check_uri(self.uri)
         db = sqlite_path(self.uri)
         if db is not None:
-            _check_sqlite(db, write)
+            check_sqlite(db, write)
+        if is_database(self.uri):
+            probe_database(self.uri)
+        elif self.uri.startswith(("http://", "https://")):
+            probe_server(self.uri)
 
         from mlflow.tracking import MlflowClient
 
-        _quiet_mlflow()
+        quiet_mlflow()
         try:
-            with _store_setup_lock(db), _fail_fast_http():
+            with store_setup_lock(db), fail_fast_http():
                 self.client = MlflowClient(self.uri)
                 existing = self.client.get_experiment_by_name(self.experiment_name)
         except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
             raise TrackingError(self._store_problem(error)) from None
         if existing is not None and existing.lifecycle_stage == "deleted":
             raise TrackingError(
-                f"MLflow experiment {self.experiment_name!r} (id {existing.experiment_id}) at {self.uri} is deleted; "
-                f"restore it with `MLFLOW_TRACKING_URI={self.uri} mlflow experiments restore --experiment-id "
+                f"MLflow experiment {self.experiment_name!r} (id {existing.experiment_id}) at {self.shown_uri} "
+                "is deleted; "
+                f"restore it with `MLFLOW_TRACKING_URI={self.shown_uri} mlflow experiments restore --experiment-id "
                 f"{existing.experiment_id}`, or give the experiment another name"
             )
         if existing is not None:
             self._experiment_id = existing.experiment_id
-        self.open_runs: dict[str, str] = {}
-        self.attempts: dict[str, int] = {}
-        self._points: dict[str, tuple[list[Any], float, int]] = {}
-        """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
-        self._artifact_uris: dict[str, str] = {}
-        """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
-        the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
 
     # --- experiment -------------------------------------------------------------------------------
     def _store_problem(self, error: BaseException) -> str:
-        text, full = _first_line(error), str(error).lower()
-        if self.uri.startswith(("http://", "https://")):
-            reason = text
-            if "refused" in full:
-                reason = "connection refused"
-            elif "timed out" in full or "timeout" in full:
-                reason = f"no answer in {PROBE_TIMEOUT_S} s"
-            elif "name or service not known" in full or "nodename nor servname" in full:
-                reason = "unknown host"
-            return f"MLflow tracking server {self.uri} is unreachable ({reason}); start it or check --tracking-uri"
-        return f"MLflow store {self.uri} cannot be used: {text}"
+        return store_problem(self.uri, error)
 
     def lock_path(self) -> Path:
         """The file that lets one launch at a time run this experiment on this store: beside an SQLite file;
@@ -313,8 +170,63 @@ class Tracker:
             return (db.parent / "mlartifacts" / self.experiment_name).as_uri()
         return None
 
+    # --- reading back (the writer resumes from what it wrote) -----------------------------------------
+    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
+        """Trial runs of this experiment (of one generation, if given), oldest first."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        query = f"tags.`{TAG_ROLE}` = 'trial'"
+        if generation is not None:
+            query += f" and tags.`{TAG_GENERATION}` = '{generation}'"
+        runs, token = [], None
+        while True:
+            page = self.client.search_runs(
+                [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
+            )
+            runs.extend(page)
+            token = page.token
+            if not token:
+                break
+        return [
+            TrialRun(
+                run_id=r.info.run_id,
+                key=r.data.tags.get(TAG_KEY, ""),
+                variant=r.data.tags.get(TAG_VARIANT, ""),
+                seed=int(r.data.tags.get(TAG_SEED, "-1")),
+                status=r.info.status,
+                params=dict(r.data.params),
+                metrics=dict(r.data.metrics),
+                tags=dict(r.data.tags),
+                start_time_ms=r.info.start_time,
+                artifacts=[a.path for a in self.client.list_artifacts(r.info.run_id)] if with_artifacts else [],
+            )
+            for r in runs
+        ]
+
+    def download(self, run_id: str, path: str, destination: str | Path | None = None) -> str:
+        import tempfile
+
+        destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
+        return self.client.download_artifacts(run_id, path, str(destination))
+
+
+class Tracker(Store):
+    """The driver's writer: a parent run per launch, a child run per trial (and what resuming reads back)."""
+
+    def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
+        super().__init__(tracking_uri, experiment_name, write)
+        self.client = RetryingClient(self.client, self.shown_uri)
+        self.open_runs: dict[str, str] = {}
+        self.attempts: dict[str, int] = {}
+        self._points: dict[str, tuple[list[Any], float, int]] = {}
+        """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
+        self._artifact_uris: dict[str, str] = {}
+        """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
+        the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
+
     def ui_link(self, port: int = 5000) -> str:
-        base = self.uri if self.uri.startswith("http") else f"http://127.0.0.1:{port}"
+        base = self.shown_uri if self.uri.startswith("http") else f"http://127.0.0.1:{port}"
         # MLflow 3 opens an experiment in its GenAI view unless told this is a machine-learning one.
         return f"{base.rstrip('/')}/#/experiments/{self.experiment_id()}/runs?workflowType=machine_learning"
 
@@ -332,17 +244,6 @@ class Tracker:
             [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"], max_results=1
         )
         return runs[0] if runs else None
-
-    def launches(self) -> list[Any]:
-        """Every launch (parent) run of this experiment, newest first (the report picks a generation from them)."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        return list(
-            self.client.search_runs(
-                [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"]
-            )
-        )
 
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
@@ -373,10 +274,12 @@ class Tracker:
     def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
         """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid)."""
         run = self.client.create_run(
-            self.experiment_id(), run_name=name, tags={TAG_ROLE: "launch", TAG_GENERATION: generation, **tags}
+            self.experiment_id(),
+            run_name=name,
+            tags={TAG_ROLE: "launch", TAG_GENERATION: generation, **{k: redact(v) for k, v in tags.items()}},
         )
         for filename, text in files.items():
-            self.client.log_text(run.info.run_id, text, filename)
+            self.client.log_text(run.info.run_id, redact(text), filename)
         return run.info.run_id
 
     def log_file(self, run_id: str, filename: str, text: str) -> None:
@@ -386,6 +289,7 @@ class Tracker:
     def finish_launch(self, run_id: str, status: str, summary: dict[str, float], note: str = "") -> None:
         """Close the launch's run; ``note`` (the run's description in MLflow) says what happened."""
         self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
+        note = redact(note)
         if note:
             self.client.set_tag(run_id, TAG_NOTE, note[:5000])
         if status != "FINISHED":
@@ -484,7 +388,7 @@ class Tracker:
         self.client.log_batch(
             run_id,
             metrics=[Metric(k, float(v), now, 0) for k, v in summary.items()],
-            tags=[RunTag(k, v) for k, v in (tags or {}).items()],
+            tags=[RunTag(k, redact(v)) for k, v in (tags or {}).items()],
         )
         if artifacts is not None:
             self._log_artifacts(run_id, artifacts)
@@ -512,6 +416,7 @@ class Tracker:
     def fail_trial(self, key: str, message: str) -> None:
         run_id = self._close(key)
         self._forget_artifact_uri(run_id)
+        message = redact(message)
         self.client.set_tag(run_id, TAG_ERROR, message[:5000])
         self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
         self.client.set_terminated(run_id, "FAILED")
@@ -557,6 +462,7 @@ class Tracker:
                 return runs
 
     def kill_runs(self, run_ids: Iterable[str], reason: str) -> None:
+        reason = redact(reason)
         for run_id in run_ids:
             self.client.set_tag(run_id, TAG_ERROR, reason[:5000])
             self.client.set_tag(run_id, TAG_NOTE, f"Killed: {reason[:5000]}")
@@ -576,81 +482,32 @@ class Tracker:
         if batch:
             self.client.log_batch(run_id, metrics=batch)
 
-    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ("videos",)) -> None:
-        """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables) as the ``report/``
-        artifacts of a launch run; ``skip`` leaves out folders already in the trial runs (the videos)."""
-        for path in sorted(Path(folder).iterdir()):
-            if path.is_dir() and path.name not in skip:
-                self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
-            elif path.is_file():
-                self.client.log_artifact(run_id, str(path), "report")
 
-    # --- reading back -----------------------------------------------------------------------------
-    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
-        """Trial runs of this experiment (of one generation, if given), oldest first."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        query = f"tags.`{TAG_ROLE}` = 'trial'"
-        if generation is not None:
-            query += f" and tags.`{TAG_GENERATION}` = '{generation}'"
-        runs, token = [], None
-        while True:
-            page = self.client.search_runs(
-                [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
-            )
-            runs.extend(page)
-            token = page.token
-            if not token:
-                break
-        return [
-            TrialRun(
-                run_id=r.info.run_id,
-                key=r.data.tags.get(TAG_KEY, ""),
-                variant=r.data.tags.get(TAG_VARIANT, ""),
-                seed=int(r.data.tags.get(TAG_SEED, "-1")),
-                status=r.info.status,
-                params=dict(r.data.params),
-                metrics=dict(r.data.metrics),
-                tags=dict(r.data.tags),
-                start_time_ms=r.info.start_time,
-                artifacts=[a.path for a in self.client.list_artifacts(r.info.run_id)] if with_artifacts else [],
-            )
-            for r in runs
-        ]
-
-    def launch_runs(self) -> list[LaunchRun]:
-        """Every launch of this experiment, oldest first."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        runs = self.client.search_runs(
-            [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time ASC"], max_results=5000
+def store_problem(uri: str, error: BaseException) -> str:
+    """One line saying why the store at ``uri`` could not be opened, and what to set or start; the password
+    of the URI and every secret of this process masked."""
+    shown, text, full = mask_uri(uri), redact(first_line(error)), str(error).lower()
+    if not uri.startswith(("http://", "https://")):
+        return f"MLflow store {shown} cannot be used: {text}"
+    status = getattr(error, "get_http_status_code", lambda: None)()
+    if status == 401 or "401" in full and "authenticat" in full:
+        user = os.environ.get("MLFLOW_TRACKING_USERNAME")
+        given = f"refused the login of {user!r}" if user else "needs a login"
+        return (
+            f"MLflow tracking server {shown} {given} (HTTP 401); set MLFLOW_TRACKING_USERNAME and "
+            "MLFLOW_TRACKING_PASSWORD (or the [mlflow] section of ~/.mlflow/credentials) to your account on it"
         )
-        return [
-            LaunchRun(
-                run_id=r.info.run_id,
-                generation=r.data.tags.get(TAG_GENERATION, ""),
-                status=r.info.status,
-                start_time_ms=r.info.start_time,
-                command=r.data.tags.get("ablate.command", ""),
-            )
-            for r in runs
-        ]
-
-    def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:
-        """(step, value) pairs of one metric, by step."""
-        return sorted((m.step, m.value) for m in self.client.get_metric_history(run_id, key))
-
-    def load_text(self, run_id: str, filename: str) -> str:
-        """A small text artifact of a run (a launch's ``grid.json``, say)."""
-        return Path(self.download(run_id, filename)).read_text()
-
-    def download(self, run_id: str, path: str, destination: str | Path | None = None) -> str:
-        import tempfile
-
-        destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
-        return self.client.download_artifacts(run_id, path, str(destination))
+    if status == 403 or "403" in full and "permission" in full:
+        user = os.environ.get("MLFLOW_TRACKING_USERNAME", "this user")
+        return f"MLflow tracking server {shown}: {user!r} may not do this (HTTP 403, {text}); ask its admin for EDIT"
+    reason = text
+    if "refused" in full:
+        reason = "connection refused"
+    elif "timed out" in full or "timeout" in full:
+        reason = f"no answer in {PROBE_TIMEOUT_S} s"
+    elif "name or service not known" in full or "nodename nor servname" in full:
+        reason = "unknown host"
+    return f"MLflow tracking server {shown} is unreachable ({reason}); start it or check --tracking-uri"
 
 
 def _param_text(value: Any) -> str:

@@ -1,0 +1,97 @@
+"""``ablate run`` as a command: signals, the launch, what it prints, then the report. The CLI's glue over the
+launch layer (``run.runner``) and the report layer, which the launch layer itself must not import.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import signal
+import sys
+import time
+from pathlib import Path
+
+from ablate.config import ConfigError, load_experiment
+from ablate.run.grid import expand, select
+from ablate.run.progress import clock, stage
+from ablate.run.runner import raise_interrupted, signals_received, run_experiment
+
+
+def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
+    # SIGTERM (a supervisor, `kill`, a CI timeout) stops the launch as Ctrl-C does, with exit code 143 (the
+    # shell's 128 + 15, so a supervisor sees which signal ended it). The scheduler keeps this handler across
+    # ray.init, which would install one that exits mid-call and aborts in C++.
+    previous = signal.signal(signal.SIGTERM, raise_interrupted)
+    signals_received.clear()
+    try:
+        return _cmd_run(args, started_at)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
+    started_at = time.monotonic() if started_at is None else started_at
+    experiment = load_experiment(args.experiment)
+    chosen = select(expand(experiment), args.only, args.seeds)
+    if args.max_concurrent is not None and args.max_concurrent < 1:
+        raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
+    command = " ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]])
+    try:
+        outcome = run_experiment(
+            experiment,
+            tracking_uri=args.tracking_uri,
+            address=args.address,
+            fresh=args.fresh,
+            max_concurrent=args.max_concurrent,
+            show_progress=True,
+            command=command,
+            only=chosen,
+            started_at=started_at,
+            storage_path=args.storage_path,
+        )
+    except Exception as error:
+        # The scheduler (and Ray) is only imported when trials run: its error class is known only then.
+        scheduler = sys.modules.get("ablate.run.scheduler")
+        if scheduler is None or not isinstance(error, scheduler.ClusterUnavailable):
+            raise
+        sys.stderr.write(f"ablate run: {error}\n")
+        return 1
+    total = outcome.total
+    if outcome.reaped:
+        print(f"marked {outcome.reaped} run(s) KILLED that a launch which died had left RUNNING")
+    if outcome.interrupted:
+        print(
+            f"interrupted: {len(outcome.killed)} running trial(s) marked killed ({outcome.signal_name}); "
+            f"run the same command again to finish the remaining {total - len(outcome.finished) - outcome.skipped}"
+        )
+    elif outcome.error:
+        print(
+            f"the scheduler failed: {outcome.error}; {len(outcome.finished)} finished, {len(outcome.killed)} "
+            "running trial(s) marked killed, launch recorded FAILED; run the same command again to finish the rest"
+        )
+    elif outcome.launch_run_id is None:
+        print(f"all {total} trials of {experiment.name} already finished; --fresh starts over")
+    else:
+        print(f"{len(outcome.finished)} finished, {len(outcome.failed)} failed, {outcome.skipped} finished before")
+    for key, message in outcome.failed.items():
+        print(f"  FAILED {key}: {message}")
+    print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
+    if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
+        from ablate.report.document import NoResults, terminal_summary, write_report  # after the trials: heavy
+
+        try:
+            with stage(f"writing the report into reports/{experiment.storage_name}/") as report_s:
+                folder = write_report(
+                    experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"), command=command
+                )
+        except NoResults as error:  # every trial failed: say so, and leave the last good report in place
+            print(f"no report: {error}")
+            return outcome.exit_code
+        print(terminal_summary(folder))
+        pdf = " and report.pdf" if (folder / "report.pdf").is_file() else ""
+        print(f"report: {folder}/report.md, report.html{pdf}")
+    else:
+        report_s = []
+    report_seconds = report_s[0] if report_s else None
+    print(outcome.view.total_line(report_seconds) if outcome.view else f"total {clock(time.monotonic() - started_at)}")
+    return outcome.exit_code

@@ -1,0 +1,130 @@
+"""The report's side of MLflow: read an ablation's launches, trials, curves and artifacts back from a store.
+
+``ablate.run.tracking`` writes them (the driver); this and it are the only modules that import MLflow.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ablate.run.tracking import (
+    TAG_GENERATION,
+    TAG_ROLE,
+    Store,
+    TrackingError,
+    TrialRun,
+    check_uri,
+    fail_fast_http,
+    is_database,
+    probe_database,
+    probe_server,
+    quiet_mlflow,
+    resolve_uri,
+    sqlite_path,
+    store_problem,
+)
+
+__all__ = ["LaunchRun", "RunReader", "TrackingError", "TrialRun", "ablation_names", "store_exists"]
+
+
+@dataclass
+class LaunchRun:
+    """A tracked launch (one ``ablate run``), as ``ablate status`` needs it."""
+
+    run_id: str
+    generation: str
+    status: str
+    """MLflow status: FINISHED, FAILED, KILLED, RUNNING (still going, or its process died)."""
+    start_time_ms: int
+    command: str
+    """The command line that started it."""
+
+
+def store_exists(tracking_uri: str | None) -> bool:
+    """Whether there is a store to read: a local SQLite file must exist (opening one would create it)."""
+    db = sqlite_path(resolve_uri(tracking_uri))
+    return db is None or db.is_file()
+
+
+def ablation_names(tracking_uri: str | None) -> list[str]:
+    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted. A store that
+    cannot be read is a one-line ``TrackingError`` within seconds (a database or server that does not answer,
+    a login refused), as when the writer opens it."""
+    from mlflow.tracking import MlflowClient
+
+    quiet_mlflow()
+    uri = resolve_uri(tracking_uri)
+    check_uri(uri)
+    if is_database(uri):
+        probe_database(uri)
+    elif uri.startswith(("http://", "https://")):
+        probe_server(uri)
+    problem = None
+    try:
+        with fail_fast_http():
+            client = MlflowClient(uri)
+            experiments = client.search_experiments()
+    except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
+        problem = store_problem(uri, error)
+    if problem:  # raised outside the except: one line, not the chain of exceptions behind it
+        raise TrackingError(problem)
+    names = []
+    for experiment in experiments:
+        if client.search_runs([experiment.experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", max_results=1):
+            names.append(experiment.name)
+    return sorted(names)
+
+
+class RunReader(Store):
+    """An ablation's runs as the report, ``ablate status`` and notebooks read them (``trial_runs`` and
+    ``download`` come from ``Store``). Its one write is the report attaching itself to the launch it read."""
+
+    def launches(self) -> list[Any]:
+        """Every launch (parent) run of this experiment, newest first (the report picks a generation from them)."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        return list(
+            self.client.search_runs(
+                [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"]
+            )
+        )
+
+    def launch_runs(self) -> list[LaunchRun]:
+        """Every launch of this experiment, oldest first."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        runs = self.client.search_runs(
+            [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time ASC"], max_results=5000
+        )
+        return [
+            LaunchRun(
+                run_id=r.info.run_id,
+                generation=r.data.tags.get(TAG_GENERATION, ""),
+                status=r.info.status,
+                start_time_ms=r.info.start_time,
+                command=r.data.tags.get("ablate.command", ""),
+            )
+            for r in runs
+        ]
+
+    def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:
+        """(step, value) pairs of one metric, by step."""
+        return sorted((m.step, m.value) for m in self.client.get_metric_history(run_id, key))
+
+    def load_text(self, run_id: str, filename: str) -> str:
+        """A small text artifact of a run (a launch's ``grid.json``, say)."""
+        return Path(self.download(run_id, filename)).read_text()
+
+    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ("videos",)) -> None:
+        """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables) as the ``report/``
+        artifacts of a launch run; ``skip`` leaves out folders already in the trial runs (the videos)."""
+        for path in sorted(Path(folder).iterdir()):
+            if path.is_dir() and path.name not in skip:
+                self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
+            elif path.is_file():
+                self.client.log_artifact(run_id, str(path), "report")

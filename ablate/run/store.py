@@ -1,0 +1,283 @@
+"""Where runs are kept, before MLflow opens it: a tracking URI checked, probed in seconds, and shown or recorded
+without its password. Standard library and SQLAlchemy only (MLflow is imported by ``tracking`` and the reader).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlparse
+
+DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
+SCHEMES = ("sqlite", "http", "https", "file", "postgresql", "mysql", "mssql", "databricks")
+"""URI schemes MLflow can track to (``file`` and a bare path: its folder store)."""
+PROBE_TIMEOUT_S = 10
+"""Seconds to connect to a store (a tracking server's port, a database) when it is opened. MLflow's defaults
+(7 retries with backoff, 120 s timeout) are right mid-run but turn a mistyped server into minutes of silence."""
+ANSWER_TIMEOUT_S = 60
+"""The first request to a tracking server that accepted the connection: one try, this long. A basic-auth
+server hashes the password of a login it has not seen (scrypt: ~0.1 s of CPU, 10-20 s on a machine loaded
+20 times over), so a server that is there is given longer to answer than to be reached."""
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+DATABASE_SCHEMES = ("postgresql", "mysql", "mssql")
+"""Schemes (and ``scheme+driver``) of the SQL servers MLflow can keep its runs in."""
+SECRET_ENV = ("MLFLOW_TRACKING_PASSWORD", "MLFLOW_TRACKING_TOKEN", "RAY_AUTH_TOKEN", "PGPASSWORD", "MYSQL_PWD")
+"""Environment variables holding secrets: their values are masked in whatever ``redact`` is given."""
+_URL_PASSWORD = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^/:@\s]*):[^/@\s]+@")
+MASK = "***"
+
+
+class TrackingError(RuntimeError):
+    """The tracking store cannot be used (unknown scheme, unreachable, corrupt, read-only, experiment deleted).
+    The message is one line naming the store and what to do; ``exit_code`` is 2 for a malformed URI, else 1."""
+
+    def __init__(self, message: str, exit_code: int = 1) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+def resolve_uri(tracking_uri: str | None) -> str:
+    """Explicit URI, else ``MLFLOW_TRACKING_URI``, else an SQLite file in the current folder."""
+    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
+
+
+def sqlite_path(uri: str) -> Path | None:
+    """The database file of an ``sqlite:///`` URI (relative to the current folder, or absolute with four
+    slashes); ``None`` for any other store."""
+    if not uri.startswith("sqlite:///"):
+        return None
+    return Path(uri.removeprefix("sqlite:///").split("?", 1)[0])
+
+
+def check_uri(uri: str) -> None:
+    scheme = urlparse(uri).scheme
+    if scheme and scheme not in SCHEMES and not scheme.startswith(("postgresql+", "mysql+", "mssql+")):
+        raise TrackingError(
+            f"--tracking-uri {mask_uri(uri)}: unknown scheme {scheme!r}; valid: sqlite:///path/to/mlflow.db, "
+            "http(s)://host:port of a tracking server, or another MLflow store URI (file, postgresql, mysql)",
+            exit_code=2,
+        )
+
+
+def check_sqlite(path: Path, write: bool) -> None:
+    """Fail in a line, before MLflow tries (and retries) to use a file that cannot work as a store."""
+    folder = path.parent.resolve()
+    if not path.exists():
+        if not folder.is_dir():
+            raise TrackingError(f"MLflow store {path}: folder {folder} does not exist; create it or choose another")
+        if not write:
+            raise TrackingError(f"MLflow store {path}: no such file; `ablate run` creates it")
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise TrackingError(f"MLflow store {path}: folder {folder} is read-only; cannot create the store there")
+        return
+    if not path.is_file():
+        raise TrackingError(f"MLflow store {path}: not a file")
+    if not os.access(path, os.R_OK):
+        raise TrackingError(f"MLflow store {path}: not readable by this user")
+    if write and not (os.access(path, os.W_OK) and os.access(folder, os.W_OK | os.X_OK)):
+        what = "file" if not os.access(path, os.W_OK) else f"folder {folder}"
+        raise TrackingError(
+            f"MLflow store {path}: the {what} is read-only (SQLite writes a journal beside the file); "
+            "make it writable or point --tracking-uri at a writable store"
+        )
+    size = path.stat().st_size
+    if size == 0:
+        return  # SQLite treats an empty file as a new database
+    with path.open("rb") as file:
+        header = file.read(100)
+    if not header.startswith(SQLITE_MAGIC):
+        raise TrackingError(
+            f"MLflow store {path}: not an SQLite database (corrupt or another file); move it away to start a new "
+            "store, or point --tracking-uri at the right one"
+        )
+    # The header records the page size and the page count: a shorter file was truncated (an interrupted copy).
+    page_size = int.from_bytes(header[16:18], "big") if len(header) >= 18 else 0
+    page_size = 65536 if page_size == 1 else page_size
+    pages = int.from_bytes(header[28:32], "big") if len(header) >= 32 else 0
+    if len(header) < 100 or (page_size and pages and size < page_size * pages):
+        raise TrackingError(
+            f"MLflow store {path}: truncated ({size:,} of {page_size * pages:,} bytes); restore it from a copy "
+            "or move it away to start a new store"
+        )
+
+
+@contextlib.contextmanager
+def store_setup_lock(path: Path | None) -> Iterator[None]:
+    """Serialises the first use of an SQLite store across processes: two launches in a fresh folder would
+    otherwise both run MLflow's schema migrations and one would die in them. A lock on the folder itself,
+    so no file is left behind; the kernel releases it if the process dies."""
+    if path is None:
+        yield
+        return
+    fd = os.open(path.parent.resolve(), os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def fail_fast_http() -> Iterator[None]:
+    names = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": str(ANSWER_TIMEOUT_S)}
+    saved = {name: os.environ.get(name) for name in names}
+    os.environ.update(names)
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def first_line(error: BaseException) -> str:
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    text = lines[0] if lines else type(error).__name__
+    return text[:300]
+
+
+def mask_uri(uri: str) -> str:
+    """``uri`` with the password of its ``user:password@`` part replaced by ``***`` (what errors, logs and the
+    report show of a store or server)."""
+    return _URL_PASSWORD.sub(lambda m: f"{m.group('head')}:{MASK}@", uri)
+
+
+def _secret_values() -> list[str]:
+    """The secrets this process holds: the values of ``SECRET_ENV`` and of Ray's token file, if any."""
+    values = [os.environ.get(name, "") for name in SECRET_ENV]
+    token_path = os.environ.get("RAY_AUTH_TOKEN_PATH")
+    if token_path:
+        with contextlib.suppress(OSError):
+            values.append(Path(token_path).read_text().strip())
+    return [value for value in values if len(value) >= 4]  # shorter ones would mask ordinary words
+
+
+def redact(text: str) -> str:
+    """``text`` with every URL's password and every secret this process holds (``SECRET_ENV``, Ray's token)
+    masked: applied to whatever ablate records (tags, notes, launch files) or shows (errors)."""
+    text = mask_uri(text)
+    for value in _secret_values():
+        text = text.replace(value, MASK)
+    return text
+
+
+def is_database(uri: str) -> bool:
+    """Whether ``uri`` names an SQL server (PostgreSQL, MySQL, SQL Server) rather than a file or a server."""
+    return urlparse(uri).scheme.split("+", 1)[0] in DATABASE_SCHEMES
+
+
+def probe_database(uri: str) -> None:
+    """One connection to the database of ``uri`` within ``PROBE_TIMEOUT_S``, else a one-line ``TrackingError``:
+    MLflow's own store retries a refused connection for minutes, printing SQLAlchemy's warnings."""
+    import sqlalchemy
+    from sqlalchemy.pool import NullPool
+
+    shown = mask_uri(uri)
+    url = sqlalchemy.engine.make_url(uri)
+    backend = url.get_backend_name()
+    connect_args = {"connect_timeout": PROBE_TIMEOUT_S} if backend in ("postgresql", "mysql") else {}
+    try:
+        engine = sqlalchemy.create_engine(url, connect_args=connect_args, poolclass=NullPool)
+    except ImportError as error:  # the URL's driver (psycopg, pymysql) is not installed
+        extra = {"postgresql": "postgres", "mysql": "mysql"}.get(backend, backend)
+        raise TrackingError(
+            f"MLflow store {shown}: no driver for {url.drivername} ({first_line(error)}); pip install -e '.[{extra}]'"
+        ) from None
+    problem = None
+    try:
+        with engine.connect():
+            pass
+    except sqlalchemy.exc.SQLAlchemyError as error:
+        problem = _database_problem(shown, getattr(error, "orig", None) or error, url)
+    finally:
+        engine.dispose()
+    if problem:  # raised outside the except: one line, not the chain of exceptions behind it
+        raise TrackingError(problem)
+
+
+def _database_problem(shown: str, error: BaseException, url) -> str:
+    full = str(error).lower()
+    text = redact(first_line(error))
+    if "password" in full or "access denied" in full or "authentication" in full or "login failed" in full:
+        where = "PGPASSWORD, a ~/.pgpass line or PGPASSFILE" if url.get_backend_name() == "postgresql" else "MYSQL_PWD"
+        return (
+            f"MLflow store {shown}: the database refused the login of user {url.username!r} ({text}); "
+            f"check the user and give the password through {where}, not the command line"
+        )
+    if "does not exist" in full or "unknown database" in full:
+        return f"MLflow store {shown}: database {url.database!r} does not exist ({text}); create it, or fix the URI"
+    if "timeout" in full or "timed out" in full:
+        return f"MLflow store {shown}: no answer in {PROBE_TIMEOUT_S} s ({text}); start the database or fix the URI"
+    return f"MLflow store {shown} cannot be reached ({text}); start the database or fix the URI"
+
+
+STORE_RETRY_S = 60.0
+"""How long the driver retries a write whose store stopped answering (a database restarting, a network blip)
+before it stops the launch: trials not recorded by then run again on the next launch."""
+_LOST = ("operationalerror", "connection", "refused", "timed out", "timeout", "server closed", "max retries")
+
+
+class RetryingClient:
+    """The writer's MlflowClient, each call retried for up to ``STORE_RETRY_S`` while the store does not
+    answer, then a one-line ``TrackingError``; after that every call fails at once (the store is gone: the
+    launch stops without waiting again for each trial). Other errors pass through unchanged."""
+
+    def __init__(self, client: Any, shown_uri: str) -> None:
+        self._client, self._shown_uri, self._lost = client, shown_uri, ""
+
+    def __getattr__(self, name: str) -> Any:
+        method = getattr(self._client, name)
+        if not callable(method):
+            return method
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            deadline = time.monotonic() + STORE_RETRY_S
+            while True:
+                if self._lost:
+                    raise TrackingError(self._lost)
+                try:
+                    return method(*args, **kwargs)
+                except Exception as error:  # noqa: BLE001 - SQLAlchemy's and requests' errors alike
+                    text = f"{type(error).__name__} {error}".lower()
+                    if not any(word in text for word in _LOST):
+                        raise
+                    if time.monotonic() >= deadline:
+                        self._lost = (
+                            f"MLflow store {self._shown_uri} stopped answering ({redact(first_line(error))}); "
+                            f"retried for {STORE_RETRY_S:.0f} s, the launch stops: run the same command again "
+                            "once it is back (trials not recorded run again)"
+                        )
+                        raise TrackingError(self._lost) from None
+                time.sleep(min(2.0, max(0.0, deadline - time.monotonic())))
+
+        return call
+
+
+def probe_server(uri: str) -> None:
+    """A TCP connection to the tracking server of an ``http(s)://`` ``uri`` within ``PROBE_TIMEOUT_S``, else a
+    one-line ``TrackingError``: a server that is not there is told in seconds, however long one that is there
+    may take to answer (``ANSWER_TIMEOUT_S``)."""
+    import socket
+
+    parsed = urlparse(uri)
+    port = parsed.port or (443 if parsed.scheme == "https" else 80)
+    try:
+        socket.create_connection((parsed.hostname or "", port), timeout=PROBE_TIMEOUT_S).close()
+    except OSError as error:
+        reason = "connection refused" if isinstance(error, ConnectionRefusedError) else error.strerror or str(error)
+        if isinstance(error, TimeoutError | socket.timeout):
+            reason = f"no answer in {PROBE_TIMEOUT_S} s"
+        elif isinstance(error, socket.gaierror):
+            reason = "unknown host"
+        raise TrackingError(
+            f"MLflow tracking server {mask_uri(uri)} is unreachable ({reason}); start it or check --tracking-uri"
+        ) from None

@@ -1,0 +1,157 @@
+"""Stores that cannot be used fail in one line and seconds, and no password or token is shown or recorded:
+URI masking, redaction of what the writer records, and the refusals of `ablate run`, `status` and `report`."""
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ablate.report.reader import RunReader, ablation_names
+from ablate.run.store import TrackingError, mask_uri, redact
+from ablate.run.tracking import Tracker
+
+SECRET = "Planted-S3cret-pw"
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _closed_port() -> int:
+    """A loopback port nothing listens on: a connection to it is refused at once."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize(
+    ("uri", "shown"),
+    [
+        (
+            "postgresql+psycopg://mlflow:pw@127.0.0.1:5432/mlflow",
+            "postgresql+psycopg://mlflow:***@127.0.0.1:5432/mlflow",
+        ),
+        ("mysql+pymysql://u:p%40ss@db.example:3306/m", "mysql+pymysql://u:***@db.example:3306/m"),
+        ("https://alice:hunter22@mlflow.example", "https://alice:***@mlflow.example"),
+        ("http://127.0.0.1:5000", "http://127.0.0.1:5000"),
+        ("sqlite:///mlflow.db", "sqlite:///mlflow.db"),
+        ("postgresql://mlflow@127.0.0.1/mlflow", "postgresql://mlflow@127.0.0.1/mlflow"),  # no password to mask
+    ],
+)
+def test_a_uri_is_shown_with_its_password_masked(uri, shown):
+    assert mask_uri(uri) == shown
+    assert mask_uri(f"ablate run x.toml --tracking-uri {uri} --fresh") == (
+        f"ablate run x.toml --tracking-uri {shown} --fresh"
+    )
+
+
+def test_redact_masks_the_secrets_this_process_holds(monkeypatch, tmp_path):
+    token = tmp_path / "token"
+    token.write_text("raytoken-0123456789\n")
+    monkeypatch.setenv("MLFLOW_TRACKING_PASSWORD", SECRET)
+    monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(token))
+    text = redact(f"login {SECRET} failed; token raytoken-0123456789; url http://u:{SECRET}@h")
+    assert SECRET not in text and "raytoken-0123456789" not in text and text.count("***") == 3
+
+
+def test_what_the_writer_records_has_no_password_or_token(tracking_uri, monkeypatch):
+    monkeypatch.setenv("MLFLOW_TRACKING_PASSWORD", SECRET)
+    tracker = Tracker(tracking_uri, "secrets")
+    command = f"ablate run x.toml --tracking-uri postgresql+psycopg://mlflow:{SECRET}x@127.0.0.1/mlflow"
+    launch = tracker.start_launch("g", "launch", {"ablate.command": command}, {"environment.json": f'"{SECRET}"'})
+    tracker.start_trial(launch, "g", "t-s0-abc", "t", 0, {"seed": 0}, "commit")
+    tracker.fail_trial("t-s0-abc", f"the store said: password {SECRET} refused")
+    tracker.finish_launch(launch, "FAILED", {}, note=f"failed with {SECRET}")
+    reader = RunReader(tracking_uri, "secrets")
+    (recorded,) = reader.launch_runs()
+    assert recorded.command == "ablate run x.toml --tracking-uri postgresql+psycopg://mlflow:***@127.0.0.1/mlflow"
+    assert SECRET not in reader.load_text(launch, "environment.json")
+    runs = reader.client.search_runs([reader.experiment_id()])
+    for run in runs:
+        assert not [k for k, v in {**run.data.tags, **run.data.params}.items() if SECRET in v]
+
+
+@pytest.mark.parametrize("scheme", ["postgresql+psycopg", "mysql+pymysql"])
+def test_an_unreachable_database_is_one_line_in_seconds_with_the_password_masked(scheme, tmp_path):
+    uri = f"{scheme}://mlflow:{SECRET}@127.0.0.1:{_closed_port()}/mlflow"
+    with pytest.raises(TrackingError):  # once first: the imports (SQLAlchemy, the driver) are not the bound's
+        Tracker(uri, "x")
+    openers = (lambda: Tracker(uri, "x"), lambda: RunReader(uri, "x", write=False), lambda: ablation_names(uri))
+    for open_store in openers:
+        started = time.monotonic()
+        with pytest.raises(TrackingError) as error:
+            open_store()
+        assert time.monotonic() - started < 10  # MLflow's own store retries a refused connection for minutes
+        message = str(error.value)
+        assert "\n" not in message and SECRET not in message and "mlflow:***@127.0.0.1" in message, message
+        assert "cannot be reached" in message
+
+
+def _cli(*args, cwd, env=None, timeout=120):
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-m", "ablate.cli", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
+    )
+    return done, time.monotonic() - started
+
+
+@pytest.mark.parametrize("command", ["run", "status", "report"])
+def test_every_command_refuses_an_unreachable_postgresql_store_in_one_line(command, tmp_path):
+    uri = f"postgresql+psycopg://mlflow:{SECRET}@127.0.0.1:{_closed_port()}/mlflow"
+    args = {"run": ["run", str(ROOT / "experiments" / "smoke.toml")], "status": ["status"]}
+    args["report"] = ["report", "smoke"]
+    done, wall_s = _cli(*args[command], "--tracking-uri", uri, cwd=tmp_path)
+    errors = done.stderr.strip().splitlines()
+    assert done.returncode == 1 and len(errors) == 1, done.stdout + done.stderr
+    assert f"ablate {command}: MLflow store postgresql+psycopg://mlflow:***@127.0.0.1" in errors[0]
+    assert SECRET not in done.stdout + done.stderr
+    assert not list(tmp_path.iterdir())  # nothing tracked, nothing written
+    # MLflow's retries took over 100 s; the bound leaves room for a busy machine's imports (~20 s here)
+    assert wall_s < 60, wall_s
+
+
+def test_status_refuses_an_unreachable_tracking_server_in_one_line(tmp_path):
+    done, wall_s = _cli("status", "--tracking-uri", f"http://127.0.0.1:{_closed_port()}", cwd=tmp_path)
+    assert done.returncode == 1 and len(done.stderr.strip().splitlines()) == 1, done.stdout + done.stderr
+    assert "is unreachable (connection refused)" in done.stderr
+    assert wall_s < 60, wall_s  # it waited past 60 s before
+
+
+class _FlakyClient:
+    """An MlflowClient whose store stopped answering after ``good`` calls."""
+
+    def __init__(self, good: int) -> None:
+        self.calls, self.good = 0, good
+
+    def set_tag(self, run_id: str, key: str, value: str) -> str:
+        self.calls += 1
+        if self.calls > self.good:
+            raise ConnectionError(f"connection to postgresql://mlflow:{SECRET}@127.0.0.1/mlflow refused")
+        return "ok"
+
+    def bad_input(self) -> None:
+        raise ValueError("not a store problem")
+
+
+def test_a_store_that_goes_away_is_retried_for_a_bounded_time_then_stops_the_launch_in_one_line(monkeypatch):
+    from ablate.run import store
+
+    monkeypatch.setattr(store, "STORE_RETRY_S", 0.5)
+    monkeypatch.setattr(store.time, "sleep", lambda s: None)
+    flaky = _FlakyClient(good=1)
+    client = store.RetryingClient(flaky, "postgresql://mlflow:***@db/mlflow")
+    assert client.set_tag("r", "k", "v") == "ok"
+    started = time.monotonic()
+    with pytest.raises(TrackingError) as error:
+        client.set_tag("r", "k", "v")
+    assert time.monotonic() - started < 5 and flaky.calls > 2  # retried, within the bound
+    message = str(error.value)
+    assert "stopped answering" in message and "\n" not in message and SECRET not in message
+    calls = flaky.calls
+    with pytest.raises(TrackingError):  # gone: every later write fails at once, without retrying
+        client.set_tag("r", "k", "v")
+    assert flaky.calls == calls
+    with pytest.raises(ValueError):  # not the store's absence: passed through
+        store.RetryingClient(_FlakyClient(good=0), "x").bad_input()
