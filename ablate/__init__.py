@@ -7,3 +7,7 @@ import os
 # and gradients per 1,024 frames; on 4 KB pages, faulting them in (each update anew, as the trial returns
 # large blocks to the system to keep its memory flat) doubled the cost of forward + backward.
 os.environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
+
+from ablate.api import Results, load, run  # noqa: E402  (after the variable above; neither imports torch)
+
+__all__ = ["Results", "load", "run"]

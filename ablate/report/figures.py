@@ -6,8 +6,10 @@ Matplotlib with the Agg backend. Captions carry user text (variant names) escape
 
 from __future__ import annotations
 
+import contextlib
 import html
 import shutil
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,12 +49,31 @@ class Figure:
     number: int = 0
 
 
+_kept: list[list] = []
+"""While ``keep_figures`` is open: where ``_save`` hands each figure instead of closing it."""
+
+
+@contextlib.contextmanager
+def keep_figures() -> Iterator[list]:
+    """The matplotlib figures drawn inside this block, kept open for the caller (the Python API shows them in
+    a notebook); outside it every figure is closed once saved, so a report of many figures holds no memory."""
+    kept: list = []
+    _kept.append(kept)
+    try:
+        yield kept
+    finally:
+        _kept.remove(kept)
+
+
 # --- figures -------------------------------------------------------------------------------------------
 def _save(fig, folder: Path, name: str) -> str:
     fig.tight_layout()
     for ext in ("png", "svg"):
         fig.savefig(folder / f"{name}.{ext}", dpi=110)
-    plt.close(fig)
+    if _kept:
+        _kept[-1].append(fig)
+    else:
+        plt.close(fig)
     return f"figures/{name}.png"
 
 

@@ -86,6 +86,8 @@ class RunOutcome:
     """Runs a dead launch (kill -9, power loss) left RUNNING, marked KILLED by this one."""
     view: ProgressView | None = field(default=None, repr=False)
     """The launch's progress view (its clock and stage times), when trials ran."""
+    report_folder: Path | None = None
+    """Where ``ablate.run`` wrote the report afterwards (``None``: no report)."""
 
     @property
     def exit_code(self) -> int:

@@ -1,0 +1,247 @@
+"""The Python API a notebook uses: ``run`` an experiment, ``load`` its results as DataFrames and figures,
+write its ``report``. The CLI is a thin layer over the same calls.
+
+Importing this module is light: torch, Ray and MLflow load only when a function needs them.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ablate.config import ConfigError, Experiment, load_experiment
+
+if TYPE_CHECKING:  # only for the annotations: the real imports are inside the functions
+    import pandas as pd
+    from matplotlib.figure import Figure as MplFigure
+
+    from ablate.report.results import Ablation
+    from ablate.run.runner import RunOutcome
+
+DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
+"""Where ``ablate run`` tracks by default: ``mlflow.db`` in the folder the command (or notebook) runs in."""
+
+FIGURES = ("curves", "per_seed", "improvement", "parameters", "wallclock")
+"""The names ``Results.figure`` draws: the report's figures, in its order."""
+
+
+class StoreNotFound(ConfigError):
+    """``load`` or ``report`` was pointed at a local MLflow store that does not exist."""
+
+
+def _experiment(experiment: str | Path | Experiment) -> Experiment:
+    return experiment if isinstance(experiment, Experiment) else load_experiment(experiment)
+
+
+def _name(name_or_file: str | Path | Experiment) -> str:
+    """An experiment's name from itself, its file (``*.toml`` or an existing path) or its plain name."""
+    if isinstance(name_or_file, Experiment):
+        return name_or_file.name
+    text = str(name_or_file)
+    if text.endswith(".toml") or Path(text).is_file():
+        return load_experiment(text).name
+    return text
+
+
+def _check_store(tracking_uri: str) -> str:
+    """Refuse a local store that does not exist, in words for a Python caller (the CLI's says ``--tracking-uri``):
+    reading must never create an empty database where a path was mistyped or the notebook runs elsewhere."""
+    from ablate.run.tracking import resolve_uri, sqlite_path
+
+    uri = resolve_uri(tracking_uri)
+    path = sqlite_path(uri)
+    if path is not None and not path.exists():
+        raise StoreNotFound(
+            f"tracking_uri={tracking_uri!r}: no MLflow store at {path.resolve()} (relative paths are read from "
+            f"{Path.cwd()}); pass tracking_uri= the store `ablate.run` wrote, e.g. 'sqlite:////abs/path/mlflow.db'"
+        )
+    return uri
+
+
+def run(
+    experiment: str | Path | Experiment,
+    *,
+    tracking_uri: str = DEFAULT_TRACKING_URI,
+    address: str | None = None,
+    only: Sequence[str] | None = None,
+    seeds: Sequence[int] | None = None,
+    fresh: bool = False,
+    max_concurrent: int | None = None,
+    report: bool = True,
+    reports_folder: str | Path = "reports",
+    progress: bool = True,
+    storage_path: str = "ray_results",
+) -> RunOutcome:
+    """Run an experiment's trials on Ray and track them in MLflow, as ``ablate run`` does.
+
+    ``experiment``: an experiment file (``experiments/smoke.toml``) or a loaded ``Experiment``.
+    ``tracking_uri``: the MLflow store (default ``sqlite:///mlflow.db`` in the current folder).
+    ``address``: an existing Ray cluster (``host:port``); ``None`` starts a local one for this call.
+    ``only`` / ``seeds``: run a part of the grid (variant names, evaluation seeds).
+    ``fresh``: start a new generation instead of resuming the last one.
+    ``report``: write ``reports_folder/<experiment>/`` afterwards (when no trial was interrupted).
+
+    Trials that already finished in the store are not run again. Returns the launch's ``RunOutcome``
+    (``finished``, ``failed``, ``skipped``, ``exit_code``, ...); ``outcome.report_folder`` is the report's
+    folder, or ``None``. Bad input raises ``ConfigError`` before anything is tracked.
+    """
+    from ablate.run.grid import expand, select
+    from ablate.run.runner import run_experiment
+
+    loaded = _experiment(experiment)
+    if max_concurrent is not None and max_concurrent < 1:
+        raise ConfigError(f"max_concurrent={max_concurrent} is invalid; valid: an integer >= 1")
+    chosen = select(expand(loaded), list(only) if only is not None else None, list(seeds) if seeds else None)
+    outcome = run_experiment(
+        loaded,
+        tracking_uri=tracking_uri,
+        address=address,
+        fresh=fresh,
+        max_concurrent=max_concurrent,
+        storage_path=storage_path,
+        show_progress=progress,
+        command=f"ablate.run({loaded.path!r})",
+        only=chosen,
+    )
+    if report and not outcome.interrupted and not outcome.error and (outcome.finished or outcome.skipped):
+        outcome.report_folder = _write_report(loaded, tracking_uri, reports_folder)
+    return outcome
+
+
+def report(
+    name_or_file: str | Path | Experiment,
+    *,
+    tracking_uri: str = DEFAULT_TRACKING_URI,
+    reports_folder: str | Path = "reports",
+    pdf: bool = True,
+    variants: Sequence[str] | None = None,
+    baseline: str | None = None,
+    generation: str | None = None,
+) -> Path:
+    """Write the report of an experiment from its MLflow store into ``reports_folder/<name>/`` (``report.md``,
+    ``report.html``, ``report.pdf`` where Chromium is installed, ``tables/``, ``figures/``, ``videos/``), as
+    ``ablate report`` does, and return that folder.
+
+    ``name_or_file``: the experiment's name or its file. ``variants`` / ``baseline``: report a part of the
+    ablation against another reference. Raises ``NoResults`` when nothing finished, ``ConfigError`` for a bad
+    name, store or variant; nothing is written then.
+    """
+    return _write_report(name_or_file, tracking_uri, reports_folder, pdf, variants, baseline, generation)
+
+
+def _write_report(
+    name_or_file: str | Path | Experiment,
+    tracking_uri: str,
+    reports_folder: str | Path,
+    pdf: bool = True,
+    variants: Sequence[str] | None = None,
+    baseline: str | None = None,
+    generation: str | None = None,
+) -> Path:
+    from ablate.report.document import write_report
+
+    uri = _check_store(tracking_uri)
+    return write_report(
+        _name(name_or_file),
+        tracking_uri=uri,
+        out_root=Path(reports_folder),
+        generation=generation,
+        variants=list(variants) if variants else None,
+        baseline=baseline,
+        pdf=pdf,
+        command=f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})",
+    )
+
+
+def load(
+    name_or_file: str | Path | Experiment,
+    *,
+    tracking_uri: str = DEFAULT_TRACKING_URI,
+    generation: str | None = None,
+    variants: Sequence[str] | None = None,
+    baseline: str | None = None,
+) -> Results:
+    """Read an ablation back from its MLflow store: its trials, curves, convergence table and comparisons as
+    pandas DataFrames, its figures as matplotlib figures (see ``Results``). Reads only.
+
+    ``name_or_file``: the experiment's name (``"smoke"``) or its file (``"experiments/smoke.toml"``).
+    ``tracking_uri``: the store ``run`` wrote; a relative SQLite path is read from the current folder, so a
+    notebook in another folder passes the path (``"sqlite:////abs/path/mlflow.db"`` or ``"sqlite:///../mlflow.db"``).
+    ``generation``: an older generation (a prefix of its id) instead of the newest launch's.
+    """
+    from ablate.report.results import load_ablation, select
+
+    uri = _check_store(tracking_uri)
+    ablation = load_ablation(_name(name_or_file), uri, generation)
+    return Results(select(ablation, list(variants) if variants else None, baseline))
+
+
+@dataclass(frozen=True)
+class Results:
+    """One ablation as read from its store, the tables the report writes as DataFrames.
+
+    ``trials``: one row per trial (variant, seed, status, episodes to solve, AUC, ...), as ``tables/trials.csv``.
+    ``curves``: long form, one row per trial and episode (variant, seed, episode, return, rolling_mean, wall_s).
+    ``convergence``: one row per variant (solved seeds, episodes to solve with intervals, final return, ...),
+    as ``tables/convergence.csv``. ``comparisons``: each variant against its reference, per metric, with its
+    interval and verdict, as ``tables/comparisons.csv``. ``figure(name)``: one of the report's figures.
+    """
+
+    ablation: Ablation = field(repr=False)
+
+    @property
+    def name(self) -> str:
+        return self.ablation.name
+
+    @property
+    def variants(self) -> list[str]:
+        return self.ablation.variants
+
+    @property
+    def baseline(self) -> str:
+        return self.ablation.baseline
+
+    @property
+    def trials(self) -> pd.DataFrame:
+        return self.ablation.trials
+
+    @property
+    def curves(self) -> pd.DataFrame:
+        return self.ablation.curves
+
+    @cached_property
+    def convergence(self) -> pd.DataFrame:
+        from ablate.report.results import convergence_table
+
+        return convergence_table(self.ablation)
+
+    @cached_property
+    def comparisons(self) -> pd.DataFrame:
+        from ablate.report.results import comparisons
+
+        return comparisons(self.ablation)
+
+    def figure(self, name: str = "curves") -> MplFigure:
+        """One of the report's figures as a matplotlib figure (a notebook shows it inline): ``curves``
+        (every variant's learning curve), ``per_seed`` (episodes to solve per seed), ``improvement`` (each
+        variant against its reference, with intervals), ``parameters`` (cost against size), ``wallclock``."""
+        from ablate.report import figures
+
+        draw = {
+            "curves": lambda folder: figures.figure_overview(self.ablation, folder),
+            "per_seed": lambda folder: figures.figure_per_seed(self.ablation, folder),
+            "improvement": lambda folder: figures.figure_improvement(self.ablation, self.comparisons, folder),
+            "parameters": lambda folder: figures.figure_parameters(self.ablation, self.convergence, folder),
+            "wallclock": lambda folder: figures.figure_wallclock(self.ablation, folder),
+        }
+        if name not in draw:
+            raise ValueError(f"figure {name!r} is unknown; valid: {', '.join(FIGURES)}")
+        with tempfile.TemporaryDirectory() as folder, figures.keep_figures() as kept:
+            if draw[name](Path(folder)) is None:
+                raise ValueError(f"figure {name!r} does not apply to {self.name!r} (the report leaves it out too)")
+        return kept[-1]
+

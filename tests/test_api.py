@@ -1,0 +1,82 @@
+"""ablate.api: the notebook runs the smoke ablation through ``ablate.run``; ``ablate.load`` reads back the same
+tables ``ablate report`` writes; a Python caller's errors name Python parameters."""
+
+from __future__ import annotations
+
+import io
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import nbformat
+import pandas as pd
+import pytest
+from nbclient import NotebookClient
+
+import ablate
+from ablate.api import StoreNotFound
+from ablate.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_import_is_light_and_sets_the_allocator_variable():
+    code = (
+        "import os, sys, ablate; "
+        "print(os.environ['THP_MEM_ALLOC_ENABLE'], sorted(m for m in ('torch', 'ray', 'mlflow', 'pandas') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["1", "[]"]
+
+
+def test_public_functions_have_docstrings():
+    for function in (ablate.run, ablate.load, ablate.Results.figure):
+        assert function.__doc__ and len(function.__doc__.split()) > 20, function
+
+
+def test_load_from_a_missing_store_names_the_python_parameter(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(StoreNotFound) as error:
+        ablate.load("smoke")
+    message = str(error.value)
+    assert "tracking_uri='sqlite:///mlflow.db'" in message and str(tmp_path / "mlflow.db") in message
+    assert "--tracking-uri" not in message and "\n" not in message
+    assert not (tmp_path / "mlflow.db").exists()  # reading never creates an empty store
+
+
+@pytest.fixture(scope="module")
+def notebook_run(tmp_path_factory):
+    """examples/quickstart.ipynb executed in a copy of the repository's layout (examples/ beside experiments/)."""
+    top = tmp_path_factory.mktemp("quickstart")
+    (top / "experiments").mkdir()
+    shutil.copy(ROOT / "experiments" / "smoke.toml", top / "experiments")
+    (top / "examples").mkdir()
+    notebook = nbformat.read(ROOT / "examples" / "quickstart.ipynb", as_version=4)
+    NotebookClient(notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(top / "examples")}}).execute()
+    return notebook, top / "examples"
+
+
+def test_quickstart_notebook_runs_and_shows_a_table_and_a_figure(notebook_run):
+    notebook, folder = notebook_run
+    outputs = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]
+    assert not [o for o in outputs if o.output_type == "error"]
+    assert any("text/html" in o.get("data", {}) and "episodes_median" in o["data"]["text/html"] for o in outputs)
+    assert any("image/png" in o.get("data", {}) for o in outputs)  # the figure, inline
+    assert (folder / "quickstart-mlflow.db").is_file()
+
+
+def test_load_returns_the_tables_ablate_report_writes(notebook_run, tmp_path):
+    _, folder = notebook_run
+    store = f"sqlite:///{folder / 'quickstart-mlflow.db'}"
+    assert main(["report", "smoke", "--tracking-uri", store, "--out", str(tmp_path), "--no-pdf"]) == 0
+    results = ablate.load("smoke", tracking_uri=store)
+    for frame, name in ((results.trials, "trials"), (results.convergence, "convergence"), (results.comparisons, "comparisons")):
+        written = pd.read_csv(tmp_path / "smoke" / "tables" / f"{name}.csv")
+        through_csv = pd.read_csv(io.StringIO(frame.to_csv(index=False)))  # the same text round trip
+        pd.testing.assert_frame_equal(through_csv, written, check_exact=False, rtol=1e-12)
+    assert set(results.curves.variant) == {"narrow", "deep"} and len(results.trials) == 4
+    figure = results.figure("curves")
+    assert figure.axes and figure.axes[0].get_lines()  # an open matplotlib figure with the curves drawn
+    with pytest.raises(ValueError, match="valid: curves"):
+        results.figure("nope")
