@@ -13,7 +13,8 @@ from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ablate.config import ConfigError, Experiment, load_experiment
+from ablate.config import ConfigError
+from ablate.experiment import Experiment, load_experiment
 
 if TYPE_CHECKING:  # only for the annotations: the real imports are inside the functions
     import pandas as pd
@@ -244,4 +245,3 @@ class Results:
             if draw[name](Path(folder)) is None:
                 raise ValueError(f"figure {name!r} does not apply to {self.name!r} (the report leaves it out too)")
         return kept[-1]
-

@@ -17,7 +17,9 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from ablate import config as config_module
-from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, Experiment, ModelConfig, TrialConfig, apply_knobs
+from ablate import experiment as experiment_module
+from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, ModelConfig, TrialConfig, apply_knobs
+from ablate.experiment import Experiment
 from ablate.run.grid import GridTrial, expand, select, tuning_trials
 from ablate.run.lock import LaunchLocked
 from ablate.run.tracking import TrackingError
@@ -131,7 +133,7 @@ def _knobs_epilog() -> str:
     return (
         "knobs an experiment file may set in [base], [[variants]] and [grid], with their defaults:\n"
         + "\n".join(f"  {line}" for line in lines)
-        + f"\ntop-level keys: {', '.join(config_module.EXPERIMENT_KEYS)}.\n"
+        + f"\ntop-level keys: {', '.join(experiment_module.EXPERIMENT_KEYS)}.\n"
         "Each knob's meaning and valid values, and the top-level keys' defaults: docs/experiments.md."
     )
 
@@ -292,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def trial_from(args: argparse.Namespace, knobs: dict[str, Any]) -> tuple[TrialConfig, GridTrial]:
     """The trial ``--from EXPERIMENT --variant V --seed S`` names, with only the knobs that leave its key alone."""
-    from ablate.config import load_experiment
+    from ablate.experiment import load_experiment
 
     experiment = load_experiment(args.from_experiment)
     trials = expand(experiment)
@@ -389,7 +391,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     experiment = None
     name = args.experiment
     if name.endswith(".toml") or "/" in name:
-        from ablate.config import load_experiment
+        from ablate.experiment import load_experiment
 
         experiment = load_experiment(name)  # a bad file is a ConfigError: one line, exit 2
         name = experiment.name
@@ -462,7 +464,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "status":
             return cmd_status(args)
         if args.command == "run":
-            from ablate.config import load_experiment
+            from ablate.experiment import load_experiment
 
             experiment = load_experiment(args.experiment)  # bad input: one line, before Ray or MLflow is imported
             trials = select(expand(experiment), args.only, args.seeds)

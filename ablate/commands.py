@@ -11,10 +11,11 @@ import sys
 import time
 from pathlib import Path
 
-from ablate.config import ConfigError, load_experiment
+from ablate.config import ConfigError
+from ablate.experiment import load_experiment
 from ablate.run.grid import expand, select
 from ablate.run.progress import clock, stage
-from ablate.run.runner import raise_interrupted, signals_received, run_experiment
+from ablate.run.runner import raise_interrupted, run_experiment, signals_received
 
 
 def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:

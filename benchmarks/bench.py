@@ -23,9 +23,9 @@ from pathlib import Path
 
 import torch
 
-from ablate.config import COURSE, DEFAULT
 from ablate.agent.course import course_loop
 from ablate.agent.trial import run_trial
+from ablate.config import COURSE, DEFAULT
 
 RESULTS: dict[str, object] = {}
 
@@ -127,7 +127,7 @@ def bench_runner(repeats: int = 3) -> None:
     import shutil
     import tempfile
 
-    from ablate.config import load_experiment
+    from ablate.experiment import load_experiment
     from ablate.run.grid import expand
     from ablate.run.runner import run_experiment
     from ablate.run.scheduler import ensure_ray
@@ -185,7 +185,7 @@ def _tracked_run(experiment_path: str, folder: Path) -> tuple[float, float, floa
 
     import psutil
 
-    from ablate.config import load_experiment
+    from ablate.experiment import load_experiment
     from ablate.run.runner import run_experiment
     from ablate.run.tracking import Tracker
 
@@ -255,9 +255,9 @@ def bench_ablation(repeats: int = 1) -> None:
 
     import ray
 
-    from ablate.config import load_experiment
-    from ablate.run.grid import expand
+    from ablate.experiment import load_experiment
     from ablate.report.document import write_report
+    from ablate.run.grid import expand
     from ablate.run.scheduler import ensure_ray
     from ablate.run.tracking import Tracker
 
@@ -559,7 +559,7 @@ Steps cost the same early and late in a trial; 200 MLP episodes (~200,000 steps)
 
 def _pong_config(variant: str, **overrides):
     """The trial config of ``variant`` in experiments/pong.toml, seed 0, with ``overrides``."""
-    from ablate.config import load_experiment
+    from ablate.experiment import load_experiment
 
     config = next(v.config for v in load_experiment(PONG_EXPERIMENT).variants if v.name == variant)
     return replace(config, record_video=False, video_every=0, checkpoint_every=0, **overrides)
@@ -712,7 +712,7 @@ def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> N
     import shutil
     import tempfile
 
-    from ablate.config import load_experiment
+    from ablate.experiment import load_experiment
     from ablate.run.runner import run_experiment
     from ablate.run.scheduler import ensure_ray
     from ablate.run.tracking import Tracker
@@ -796,7 +796,7 @@ def bench_eta(
     import shutil
     import tempfile
 
-    from ablate.config import load_experiment
+    from ablate.experiment import load_experiment
     from ablate.run.runner import run_experiment
 
     folder = Path(tempfile.mkdtemp(prefix="ablate-bench-eta-"))

@@ -53,7 +53,9 @@ def notebook_run(tmp_path_factory):
     shutil.copy(ROOT / "experiments" / "smoke.toml", top / "experiments")
     (top / "examples").mkdir()
     notebook = nbformat.read(ROOT / "examples" / "quickstart.ipynb", as_version=4)
-    NotebookClient(notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(top / "examples")}}).execute()
+    NotebookClient(
+        notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(top / "examples")}}
+    ).execute()
     return notebook, top / "examples"
 
 
@@ -71,7 +73,11 @@ def test_load_returns_the_tables_ablate_report_writes(notebook_run, tmp_path):
     store = f"sqlite:///{folder / 'quickstart-mlflow.db'}"
     assert main(["report", "smoke", "--tracking-uri", store, "--out", str(tmp_path), "--no-pdf"]) == 0
     results = ablate.load("smoke", tracking_uri=store)
-    for frame, name in ((results.trials, "trials"), (results.convergence, "convergence"), (results.comparisons, "comparisons")):
+    for frame, name in (
+        (results.trials, "trials"),
+        (results.convergence, "convergence"),
+        (results.comparisons, "comparisons"),
+    ):
         written = pd.read_csv(tmp_path / "smoke" / "tables" / f"{name}.csv")
         through_csv = pd.read_csv(io.StringIO(frame.to_csv(index=False)))  # the same text round trip
         pd.testing.assert_frame_equal(through_csv, written, check_exact=False, rtol=1e-12)

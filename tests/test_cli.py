@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from ablate.cli import main
-from ablate.config import load_experiment
+from ablate.experiment import load_experiment
 
 
 @pytest.mark.parametrize(
@@ -267,8 +267,8 @@ def test_train_from_bad_input_is_exit_2(tmp_path, capsys, argv, message):
 def test_train_from_runs_that_trial_with_its_key_and_config_and_no_sdl_noise(tmp_path):
     import csv
 
-    from ablate.run.grid import expand
     from ablate.agent.trial import run_trial
+    from ablate.run.grid import expand
 
     path = tmp_path / "tiny.toml"
     path.write_text(TINY)
@@ -296,7 +296,7 @@ def test_train_from_runs_that_trial_with_its_key_and_config_and_no_sdl_noise(tmp
 
 
 def test_run_dry_run_takes_a_name_in_any_script_and_shows_its_storage_name(tmp_path, capsys, monkeypatch):
-    from ablate.config import storage_name
+    from ablate.experiment import storage_name
 
     monkeypatch.chdir(tmp_path)
     path = tmp_path / "实验.toml"

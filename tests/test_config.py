@@ -6,7 +6,8 @@ import unicodedata
 
 import pytest
 
-from ablate.config import COURSE, DEFAULT, ConfigError, apply_knobs, flatten, load_experiment, storage_name
+from ablate.config import COURSE, DEFAULT, ConfigError, apply_knobs, flatten
+from ablate.experiment import load_experiment, storage_name
 
 
 def test_course_preset_is_the_labs_setting():

@@ -2,8 +2,8 @@
 
 import pytest
 
-from ablate.run.curve import CURVE_POINTS, CurveReducer, bin_size
 from ablate.agent.trial import EpisodeMetrics
+from ablate.run.curve import CURVE_POINTS, CurveReducer, bin_size
 
 
 def rows(episodes: int, per_update: int) -> list[EpisodeMetrics]:

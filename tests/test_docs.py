@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from ablate import config
+from ablate import config, experiment
 from ablate.cli import TEST_ONLY_KNOBS, format_value, knob_defaults, main
 from ablate.run.grid import expand
 
@@ -137,11 +137,11 @@ def test_readme_example_experiment_is_valid_and_as_large_as_it_says():
     text = README.read_text(encoding="utf-8")
     block = re.search(r"```toml\n(.*?)```", text, re.S)
     assert block, "README.md has no ```toml experiment example"
-    experiment = config.parse_experiment(tomllib.loads(block.group(1)), "README.md")
+    example = experiment.parse_experiment(tomllib.loads(block.group(1)), "README.md")
     claim = re.search(r"(\d+) variants x (\d+) seeds", block.group(1))
     assert claim, "the example's first comment should say how many variants and seeds it has"
-    assert (len(experiment.variants), len(experiment.seeds)) == (int(claim[1]), int(claim[2]))
-    trials = len(expand(experiment))
+    assert (len(example.variants), len(example.seeds)) == (int(claim[1]), int(claim[2]))
+    trials = len(expand(example))
     assert f"the {trials} trials" in text, f"the README's --dry-run line should say it lists {trials} trials"
 
 
@@ -161,10 +161,10 @@ def test_every_knob_and_top_level_key_is_documented_with_its_default():
         assert name in rows, f"knob {name} is missing from docs/experiments.md: python tools/knob_docs.py --write"
         expected = "not set" if defaults[name] is None else f"`{format_value(defaults[name])}`"
         assert rows[name] == expected, f"{name}: docs/experiments.md says {rows[name]}, ablate/config.py {expected}"
-    for name in [*config.SHORTHANDS, *config.EXPERIMENT_KEYS]:
+    for name in [*config.SHORTHANDS, *experiment.EXPERIMENT_KEYS]:
         assert name in rows, f"{name} is missing from docs/experiments.md: python tools/knob_docs.py --write"
     top = _knob_docs().top_level_defaults()
-    for name in config.EXPERIMENT_KEYS:
+    for name in experiment.EXPERIMENT_KEYS:
         assert rows[name] == top[name], f"{name}: docs/experiments.md says {rows[name]}, the parser {top[name]}"
 
 

@@ -3,7 +3,7 @@ through real Ray and a real MLflow store (the report is tested with the report).
 
 from pathlib import Path
 
-from ablate.config import load_experiment
+from ablate.experiment import load_experiment
 from ablate.report.reader import RunReader
 from ablate.run.grid import expand
 

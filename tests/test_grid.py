@@ -2,7 +2,8 @@
 
 import pytest
 
-from ablate.config import ConfigError, parse_experiment
+from ablate.config import ConfigError
+from ablate.experiment import parse_experiment
 from ablate.run.grid import expand, select, split_variants
 
 EXPERIMENT = {

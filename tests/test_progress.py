@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from ablate.run import progress
+from ablate.agent.trial import EpisodeMetrics
 from ablate.config import TrialConfig
+from ablate.run import progress
 from ablate.run.grid import GridTrial
 from ablate.run.progress import ProgressView, makespan, stage
-from ablate.agent.trial import EpisodeMetrics
 
 
 class Clock:

@@ -19,7 +19,7 @@ from devtools import DevTools
 from scipy import stats
 
 from ablate.cli import main
-from ablate.config import load_experiment
+from ablate.experiment import load_experiment
 from ablate.report.document import write_report
 from ablate.report.reader import RunReader
 from ablate.report.writers import chromium_flags

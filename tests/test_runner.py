@@ -13,7 +13,7 @@ import pytest
 import torch
 from mlflow.entities import ViewType
 
-from ablate.config import load_experiment
+from ablate.experiment import load_experiment
 from ablate.report.reader import RunReader
 from ablate.run.grid import expand
 from ablate.run.tracking import POINT_METRICS, Tracker
@@ -498,7 +498,7 @@ def test_a_name_in_any_script_runs_under_its_storage_name_and_its_costs_are_read
 ):
     import unicodedata
 
-    from ablate.config import storage_name
+    from ablate.experiment import storage_name
 
     text = 'name = "实验é"\nseeds = 1\n[base]\nmax_episodes = 4\nrecord_video = false\n[[variants]]\nname = "a"\n'
     experiment = _experiment(tmp_path, text)

@@ -3,9 +3,9 @@
 import re
 
 from ablate.cli import main
-from ablate.config import load_experiment
-from ablate.run.grid import expand, select
+from ablate.experiment import load_experiment
 from ablate.report.status import trial_states
+from ablate.run.grid import expand, select
 from ablate.run.tracking import TrialRun
 
 FAULTY = """

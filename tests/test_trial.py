@@ -8,9 +8,9 @@ from dataclasses import replace
 import pytest
 import torch
 
-from ablate.config import DEFAULT, ModelConfig
 from ablate.agent.envs import PongEnv
 from ablate.agent.trial import TrialFailed, run_trial
+from ablate.config import DEFAULT, ModelConfig
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=64, episodes_per_update=8, record_video=False)
 

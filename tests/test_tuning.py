@@ -2,7 +2,7 @@
 
 import pytest
 
-from ablate.config import parse_experiment
+from ablate.experiment import parse_experiment
 from ablate.run.tuning import TuningResult, choose, choose_all, metric_value, tuning_document
 
 

@@ -87,7 +87,7 @@ def main() -> int:
     import torch
 
     from ablate.agent.trial import run_trial
-    from ablate.config import load_experiment
+    from ablate.experiment import load_experiment
 
     cuda = torch.cuda.is_available()
     if cuda:

@@ -18,7 +18,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout, installed or not
 
-from ablate import config  # noqa: E402
+from ablate import config, experiment  # noqa: E402
 from ablate.cli import TEST_ONLY_KNOBS, field_docs, format_value, knob_defaults  # noqa: E402
 
 PAGE = ROOT / "docs" / "experiments.md"
@@ -70,7 +70,7 @@ TOP_LEVEL_VALID = {
 
 def top_level_defaults() -> dict[str, str]:
     """Each top-level key's default, read off the parser: what a file that leaves the key out gets."""
-    minimal = config.parse_experiment({"variants": [{"name": "first"}, {"name": "second"}]}, "experiments/mine.toml")
+    minimal = experiment.parse_experiment({"variants": [{"name": "first"}, {"name": "second"}]}, "experiments/mine.toml")
     seeds = minimal.seeds
     consecutive = seeds == tuple(range(seeds[0], seeds[0] + len(seeds)))
     return {
@@ -121,13 +121,13 @@ def render() -> str:
     defaults = top_level_defaults()
     missing = [
         key
-        for key in config.EXPERIMENT_KEYS
+        for key in experiment.EXPERIMENT_KEYS
         if key not in TOP_LEVEL_MEANINGS.keys() & TOP_LEVEL_VALID.keys() & defaults.keys()
     ]
     if missing:
         raise SystemExit(f"tools/knob_docs.py: no meaning for top-level key(s) {', '.join(missing)}: add them here")
     groups = knob_rows()
-    top = [(key, defaults[key], TOP_LEVEL_MEANINGS[key], TOP_LEVEL_VALID[key]) for key in config.EXPERIMENT_KEYS]
+    top = [(key, defaults[key], TOP_LEVEL_MEANINGS[key], TOP_LEVEL_VALID[key]) for key in experiment.EXPERIMENT_KEYS]
     header = ("key", "default", "meaning", "valid")
     test_only = ", ".join(f"`{k}`" for k in TEST_ONLY_KNOBS)
     lines = [

@@ -29,7 +29,10 @@ CELLS = [
         "outcome = ablate.run(experiment, tracking_uri=store, report=False, progress=False)\n"
         "print(f'{len(outcome.finished)} trials finished now, {outcome.skipped} before; exit code {outcome.exit_code}')",
     ),
-    ("markdown", "The ablation, read back from the store: one row per variant, then each variant against its reference."),
+    (
+        "markdown",
+        "The ablation, read back from the store: one row per variant, then each variant against its reference.",
+    ),
     (
         "code",
         "results = ablate.load('smoke', tracking_uri=store)\n"

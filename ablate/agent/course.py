@@ -12,9 +12,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from ablate.config import COURSE, TrialConfig
 from ablate.agent.policies import Policy, create_cartpole_model
 from ablate.agent.reinforce import Memory, discount_rewards, normalize, train_step
+from ablate.config import COURSE, TrialConfig
 
 
 def course_choose_action(model: Policy, observation: np.ndarray) -> int:

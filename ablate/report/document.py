@@ -20,7 +20,8 @@ from pathlib import Path
 import markdown
 import pandas as pd
 
-from ablate.config import NAME_RULE, ConfigError, load_experiment, name_problem, storage_name
+from ablate.config import ConfigError
+from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
 from ablate.report.comparisons import comparisons
 from ablate.report.figures import (
     Figure,
@@ -222,8 +223,8 @@ def build_markdown(
 
 
 def report_folder(name: str, out_root: Path) -> Path:
-    """``out_root/<the name's storage form>`` (``config.storage_name``), refusing a name no experiment could
-    have (``config.name_problem``)."""
+    """``out_root/<the name's storage form>`` (``experiment.storage_name``), refusing a name no experiment could
+    have (``experiment.name_problem``)."""
     problem = name_problem(name)
     if problem:
         raise ConfigError(f"experiment name {name!r} is invalid ({problem}); valid: {NAME_RULE}")

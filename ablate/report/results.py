@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ablate.config import ConfigError, Experiment
+from ablate.config import ConfigError
+from ablate.experiment import Experiment
 from ablate.report.reader import RunReader
 from ablate.report.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.report.tuning import knobs as tuning_knobs

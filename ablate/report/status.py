@@ -9,7 +9,8 @@ import time
 from collections import Counter, defaultdict
 from collections.abc import Iterable
 
-from ablate.config import ConfigError, Experiment, storage_name
+from ablate.config import ConfigError
+from ablate.experiment import Experiment, storage_name
 from ablate.report.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 from ablate.run.grid import expand, tuning_trials
 from ablate.run.store import mask_uri, resolve_uri
@@ -66,7 +67,7 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     generation per variant. With ``experiment`` (its file), trials of the file with no run count as pending."""
     uri = mask_uri(resolve_uri(tracking_uri))  # shown: its password masked
     known = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
-    if storage_name(name) not in known:  # the name as written or its storage form (``config.storage_name``)
+    if storage_name(name) not in known:  # the name as written or its storage form (``experiment.storage_name``)
         valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"
         raise ConfigError(f"{name!r} is not an ablation in the MLflow store {uri}; {valid}")
     tracker = RunReader(tracking_uri, name)

@@ -12,7 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ablate.config import ConfigError, Experiment, TrialConfig, flatten
+from ablate.config import ConfigError, TrialConfig, flatten
+from ablate.experiment import Experiment
 
 # Knobs that change what is recorded, not what is learned: they stay out of the key.
 _NOT_IN_KEY = ("record_video", "video_max_frames", "fault", "fault_marker")

@@ -19,7 +19,8 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ablate.config import ConfigError, Experiment, flatten
+from ablate.config import ConfigError, flatten
+from ablate.experiment import Experiment
 from ablate.run.curve import CurvePoint
 from ablate.run.grid import GridTrial, expand, schedule_order, tuning_trials
 from ablate.run.lock import launch_lock
@@ -259,7 +260,7 @@ class _Recorder:
 
 def tune_run_name(experiment: str, launch_id: str) -> str:
     """Tune's folder for one launch, ``<storage_path>/<this>``: removed when the launch ends, or by the next
-    launch if this one died. ``experiment``: its storage name (``config.storage_name``)."""
+    launch if this one died. ``experiment``: its storage name (``experiment.storage_name``)."""
     return f"{experiment}-{launch_id[:8]}"
 
 

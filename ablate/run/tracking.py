@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ablate.config import storage_name
+from ablate.experiment import storage_name
 from ablate.run.store import (
     PROBE_TIMEOUT_S,
     RetryingClient,
@@ -59,7 +59,7 @@ TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRun
 TAG_HOST, TAG_PID = "ablate.host", "ablate.pid"
 TAG_NODE = "ablate.node"
 TAG_NAME = "ablate.name"
-"""On an MLflow experiment whose name is a storage name (``config.storage_name``): the name as written."""
+"""On an MLflow experiment whose name is a storage name (``experiment.storage_name``): the name as written."""
 TAG_STAGE = "ablate.stage"
 """``tune`` (a tuning trial, stage 1 of a ``[tune]`` experiment) or ``eval``; runs without it are ``eval``."""
 _BATCH = 1000  # MLflow's limit of metrics per log_batch call

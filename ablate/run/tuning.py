@@ -9,7 +9,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from ablate.config import Experiment, TuneSpec, Variant
+from ablate.experiment import Experiment, TuneSpec, Variant
 from ablate.run.grid import GridTrial, chosen_trials
 
 RULE = (
