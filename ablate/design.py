@@ -1,7 +1,7 @@
 """Can an experiment's design support a claim at all? The report's decision rule, before any compute is spent.
 
-Standard library only, so ``ablate run --dry-run`` answers without pandas or SciPy; ``report.results`` uses
-the same rule (a test holds the two equal).
+Standard library only, so ``ablate run --dry-run`` answers without pandas or SciPy; the report's statistics
+import the rule from here, so there is one copy of it.
 """
 
 from __future__ import annotations

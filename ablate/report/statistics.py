@@ -7,13 +7,12 @@ improvement. Pure functions of arrays (and one of a curves frame); nothing here 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pandas as pd
 from scipy import stats
 
-CONFIDENCE = 0.95
+from ablate.design import CONFIDENCE, smallest_p_value  # noqa: F401  (the rule --dry-run applies, one copy)
+
 N_RESAMPLES = 2000
 SEED = 12345  # bootstrap resampling is seeded: the same runs give the same report
 
@@ -88,14 +87,6 @@ def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[f
     elif point <= 0.0 or high - low < 1e-12 and point < 0.5:
         low, high = 0.0, 1 - edge ** (1 / n)
     return (float(low), float(high))
-
-
-def smallest_p_value(n: int, m: int) -> float:
-    """The smallest two-sided p-value a rank test can give with ``n`` and ``m`` seeds (complete separation):
-    above 0.05, no ordering of the seeds can support a claim at 95%."""
-    if n < 1 or m < 1:
-        return 1.0
-    return min(1.0, 2 / math.comb(n + m, n))
 
 
 def relative_reduction(variant: np.ndarray, reference: np.ndarray) -> tuple[float, float, float]:
