@@ -20,8 +20,8 @@ if TYPE_CHECKING:  # only for the annotations: the real imports are inside the f
     import pandas as pd
     from matplotlib.figure import Figure as MplFigure
 
-    from ablate.report.results import Ablation
-    from ablate.run.runner import RunOutcome
+    from ablate.reporting.results import Ablation
+    from ablate.launch.runner import RunOutcome
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 """Where ``ablate run`` tracks by default: ``mlflow.db`` in the folder the command (or notebook) runs in."""
@@ -51,7 +51,7 @@ def _name(name_or_file: str | Path | Experiment) -> str:
 def _check_store(tracking_uri: str) -> str:
     """Refuse a local store that does not exist, in words for a Python caller (the CLI's says ``--tracking-uri``):
     reading must never create an empty database where a path was mistyped or the notebook runs elsewhere."""
-    from ablate.run.tracking import resolve_uri, sqlite_path
+    from ablate.launch.tracking import resolve_uri, sqlite_path
 
     uri = resolve_uri(tracking_uri)
     path = sqlite_path(uri)
@@ -90,8 +90,8 @@ def run(
     (``finished``, ``failed``, ``skipped``, ``exit_code``, ...); ``outcome.report_folder`` is the report's
     folder, or ``None``. Bad input raises ``ConfigError`` before anything is tracked.
     """
-    from ablate.run.grid import expand, select
-    from ablate.run.runner import run_experiment
+    from ablate.launch.grid import expand, select
+    from ablate.launch.runner import run_experiment
 
     loaded = _experiment(experiment)
     if max_concurrent is not None and max_concurrent < 1:
@@ -143,7 +143,7 @@ def _write_report(
     baseline: str | None = None,
     generation: str | None = None,
 ) -> Path:
-    from ablate.report.document import write_report
+    from ablate.reporting.document import write_report
 
     uri = _check_store(tracking_uri)
     return write_report(
@@ -174,7 +174,7 @@ def load(
     notebook in another folder passes the path (``"sqlite:////abs/path/mlflow.db"`` or ``"sqlite:///../mlflow.db"``).
     ``generation``: an older generation (a prefix of its id) instead of the newest launch's.
     """
-    from ablate.report.results import load_ablation, select
+    from ablate.reporting.results import load_ablation, select
 
     uri = _check_store(tracking_uri)
     ablation = load_ablation(_name(name_or_file), uri, generation)
@@ -216,13 +216,13 @@ class Results:
 
     @cached_property
     def convergence(self) -> pd.DataFrame:
-        from ablate.report.results import convergence_table
+        from ablate.reporting.results import convergence_table
 
         return convergence_table(self.ablation)
 
     @cached_property
     def comparisons(self) -> pd.DataFrame:
-        from ablate.report.results import comparisons
+        from ablate.reporting.results import comparisons
 
         return comparisons(self.ablation)
 
@@ -230,7 +230,7 @@ class Results:
         """One of the report's figures as a matplotlib figure (a notebook shows it inline): ``curves``
         (every variant's learning curve), ``per_seed`` (episodes to solve per seed), ``improvement`` (each
         variant against its reference, with intervals), ``parameters`` (cost against size), ``wallclock``."""
-        from ablate.report import figures
+        from ablate.reporting import figures
 
         draw = {
             "curves": lambda folder: figures.figure_overview(self.ablation, folder),

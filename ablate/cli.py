@@ -20,9 +20,9 @@ from ablate import config as config_module
 from ablate import experiment as experiment_module
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, ModelConfig, TrialConfig, apply_knobs
 from ablate.experiment import Experiment
-from ablate.run.grid import GridTrial, expand, select, tuning_trials
-from ablate.run.lock import LaunchLocked
-from ablate.run.tracking import TrackingError
+from ablate.launch.grid import GridTrial, expand, select, tuning_trials
+from ablate.launch.lock import LaunchLocked
+from ablate.launch.tracking import TrackingError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -383,7 +383,7 @@ class _ProgressLine:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from ablate.report.status import detail, overview
+    from ablate.reporting.status import detail, overview
 
     if args.experiment is None:
         print(overview(args.tracking_uri))
@@ -480,7 +480,7 @@ def main(argv: list[str] | None = None) -> int:
             from ablate.commands import cmd_run
 
             return cmd_run(args, started_at)
-        from ablate.report.document import cmd_report
+        from ablate.reporting.document import cmd_report
 
         return cmd_report(args)
     except ConfigError as error:

@@ -13,9 +13,9 @@ from pathlib import Path
 
 from ablate.config import ConfigError
 from ablate.experiment import load_experiment
-from ablate.run.grid import expand, select
-from ablate.run.progress import clock, stage
-from ablate.run.runner import raise_interrupted, run_experiment, signals_received
+from ablate.launch.grid import expand, select
+from ablate.launch.progress import clock, stage
+from ablate.launch.runner import raise_interrupted, run_experiment, signals_received
 
 
 def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
@@ -52,7 +52,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         )
     except Exception as error:
         # The scheduler (and Ray) is only imported when trials run: its error class is known only then.
-        scheduler = sys.modules.get("ablate.run.scheduler")
+        scheduler = sys.modules.get("ablate.launch.scheduler")
         if scheduler is None or not isinstance(error, scheduler.ClusterUnavailable):
             raise
         sys.stderr.write(f"ablate run: {error}\n")
@@ -78,7 +78,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         print(f"  FAILED {key}: {message}")
     print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
     if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
-        from ablate.report.document import NoResults, terminal_summary, write_report  # after the trials: heavy
+        from ablate.reporting.document import NoResults, terminal_summary, write_report  # after the trials: heavy
 
         try:
             with stage(f"writing the report into reports/{experiment.storage_name}/") as report_s:

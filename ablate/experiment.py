@@ -50,7 +50,7 @@ class Variant:
 @dataclass(frozen=True)
 class TuneSpec:
     """``[tune]``: per variant, which values of the optimisation knobs to try on the tuning seeds, and how to
-    pick one (see ``ablate.run.tuning``)."""
+    pick one (see ``ablate.launch.tuning``)."""
 
     knobs: tuple[tuple[str, tuple[Any, ...]], ...]
     """``(knob, candidate values)`` pairs, in file order; a variant tries every combination."""

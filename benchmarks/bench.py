@@ -100,7 +100,7 @@ class _TimedEvents:
 
 def _untracked(trials, concurrent: int, storage: Path, name: str) -> tuple[float, float]:
     """Run ``trials`` through Ray Tune untracked, ``concurrent`` at a time: (wall s, s to the first start)."""
-    from ablate.run.scheduler import ClusterOptions, run_trials
+    from ablate.launch.scheduler import ClusterOptions, run_trials
 
     events = _TimedEvents()
     run_trials(trials, events, ClusterOptions(max_concurrent=concurrent, storage_path=str(storage)), name)
@@ -128,10 +128,10 @@ def bench_runner(repeats: int = 3) -> None:
     import tempfile
 
     from ablate.experiment import load_experiment
-    from ablate.run.grid import expand
-    from ablate.run.runner import run_experiment
-    from ablate.run.scheduler import ensure_ray
-    from ablate.run.tracking import Tracker
+    from ablate.launch.grid import expand
+    from ablate.launch.runner import run_experiment
+    from ablate.launch.scheduler import ensure_ray
+    from ablate.launch.tracking import Tracker
 
     ensure_ray(None)
     folder = Path(tempfile.mkdtemp(prefix="ablate-bench-"))
@@ -186,8 +186,8 @@ def _tracked_run(experiment_path: str, folder: Path) -> tuple[float, float, floa
     import psutil
 
     from ablate.experiment import load_experiment
-    from ablate.run.runner import run_experiment
-    from ablate.run.tracking import Tracker
+    from ablate.launch.runner import run_experiment
+    from ablate.launch.tracking import Tracker
 
     in_tracker = [0.0]
     originals = {}
@@ -256,10 +256,10 @@ def bench_ablation(repeats: int = 1) -> None:
     import ray
 
     from ablate.experiment import load_experiment
-    from ablate.report.document import write_report
-    from ablate.run.grid import expand
-    from ablate.run.scheduler import ensure_ray
-    from ablate.run.tracking import Tracker
+    from ablate.reporting.document import write_report
+    from ablate.launch.grid import expand
+    from ablate.launch.scheduler import ensure_ray
+    from ablate.launch.tracking import Tracker
 
     path = "experiments/cartpole.toml"
     trials = expand(load_experiment(path))
@@ -349,11 +349,11 @@ def _writer_run(trials: int, seconds: float, trial_wall: float, reports: list, a
     import queue
     import threading
 
-    from ablate.run.grid import GridTrial
-    from ablate.run.progress import ProgressView
-    from ablate.run.runner import RunOutcome, _Recorder
-    from ablate.run.scheduler import REPORT_EVERY_S
-    from ablate.run.tracking import Tracker
+    from ablate.launch.grid import GridTrial
+    from ablate.launch.progress import ProgressView
+    from ablate.launch.runner import RunOutcome, _Recorder
+    from ablate.launch.scheduler import REPORT_EVERY_S
+    from ablate.launch.tracking import Tracker
 
     tracker = Tracker(f"sqlite:///{folder / 'mlflow.db'}", "bench-tracking")
     launch = tracker.start_launch("g", "bench", {}, {})
@@ -425,8 +425,8 @@ def bench_tracking(trials: int = 256, seconds: float = 60.0) -> None:
     import shutil
     import tempfile
 
-    from ablate.run.curve import CURVE_POINTS, CurvePoint, CurveReducer
-    from ablate.run.scheduler import REPORT_EVERY_S
+    from ablate.launch.curve import CURVE_POINTS, CurvePoint, CurveReducer
+    from ablate.launch.scheduler import REPORT_EVERY_S
 
     updates, trial_wall, artifacts = _cartpole_stream()
     episodes = sum(len(rows) for _, rows in updates)
@@ -713,9 +713,9 @@ def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> N
     import tempfile
 
     from ablate.experiment import load_experiment
-    from ablate.run.runner import run_experiment
-    from ablate.run.scheduler import ensure_ray
-    from ablate.run.tracking import Tracker
+    from ablate.launch.runner import run_experiment
+    from ablate.launch.scheduler import ensure_ray
+    from ablate.launch.tracking import Tracker
 
     ensure_ray(None)
     folder = Path(tempfile.mkdtemp(prefix="ablate-bench-"))
@@ -797,7 +797,7 @@ def bench_eta(
     import tempfile
 
     from ablate.experiment import load_experiment
-    from ablate.run.runner import run_experiment
+    from ablate.launch.runner import run_experiment
 
     folder = Path(tempfile.mkdtemp(prefix="ablate-bench-eta-"))
     figures = {}

@@ -7,7 +7,7 @@ import pytest
 def ray_cluster():
     import ray
 
-    from ablate.run.scheduler import ensure_ray
+    from ablate.launch.scheduler import ensure_ray
 
     started = ensure_ray(None)
     yield
@@ -23,7 +23,7 @@ def tracking_uri(tmp_path):
 @pytest.fixture(scope="session")
 def run_quiet(ray_cluster):
     """``run_experiment`` as tests call it: into ``tracking_uri``, Tune's files under ``folder``, no live view."""
-    from ablate.run.runner import run_experiment
+    from ablate.launch.runner import run_experiment
 
     def run(experiment, folder, tracking_uri, **kwargs):
         return run_experiment(

@@ -212,7 +212,7 @@ def test_run_dry_run_lists_the_chosen_trials_and_starts_nothing(tmp_path):
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     assert lines[0] == "tiny: 4 of 9 trials (dry run: nothing started or written)"
-    from ablate.run.grid import expand
+    from ablate.launch.grid import expand
 
     expected = [t for t in expand(load_experiment(path)) if t.variant != "narrow" and t.seed in (0, 2)]
     rows = [line.split() for line in lines[2:6]]
@@ -268,7 +268,7 @@ def test_train_from_runs_that_trial_with_its_key_and_config_and_no_sdl_noise(tmp
     import csv
 
     from ablate.agent.trial import run_trial
-    from ablate.run.grid import expand
+    from ablate.launch.grid import expand
 
     path = tmp_path / "tiny.toml"
     path.write_text(TINY)
@@ -364,7 +364,7 @@ seeds = 2
 
 def test_dry_run_of_a_tuned_file_lists_stage_1_then_stage_2_after_tuning(tmp_path, capsys):
     from ablate.cli import main
-    from ablate.run.grid import tuning_trials
+    from ablate.launch.grid import tuning_trials
 
     path = tmp_path / "tuned.toml"
     path.write_text(TUNED)

@@ -8,10 +8,10 @@ import pandas as pd
 import pytest
 from test_results import _grid_ablation, _row
 
-from ablate.report.comparisons import compare_metric, comparisons
-from ablate.report.results import Ablation
-from ablate.report.statistics import smallest_p_value
-from ablate.report.tables import convergence_table
+from ablate.reporting.comparisons import compare_metric, comparisons
+from ablate.reporting.results import Ablation
+from ablate.reporting.statistics import smallest_p_value
+from ablate.reporting.tables import convergence_table
 
 
 # honest findings on censored data (issue 8 item 8), small samples, one seed, Pong (issue 9 item 7) -------
@@ -40,7 +40,7 @@ BASELINE_4_OF_5 = [707, 749, 715, 900, None]  # the committed report's baseline:
 
 
 def _findings_text(ablation):
-    from ablate.report.findings import findings
+    from ablate.reporting.findings import findings
 
     table = convergence_table(ablation)
     return "\n".join(findings(ablation, table, comparisons(ablation)))
@@ -88,7 +88,7 @@ def test_three_seeds_against_three_support_no_claim():
     assert "**too few seeds to tell**. mean 60 vs 11 episodes" in line and "suggest" not in text
     assert "IQM" not in line and "no claim" not in text
     assert "Seeds needed: **too few seeds**: about 4 per variant" in line
-    from ablate.report.findings import summary
+    from ablate.reporting.findings import summary
 
     assert "| too few seeds to tell |" in summary(ablation, convergence_table(ablation), comparisons(ablation))
     never = _frame({"a": [None, None, None], "b": [None, None, 50]}, budget=100)  # both IQMs use the budget

@@ -189,7 +189,7 @@ def test_a_100_character_cjk_name_stores_within_one_folder_names_255_bytes(tmp_p
     stored = _named(tmp_path, name).storage_name
     assert stored.isascii() and len(stored.encode()) <= 57
     (tmp_path / stored).mkdir()  # the file system takes it
-    from ablate.report.document import report_folder
+    from ablate.reporting.document import report_folder
 
     assert report_folder(name, tmp_path) == tmp_path / stored
 

@@ -3,7 +3,7 @@
 import pytest
 
 from ablate.agent.trial import EpisodeMetrics
-from ablate.run.curve import CURVE_POINTS, CurveReducer, bin_size
+from ablate.launch.curve import CURVE_POINTS, CurveReducer, bin_size
 
 
 def rows(episodes: int, per_update: int) -> list[EpisodeMetrics]:

@@ -17,7 +17,7 @@ def test_three_seeds_cannot_reach_a_claim_four_can():
 def test_the_rule_is_the_reports_own():
     """The report decides with the very function and level --dry-run warns with (one copy of the rule)."""
     from ablate import design
-    from ablate.report import comparisons, statistics
+    from ablate.reporting import comparisons, statistics
 
     assert statistics.smallest_p_value is design.smallest_p_value and statistics.CONFIDENCE == design.CONFIDENCE
     assert comparisons.smallest_p_value is design.smallest_p_value

@@ -17,7 +17,7 @@ import pytest
 
 from ablate import config, experiment
 from ablate.cli import TEST_ONLY_KNOBS, format_value, knob_defaults, main
-from ablate.run.grid import expand
+from ablate.launch.grid import expand
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"

@@ -33,7 +33,7 @@ hidden_sizes = [16, 16]
 @pytest.fixture(scope="session")
 def seeded_store(tmp_path_factory):
     """An MLflow store holding experiment ``tiny`` with one finished launch and trial (no Ray needed)."""
-    from ablate.run.tracking import Tracker
+    from ablate.launch.tracking import Tracker
 
     folder = tmp_path_factory.mktemp("seeded")
     tracker = Tracker(f"sqlite:///{folder / 'mlflow.db'}", "tiny")
@@ -258,7 +258,7 @@ def test_tracking_uri_from_the_environment_is_checked_too(tmp_path, capsys, monk
 
 
 def test_a_second_launch_is_refused_naming_the_first(tmp_path, seeded_store, capsys, monkeypatch):
-    from ablate.run.tracking import Tracker
+    from ablate.launch.tracking import Tracker
 
     store = tmp_path / "store"
     shutil.copytree(seeded_store, store)

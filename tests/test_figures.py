@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 from test_comparisons import _frame
 
-from ablate.report.figures import per_seed_points
+from ablate.reporting.figures import per_seed_points
 
 
 def test_never_solved_seeds_are_drawn_at_the_budget_as_bounds():

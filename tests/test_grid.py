@@ -4,7 +4,7 @@ import pytest
 
 from ablate.config import ConfigError
 from ablate.experiment import parse_experiment
-from ablate.run.grid import expand, select, split_variants
+from ablate.launch.grid import expand, select, split_variants
 
 EXPERIMENT = {
     "seeds": 3,
@@ -71,7 +71,7 @@ def test_tune_leaves_every_untuned_trial_key_unchanged(name):
 
 
 def test_tuning_trials_use_tuning_seeds_disjoint_from_evaluation_seeds():
-    from ablate.run.grid import chosen_trials, tuning_trials
+    from ablate.launch.grid import chosen_trials, tuning_trials
 
     experiment = parse_experiment(
         {

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from ablate.run.lock import LaunchLocked, launch_lock
+from ablate.launch.lock import LaunchLocked, launch_lock
 
 
 def test_a_second_holder_is_refused_naming_the_first(tmp_path):
@@ -27,7 +27,7 @@ def test_a_second_holder_is_refused_naming_the_first(tmp_path):
 def test_a_lock_whose_holder_was_killed_is_free_at_once(tmp_path):
     path = tmp_path / "x.lock"
     script = (
-        "import sys, time\nfrom pathlib import Path\nfrom ablate.run.lock import launch_lock\n"
+        "import sys, time\nfrom pathlib import Path\nfrom ablate.launch.lock import launch_lock\n"
         f"with launch_lock(Path({str(path)!r}), 'x'):\n    print('held', flush=True)\n    time.sleep(600)\n"
     )
     holder = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)

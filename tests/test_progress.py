@@ -14,9 +14,9 @@ import pytest
 
 from ablate.agent.trial import EpisodeMetrics
 from ablate.config import TrialConfig
-from ablate.run import progress
-from ablate.run.grid import GridTrial
-from ablate.run.progress import ProgressView, makespan, stage
+from ablate.launch import progress
+from ablate.launch.grid import GridTrial
+from ablate.launch.progress import ProgressView, makespan, stage
 
 
 class Clock:
@@ -216,7 +216,7 @@ def test_progress_view_in_tmux_clock_runs_before_any_trial_ends_and_running_rows
 
 
 def test_schedule_order_interleaves_seeds_across_variants_and_keeps_every_key():
-    from ablate.run.grid import schedule_order
+    from ablate.launch.grid import schedule_order
 
     trials = _trials(variants=("a", "slow", "c"), seeds=(0, 1))
     ordered = schedule_order(trials)

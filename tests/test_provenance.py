@@ -2,7 +2,7 @@
 
 import subprocess
 
-from ablate.report.provenance import experiment_file_state
+from ablate.reporting.provenance import experiment_file_state
 
 
 def _git(folder, *argv):

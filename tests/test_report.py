@@ -20,11 +20,11 @@ from scipy import stats
 
 from ablate.cli import main
 from ablate.experiment import load_experiment
-from ablate.report.document import write_report
-from ablate.report.reader import RunReader
-from ablate.report.writers import chromium_flags
-from ablate.run.curve import CurveReducer
-from ablate.run.tracking import Tracker
+from ablate.reporting.document import write_report
+from ablate.reporting.reader import RunReader
+from ablate.reporting.writers import chromium_flags
+from ablate.launch.curve import CurveReducer
+from ablate.launch.tracking import Tracker
 
 ARTIFACTS = Path(__file__).parent / "artifacts"
 EXPERIMENT = """
@@ -339,7 +339,7 @@ def store(tmp_path_factory):
 def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monkeypatch):
     # issue 9: `TypeError: unsupported format string passed to NoneType` (no threshold) and
     # `ValueError: cannot convert float NaN to integer` (one seed)
-    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
     folder = write_report("pong", tracking_uri=uri, out_root=tmp_path)
     text = (folder / "report.md").read_text()
@@ -359,7 +359,7 @@ def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monk
 
 def test_each_architectures_knobs_are_compared_with_that_architecture(store, tmp_path, monkeypatch):
     # the Pong ablation had mlp-l2 against cnn: two changes at once, and a limitation that said so
-    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
     folder = write_report("knobs", tracking_uri=uri, out_root=tmp_path)
     text = (folder / "report.md").read_text()
@@ -385,7 +385,7 @@ def test_each_architectures_knobs_are_compared_with_that_architecture(store, tmp
 
 def test_report_of_one_seed_with_a_threshold(store, tmp_path, monkeypatch):
     # issue 9: `ValueError: cannot convert float NaN to integer` with one seed
-    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
     folder = write_report("single", tracking_uri=uri, out_root=tmp_path)
     text = (folder / "report.md").read_text()
@@ -409,7 +409,7 @@ def test_the_record_shows_the_report_command_as_typed(store, tmp_path, monkeypat
 
 
 def test_user_text_is_escaped_in_the_html(store, tmp_path, monkeypatch):
-    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
     folder = write_report("evil", tracking_uri=uri, out_root=tmp_path)
     page = (folder / "report.html").read_text()
@@ -466,7 +466,7 @@ def test_a_report_that_cannot_be_built_writes_nothing(store, good_report, capsys
 
 def test_generation_variants_and_baseline(store, tmp_path, monkeypatch, capsys):
     # after `--fresh` then Ctrl-C the newest generation is incomplete; the complete one can still be reported
-    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test")
+    monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test")
     _, uri = store
     assert main(["report", "gens", "--tracking-uri", uri, "--out", str(tmp_path), "--no-pdf"]) == 0
     out = capsys.readouterr().out

@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 from test_report import rising, write_trial
 
-from ablate.report.document import write_report
-from ablate.report.results import load_ablation
-from ablate.report.tuning import at_values, base_values, chosen_values, edge, tuning_table
-from ablate.run.tracking import Tracker
+from ablate.reporting.document import write_report
+from ablate.reporting.results import load_ablation
+from ablate.reporting.tuning import at_values, base_values, chosen_values, edge, tuning_table
+from ablate.launch.tracking import Tracker
 
 BASE_LR, CANDIDATES, TUNE_SEEDS, EVAL_SEEDS = 0.03, [0.01, 0.03, 0.1], [10000, 10001], [0, 1, 2, 3]
 TUNING = {
@@ -114,7 +114,7 @@ def test_selection_helpers_on_a_hand_made_frame():
 
 
 def test_the_tuned_report(tuned, tmp_path, monkeypatch):
-    monkeypatch.setattr("ablate.report.document.print_pdf", lambda *a, **k: "no PDF in this test")
+    monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test")
     _, uri = tuned
     folder = write_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False)
     text = (folder / "report.md").read_text()

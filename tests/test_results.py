@@ -5,8 +5,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from ablate.report.results import Ablation, area_under_curve, trial_measures
-from ablate.report.tables import convergence_table
+from ablate.reporting.results import Ablation, area_under_curve, trial_measures
+from ablate.reporting.tables import convergence_table
 
 
 def test_area_under_curve_carries_the_last_value_to_the_budget():

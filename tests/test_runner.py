@@ -14,9 +14,9 @@ import torch
 from mlflow.entities import ViewType
 
 from ablate.experiment import load_experiment
-from ablate.report.reader import RunReader
-from ablate.run.grid import expand
-from ablate.run.tracking import POINT_METRICS, Tracker
+from ablate.reporting.reader import RunReader
+from ablate.launch.grid import expand
+from ablate.launch.tracking import POINT_METRICS, Tracker
 
 TINY = """
 name = "tiny"
@@ -353,17 +353,17 @@ def test_sigterm_stops_like_ctrl_c_and_a_second_launch_is_refused(tmp_path, trac
 
 def _fake_scheduler(monkeypatch, body):
     """Replace Ray with ``body(trials, events)``: the runner's bookkeeping around the scheduler, without Ray."""
-    import ablate.run.runner
+    import ablate.launch.runner
 
-    monkeypatch.setattr(ablate.run.runner, "ensure_ray", lambda address: False)
-    monkeypatch.setattr(ablate.run.runner, "largest_node_cpus", lambda: 2.0)
+    monkeypatch.setattr(ablate.launch.runner, "ensure_ray", lambda address: False)
+    monkeypatch.setattr(ablate.launch.runner, "largest_node_cpus", lambda: 2.0)
     monkeypatch.setattr(
-        ablate.run.runner, "run_trials", lambda trials, events, options, run_name, **_: body(trials, events)
+        ablate.launch.runner, "run_trials", lambda trials, events, options, run_name, **_: body(trials, events)
     )
 
 
 def test_a_scheduler_crash_records_the_launch_failed_with_the_error(tmp_path, tracking_uri, monkeypatch):
-    from ablate.run.runner import run_experiment
+    from ablate.launch.runner import run_experiment
 
     def crash(trials, events):
         events.started(trials[0].key)
@@ -385,7 +385,7 @@ def test_a_scheduler_crash_records_the_launch_failed_with_the_error(tmp_path, tr
 def test_an_interrupt_while_a_run_is_being_opened_leaves_nothing_running(tmp_path, tracking_uri, monkeypatch):
     """Ctrl-C can land after MLflow created a trial's run and before the tracker noted it; and a scheduler
     event can come after the interrupt. Neither may leave a run RUNNING or say "0 marked killed"."""
-    from ablate.run.runner import run_experiment
+    from ablate.launch.runner import run_experiment
 
     late: list = []
 
@@ -416,7 +416,7 @@ def test_the_next_launch_marks_runs_a_dead_launch_left_running_killed_and_remove
 ):
     """What kill -9 of a driver leaves (its launch and trial runs RUNNING, ``ray_results/<run>/``), made
     directly: the next launch reaps it, runs the grid, and leaves nothing RUNNING."""
-    from ablate.run.runner import run_experiment, tune_run_name
+    from ablate.launch.runner import run_experiment, tune_run_name
 
     experiment = _experiment(tmp_path)
     trials = expand(experiment)
@@ -446,7 +446,7 @@ def test_the_next_launch_marks_runs_a_dead_launch_left_running_killed_and_remove
 
 def test_trial_params_hold_only_knobs_that_shaped_the_trial():
     from ablate.config import DEFAULT, apply_knobs
-    from ablate.run.runner import tracked_params
+    from ablate.launch.runner import tracked_params
 
     mlp = tracked_params("base", DEFAULT)
     assert mlp["variant"] == "base" and mlp["model.hidden_sizes"] == (32,) and "learning_rate" in mlp
@@ -458,7 +458,7 @@ def test_trial_params_hold_only_knobs_that_shaped_the_trial():
 
 
 def test_the_commit_is_not_dirty_because_the_committed_report_changed(tmp_path, monkeypatch):
-    from ablate.run.runner import git_commit
+    from ablate.launch.runner import git_commit
 
     def git(*args):
         subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True)
@@ -480,7 +480,7 @@ def test_a_cluster_whose_nodes_are_all_too_small_is_refused_before_a_launch_is_r
     tmp_path, tracking_uri, monkeypatch
 ):
     from ablate.config import ConfigError
-    from ablate.run.runner import run_experiment
+    from ablate.launch.runner import run_experiment
 
     _fake_scheduler(monkeypatch, lambda trials, events: pytest.fail("no trial may be scheduled"))
     import dataclasses
@@ -575,7 +575,7 @@ def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_
         assert evaluated == [0, 1]
 
     # Nothing left: the answer comes from the store, without starting (or even asking for) Ray.
-    from ablate.run import scheduler
+    from ablate.launch import scheduler
 
     def no_ray(address):
         raise AssertionError("a finished ablation started Ray")
@@ -584,7 +584,7 @@ def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_
     again = run_quiet(tuned, tmp_path, tracking_uri)
     assert again.launch_run_id is None and again.skipped == again.total == 16 and not again.finished
 
-    from ablate.report.status import detail
+    from ablate.reporting.status import detail
 
     status = detail(tracking_uri, "tiny", tuned)
     assert "of which tuning (stage 1): 8 trials: 8 finished" in status and "16 trials: 16 finished" in status

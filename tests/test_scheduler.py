@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import local_cluster  # noqa: E402
 from test_cluster import _listening  # noqa: E402
 
-from ablate.run.tracking import Tracker  # noqa: E402
+from ablate.launch.tracking import Tracker  # noqa: E402
 
 EXPERIMENT = """
 name = "{name}"
@@ -96,7 +96,7 @@ def test_gpus_per_trial_reaches_ray_tunes_resource_request(gpus, expected):
     from ray import tune
     from ray.tune.trainable.function_trainable import wrap_function  # what Tune turns a function trainable into
 
-    from ablate.run.scheduler import ClusterOptions, trial_resources
+    from ablate.launch.scheduler import ClusterOptions, trial_resources
 
     def train(config):
         return None
@@ -109,7 +109,7 @@ def test_gpus_per_trial_reaches_ray_tunes_resource_request(gpus, expected):
 def test_what_ray_prints_while_joining_is_kept_aside_and_passed_on_when_the_join_succeeds(capfd):
     import os
 
-    from ablate.run.scheduler import _stderr_kept
+    from ablate.launch.scheduler import _stderr_kept
 
     with _stderr_kept() as kept:
         os.write(2, b"gcs_client.cc:210: Failed to get cluster ID: InvalidAuthToken\n")

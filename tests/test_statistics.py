@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from ablate.report.statistics import (
+from ablate.reporting.statistics import (
     _pairwise_improvement,
     bootstrap_interval,
     iqm,
@@ -79,14 +79,14 @@ def test_censored_statistics():
 
 
 def test_seeds_needed_for_a_large_clear_effect_are_few():
-    from ablate.report.statistics import seeds_needed
+    from ablate.reporting.statistics import seeds_needed
 
     assert seeds_needed(np.array([10.0, 11, 12]), np.array([50.0, 52, 54]), relative=True) == 4
     assert seeds_needed(np.array([60.0, 61, 62]), np.array([20.0, 21, 22]), relative=False) == 4
 
 
 def test_no_effect_needs_more_than_the_cap():
-    from ablate.report.statistics import SEEDS_CAP, seeds_needed
+    from ablate.reporting.statistics import SEEDS_CAP, seeds_needed
 
     same = np.array([10.0, 20, 30])
     assert seeds_needed(same, same, relative=False) == SEEDS_CAP + 1
@@ -94,7 +94,7 @@ def test_no_effect_needs_more_than_the_cap():
 
 
 def test_seeds_needed_for_the_smallest_effect_of_interest():
-    from ablate.report.statistics import SEEDS_CAP, seeds_needed
+    from ablate.reporting.statistics import SEEDS_CAP, seeds_needed
 
     noisy = np.array([90.0, 100, 110, 95, 105]), np.array([91.0, 99, 111, 96, 104])
     small = seeds_needed(*noisy, relative=False, effect=0.05)  # 5 points apart, seeds spread +-10

@@ -4,9 +4,9 @@ import re
 
 from ablate.cli import main
 from ablate.experiment import load_experiment
-from ablate.report.status import trial_states
-from ablate.run.grid import expand, select
-from ablate.run.tracking import TrialRun
+from ablate.reporting.status import trial_states
+from ablate.launch.grid import expand, select
+from ablate.launch.tracking import TrialRun
 
 FAULTY = """
 name = "faulty"

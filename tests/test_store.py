@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from ablate.report.reader import RunReader, ablation_names
-from ablate.run.store import TrackingError, mask_uri, redact
-from ablate.run.tracking import Tracker
+from ablate.reporting.reader import RunReader, ablation_names
+from ablate.launch.store import TrackingError, mask_uri, redact
+from ablate.launch.tracking import Tracker
 
 SECRET = "Planted-S3cret-pw"
 ROOT = Path(__file__).resolve().parent.parent
@@ -136,7 +136,7 @@ class _FlakyClient:
 
 
 def test_a_store_that_goes_away_is_retried_for_a_bounded_time_then_stops_the_launch_in_one_line(monkeypatch):
-    from ablate.run import store
+    from ablate.launch import store
 
     monkeypatch.setattr(store, "STORE_RETRY_S", 0.5)
     monkeypatch.setattr(store.time, "sleep", lambda s: None)

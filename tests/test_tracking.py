@@ -3,9 +3,9 @@
 import pytest
 from test_curve import rows
 
-from ablate.report.reader import RunReader
-from ablate.run.curve import CurveReducer
-from ablate.run.tracking import POINT_METRICS, Tracker
+from ablate.reporting.reader import RunReader
+from ablate.launch.curve import CurveReducer
+from ablate.launch.tracking import POINT_METRICS, Tracker
 
 
 def _track(tracking_uri, points, status="FINISHED"):
@@ -70,7 +70,7 @@ def test_first_launches_racing_on_a_fresh_folder_all_open_the_store(tmp_path):
     go = tmp_path / "go"
     script = (
         "import os, sys, time\n"
-        "from ablate.run.tracking import Tracker\n"
+        "from ablate.launch.tracking import Tracker\n"
         "import mlflow.tracking, mlflow.store.tracking.sqlalchemy_store\n"
         "print('ready', flush=True)\n"
         f"while not os.path.exists({str(go)!r}): time.sleep(0.005)\n"
@@ -101,7 +101,7 @@ def test_only_the_writer_and_the_reader_import_mlflow_and_run_never_imports_repo
             relative = path.relative_to(package).as_posix()
             if any(n == "mlflow" or n.startswith("mlflow.") for n in names):
                 importers.add(relative)
-            if relative.startswith("run/") and any(n.startswith("ablate.report") for n in names):
+            if relative.startswith("launch/") and any(n.startswith("ablate.reporting") for n in names):
                 upward.add(relative)
-    assert importers == {"run/tracking.py", "report/reader.py"}
+    assert importers == {"launch/tracking.py", "reporting/reader.py"}
     assert not upward  # the report after a launch is written by ablate/commands.py, above both layers

@@ -3,7 +3,7 @@
 import pytest
 
 from ablate.experiment import parse_experiment
-from ablate.run.tuning import TuningResult, choose, choose_all, metric_value, tuning_document
+from ablate.launch.tuning import TuningResult, choose, choose_all, metric_value, tuning_document
 
 
 def _spec(metric="auc", candidates=(0.01, 0.03, 0.1)):
@@ -129,8 +129,8 @@ def test_a_choice_is_always_one_of_the_candidates(metric):
 
 
 def test_stage_plan_reads_stage_1_from_finished_summaries_and_narrows_stage_2_to_the_seeds_asked_for():
-    from ablate.run.grid import expand, tuning_trials
-    from ablate.run.tuning import StagePlan, unique
+    from ablate.launch.grid import expand, tuning_trials
+    from ablate.launch.tuning import StagePlan, unique
 
     experiment = _spec()
     evaluation = [t for t in expand(experiment) if t.seed == 0]  # as --seeds 0 selects

@@ -7,8 +7,8 @@ import subprocess
 import time
 from pathlib import Path
 
-from ablate.report.figures import esc as _esc
-from ablate.report.results import Ablation
+from ablate.reporting.figures import esc as _esc
+from ablate.reporting.results import Ablation
 
 
 def experiment_file_state(commit: str, path: str, text: str | None, cwd: str | Path | None = None) -> str:

@@ -18,9 +18,9 @@ import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment
-from ablate.report.reader import RunReader
-from ablate.report.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
-from ablate.report.tuning import knobs as tuning_knobs
+from ablate.reporting.reader import RunReader
+from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
+from ablate.reporting.tuning import knobs as tuning_knobs
 
 INITIAL_EPISODES = 10
 """The untrained policy's return: the mean of a trial's first 10 episodes."""
@@ -211,7 +211,7 @@ def _generation_summary(tracker: RunReader, launches: list[Any]) -> list[dict[st
 def check_store(tracking_uri: str | None) -> str:
     """The store's URI; a local store (SQLite file or folder) that does not exist is a ``ConfigError``, so
     that reading never creates an empty database where a user mistyped a path."""
-    from ablate.run.tracking import resolve_uri
+    from ablate.launch.tracking import resolve_uri
 
     uri = resolve_uri(tracking_uri)
     if uri.startswith("sqlite:///"):

@@ -22,8 +22,8 @@ import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
-from ablate.report.comparisons import comparisons
-from ablate.report.figures import (
+from ablate.reporting.comparisons import comparisons
+from ablate.reporting.figures import (
     Figure,
     figure_improvement,
     figure_observation,
@@ -34,13 +34,13 @@ from ablate.report.figures import (
     figure_small_multiples,
     figure_wallclock,
 )
-from ablate.report.figures import esc as _esc
-from ablate.report.figures import fmt as _fmt
-from ablate.report.findings import _findings_intro, findings, summary
-from ablate.report.provenance import _generation_note, _reproducibility
-from ablate.report.reader import RunReader
-from ablate.report.results import Ablation, NoResults, load_ablation, select
-from ablate.report.sections import (
+from ablate.reporting.figures import esc as _esc
+from ablate.reporting.figures import fmt as _fmt
+from ablate.reporting.findings import _findings_intro, findings, summary
+from ablate.reporting.provenance import _generation_note, _reproducibility
+from ablate.reporting.reader import RunReader
+from ablate.reporting.results import Ablation, NoResults, load_ablation, select
+from ablate.reporting.sections import (
     GLOSSARY,
     REFERENCES,
     TUNING_REFERENCES,
@@ -49,10 +49,10 @@ from ablate.report.sections import (
     _sampling_videos,
     limitations,
 )
-from ablate.report.tables import convergence_table, trials_table
-from ablate.report.text import _metric_name
-from ablate.report.tuning_sections import dependence_section, knob_words, tuning_section
-from ablate.report.writers import CSS, _inline, print_pdf
+from ablate.reporting.tables import convergence_table, trials_table
+from ablate.reporting.text import _metric_name
+from ablate.reporting.tuning_sections import dependence_section, knob_words, tuning_section
+from ablate.reporting.writers import CSS, _inline, print_pdf
 
 
 def _video_picks(ablation: Ablation, done: pd.DataFrame) -> list[tuple[pd.Series, str]]:

@@ -21,7 +21,7 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 
-from ablate.run.grid import GridTrial
+from ablate.launch.grid import GridTrial
 
 RATE_REPORTS = 4
 """Reports (one per ~2 s per trial) that a running trial's recent pace is measured over."""

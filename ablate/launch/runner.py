@@ -21,14 +21,14 @@ from pathlib import Path
 
 from ablate.config import ConfigError, flatten
 from ablate.experiment import Experiment
-from ablate.run.curve import CurvePoint
-from ablate.run.grid import GridTrial, expand, schedule_order, tuning_trials
-from ablate.run.lock import launch_lock
-from ablate.run.progress import ProgressView
-from ablate.run.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
-from ablate.run.tuning import StagePlan, tuning_document, unique
+from ablate.launch.curve import CurvePoint
+from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
+from ablate.launch.lock import launch_lock
+from ablate.launch.progress import ProgressView
+from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
+from ablate.launch.tuning import StagePlan, tuning_document, unique
 
-# ``ablate.run.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
+# ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
 # re-run with nothing left answers from the store alone.
 
 
@@ -382,7 +382,7 @@ def _run_locked(
     )
     if not todo:
         return outcome
-    from ablate.run.scheduler import ClusterOptions, ensure_ray, largest_node_cpus, run_trials, stop_ray
+    from ablate.launch.scheduler import ClusterOptions, ensure_ray, largest_node_cpus, run_trials, stop_ray
 
     if show_progress:
         print(f"{len(todo)} trial(s) to run; starting Ray ...", flush=True)

@@ -4,7 +4,7 @@ Trials run in Ray workers; events reach the caller on the driver process (the si
 through the ``TrialEvents`` it passes in. Nothing assumes a disk that two machines share: everything a
 trial produces travels inside Ray's own results, through the object store, to the driver:
 
-- its curve, reduced in the worker to a bounded number of points (``ablate.run.curve``), every few seconds;
+- its curve, reduced in the worker to a bounded number of points (``ablate.launch.curve``), every few seconds;
 - its artifacts (``episodes.csv``, weights, curve, videos), as file bytes in its last result;
 - its checkpoints (an opaque blob from ``run_trial``'s ``on_checkpoint``), as they are taken. The driver
   keeps the latest one per trial in a small actor on its own node, where a retried trial fetches it.
@@ -39,8 +39,8 @@ from ray import tune
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from ablate.agent.trial import run_trial
-from ablate.run.curve import CurvePoint, CurveReducer
-from ablate.run.grid import GridTrial
+from ablate.launch.curve import CurvePoint, CurveReducer
+from ablate.launch.grid import GridTrial
 
 REPORT_EVERY_S = 2.0
 """Seconds between metric reports from a trial: each ``tune.report`` costs ~2 ms, so never per episode."""

@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ablate.report.figures import esc as _esc
-from ablate.report.figures import fmt as _fmt
-from ablate.report.results import Ablation
-from ablate.report.sections import _episodes_cell, _extends, _stat_cell
-from ablate.report.statistics import BETTER, NO_CLAIM, SEEDS_CAP, WORSE, smallest_p_value
-from ablate.report.text import _interval, _markdown_table, _metric_name, _pct, _signed, _signed_pct
+from ablate.reporting.figures import esc as _esc
+from ablate.reporting.figures import fmt as _fmt
+from ablate.reporting.results import Ablation
+from ablate.reporting.sections import _episodes_cell, _extends, _stat_cell
+from ablate.reporting.statistics import BETTER, NO_CLAIM, SEEDS_CAP, WORSE, smallest_p_value
+from ablate.reporting.text import _interval, _markdown_table, _metric_name, _pct, _signed, _signed_pct
 
 
 def _findings_intro(ablation: Ablation) -> str:

@@ -1,6 +1,6 @@
 """The report's side of MLflow: read an ablation's launches, trials, curves and artifacts back from a store.
 
-``ablate.run.tracking`` writes them (the driver); this and it are the only modules that import MLflow.
+``ablate.launch.tracking`` writes them (the driver); this and it are the only modules that import MLflow.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ablate.run.tracking import (
+from ablate.launch.tracking import (
     TAG_GENERATION,
     TAG_ROLE,
     Store,

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ablate.experiment import Experiment, TuneSpec, Variant
-from ablate.run.grid import GridTrial, chosen_trials
+from ablate.launch.grid import GridTrial, chosen_trials
 
 RULE = (
     "Each variant takes the candidate with the best mean {metric} over its tuning seeds; where that leaves a tie "

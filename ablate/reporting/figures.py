@@ -20,10 +20,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from ablate.report.reader import RunReader  # noqa: E402
-from ablate.report.results import Ablation  # noqa: E402
-from ablate.report.statistics import N_RESAMPLES, curve_band  # noqa: E402
-from ablate.report.tuning import METRICS, chosen_values, knobs, same_value, sensitivity  # noqa: E402
+from ablate.reporting.reader import RunReader  # noqa: E402
+from ablate.reporting.results import Ablation  # noqa: E402
+from ablate.reporting.statistics import N_RESAMPLES, curve_band  # noqa: E402
+from ablate.reporting.tuning import METRICS, chosen_values, knobs, same_value, sensitivity  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
 COLOURS = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7]

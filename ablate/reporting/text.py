@@ -6,7 +6,7 @@ import re
 
 import pandas as pd
 
-from ablate.report.figures import fmt as _fmt
+from ablate.reporting.figures import fmt as _fmt
 
 
 def _pct(x: float) -> str:

@@ -1,4 +1,4 @@
-"""The driver's side of MLflow: open a store, write launches and trials as runs (``ablate.report.reader`` reads
+"""The driver's side of MLflow: open a store, write launches and trials as runs (``ablate.reporting.reader`` reads
 them back for the report; the two are the only modules that import MLflow).
 
 One writer: the driver process owns every write (trials run elsewhere and send their metrics through
@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ablate.experiment import storage_name
-from ablate.run.store import (
+from ablate.launch.store import (
     PROBE_TIMEOUT_S,
     RetryingClient,
     TrackingError,
@@ -38,7 +38,7 @@ from ablate.run.store import (
     store_setup_lock,
 )
 
-# A trial's curve: one point per bin of episodes (``ablate.run.curve``: at most ~100 points however many episodes
+# A trial's curve: one point per bin of episodes (``ablate.launch.curve``: at most ~100 points however many episodes
 # run), step = the bin's last episode. MLflow's SQLite store costs ~4 ms per call plus ~55 us per value of
 # the writer's CPU, and one writer serves every trial: a value per episode capped it at ~10 concurrent
 # trials. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
@@ -94,7 +94,7 @@ class TrialRun:
 
 class Store:
     """One MLflow experiment (one per ablation) in one store, opened: what the writer (``Tracker``, below) and
-    the report's reader (``ablate.report.reader``) share: the checks that open it, its experiment, its runs."""
+    the report's reader (``ablate.reporting.reader``) share: the checks that open it, its experiment, its runs."""
 
     def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
         """Opens the store and reads the experiment once, so every reason the store cannot be used surfaces
@@ -334,7 +334,7 @@ class Tracker(Store):
         return run_id
 
     def log_points(self, key: str, points: Sequence[Any]) -> None:
-        """``POINT_METRICS`` of each curve point (``ablate.run.curve.CurvePoint``) of an open trial; written
+        """``POINT_METRICS`` of each curve point (``ablate.launch.curve.CurvePoint``) of an open trial; written
         ``FLUSH_EVERY_S`` at a time (and when the trial ends), each point timestamped at its own moment in
         the trial (run start + the point's ``wall_s``) so MLflow's time axes show the curve."""
         pending, flushed_at, _ = self._points[key]

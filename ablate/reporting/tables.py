@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ablate.report.results import Ablation
-from ablate.report.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
+from ablate.reporting.results import Ablation
+from ablate.reporting.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
 
 INTEGER_COLUMNS = ("seed", "budget", "solved", "episodes_to_solve", "env_steps_to_solve", "episodes_run", "env_steps")
 INTEGER_COLUMNS += ("parameter_count", "censored_episodes")

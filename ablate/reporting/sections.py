@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ablate.report.figures import ablation_window
-from ablate.report.figures import esc as _esc
-from ablate.report.figures import fmt as _fmt
-from ablate.report.results import INITIAL_EPISODES, Ablation
-from ablate.report.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP
-from ablate.report.text import _interval, _markdown_table
+from ablate.reporting.figures import ablation_window
+from ablate.reporting.figures import esc as _esc
+from ablate.reporting.figures import fmt as _fmt
+from ablate.reporting.results import INITIAL_EPISODES, Ablation
+from ablate.reporting.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP
+from ablate.reporting.text import _interval, _markdown_table
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import pandas as pd
 
-from ablate.report.figures import esc as _esc
-from ablate.report.figures import fmt as _fmt
-from ablate.report.results import Ablation
-from ablate.report.statistics import BETTER, WORSE
-from ablate.report.text import _markdown_table, _metric_name, _signed, _signed_pct
-from ablate.report.tuning import METRICS, base_values, chosen_values, edge, knobs, same_value, sensitivity
+from ablate.reporting.figures import esc as _esc
+from ablate.reporting.figures import fmt as _fmt
+from ablate.reporting.results import Ablation
+from ablate.reporting.statistics import BETTER, WORSE
+from ablate.reporting.text import _markdown_table, _metric_name, _signed, _signed_pct
+from ablate.reporting.tuning import METRICS, base_values, chosen_values, edge, knobs, same_value, sensitivity
 
 SEPARATED = (BETTER, WORSE)
 

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ablate.report.results import Ablation
-from ablate.report.statistics import (
+from ablate.reporting.results import Ablation
+from ablate.reporting.statistics import (
     BETTER,
     CONFIDENCE,
     WORSE,
