@@ -14,9 +14,9 @@ import torch
 from mlflow.entities import ViewType
 
 from ablate.experiment import load_experiment
-from ablate.reporting.reader import RunReader
 from ablate.launch.grid import expand
 from ablate.launch.tracking import POINT_METRICS, Tracker
+from ablate.reporting.reader import RunReader
 
 TINY = """
 name = "tiny"
@@ -352,14 +352,13 @@ def test_sigterm_stops_like_ctrl_c_and_a_second_launch_is_refused(tmp_path, trac
 
 
 def _fake_scheduler(monkeypatch, body):
-    """Replace Ray with ``body(trials, events)``: the runner's bookkeeping around the scheduler, without Ray."""
-    import ablate.launch.runner
+    """Replace Ray with ``body(trials, events)``: the runner's bookkeeping around the scheduler, without Ray.
+    The runner imports the scheduler's functions when it has trials to run, so they are replaced there."""
+    import ablate.launch.scheduler as scheduler
 
-    monkeypatch.setattr(ablate.launch.runner, "ensure_ray", lambda address: False)
-    monkeypatch.setattr(ablate.launch.runner, "largest_node_cpus", lambda: 2.0)
-    monkeypatch.setattr(
-        ablate.launch.runner, "run_trials", lambda trials, events, options, run_name, **_: body(trials, events)
-    )
+    monkeypatch.setattr(scheduler, "ensure_ray", lambda address: False)
+    monkeypatch.setattr(scheduler, "largest_node_cpus", lambda: 2.0)
+    monkeypatch.setattr(scheduler, "run_trials", lambda trials, events, options, run_name, **_: body(trials, events))
 
 
 def test_a_scheduler_crash_records_the_launch_failed_with_the_error(tmp_path, tracking_uri, monkeypatch):
