@@ -8,6 +8,6 @@ import os
 # large blocks to the system to keep its memory flat) doubled the cost of forward + backward.
 os.environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
 
-from ablate.api import Results, load, run  # noqa: E402  (after the variable above; neither imports torch)
+from ablate.api import Results, load, report, run  # noqa: E402  (after the variable above; none imports torch)
 
-__all__ = ["Results", "load", "run"]
+__all__ = ["Results", "load", "report", "run"]

@@ -20,8 +20,8 @@ if TYPE_CHECKING:  # only for the annotations: the real imports are inside the f
     import pandas as pd
     from matplotlib.figure import Figure as MplFigure
 
-    from ablate.reporting.results import Ablation
     from ablate.launch.runner import RunOutcome
+    from ablate.reporting.results import Ablation
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 """Where ``ablate run`` tracks by default: ``mlflow.db`` in the folder the command (or notebook) runs in."""

@@ -256,10 +256,10 @@ def bench_ablation(repeats: int = 1) -> None:
     import ray
 
     from ablate.experiment import load_experiment
-    from ablate.reporting.document import write_report
     from ablate.launch.grid import expand
     from ablate.launch.scheduler import ensure_ray
     from ablate.launch.tracking import Tracker
+    from ablate.reporting.document import write_report
 
     path = "experiments/cartpole.toml"
     trials = expand(load_experiment(path))

@@ -19,8 +19,8 @@ import sqlalchemy
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import local_cluster  # noqa: E402
 
-from ablate.reporting.reader import RunReader  # noqa: E402
 from ablate.launch.tracking import POINT_METRICS, Tracker  # noqa: E402
+from ablate.reporting.reader import RunReader  # noqa: E402
 
 pytestmark = pytest.mark.skipif(
     not os.environ.get("ABLATE_CLUSTER_TESTS"), reason="a two-node cluster with a private mount: make test-cluster"

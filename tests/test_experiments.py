@@ -4,8 +4,8 @@ through real Ray and a real MLflow store (the report is tested with the report).
 from pathlib import Path
 
 from ablate.experiment import load_experiment
-from ablate.reporting.reader import RunReader
 from ablate.launch.grid import expand
+from ablate.reporting.reader import RunReader
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 

@@ -20,11 +20,11 @@ from scipy import stats
 
 from ablate.cli import main
 from ablate.experiment import load_experiment
+from ablate.launch.curve import CurveReducer
+from ablate.launch.tracking import Tracker
 from ablate.reporting.document import write_report
 from ablate.reporting.reader import RunReader
 from ablate.reporting.writers import chromium_flags
-from ablate.launch.curve import CurveReducer
-from ablate.launch.tracking import Tracker
 
 ARTIFACTS = Path(__file__).parent / "artifacts"
 EXPERIMENT = """

@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 from test_report import rising, write_trial
 
+from ablate.launch.tracking import Tracker
 from ablate.reporting.document import write_report
 from ablate.reporting.results import load_ablation
 from ablate.reporting.tuning import at_values, base_values, chosen_values, edge, tuning_table
-from ablate.launch.tracking import Tracker
 
 BASE_LR, CANDIDATES, TUNE_SEEDS, EVAL_SEEDS = 0.03, [0.01, 0.03, 0.1], [10000, 10001], [0, 1, 2, 3]
 TUNING = {

@@ -4,9 +4,9 @@ import re
 
 from ablate.cli import main
 from ablate.experiment import load_experiment
-from ablate.reporting.status import trial_states
 from ablate.launch.grid import expand, select
 from ablate.launch.tracking import TrialRun
+from ablate.reporting.status import trial_states
 
 FAULTY = """
 name = "faulty"

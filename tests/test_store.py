@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from ablate.reporting.reader import RunReader, ablation_names
 from ablate.launch.store import TrackingError, mask_uri, redact
 from ablate.launch.tracking import Tracker
+from ablate.reporting.reader import RunReader, ablation_names
 
 SECRET = "Planted-S3cret-pw"
 ROOT = Path(__file__).resolve().parent.parent

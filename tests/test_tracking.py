@@ -3,9 +3,9 @@
 import pytest
 from test_curve import rows
 
-from ablate.reporting.reader import RunReader
 from ablate.launch.curve import CurveReducer
 from ablate.launch.tracking import POINT_METRICS, Tracker
+from ablate.reporting.reader import RunReader
 
 
 def _track(tracking_uri, points, status="FINISHED"):

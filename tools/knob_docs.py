@@ -70,7 +70,9 @@ TOP_LEVEL_VALID = {
 
 def top_level_defaults() -> dict[str, str]:
     """Each top-level key's default, read off the parser: what a file that leaves the key out gets."""
-    minimal = experiment.parse_experiment({"variants": [{"name": "first"}, {"name": "second"}]}, "experiments/mine.toml")
+    minimal = experiment.parse_experiment(
+        {"variants": [{"name": "first"}, {"name": "second"}]}, "experiments/mine.toml"
+    )
     seeds = minimal.seeds
     consecutive = seeds == tuple(range(seeds[0], seeds[0] + len(seeds)))
     return {

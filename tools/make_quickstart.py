@@ -27,7 +27,8 @@ CELLS = [
     (
         "code",
         "outcome = ablate.run(experiment, tracking_uri=store, report=False, progress=False)\n"
-        "print(f'{len(outcome.finished)} trials finished now, {outcome.skipped} before; exit code {outcome.exit_code}')",
+        "print(f'{len(outcome.finished)} trials finished now, {outcome.skipped} before; "
+        "exit code {outcome.exit_code}')",
     ),
     (
         "markdown",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import html
+import os
 import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -15,7 +16,8 @@ from pathlib import Path
 
 import matplotlib
 
-matplotlib.use("Agg")
+if not os.environ.get("MPLBACKEND"):  # Jupyter sets its inline backend there: keep it, so figures show
+    matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
@@ -50,13 +52,14 @@ class Figure:
 
 
 _kept: list[list] = []
-"""While ``keep_figures`` is open: where ``_save`` hands each figure instead of closing it."""
+"""While ``keep_figures`` is open: where ``_save`` also hands each figure it saved."""
 
 
 @contextlib.contextmanager
 def keep_figures() -> Iterator[list]:
-    """The matplotlib figures drawn inside this block, kept open for the caller (the Python API shows them in
-    a notebook); outside it every figure is closed once saved, so a report of many figures holds no memory."""
+    """The matplotlib figures drawn inside this block, for the caller (the Python API returns them to a
+    notebook). Each is closed once saved all the same: pyplot forgets it (a report of many figures holds no
+    memory, a notebook does not show it twice), while the figure itself still draws where it is displayed."""
     kept: list = []
     _kept.append(kept)
     try:
@@ -72,8 +75,7 @@ def _save(fig, folder: Path, name: str) -> str:
         fig.savefig(folder / f"{name}.{ext}", dpi=110)
     if _kept:
         _kept[-1].append(fig)
-    else:
-        plt.close(fig)
+    plt.close(fig)
     return f"figures/{name}.png"
 
 

@@ -11,9 +11,9 @@ from collections.abc import Iterable
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment, storage_name
-from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 from ablate.launch.grid import expand, tuning_trials
 from ablate.launch.store import mask_uri, resolve_uri
+from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
 """A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""
