@@ -119,3 +119,22 @@ def test_what_ray_prints_while_joining_is_kept_aside_and_passed_on_when_the_join
         os.write(2, b"InvalidAuthToken\n")
         raise ConnectionError("Failed to connect to Ray cluster")
     assert "InvalidAuthToken" in kept.text and "InvalidAuthToken" not in capfd.readouterr().err  # kept for the line
+
+
+def test_a_local_ray_that_fails_to_start_is_one_line(monkeypatch):
+    """Ray gives up on a node that does not start within 30 s (seen on a machine at load 40): one line, not a
+    traceback, and ClusterUnavailable so that ``ablate run`` exits 1."""
+    import ray
+
+    from ablate.launch import scheduler
+
+    def timed_out(**_):
+        raise Exception("The current node timed out during startup. This could happen because some of the Ray\nmore")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", timed_out)
+    with pytest.raises(scheduler.ClusterUnavailable) as error:
+        scheduler.ensure_ray(None)
+    message = str(error.value)
+    assert message.startswith("could not start a local Ray: The current node timed out during startup")
+    assert "\n" not in message and "run the same command again" in message

@@ -241,6 +241,14 @@ def ensure_ray(address: str | None) -> bool:
                 f"the Ray cluster at {address} refused this driver: its token is missing or wrong; set "
                 "RAY_AUTH_MODE=token and RAY_AUTH_TOKEN_PATH to the cluster's token file (or RAY_AUTH_TOKEN)"
             )
+    except Exception as error:  # noqa: BLE001 - a local start that failed (Ray's 30 s node start-up limit, ...)
+        if address:
+            raise
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        problem = (
+            f"could not start a local Ray: {first} (an overloaded machine makes Ray's start-up time out); "
+            "run the same command again"
+        )
     if problem:  # raised outside the except: one line, not the chain of exceptions behind it
         raise ClusterUnavailable(problem)
     if callable(sigterm) and threading.current_thread() is threading.main_thread():
