@@ -206,9 +206,11 @@ class Results:
     def baseline(self) -> str:
         return self.ablation.baseline
 
-    @property
+    @cached_property
     def trials(self) -> pd.DataFrame:
-        return self.ablation.trials
+        from ablate.reporting.tables import trials_table
+
+        return trials_table(self.ablation.trials)
 
     @property
     def curves(self) -> pd.DataFrame:
@@ -216,13 +218,13 @@ class Results:
 
     @cached_property
     def convergence(self) -> pd.DataFrame:
-        from ablate.reporting.results import convergence_table
+        from ablate.reporting.tables import convergence_table
 
         return convergence_table(self.ablation)
 
     @cached_property
     def comparisons(self) -> pd.DataFrame:
-        from ablate.reporting.results import comparisons
+        from ablate.reporting.comparisons import comparisons
 
         return comparisons(self.ablation)
 
