@@ -23,7 +23,7 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP) ## build .venv from pyproject.toml (every target does this first when needed)
 
-test: $(STAMP) ## the whole test suite (a few minutes on 2 cores)
+test: $(STAMP) ## the whole test suite (~11 min of pytest on 2 idle cores, 479 tests, measured on a fresh clone)
 	$(BIN)/python -m pytest -q
 
 test-fast: $(STAMP) ## the test suite without the slow learning tests
