@@ -13,6 +13,7 @@ import nbformat
 import pandas as pd
 import pytest
 from nbclient import NotebookClient
+from stores import fresh_store
 
 import ablate
 from ablate.api import StoreNotFound
@@ -52,7 +53,7 @@ def notebook_run(tmp_path_factory):
     top = tmp_path_factory.mktemp("quickstart")
     (top / "experiments").mkdir()
     shutil.copy(ROOT / "experiments" / "smoke.toml", top / "experiments")
-    (top / "examples").mkdir()
+    fresh_store(top / "examples" / "quickstart-mlflow.db")  # what its first run would create, minus 5 s
     notebook = nbformat.read(ROOT / "examples" / "quickstart.ipynb", as_version=4)
     NotebookClient(
         notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(top / "examples")}}

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from stores import fresh_store
 
 from ablate.cli import main
 
@@ -36,7 +37,7 @@ def seeded_store(tmp_path_factory):
     from ablate.launch.tracking import Tracker
 
     folder = tmp_path_factory.mktemp("seeded")
-    tracker = Tracker(f"sqlite:///{folder / 'mlflow.db'}", "tiny")
+    tracker = Tracker(fresh_store(folder / "mlflow.db"), "tiny")
     launch = tracker.start_launch("g1", "tiny launch", {}, {"grid.json": "{}"})
     tracker.start_trial(launch, "g1", "baseline-s0-x", "baseline", 0, {"seed": 0}, "abc")
     tracker.finish_trial("baseline-s0-x", {"episodes_to_solve": 5.0}, None)

@@ -11,6 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from stores import fresh_store
 
 from ablate.agent.trial import EpisodeMetrics
 from ablate.config import TrialConfig
@@ -162,6 +163,7 @@ def test_progress_view_in_tmux_clock_runs_before_any_trial_ends_and_running_rows
     if tmux is None:
         pytest.skip("tmux is not installed and could not be installed with apt-get (no root or no Debian mirror)")
     (tmp_path / "exp.toml").write_text(SLOW_TINY)
+    fresh_store(tmp_path / "mlflow.db")
     socket = f"ablate-test-{os.getpid()}"
     # bash, not sh: after Ctrl-C it waits for ablate to exit (130) and then echoes the code.
     (tmp_path / "run.sh").write_text(

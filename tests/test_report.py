@@ -17,6 +17,7 @@ import pandas as pd
 import pytest
 from devtools import DevTools
 from scipy import stats
+from stores import fresh_store
 
 from ablate.cli import main
 from ablate.experiment import load_experiment
@@ -50,7 +51,7 @@ hidden_sizes = [64, 64]
 @pytest.fixture(scope="module")
 def built_report(run_quiet, tmp_path_factory):
     folder = tmp_path_factory.mktemp("report")
-    uri = f"sqlite:///{folder / 'mlflow.db'}"
+    uri = fresh_store(folder / "mlflow.db")
     path = folder / "reportable.toml"
     path.write_text(EXPERIMENT)
     outcome = run_quiet(load_experiment(path), folder, uri)
@@ -218,7 +219,8 @@ def make_store(folder: Path, name: str, variants: dict[str, dict], seeds=(0, 1, 
     (keys recorded FAILED), ``only`` (keys to run; the rest are not run), ``observation`` (log observation.png)."""
     env_id, threshold = options.get("env_id", "CartPole-v1"), options.get("threshold", 25.0)
     window, generation = options.get("window", 8), options.get("generation", "gen1")
-    uri = f"sqlite:///{folder / 'mlflow.db'}"
+    db = folder / "mlflow.db"
+    uri = f"sqlite:///{db}" if db.exists() else fresh_store(db)  # several experiments may share one store
     tracker = Tracker(uri, name)
     base = {"env_id": env_id, "max_episodes": budget, "solve_window": window, "solve_threshold": threshold}
     base |= {"learning_rate": 0.03, "gamma": 0.95, "episodes_per_update": 4}

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from stores import fresh_store
 from test_report import rising, write_trial
 
 from ablate.launch.tracking import Tracker
@@ -42,7 +43,7 @@ def curve(variant, lr, seed, n):
 def make_tuned_store(folder: Path) -> str:
     """A tuned launch as issue 19's contract has it: tune-stage runs on seeds 10000+ (shorter budget),
     evaluation runs at the base value (the grid's trials, untuned keys) and at each variant's choice."""
-    uri = f"sqlite:///{folder / 'mlflow.db'}"
+    uri = fresh_store(folder / "mlflow.db")
     tracker = Tracker(uri, "tuned")
     base = {"env_id": "CartPole-v1", "max_episodes": 40, "solve_window": 8, "solve_threshold": 1000.0}
     base |= {"learning_rate": BASE_LR, "gamma": 0.95, "episodes_per_update": 4}

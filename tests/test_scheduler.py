@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import pytest
+from stores import fresh_store
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import local_cluster  # noqa: E402
@@ -33,6 +34,7 @@ hidden_sizes = [8]
 def _launch(folder: Path, name: str, extra: str = "", **env) -> subprocess.Popen:
     folder.mkdir()
     (folder / "exp.toml").write_text(EXPERIMENT.format(name=name, extra=extra))
+    fresh_store(folder / "mlflow.db")  # what the launch would create, minus MLflow's migrations
     environment = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | env
     return subprocess.Popen(
         [sys.executable, "-m", "ablate.cli", "run", "exp.toml", "--no-report"],
