@@ -189,7 +189,9 @@ class Results:
     ``curves``: long form, one row per trial and episode (variant, seed, episode, return, rolling_mean, wall_s).
     ``convergence``: one row per variant (solved seeds, episodes to solve with intervals, final return, ...),
     as ``tables/convergence.csv``. ``comparisons``: each variant against its reference, per metric, with its
-    interval and verdict, as ``tables/comparisons.csv``. ``figure(name)``: one of the report's figures.
+    interval and verdict, as ``tables/comparisons.csv``. ``tuning``: a tuned launch's stage 1, one row per
+    tuning trial (variant, seed, each tuned knob, the metric, status), as ``tables/tuning.csv``; empty for an
+    untuned ablation. ``figure(name)``: one of the report's figures.
     """
 
     ablation: Ablation = field(repr=False)
@@ -221,6 +223,13 @@ class Results:
         from ablate.reporting.tables import convergence_table
 
         return convergence_table(self.ablation)
+
+    @property
+    def tuning(self) -> pd.DataFrame:
+        import pandas
+
+        trials = self.ablation.tuning_trials
+        return trials if self.ablation.tuning and trials is not None else pandas.DataFrame()
 
     @cached_property
     def comparisons(self) -> pd.DataFrame:

@@ -1,5 +1,5 @@
-"""The shipped experiment files: the default Pong ablation's grid, and the Pong smoke ablation end to end
-through real Ray and a real MLflow store (the report is tested with the report)."""
+"""The shipped experiment files: the default Pong ablation's grid, and the Pong smoke ablation end to end,
+its tuning stage included, through real Ray and a real MLflow store (the report is tested with the report)."""
 
 from pathlib import Path
 
@@ -45,16 +45,42 @@ def test_pong_knobs_changes_each_knob_of_each_architecture_alone():
     assert len(expand(experiment)) == len(variants) * len(experiment.seeds)
 
 
-def test_pong_smoke_ablation_through_ray_and_mlflow(run_quiet, tmp_path, tracking_uri):
+def test_pong_smoke_ablation_with_tune_through_ray_and_mlflow(run_quiet, tmp_path, tracking_uri):
+    import json
+    import math
+
+    import ablate
+
     experiment = load_experiment(EXPERIMENTS / "pong-smoke.toml")
     assert experiment.base.max_episode_steps > 0  # capped episodes: seconds per trial
+    assert experiment.tune is not None and 0.001 not in dict(experiment.tune.knobs)["learning_rate"]
     outcome = run_quiet(experiment, tmp_path, tracking_uri)
-    assert outcome.exit_code == 0 and len(outcome.finished) == 4 and not outcome.failed
+    # 2 arms x 2 candidates x 1 tuning seed; the base value on 2 seeds; the choice (never the base) on 2 seeds
+    assert outcome.exit_code == 0 and len(outcome.finished) == 4 + 4 + 4 and not outcome.failed
     tracker = RunReader(tracking_uri, "pong-smoke")
     runs = tracker.trial_runs(with_artifacts=True)
-    assert sorted((r.variant, r.seed) for r in runs) == [("cnn", 0), ("cnn", 1), ("mlp", 0), ("mlp", 1)]
-    for run in runs:
-        assert run.status == "FINISHED" and run.params["action_set"] == "move"
+    assert all(r.status == "FINISHED" for r in runs) and len({r.key for r in runs}) == len(runs) == 12
+    tuning_runs = [r for r in runs if r.tags["ablate.stage"] == "tune"]
+    evaluation = [r for r in runs if r.tags["ablate.stage"] == "eval"]
+    assert sorted((r.variant, r.seed) for r in tuning_runs) == [("cnn", 10_000)] * 2 + [("mlp", 10_000)] * 2
+    assert all(r.metrics["episodes_run"] == 2 for r in tuning_runs)  # the tuning budget
+
+    # The launch's choice is the argmax of the tuning table (ties: the candidate nearest the base in log space),
+    # and the evaluation ran at it on the evaluation seeds, beside the base value.
+    table = ablate.load("pong-smoke", tracking_uri=tracking_uri).tuning
+    assert len(table) == 4 and set(table.status) == {"FINISHED"}
+    document = json.loads(tracker.load_text(tracker.launches()[0].info.run_id, "tuning.json"))
+    for arm in ("cnn", "mlp"):
+        means = table[table.variant == arm].groupby("learning_rate")["auc"].mean()
+        best = [lr for lr, mean in means.items() if mean == means.max()]
+        chosen = min(best, key=lambda lr: abs(math.log(lr / 0.001)))
+        assert document["choices"][arm]["values"] == {"learning_rate": chosen}, means
+        rates = sorted(float(r.params["learning_rate"]) for r in evaluation if r.variant == arm)
+        assert rates == sorted([0.001, 0.001, chosen, chosen])
+        assert sorted(r.seed for r in evaluation if r.variant == arm) == [0, 0, 1, 1]
+
+    for run in evaluation:
+        assert run.params["action_set"] == "move"
         returns = tracker.metric_history(run.run_id, "episode/return")
         assert [step for step, _ in returns] == [1, 2, 3, 4]
         assert all(-50 <= value <= 1 for _, value in returns)  # at most a point or two in 50 steps
