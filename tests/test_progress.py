@@ -267,7 +267,8 @@ def test_peers_share_a_budget_a_trial_with_another_budget_is_costed_apart(clock)
     assert view.expected_cost("a") == pytest.approx(1.0)  # a-s1: a finished peer took 1 s
     view.started("a-s1")
     view.finished("a-s1", solved=False)
-    # The 1,000-episode trial has no finished peer: its budget at the pace seen, not the 10-episode mean.
+    # The 1,000-episode trial has no finished peer at its budget: its peer's 10 episodes, then the rest at the
+    # pace seen (a-s1 reported no episode: it says nothing), not the 10-episode mean.
     assert view.expected_cost("a") == pytest.approx(0.1 * 1000)
 
 
@@ -283,7 +284,8 @@ def test_every_estimate_is_logged_against_the_clock_when_asked(clock):
 
 def test_a_later_stage_counts_after_this_one_and_keeps_what_was_learned(clock):
     # Stage 1: two tuning trials of "a"; stage 2 (not known yet): two trials of "a" at the same budget.
-    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=2, later=[("a", 100)] * 2)
+    later = _trials(variants=("a",), seeds=(0, 1))  # stand-ins of the same size
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=2, later=later)
     view.started("a-s0")
     view.started("a-s1")
     clock.now += 4
@@ -305,8 +307,50 @@ def test_a_later_stage_counts_after_this_one_and_keeps_what_was_learned(clock):
     assert "all trials ended" in view.headline() and view.seconds_left() == 0
 
 
+def test_a_trial_costs_what_its_finished_peers_at_the_same_values_took_at_another_budget(clock):
+    # Tuning trials (50 episodes) of two learning rates; the evaluation trials (150 episodes) at the same
+    # values have no finished peer at their own budget.
+    def trial(name, lr, budget, stage):
+        return GridTrial(name, "a", 0, replace(TrialConfig(), learning_rate=lr, max_episodes=budget), stage)
+
+    tuning = [trial("fast-t", 0.1, 50, "tune"), trial("slow-t", 0.01, 50, "tune")]
+    evaluation = [trial("fast-e", 0.1, 150, "eval"), trial("slow-e", 0.01, 150, "eval")]
+    view = ProgressView("x", tuning + evaluation, 0, enabled=False, slots=1)
+    view.started("fast-t")
+    clock.now += 3
+    view.finished("fast-t", solved=True, summary={"episodes_run": 30})  # solved after 30 episodes: stopped
+    view.started("slow-t")
+    for episode in (10, 20, 30, 40, 50):  # its whole budget, the last episodes at 0.2 s each
+        clock.now += 0.6 if episode <= 20 else 2.0
+        view.episodes("slow-t", [_row(episode, 1.0)])
+    view.finished("slow-t", solved=False, summary={"episodes_run": 50})
+    seen = view._costs_seen(clock.now)
+    fast, slow = (view._trial_cost(view.trials[k], seen) for k in ("fast-e", "slow-e"))
+    assert fast == pytest.approx(3.0)  # it would stop where its tuning trial stopped
+    assert slow == pytest.approx(7.2 + 100 * 0.2)  # its tuning trial's time, then 100 episodes at its last pace
+
+
+def test_a_later_stage_is_asked_again_as_tuning_trials_end(clock):
+    stage_1 = [GridTrial("a-t", "a", 10_000, replace(TrialConfig(), max_episodes=100), "tune")]
+    stand_ins = _trials(variants=("a",), seeds=(0, 1))
+    asked = []
+
+    def provisional(summaries):  # the base value ahead: stage 2 adds nothing
+        asked.append(dict(summaries))
+        return []
+
+    view = ProgressView("x", stage_1, 0, enabled=False, slots=1, later=stand_ins, provisional=provisional)
+    view.started("a-t")
+    clock.now += 5
+    view.episodes("a-t", [_row(50, 1.0)])
+    assert view.seconds_left() == pytest.approx(5 + 2 * 10)  # its rest, then two 100-episode stand-ins
+    view.finished("a-t", solved=False, summary={"auc": 1.0, "episodes_run": 100})
+    assert asked == [{"a-t": {"auc": 1.0, "episodes_run": 100}}] and view.seconds_left() == 0.0
+
+
 def test_a_later_stage_with_nothing_to_run_ends_the_trials(clock):
-    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, later=[("a", 100)])
+    later = _trials(variants=("a",), seeds=(0,))
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, later=later)
     view.started("a-s0")
     clock.now += 3
     view.finished("a-s0", solved=True)

@@ -144,3 +144,23 @@ def test_stage_plan_reads_stage_1_from_finished_summaries_and_narrows_stage_2_to
     assert [(t.variant, t.seed, t.config.learning_rate) for t in chosen] == [("a", 0, 0.1)]
     at_base = plan.chosen({"a": choices["a"].__class__({"learning_rate": 0.03}, True, "")})
     assert unique([*evaluation, *at_base], set()) == evaluation  # the choice equal to the base adds no trial
+
+
+def test_provisional_stage_2_is_the_best_candidate_so_far_and_stands_in_for_a_variant_not_seen_yet():
+    from ablate.launch.grid import expand, tuning_trials
+    from ablate.launch.tuning import StagePlan
+
+    experiment = _spec()
+    evaluation = expand(experiment)
+    plan = StagePlan(experiment, evaluation, tuning_trials(experiment))
+    known = {t.key for t in [*plan.tuning, *evaluation]}
+    # No tuning trial has finished: "a" stands in with its evaluation trials, as many as its choice would add.
+    assert plan.provisional({}, known) == [t for t in evaluation if t.variant == "a"]
+    # One seed of one candidate finished: the best so far is that one.
+    first = next(t for t in plan.tuning if t.config.learning_rate == 0.1)
+    ahead = plan.provisional({first.key: {"auc": 5.0}}, known)
+    assert {(t.variant, t.config.learning_rate) for t in ahead} == {("a", 0.1)}
+    assert sorted(t.seed for t in ahead) == sorted(t.seed for t in evaluation if t.variant == "a")
+    # The base value ahead: its evaluation trials are known already, so stage 2 adds nothing.
+    finished = {t.key: {"auc": 10.0 if t.config.learning_rate == 0.03 else 1.0} for t in plan.tuning}
+    assert plan.provisional(finished, known) == []

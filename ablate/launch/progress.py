@@ -12,16 +12,17 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 
-from ablate.launch.grid import GridTrial
+from ablate.launch.grid import GridTrial, config_hash
 
 RATE_REPORTS = 4
 """Reports (one per ~2 s per trial) that a running trial's recent pace is measured over."""
@@ -60,9 +61,18 @@ class _Trial:
     reports: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=RATE_REPORTS))
     """(time, episode) of the newest reports: the recent pace, which slows as a CartPole agent's episodes grow."""
 
+    episodes_run: int | None = None
+    """Episodes it ran (its summary's), once finished: fewer than its budget when it stopped early (solved)."""
+
     @property
     def budget(self) -> int:
         return self.trial.config.max_episodes
+
+    @cached_property
+    def settings(self) -> tuple[str, str]:
+        """Its variant and everything it trains with but the seed and the episode budget: a tuning trial and
+        the evaluation trial at the same values share it."""
+        return self.trial.variant, config_hash(replace(self.trial.config, seed=0, max_episodes=0))
 
     def seconds_per_episode(self, now: float) -> float | None:
         """Over the newest reports when there are two, else by the trial's own clock (a worker's start and
@@ -82,6 +92,8 @@ class _Trial:
 class _CostsSeen:
     means: dict[tuple[str, int], float]
     """Mean seconds of the finished trials per (variant, episode budget)."""
+    peers: dict[tuple[str, str], list[tuple[float, int, int, float | None]]]
+    """The finished trials per ``settings``: (seconds, episodes run, budget, recent seconds per episode)."""
     rates: dict[str | None, float]
     """Mean seconds per episode per variant (``None``: over every variant)."""
     prior_scale: float
@@ -103,6 +115,16 @@ def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], s
     return max(free_at)
 
 
+def _at_budget(cost: float, ran: int, budget: int, rate: float | None, wanted: int) -> float:
+    """A finished trial's seconds carried over to an episode budget of ``wanted``: one that stopped early
+    (solved) would stop there again; one that ran its whole budget runs on at its last pace."""
+    if ran < budget and ran <= wanted:
+        return cost
+    if wanted <= ran:
+        return cost * wanted / max(ran, 1)
+    return cost + (wanted - budget) * (rate if rate is not None else cost / max(budget, 1))
+
+
 class ProgressView:
     """Events in (``started``, ``episodes``, ``finished``, ``failed``), a panel out. Events come on the driver's
     main thread, the panel is drawn on rich's refresh thread: a lock keeps them apart."""
@@ -117,14 +139,17 @@ class ProgressView:
         start: float | None = None,
         prior_costs: Mapping[str, float] | None = None,
         log_estimates: bool = False,
-        later: Sequence[tuple[str, int]] = (),
+        later: Sequence[GridTrial] = (),
+        provisional: Callable[[Mapping[str, Mapping[str, float]]], Sequence[GridTrial]] | None = None,
     ) -> None:
         """``trials`` in the order they will start. ``slots``: trials that can run at once (``None``: the most
         seen running at once). ``start``: the ``time.monotonic()`` the command started at, so the clock
         includes imports and Ray's start. ``prior_costs``: seconds by trial key that earlier launches took
         (``Tracker.trial_costs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``).
-        ``later``: (variant, episode budget) of trials not known yet that start once every trial here has ended
-        (a tuned ablation's trials at the chosen values); ``add_trials`` puts them in when they are known."""
+        ``later``: stand-ins for the trials not known yet that start once every trial here has ended (a tuned
+        ablation's trials at the chosen values); ``add_trials`` puts the real ones in when they are known.
+        ``provisional``: the later trials as the finished trials' summaries (key -> metrics) say they would
+        be if stage 1 ended now (each variant at its best candidate so far), asked again as tuning trials end."""
         self.name = name
         self.trials = {t.key: _Trial(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
@@ -146,7 +171,9 @@ class ProgressView:
         self._freed: deque[float] = deque()
         """When slots freed that no trial has taken yet."""
         self.log_estimates = log_estimates
-        self.later = list(later)
+        self.later = [_Trial(t) for t in later]
+        self.provisional = provisional
+        self.summaries: dict[str, Mapping[str, float]] = {}
         self.estimates: list[tuple[float, int, float | None]] = []
         """(seconds since ``start``, trials ended, the estimate in seconds) after every event."""
 
@@ -177,9 +204,17 @@ class ProgressView:
             self._log_estimate(time.monotonic())
         self.refresh()
 
-    def finished(self, key: str, solved: bool, wall_s: float | None = None) -> None:
-        """``wall_s``: the trial's own training time (its summary's), which tells its worker's start apart."""
-        self.trials[key].wall_s = wall_s
+    def finished(
+        self, key: str, solved: bool, wall_s: float | None = None, summary: Mapping[str, float] | None = None
+    ) -> None:
+        """``wall_s``: the trial's own training time (its summary's), which tells its worker's start apart.
+        ``summary``: its summary metrics (episodes run; a tuning trial's metric for ``provisional``)."""
+        trial = self.trials[key]
+        trial.wall_s = wall_s
+        if summary:
+            self.summaries[key] = summary
+            if summary.get("episodes_run") is not None:
+                trial.episodes_run = int(summary["episodes_run"])
         self._end(key, "done", solved)
 
     def failed(self, key: str) -> None:
@@ -193,6 +228,11 @@ class ProgressView:
                 self.trials_end = trial.ended_at
             if self._count("pending"):
                 self._freed.append(trial.ended_at)
+            if self.provisional and trial.trial.stage == "tune":
+                try:
+                    self.later = [_Trial(t) for t in self.provisional(dict(self.summaries))]
+                except Exception:  # noqa: BLE001 - an estimate never stops a launch: keep the stand-ins
+                    self.provisional = None
             self._log_estimate(trial.ended_at)
         self.refresh()
 
@@ -204,7 +244,7 @@ class ProgressView:
                 self.trials[t.key] = _Trial(t)
                 if t.variant not in self.variants:
                     self.variants.append(t.variant)
-            self.later = []
+            self.later, self.provisional = [], None
             self._freed.clear()  # the next stage starts on slots that are all free: no wait to count
             if trials:
                 self.trials_end = None
@@ -220,6 +260,7 @@ class ProgressView:
     def _costs_seen(self, now: float) -> _CostsSeen:
         """What this launch has shown so far of its trials' costs (once per estimate: the trials are many)."""
         by_group: dict[tuple[str, int], list[float]] = {}
+        peers: dict[tuple[str, str], list[tuple[float, int, int, float | None]]] = {}
         rates: dict[str | None, list[float]] = {}
         observed = earlier = 0.0
         done = [t for t in self.trials.values() if t.state == "done" and t.started_at and t.ended_at]
@@ -232,6 +273,9 @@ class ProgressView:
             if t.first_on_worker and t.wall_s is not None:
                 cost = min(cost, t.wall_s + max(overhead, 0.0))
             by_group.setdefault((t.trial.variant, t.budget), []).append(cost)
+            ran = t.episodes_run if t.episodes_run is not None else t.episode
+            if ran:  # a trial that reported no episode says nothing of a budget's cost
+                peers.setdefault(t.settings, []).append((cost, ran, t.budget, t.seconds_per_episode(now)))
             if t.trial.key in self.prior:  # as the earlier launch measured it: start to end, a worker start too
                 observed, earlier = observed + t.ended_at - t.started_at, earlier + self.prior[t.trial.key]  # type: ignore[operator]
         for t in self.trials.values():
@@ -240,22 +284,35 @@ class ProgressView:
                 rates.setdefault(None, []).append(rate)
         return _CostsSeen(
             means={group: statistics.fmean(costs) for group, costs in by_group.items()},
+            peers=peers,
             rates={variant: statistics.fmean(r) for variant, r in rates.items()},
             # How this launch's trials compare with their earlier runs (a busier machine, another CPU).
             prior_scale=observed / earlier if earlier > 0 else 1.0,
             overhead_s=max(overhead, 0.0),
         )
 
-    def _trial_cost(self, trial: _Trial, seen: _CostsSeen) -> float | None:
-        """Expected seconds of a trial that has not started: its earlier run's (scaled to this launch's pace),
-        else the mean of its finished peers (same variant, same episode budget), else its whole budget at the
-        seconds per episode seen so far (its variant's own, else every variant's); ``None`` before any trial
-        has reported an episode."""
+    def _peer_cost(self, trial: _Trial, seen: _CostsSeen) -> float | None:
+        """What finished trials say a trial costs: its earlier run's (scaled to this launch's pace); else the
+        mean of its finished peers with the same settings, at its budget, else at theirs carried over to its
+        own (a tuned variant's evaluation trial from its tuning trials at the same values); else the mean of
+        its variant's finished trials at its budget."""
         if trial.trial.key in self.prior:
             return self.prior[trial.trial.key] * seen.prior_scale
-        mean = seen.means.get((trial.trial.variant, trial.budget))
-        if mean is not None:
-            return mean
+        peers = seen.peers.get(trial.settings, [])
+        same = [cost for cost, _, budget, _ in peers if budget == trial.budget]
+        if same:
+            return statistics.fmean(same)
+        if peers:
+            return statistics.fmean(_at_budget(*peer, trial.budget) for peer in peers)
+        return seen.means.get((trial.trial.variant, trial.budget))
+
+    def _trial_cost(self, trial: _Trial, seen: _CostsSeen) -> float | None:
+        """Expected seconds of a trial that has not started: what its finished peers say (``_peer_cost``), else
+        its whole budget at the seconds per episode seen so far (its variant's own, else every variant's);
+        ``None`` before any trial has reported an episode."""
+        cost = self._peer_cost(trial, seen)
+        if cost is not None:
+            return cost
         rate = seen.rates.get(trial.trial.variant) or seen.rates.get(None)
         return None if rate is None else rate * trial.budget + seen.overhead_s
 
@@ -273,10 +330,7 @@ class ProgressView:
 
     def _left_of_running(self, trial: _Trial, now: float, seen: _CostsSeen) -> float | None:
         elapsed = now - (trial.started_at or now)
-        if trial.trial.key in self.prior:
-            expected = self.prior[trial.trial.key] * seen.prior_scale
-        else:
-            expected = seen.means.get((trial.trial.variant, trial.budget))
+        expected = self._peer_cost(trial, seen)
         if expected is not None and expected > elapsed:
             return expected - elapsed
         # Past what its peers took (or none has ended): the rest of its budget at its own recent pace.
@@ -295,7 +349,7 @@ class ProgressView:
         seen = self._costs_seen(now)
         running_left = [self._left_of_running(t, now, seen) for t in running]
         costs = [self._trial_cost(t, seen) for t in pending]
-        later = [self._later_cost(variant, budget, seen) for variant, budget in self.later]
+        later = [self._trial_cost(t, seen) for t in self.later]
         if any(x is None for x in [*running_left, *costs, *later]):
             return None
         slots = self.slots or max(self.max_running, 1)
@@ -304,14 +358,6 @@ class ProgressView:
         # stage once every one of them has ended.
         now_stage = makespan(running_left, [c + gap for c in costs], slots)  # type: ignore[misc, operator]
         return now_stage + (makespan([], [c + gap for c in later], slots) if later else 0.0)  # type: ignore[misc, operator]
-
-    def _later_cost(self, variant: str, budget: int, seen: _CostsSeen) -> float | None:
-        """A trial not known yet: its variant's finished trials at its budget, else the budget at the pace seen."""
-        mean = seen.means.get((variant, budget))
-        if mean is not None:
-            return mean
-        rate = seen.rates.get(variant) or seen.rates.get(None)
-        return None if rate is None else rate * budget + seen.overhead_s
 
     def _log_estimate(self, now: float) -> None:
         """Called with the lock held after every event: (seconds since the command started, trials ended,

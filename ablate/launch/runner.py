@@ -15,7 +15,7 @@ import socket
 import subprocess
 import time
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -248,7 +248,7 @@ class _Recorder:
         self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
         self.outcome.finished.append(key)
         self.summaries[key] = dict(summary)
-        self.view.finished(key, bool(summary.get("solved")), summary.get("wall_s"))
+        self.view.finished(key, bool(summary.get("solved")), summary.get("wall_s"), summary)
 
     def failed(self, key: str, message: str) -> None:
         if not self._open(key):
@@ -420,13 +420,18 @@ def _run_locked(
     # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
     prior = tracker.trial_costs(t.key for t in todo)
     todo = schedule_order(todo, prior)
-    # Stage 2 of the tuned variants not chosen yet: one trial per evaluation trial, at its budget (fewer
-    # where a choice is the base value: the estimate errs long there).
+    # Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
+    # choose now (each variant's best candidate so far), asked again as each one ends.
     unchosen = {t.variant for t in plan.tuning} - set(choices)
-    later = [(t.variant, t.config.max_episodes) for t in evaluation if t.variant in unchosen]
-    view = ProgressView(
-        experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates, later
-    )
+    known_keys = {t.key for t in known}
+
+    def provisional(summaries: Mapping[str, Mapping[str, float]]) -> list[GridTrial]:
+        trials = plan.provisional({**finished_runs, **summaries}, known_keys)
+        return [t for t in trials if t.variant in unchosen]
+
+    stage_two = provisional if unchosen else None
+    args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
+    view = ProgressView(*args, provisional({}) if unchosen else [], stage_two)
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
     options = ClusterOptions(

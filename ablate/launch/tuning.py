@@ -203,6 +203,28 @@ class StagePlan:
             return {}
         return choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished))
 
+    def provisional(self, finished: Mapping[str, Mapping[str, float]], skip: set[str]) -> list[GridTrial]:
+        """Stage 2 as it would be if stage 1 ended now, for the time-left estimate: each tuned variant at its
+        best candidate so far (its choice once its stage 1 is complete), without the trials in ``skip``; a
+        variant with no finished tuning trial yet stands in with its evaluation trials (as many, at the base
+        values)."""
+        if not self.tuning:
+            return []
+        spec = self.experiment.tune
+        assert spec is not None
+        variants = {v.name: v for v in self.experiment.variants}
+        by_variant: dict[str, list[TuningResult]] = {}
+        for result in finished_results(self.experiment, self.tuning, finished):
+            by_variant.setdefault(result.variant, []).append(result)
+        choices, stand_ins = {}, []
+        for name in dict.fromkeys(t.variant for t in self.tuning):
+            variant = variants[name]
+            if name in by_variant:
+                choices[name] = choose(spec, spec.tuned_knobs(variant), base_values(spec, variant), by_variant[name])
+            else:
+                stand_ins += [t for t in self.evaluation if t.variant == name]
+        return unique(self.chosen(choices), skip) + stand_ins
+
 
 def unique(trials: list[GridTrial], skip: set[str]) -> list[GridTrial]:
     """``trials`` without repeated keys and without the keys in ``skip``, in order (a chosen value equal to the

@@ -1,0 +1,134 @@
+"""Replay a finished launch from its MLflow store through the time-left estimate, offline, in a second.
+
+Each trial run's start, its logged curve points (their timestamps) and its end become the live view's events
+at the times they happened, so the estimate is scored exactly as ``bench.py eta`` scores a live launch: every
+estimate once a quarter of the trials had ended, against the time that actually remained (bound: +-30% or
++-20 s, whichever is larger). A launch measured once can then be replayed against any change to the estimate.
+
+    python benchmarks/replay_eta.py EXPERIMENT_FILE --tracking-uri sqlite:///path/mlflow.db
+"""
+
+from __future__ import annotations
+
+import argparse
+import sqlite3
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+from unittest import mock
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench import _eta_figure  # noqa: E402
+
+from ablate.experiment import load_experiment  # noqa: E402
+from ablate.launch import progress  # noqa: E402
+from ablate.launch.grid import expand, schedule_order, tuning_trials  # noqa: E402
+from ablate.launch.tuning import StagePlan, unique  # noqa: E402
+
+
+def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, dict]]:
+    """The newest launch's start (s), its trials' events ``(t, kind, key, payload)`` by time, and each
+    trial's summary metrics, read straight from an SQLite store (read-only)."""
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    (exp_id,) = con.execute("select experiment_id from experiments where name = ?", (experiment,)).fetchone()
+    tags = {}
+    for run, key, value in con.execute(
+        "select t.run_uuid, t.key, t.value from tags t join runs r on r.run_uuid = t.run_uuid "
+        "where r.experiment_id = ?",
+        (exp_id,),
+    ):
+        tags.setdefault(run, {})[key] = value
+    runs = con.execute(
+        "select run_uuid, start_time, end_time, status from runs where experiment_id = ?", (exp_id,)
+    ).fetchall()
+    launch = max((r for r in runs if tags.get(r[0], {}).get("ablate.role") == "launch"), key=lambda r: r[1])
+    generation = tags[launch[0]].get("ablate.generation")
+    events, summaries = [], {}
+    for run, start, end, status in runs:
+        t = tags.get(run, {})
+        if t.get("ablate.role") == "launch" or t.get("ablate.generation") != generation or status != "FINISHED":
+            continue
+        key = t["ablate.trial_key"]
+        metrics = dict(
+            con.execute("select key, value from latest_metrics where run_uuid = ? and key not like 'episode/%'", (run,))
+        )
+        summaries[key] = metrics
+        events.append((start / 1000, "started", key, None))
+        points: dict[int, dict] = {}
+        for name, step, stamp, value in con.execute(
+            "select key, step, timestamp, value from metrics where run_uuid = ? and key in "
+            "('episode/rolling_mean', 'episode/wall_s')",
+            (run,),
+        ):
+            point = points.setdefault(step, {"episode": step, "stamp": stamp / 1000})
+            point["rolling_mean" if name == "episode/rolling_mean" else "wall_s"] = value
+        by_stamp: dict[float, list] = {}
+        for point in sorted(points.values(), key=lambda p: p["episode"]):
+            by_stamp.setdefault(point["stamp"], []).append(SimpleNamespace(**point))
+        events += [(stamp, "episodes", key, rows) for stamp, rows in by_stamp.items()]
+        events.append((end / 1000, "finished", key, metrics))
+    order = {"started": 0, "episodes": 1, "finished": 2}
+    events.sort(key=lambda e: (e[0], order[e[1]]))
+    return launch[1] / 1000, events, summaries
+
+
+def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
+    """The scored estimates of the newest launch of ``path``'s experiment in the store at ``tracking_uri``."""
+    experiment = load_experiment(path)
+    db = Path(tracking_uri.removeprefix("sqlite:///"))
+    start, events, summaries = _events(db, experiment.name)
+    evaluation = expand(experiment)
+    plan = StagePlan(experiment, evaluation, tuning_trials(experiment))
+    todo = schedule_order(unique([*plan.tuning, *evaluation], set()), {})
+    stage1 = {t.key for t in todo}
+
+    def provisional(summaries):  # as the runner asks it
+        return plan.provisional(summaries, stage1)
+
+    clock = SimpleNamespace(now=start)
+    with mock.patch.object(progress.time, "monotonic", lambda: clock.now):
+        view = progress.ProgressView(
+            experiment.name,
+            todo,
+            0,
+            enabled=False,
+            slots=slots,
+            start=start,
+            log_estimates=True,
+            later=provisional({}),
+            provisional=provisional if plan.tuning else None,
+        )
+        left = set(stage1)
+        for t, kind, key, payload in events:
+            clock.now = t
+            if key not in view.trials:
+                continue  # a stage-2 trial before add_trials: does not happen in order
+            if kind == "started":
+                view.started(key)
+            elif kind == "episodes":
+                view.episodes(key, payload)
+            else:
+                view.finished(key, bool(payload.get("solved")), payload.get("wall_s"), payload)
+                left.discard(key)
+                if not left and plan.tuning:  # stage 1 over: stage 2's trials are known
+                    choices = plan.choices({k: summaries[k] for k in stage1 if k in summaries})
+                    chosen = unique(plan.chosen(choices), stage1)
+                    view.add_trials(schedule_order(chosen, {}))
+                    left = {"-"}  # once
+        view.trials_end = max(e[0] for e in events)
+    return _eta_figure(f"{path} (replayed from {db})", view)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("experiment")
+    parser.add_argument("--tracking-uri", required=True)
+    parser.add_argument("--slots", type=int, default=2, help="trials that ran at once (default 2: a 2-core machine)")
+    args = parser.parse_args()
+    replay(args.experiment, args.tracking_uri, args.slots)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
