@@ -29,8 +29,9 @@ test: $(STAMP) ## the whole test suite (~11 min of pytest on 2 idle cores, 479 t
 test-fast: $(STAMP) ## the test suite without the slow learning tests
 	$(BIN)/python -m pytest -q -m "not slow"
 
-test-cluster: $(STAMP) ## two token-authenticated Ray nodes (one sees none of the driver's files), a basic-auth mlflow server, a lost node, refusals (root)
-	ABLATE_CLUSTER_TESTS=1 $(BIN)/python -m pytest -q tests/test_cluster.py
+test-cluster: $(STAMP) ## two token-authenticated Ray nodes (one sees none of the driver's files), a basic-auth mlflow server, a lost node, refusals (root); a local run beside another Ray cluster
+	ABLATE_CLUSTER_TESTS=1 $(BIN)/python -m pytest -q tests/test_cluster.py \
+		tests/test_scheduler.py::test_a_local_run_ignores_another_cluster_listens_on_loopback_and_ray_address_joins
 
 test-cluster-postgres: $(STAMP) ## test-cluster with the server's store in a private PostgreSQL (apt-get installs it; skipped where it can't)
 	tools/postgres_test.sh

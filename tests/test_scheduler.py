@@ -56,6 +56,9 @@ def other_cluster(tmp_path):
         local_cluster.stop_process(head)
 
 
+@pytest.mark.skipif(
+    not os.environ.get("ABLATE_CLUSTER_TESTS"), reason="a second Ray cluster on the machine: make test-cluster"
+)
 def test_a_local_run_ignores_another_cluster_listens_on_loopback_and_ray_address_joins(tmp_path, other_cluster):
     other_node, gcs = other_cluster
     marker = tmp_path / "release"
