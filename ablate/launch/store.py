@@ -281,3 +281,30 @@ def probe_server(uri: str) -> None:
         raise TrackingError(
             f"MLflow tracking server {mask_uri(uri)} is unreachable ({reason}); start it or check --tracking-uri"
         ) from None
+
+
+def store_problem(uri: str, error: BaseException) -> str:
+    """One line saying why the store at ``uri`` could not be opened, and what to set or start; the password
+    of the URI and every secret of this process masked."""
+    shown, text, full = mask_uri(uri), redact(first_line(error)), str(error).lower()
+    if not uri.startswith(("http://", "https://")):
+        return f"MLflow store {shown} cannot be used: {text}"
+    status = getattr(error, "get_http_status_code", lambda: None)()
+    if status == 401 or "401" in full and "authenticat" in full:
+        user = os.environ.get("MLFLOW_TRACKING_USERNAME")
+        given = f"refused the login of {user!r}" if user else "needs a login"
+        return (
+            f"MLflow tracking server {shown} {given} (HTTP 401); set MLFLOW_TRACKING_USERNAME and "
+            "MLFLOW_TRACKING_PASSWORD (or the [mlflow] section of ~/.mlflow/credentials) to your account on it"
+        )
+    if status == 403 or "403" in full and "permission" in full:
+        user = os.environ.get("MLFLOW_TRACKING_USERNAME", "this user")
+        return f"MLflow tracking server {shown}: {user!r} may not do this (HTTP 403, {text}); ask its admin for EDIT"
+    reason = text
+    if "refused" in full:
+        reason = "connection refused"
+    elif "timed out" in full or "timeout" in full:
+        reason = f"no answer in {PROBE_TIMEOUT_S} s"
+    elif "name or service not known" in full or "nodename nor servname" in full:
+        reason = "unknown host"
+    return f"MLflow tracking server {shown} is unreachable ({reason}); start it or check --tracking-uri"

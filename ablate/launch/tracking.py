@@ -21,13 +21,11 @@ from typing import Any
 
 from ablate.experiment import storage_name
 from ablate.launch.store import (
-    PROBE_TIMEOUT_S,
     RetryingClient,
     TrackingError,
     check_sqlite,
     check_uri,
     fail_fast_http,
-    first_line,
     is_database,
     mask_uri,
     probe_database,
@@ -35,6 +33,7 @@ from ablate.launch.store import (
     redact,
     resolve_uri,
     sqlite_path,
+    store_problem,
     store_setup_lock,
 )
 
@@ -481,33 +480,6 @@ class Tracker(Store):
                 batch = []
         if batch:
             self.client.log_batch(run_id, metrics=batch)
-
-
-def store_problem(uri: str, error: BaseException) -> str:
-    """One line saying why the store at ``uri`` could not be opened, and what to set or start; the password
-    of the URI and every secret of this process masked."""
-    shown, text, full = mask_uri(uri), redact(first_line(error)), str(error).lower()
-    if not uri.startswith(("http://", "https://")):
-        return f"MLflow store {shown} cannot be used: {text}"
-    status = getattr(error, "get_http_status_code", lambda: None)()
-    if status == 401 or "401" in full and "authenticat" in full:
-        user = os.environ.get("MLFLOW_TRACKING_USERNAME")
-        given = f"refused the login of {user!r}" if user else "needs a login"
-        return (
-            f"MLflow tracking server {shown} {given} (HTTP 401); set MLFLOW_TRACKING_USERNAME and "
-            "MLFLOW_TRACKING_PASSWORD (or the [mlflow] section of ~/.mlflow/credentials) to your account on it"
-        )
-    if status == 403 or "403" in full and "permission" in full:
-        user = os.environ.get("MLFLOW_TRACKING_USERNAME", "this user")
-        return f"MLflow tracking server {shown}: {user!r} may not do this (HTTP 403, {text}); ask its admin for EDIT"
-    reason = text
-    if "refused" in full:
-        reason = "connection refused"
-    elif "timed out" in full or "timeout" in full:
-        reason = f"no answer in {PROBE_TIMEOUT_S} s"
-    elif "name or service not known" in full or "nodename nor servname" in full:
-        reason = "unknown host"
-    return f"MLflow tracking server {shown} is unreachable ({reason}); start it or check --tracking-uri"
 
 
 def _param_text(value: Any) -> str:
