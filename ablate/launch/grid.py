@@ -82,10 +82,11 @@ def schedule_order(trials: list[GridTrial], costs: dict[str, float] | None = Non
 
 
 def tuning_trials(experiment: Experiment) -> list[GridTrial]:
-    """Stage 1 of a ``[tune]`` experiment: every tuned variant x candidate x tuning seed, variant-major; ``[]``
-    without ``[tune]``. A variant that sets every tuned knob itself has no stage 1. Tuning trials record no
-    video (nobody watches them) and use the tuning budget; their seeds (10,000 up)
-    keep their keys apart from every evaluation trial's."""
+    """Stage 1 of a ``[tune]`` experiment: every tuned variant x tuning seed x candidate, variant-major, each
+    seed's candidates together (a quarter in, every candidate has a result, so the time-left estimate's guess
+    at the choice is an informed one); ``[]`` without ``[tune]``. A variant that sets every tuned knob itself
+    has no stage 1. Tuning trials record no video (nobody watches them) and use the tuning budget; their
+    seeds (10,000 up) keep their keys apart from every evaluation trial's."""
     spec = experiment.tune
     if spec is None:
         return []
@@ -94,8 +95,8 @@ def tuning_trials(experiment: Experiment) -> list[GridTrial]:
     for variant in experiment.variants:
         if not spec.tuned_knobs(variant):
             continue  # it sets every tuned knob itself: nothing to choose
-        for values in spec.candidates(variant):
-            for seed in spec.seeds:
+        for seed in spec.seeds:
+            for values in spec.candidates(variant):
                 config = replace(variant.config, seed=seed, record_video=False, **budget, **values)
                 trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config, "tune"))
     return trials
