@@ -8,6 +8,7 @@ TRACKING_URI ?= sqlite:///mlflow.db
 RAY_PORT ?= 6390
 CLUSTER_MLFLOW_PORT ?= 5050
 EXPERIMENT ?= experiments/cartpole.toml
+TEST_WORKERS ?= 2
 
 .PHONY: help setup test test-fast test-cluster test-cluster-postgres cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
 
@@ -23,8 +24,8 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP) ## build .venv from pyproject.toml (every target does this first when needed)
 
-test: $(STAMP) ## the whole test suite (~11 min of pytest on 2 idle cores, 479 tests, measured on a fresh clone)
-	$(BIN)/python -m pytest -q
+test: $(STAMP) ## the whole test suite on TEST_WORKERS=2 parallel workers (pytest-xdist; most of a test is waiting on processes)
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 test-fast: $(STAMP) ## the test suite without the slow learning tests
 	$(BIN)/python -m pytest -q -m "not slow"
@@ -53,7 +54,7 @@ format: $(STAMP) ## ruff format and fix what ruff can
 	$(BIN)/ruff format ablate tests benchmarks tools
 	$(BIN)/ruff check --fix ablate tests benchmarks tools
 
-bench: $(STAMP) ## speed and memory figures (~20 min)
+bench: $(STAMP) ## speed and memory figures, every section (~3 h on 2 idle cores; python benchmarks/bench.py SECTION runs one)
 	$(BIN)/python benchmarks/bench.py
 
 train: $(STAMP) ## one CartPole trial: curve, video, weights in outputs/train/ (ARGS="--preset course", ...)
