@@ -63,7 +63,7 @@ train: $(STAMP) ## one CartPole trial: curve, video, weights in outputs/train/ (
 ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray, track in MLflow, write the report
 	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
 
-ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, each at its tuned rate, 5 seeds (~1 h, at most ~1 h 50 min on 2 idle cores)
+ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, each at its tuned rate, 5 seeds x 400 episodes (1 h 42 min on a fresh clone of a 2-core machine; at most 2 h)
 	$(BIN)/ablate run experiments/pong.toml --tracking-uri $(TRACKING_URI)
 
 report: $(STAMP) ## rebuild reports/<name>/ from the MLflow store (EXPERIMENT=experiments/cartpole.toml by default)
