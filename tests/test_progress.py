@@ -158,6 +158,7 @@ def _tmux() -> str | None:
     return shutil.which("tmux")
 
 
+@pytest.mark.serial  # it samples a terminal's clock while Ray starts: parallel workers starve the sampling
 def test_progress_view_in_tmux_clock_runs_before_any_trial_ends_and_running_rows_appear(tmp_path):
     tmux = _tmux()
     if tmux is None:
