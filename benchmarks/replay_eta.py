@@ -99,7 +99,7 @@ def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
             later=provisional({}),
             provisional=provisional if plan.tuning else None,
         )
-        left = set(stage1)
+        left, stage_two_known = set(stage1), False
         for t, kind, key, payload in events:
             clock.now = t
             if key not in view.trials:
@@ -111,11 +111,10 @@ def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
             else:
                 view.finished(key, bool(payload.get("solved")), payload.get("wall_s"), payload)
                 left.discard(key)
-                if not left and plan.tuning:  # stage 1 over: stage 2's trials are known
+                if not left and plan.tuning and not stage_two_known:  # stage 1 over: stage 2 is known
                     choices = plan.choices({k: summaries[k] for k in stage1 if k in summaries})
-                    chosen = unique(plan.chosen(choices), stage1)
-                    view.add_trials(schedule_order(chosen, {}))
-                    left = {"-"}  # once
+                    view.add_trials(schedule_order(unique(plan.chosen(choices), stage1), {}))
+                    stage_two_known = True
         view.trials_end = max(e[0] for e in events)
     return _eta_figure(f"{path} (replayed from {db})", view)
 
