@@ -667,11 +667,16 @@ def bench_pong(repeats: int = 3) -> None:
     RESULTS["pong"] = {"medians": medians, "runs": rows}
 
 
-def bench_pong_memory(episodes: int = 1000, variant: str = "cnn", max_episode_steps: int = 0) -> None:
+def bench_pong_memory(episodes: int = 0, variant: str = "cnn", max_episode_steps: int = 0) -> None:
     """Resident memory of one Pong trial at pong.toml's settings (the `cnn` variant, seed 0) over ``episodes``
-    episodes (~20 min of CPU for 1,000): RSS after episode 100, every 100 after, and the process's peak.
+    episodes (`--pong-memory-episodes`; 0: pong.toml's budget; ~20 min of CPU for 1,000): RSS after episode
+    100, every 100 after, and the process's peak, outside Ray.
     ``max_episode_steps`` (`--pong-memory-cap`) cuts episodes short: as many updates in less time."""
     import resource
+
+    from ablate.experiment import load_experiment
+
+    episodes = episodes or load_experiment(PONG_EXPERIMENT).base.max_episodes
 
     import psutil
 
@@ -894,6 +899,9 @@ def main() -> int:
         help="eta: cold (a fresh store), warm (--fresh on it: earlier costs known) or both, comma-separated",
     )
     parser.add_argument(
+        "--pong-memory-episodes", type=int, default=0, help="pong-memory: episodes (0: pong.toml's budget)"
+    )
+    parser.add_argument(
         "--pong-memory-cap", type=int, default=0, help="pong-memory: cut episodes at this many steps (0: none)"
     )
     args = parser.parse_args()
@@ -906,13 +914,15 @@ def main() -> int:
         parser.error(f"--eta-launches: {bad_launches[0]!r} is not a launch; valid: cold, warm")
     if args.ablation_repeats < 1:
         parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
+    if args.pong_memory_episodes < 0:
+        parser.error(f"--pong-memory-episodes must be at least 0, got {args.pong_memory_episodes}")
     if args.tuning_repeats < 1:
         parser.error(f"--tuning-repeats must be at least 1, got {args.tuning_repeats}")
     for name in args.sections or SECTIONS:
         print(f"== {name}", flush=True)
         kwargs = {
             "ablation": {"repeats": args.ablation_repeats},
-            "pong-memory": {"max_episode_steps": args.pong_memory_cap},
+            "pong-memory": {"max_episode_steps": args.pong_memory_cap, "episodes": args.pong_memory_episodes},
             "tuning": {"repeats": args.tuning_repeats},
             "eta": {
                 "launches": tuple(args.eta_launches.split(",")),
