@@ -158,7 +158,7 @@ def _tmux() -> str | None:
     return shutil.which("tmux")
 
 
-@pytest.mark.serial  # it samples a terminal's clock while Ray starts: parallel workers starve the sampling
+@pytest.mark.e2e  # it samples a terminal's clock while Ray starts: make test-e2e runs it with nothing beside it
 def test_progress_view_in_tmux_clock_runs_before_any_trial_ends_and_running_rows_appear(tmp_path):
     tmux = _tmux()
     if tmux is None:
@@ -385,3 +385,25 @@ def test_the_pace_of_a_trial_with_one_report_is_read_off_its_own_clock(clock):
     view.episodes("a-s0", [_row(10, 1.0)._replace(wall_s=1.0)])
     # 30 episodes left at 0.1 s, then a-s1's 40 episodes: not 2.1 s per episode from the wall since its start.
     assert view.seconds_left() == pytest.approx(0.1 * 30 + 0.1 * 40)
+
+
+def test_a_trial_that_solved_is_writing_its_artifacts_not_running_out_its_budget(clock):
+    # A CartPole trial stops at the episode whose rolling mean over solve_window reaches the env's threshold
+    # (195 on v0): past its peers' time, it is writing artifacts, not running its 900 remaining episodes.
+    config = replace(TrialConfig(), env_id="CartPole-v0", max_episodes=1000, solve_window=100)
+    trials = [GridTrial(f"a-s{s}", "a", s, replace(config, seed=s)) for s in (0, 1)]
+    view = ProgressView("x", trials, already_done=0, enabled=False, slots=1, start=clock.now)
+    view.started("a-s0")
+    clock.now += 10
+    view.episodes("a-s0", [_row(100, 196.0)])
+    view.finished("a-s0", solved=True, summary={"episodes_run": 100})
+    view.started("a-s1")
+    clock.now += 5
+    view.episodes("a-s1", [_row(50, 40.0)])
+    clock.now += 5
+    view.episodes("a-s1", [_row(99, 150.0)])  # not yet solved: the rest of its budget may follow
+    clock.now += 3  # past the 10 s its peer took
+    assert view.seconds_left() > 50  # ~0.1 s per episode for 901 more
+    view.episodes("a-s1", [_row(100, 195.5)])  # solved: its last episode
+    assert view.seconds_left() == 0.0
+

@@ -74,6 +74,26 @@ class _Trial:
         the evaluation trial at the same values share it."""
         return self.trial.variant, config_hash(replace(self.trial.config, seed=0, max_episodes=0))
 
+    @cached_property
+    def threshold(self) -> float | None:
+        """The rolling mean at which it stops, solved: its own ``solve_threshold``, else its env's."""
+        if self.trial.config.solve_threshold is not None:
+            return self.trial.config.solve_threshold
+        from ablate.agent.envs import env_info  # the driver has gymnasium loaded once trials run
+
+        return env_info(self.trial.config.env_id).reward_threshold
+
+    @property
+    def last_episode_reported(self) -> bool:
+        """It reported the last episode it will run: its budget's, or the one that solved it (a trial stops
+        there); what is left is writing its artifacts."""
+        if self.episode >= self.budget:
+            return True
+        window = self.trial.config.solve_window
+        if self.rolling_mean is None or self.episode < window:
+            return False
+        return self.threshold is not None and self.rolling_mean >= self.threshold
+
     def seconds_per_episode(self, now: float) -> float | None:
         """Over the newest reports when there are two, else by the trial's own clock (a worker's start and
         Tune's scheduling are not episodes: in a 4-episode Pong trial they are most of its time), else since
@@ -333,6 +353,8 @@ class ProgressView:
         expected = self._peer_cost(trial, seen)
         if expected is not None and expected > elapsed:
             return expected - elapsed
+        if trial.last_episode_reported:  # not the rest of its budget: a solved trial stops where it solved
+            return 0.0
         # Past what its peers took (or none has ended): the rest of its budget at its own recent pace.
         rate = trial.seconds_per_episode(now) or seen.rates.get(None)
         if rate is None:
