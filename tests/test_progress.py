@@ -406,4 +406,3 @@ def test_a_trial_that_solved_is_writing_its_artifacts_not_running_out_its_budget
     assert view.seconds_left() > 50  # ~0.1 s per episode for 901 more
     view.episodes("a-s1", [_row(100, 195.5)])  # solved: its last episode
     assert view.seconds_left() == 0.0
-
