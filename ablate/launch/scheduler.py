@@ -127,7 +127,9 @@ def _train(params: dict[str, Any], trials: dict[str, GridTrial], checkpoints: An
     def on_checkpoint(blob: bytes) -> None:
         report("running", ablate_checkpoint=blob)  # the points up to the checkpoint go with it
 
-    resume = {"resume_from": ray.get(checkpoints.get.remote(trial.key)), "on_checkpoint": on_checkpoint}
+    resume = {}
+    if checkpoints is not None:
+        resume = {"resume_from": ray.get(checkpoints.get.remote(trial.key)), "on_checkpoint": on_checkpoint}
     with tempfile.TemporaryDirectory(prefix="ablate-") as folder:
         try:
             result = run_trial(trial.config, on_episodes=on_episodes, artifacts_dir=folder, **resume)
@@ -158,11 +160,14 @@ def run_trials(
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     started_here = ensure_ray(options.address)
     by_key = {t.key: t for t in trials}
-    # On the driver's node (a worker node may die), holding no CPU.
-    here = ray.get_runtime_context().get_node_id()
-    checkpoints = _Checkpoints.options(scheduling_strategy=NodeAffinitySchedulingStrategy(here, soft=False)).remote(
-        dict(resume or {})
-    )
+    checkpoints = None
+    if resume or any(t.config.checkpoint_interval for t in trials):
+        # On the driver's node (a worker node may die), holding no CPU. Only where a trial checkpoints: the
+        # actor is a process of its own, importing torch and Tune (~2 s of CPU) for nothing otherwise.
+        here = ray.get_runtime_context().get_node_id()
+        checkpoints = _Checkpoints.options(scheduling_strategy=NodeAffinitySchedulingStrategy(here, soft=False)).remote(
+            dict(resume or {})
+        )
     bridge = _Bridge(events, checkpoints)
     storage = Path(options.storage_path).resolve() if "://" not in options.storage_path else None
     tuner = tune.Tuner(
@@ -359,7 +364,8 @@ class _Bridge(tune.Callback):
             self.events.episodes(key, points)
         blob = result.pop("ablate_checkpoint", None)
         if blob is not None:
-            self.checkpoints.put.remote(key, blob)
+            if self.checkpoints is not None:
+                self.checkpoints.put.remote(key, blob)
             self.events.checkpoint(key, blob)
         artifacts = result.pop("ablate_artifacts", None)
         status = result.get("ablate_status")
