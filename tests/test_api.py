@@ -48,16 +48,19 @@ def test_load_from_a_missing_store_names_the_python_parameter(tmp_path, monkeypa
 
 
 @pytest.fixture(scope="module")
-def notebook_run(tmp_path_factory):
-    """examples/quickstart.ipynb executed in a copy of the repository's layout (examples/ beside experiments/)."""
+def notebook_run(tmp_path_factory, ray_address):
+    """examples/quickstart.ipynb executed in a copy of the repository's layout (examples/ beside experiments/),
+    its kernel joining the session's Ray (``RAY_ADDRESS``, as a notebook on a cluster would) to spare a start."""
     top = tmp_path_factory.mktemp("quickstart")
     (top / "experiments").mkdir()
     shutil.copy(ROOT / "experiments" / "smoke.toml", top / "experiments")
     fresh_store(top / "examples" / "quickstart-mlflow.db")  # what its first run would create, minus 5 s
     notebook = nbformat.read(ROOT / "examples" / "quickstart.ipynb", as_version=4)
-    NotebookClient(
-        notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(top / "examples")}}
-    ).execute()
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("RAY_ADDRESS", ray_address)  # the kernel inherits it
+        NotebookClient(
+            notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(top / "examples")}}
+        ).execute()
     return notebook, top / "examples"
 
 

@@ -142,6 +142,7 @@ def _restore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+@pytest.mark.e2e  # a child `ablate run` that starts its own Ray (the default path), twice
 def test_ctrl_c_kills_running_trials_and_a_rerun_finishes_the_rest(tmp_path, tracking_uri):
     # Deterministic by construction: two quick trials finish while a third blocks until a file exists, so
     # at the signal (sent once both are seen FINISHED and the third RUNNING) exactly one trial is running.
@@ -323,6 +324,7 @@ def _runs_by_status(tracker) -> dict[str, list[str]]:
     return found
 
 
+@pytest.mark.e2e  # a child `ablate run` that starts its own Ray (the default path)
 def test_sigterm_stops_like_ctrl_c_and_a_second_launch_is_refused(tmp_path, tracking_uri, capsys):
     from ablate.cli import main
 
@@ -589,7 +591,9 @@ def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_
     assert "of which tuning (stage 1): 8 trials: 8 finished" in status and "16 trials: 16 finished" in status
 
 
-def test_ctrl_c_during_tuning_then_a_rerun_finishes_both_stages_running_no_trial_twice(tmp_path, tracking_uri):
+def test_ctrl_c_during_tuning_then_a_rerun_finishes_both_stages_running_no_trial_twice(
+    tmp_path, tracking_uri, ray_address
+):
     release = tmp_path / "release"
     text = f"""
 name = "tuneint"
@@ -614,7 +618,7 @@ max_episodes = 10
     path.write_text(text)
     command = [sys.executable, "-m", "ablate.cli", "run", str(path), "--tracking-uri", tracking_uri, "--no-report"]
     command += ["--max-concurrent", "2"]
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "RAY_ADDRESS": ray_address}  # both launches join the session's Ray
     proc = subprocess.Popen(
         command,
         cwd=tmp_path,
