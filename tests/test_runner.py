@@ -2,6 +2,7 @@
 resume, faults."""
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -12,6 +13,7 @@ import pandas as pd
 import pytest
 import torch
 from mlflow.entities import ViewType
+from stores import fresh_store
 
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand
@@ -42,13 +44,31 @@ def _experiment(tmp_path, text=TINY, name="exp.toml"):
     return load_experiment(path)
 
 
+@pytest.fixture(scope="module")
+def tiny_launch(run_quiet, tmp_path_factory):
+    """TINY launched once (per test process): the tests that start from a store holding it take a copy."""
+    folder = tmp_path_factory.mktemp("tiny")
+    uri = fresh_store(folder / "mlflow.db")
+    experiment = _experiment(folder)
+    outcome = run_quiet(experiment, folder, uri)
+    return folder / "mlflow.db", experiment, outcome
+
+
+@pytest.fixture
+def tiny_store(tiny_launch, tmp_path):
+    """A copy of the store ``tiny_launch`` wrote (its runs' artifacts stay where they were written): its URI,
+    the experiment and the launch's outcome."""
+    db, experiment, outcome = tiny_launch
+    shutil.copyfile(db, tmp_path / "mlflow.db")
+    return f"sqlite:///{tmp_path / 'mlflow.db'}", experiment, outcome
+
+
 def _launches(tracker):
     return tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")
 
 
-def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tracking_uri):
-    experiment = _experiment(tmp_path)
-    outcome = run_quiet(experiment, tmp_path, tracking_uri)
+def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tiny_store):
+    tracking_uri, experiment, outcome = tiny_store
     assert outcome.exit_code == 0 and len(outcome.finished) == 4 and not outcome.failed
 
     tracker = RunReader(tracking_uri, "tiny")
@@ -94,8 +114,8 @@ def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tracking_uri):
     assert len(tracker.trial_runs(fresh.generation)) == 4 and len(_launches(tracker)) == 2
 
 
-def test_rerun_after_adding_a_variant_runs_only_the_new_trials(run_quiet, tmp_path, tracking_uri):
-    run_quiet(_experiment(tmp_path), tmp_path, tracking_uri)
+def test_rerun_after_adding_a_variant_runs_only_the_new_trials(run_quiet, tmp_path, tiny_store):
+    tracking_uri, _, _ = tiny_store
     bigger = _experiment(tmp_path, TINY + '[[variants]]\nname = "wide"\nhidden_sizes = [64]\n')
     outcome = run_quiet(bigger, tmp_path, tracking_uri)
     assert outcome.skipped == 4 and len(outcome.finished) == 2
@@ -531,12 +551,11 @@ max_episodes = 10
 
 
 def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_choice(
-    run_quiet, tmp_path, tracking_uri, monkeypatch
+    run_quiet, tmp_path, tiny_store, monkeypatch
 ):
     import json
 
-    untuned = _experiment(tmp_path)
-    run_quiet(untuned, tmp_path, tracking_uri)
+    tracking_uri, untuned, _ = tiny_store  # the untuned ablation, already in the store
     base_keys = {t.key for t in expand(untuned)}
 
     tuned = _experiment(tmp_path, TINY + TUNE, name="tuned.toml")
