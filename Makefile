@@ -10,7 +10,7 @@ CLUSTER_MLFLOW_PORT ?= 5050
 EXPERIMENT ?= experiments/cartpole.toml
 TEST_WORKERS ?= 2
 
-.PHONY: help setup test test-fast test-cluster test-cluster-postgres cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
+.PHONY: help setup test test-e2e test-fast test-cluster test-cluster-postgres cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
 
 help: ## this list (generated from the comments after each target's name)
 	@awk '/^[A-Za-z0-9_.-]+:([^=]|$$).*## / {printf "make %-18s %s\n", substr($$0, 1, index($$0, ":") - 1), substr($$0, index($$0, "## ") + 3)}' $(MAKEFILE_LIST)
@@ -24,9 +24,11 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP) ## build .venv from pyproject.toml (every target does this first when needed)
 
-test: $(STAMP) ## the whole test suite: 2 pytest-xdist workers (TEST_WORKERS), then the serial tests (8 min 26 s of pytest on a fresh clone of a 2-core machine)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal -m "not serial"
-	$(BIN)/python -m pytest -q -m serial
+test: $(STAMP) ## the test suite on 2 pytest-xdist workers (TEST_WORKERS), all but the e2e tests
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal -m "not e2e"
+
+test-e2e: $(STAMP) ## whole `ablate run` processes on their own Ray, stopped by Ctrl-C and SIGTERM, and the live view in tmux, one at a time (CI runs it after make test)
+	$(BIN)/python -m pytest -q -m e2e
 
 test-fast: $(STAMP) ## the test suite without the slow learning tests
 	$(BIN)/python -m pytest -q -m "not slow"
