@@ -55,11 +55,11 @@ def test_pong_smoke_ablation_with_tune_through_ray_and_mlflow(run_quiet, tmp_pat
     assert experiment.base.max_episode_steps > 0  # capped episodes: seconds per trial
     assert experiment.tune is not None and 0.001 not in dict(experiment.tune.knobs)["learning_rate"]
     outcome = run_quiet(experiment, tmp_path, tracking_uri)
-    # 2 arms x 2 candidates x 1 tuning seed; the base value on 2 seeds; the choice (never the base) on 2 seeds
-    assert outcome.exit_code == 0 and len(outcome.finished) == 4 + 4 + 4 and not outcome.failed
+    # 2 arms x 2 candidates x 1 tuning seed; the base value on seed 0; the choice (never the base) on seed 0
+    assert outcome.exit_code == 0 and len(outcome.finished) == 4 + 2 + 2 and not outcome.failed
     tracker = RunReader(tracking_uri, "pong-smoke")
     runs = tracker.trial_runs(with_artifacts=True)
-    assert all(r.status == "FINISHED" for r in runs) and len({r.key for r in runs}) == len(runs) == 12
+    assert all(r.status == "FINISHED" for r in runs) and len({r.key for r in runs}) == len(runs) == 8
     tuning_runs = [r for r in runs if r.tags["ablate.stage"] == "tune"]
     evaluation = [r for r in runs if r.tags["ablate.stage"] == "eval"]
     assert sorted((r.variant, r.seed) for r in tuning_runs) == [("cnn", 10_000)] * 2 + [("mlp", 10_000)] * 2
@@ -76,8 +76,8 @@ def test_pong_smoke_ablation_with_tune_through_ray_and_mlflow(run_quiet, tmp_pat
         chosen = min(best, key=lambda lr: abs(math.log(lr / 0.001)))
         assert document["choices"][arm]["values"] == {"learning_rate": chosen}, means
         rates = sorted(float(r.params["learning_rate"]) for r in evaluation if r.variant == arm)
-        assert rates == sorted([0.001, 0.001, chosen, chosen])
-        assert sorted(r.seed for r in evaluation if r.variant == arm) == [0, 0, 1, 1]
+        assert rates == sorted([0.001, chosen])
+        assert sorted(r.seed for r in evaluation if r.variant == arm) == [0, 0]
 
     for run in evaluation:
         assert run.params["action_set"] == "move"
