@@ -611,7 +611,7 @@ def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_
 
 
 def test_ctrl_c_during_tuning_then_a_rerun_finishes_both_stages_running_no_trial_twice(
-    tmp_path, tracking_uri, ray_address
+    tmp_path, tracking_uri, ray_address, monkeypatch, capsys
 ):
     release = tmp_path / "release"
     text = f"""
@@ -690,14 +690,18 @@ max_episodes = 10
     # 2 variants x 2 candidates x 1 tuning seed; the base value on seed 0; the choice on seed 0 (never 0.03)
     assert stages.count("tune") == 4 and stages.count("eval") == 2 + 2
 
-    # Re-running a finished experiment answers from the store without starting, or even importing, Ray.
-    code = (
-        "import sys; from ablate.cli import main; "
-        f"rc = main({command[3:]!r}); print('RAY IMPORTED' if 'ray' in sys.modules else 'NO RAY'); sys.exit(rc)"
-    )
-    noop = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert noop.returncode == 0, noop.stdout + noop.stderr
-    assert "all 8 trials of tuneint already finished" in noop.stdout and noop.stdout.splitlines()[-1] == "NO RAY"
+    # Re-running a finished tuned experiment answers from the store without asking for Ray (that the answer
+    # imports no Ray at all is test_rerunning_a_finished_ablation_answers_from_the_store_without_importing_ray).
+    from ablate.cli import main
+    from ablate.launch import scheduler
+
+    def no_ray(address):
+        raise AssertionError("a finished ablation asked for Ray")
+
+    monkeypatch.setattr(scheduler, "ensure_ray", no_ray)
+    monkeypatch.chdir(tmp_path)
+    assert main(command[3:]) == 0
+    assert "all 8 trials of tuneint already finished" in capsys.readouterr().out
 
 
 def test_rerunning_a_finished_ablation_answers_from_the_store_without_importing_ray(tmp_path, tracking_uri):
