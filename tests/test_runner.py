@@ -107,11 +107,7 @@ def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tiny_store):
     again = run_quiet(experiment, tmp_path, tracking_uri)
     assert again.launch_run_id is None and again.skipped == 4
     assert len(tracker.trial_runs()) == 4 and len(_launches(tracker)) == 1
-
-    # --fresh starts a new generation under a new parent run.
-    fresh = run_quiet(experiment, tmp_path, tracking_uri, fresh=True)
-    assert len(fresh.finished) == 4 and fresh.generation != outcome.generation
-    assert len(tracker.trial_runs(fresh.generation)) == 4 and len(_launches(tracker)) == 2
+    # (--fresh, a new generation under a new parent run: tests/test_status.py's real store.)
 
 
 def test_rerun_after_adding_a_variant_runs_only_the_new_trials(run_quiet, tmp_path, tiny_store):
@@ -123,9 +119,7 @@ def test_rerun_after_adding_a_variant_runs_only_the_new_trials(run_quiet, tmp_pa
     assert len(runs) == 6 and len({r.key for r in runs}) == 6
 
 
-def test_crash_is_retried_raise_is_recorded_failed(run_quiet, tmp_path, tracking_uri):
-    marker = tmp_path / "crashed-once"
-    text = f"""
+FAULTS = """
 name = "faults"
 seeds = [0]
 [base]
@@ -138,20 +132,42 @@ name = "ok"
 [[variants]]
 name = "crash"
 fault = "crash_once"
-fault_marker = "{marker}"
+fault_marker = "{crashed}"
 [[variants]]
 name = "boom"
 fault = "raise"
+[[variants]]
+name = "resumable"
+hidden_sizes = [8]
+max_episodes = 48
+episodes_per_update = 8
+checkpoint_every = 16
+fault = "crash_after_checkpoint"
+fault_marker = "{died}"
 """
-    outcome = run_quiet(_experiment(tmp_path, text), tmp_path, tracking_uri)
-    assert marker.exists()  # the crash really happened
-    assert sorted(k.split("-")[0] for k in outcome.finished) == ["crash", "ok"]
+
+
+@pytest.fixture(scope="module")
+def faults_launch(run_quiet, tmp_path_factory):
+    """One launch of trials that fail in each way (a process that dies once, once after a checkpoint, a trial
+    that raises) beside one that does not: the tests below read it."""
+    folder = tmp_path_factory.mktemp("faults")
+    uri = fresh_store(folder / "mlflow.db")
+    markers = {"crashed": folder / "crashed-once", "died": folder / "died-after-checkpoint"}
+    outcome = run_quiet(_experiment(folder, FAULTS.format(**markers)), folder, uri)
+    return uri, outcome, markers
+
+
+def test_crash_is_retried_raise_is_recorded_failed(faults_launch):
+    tracking_uri, outcome, markers = faults_launch
+    assert markers["crashed"].exists()  # the crash really happened
+    assert sorted(k.split("-")[0] for k in outcome.finished) == ["crash", "ok", "resumable"]
     assert list(outcome.failed) == [k for k in outcome.failed if k.startswith("boom")] and len(outcome.failed) == 1
     assert "injected fault" in next(iter(outcome.failed.values()))
     assert outcome.exit_code == 1
 
     runs = {r.variant: r for r in Tracker(tracking_uri, "faults").trial_runs()}
-    assert set(runs) == {"ok", "crash", "boom"}  # the crashed attempt's partial run is not counted
+    assert set(runs) == {"ok", "crash", "boom", "resumable"}  # the crashed attempts' partial runs are not counted
     assert runs["crash"].status == "FINISHED" and runs["crash"].tags["ablate.attempt"] == "2"
     assert runs["boom"].status == "FAILED" and "injected fault" in runs["boom"].tags["ablate.error"]
     assert runs["ok"].status == "FINISHED"
@@ -240,39 +256,20 @@ fault_marker = "{release}"
     assert finished_first <= set(finished)
 
 
-RESUMABLE = """
-name = "resumable"
-seeds = 1
-[base]
-env_id = "CartPole-v1"
-max_episodes = 48
-episodes_per_update = 8
-checkpoint_every = 16
-record_video = false
-fault = "crash_after_checkpoint"
-fault_marker = "{marker}"
-[[variants]]
-name = "narrow"
-hidden_sizes = [8]
-"""
-
-
-def test_a_trial_whose_process_died_resumes_from_its_checkpoint_in_one_continuous_run(
-    run_quiet, tmp_path, tracking_uri
-):
-    experiment = _experiment(tmp_path, RESUMABLE.format(marker=tmp_path / "crashed"))
-    outcome = run_quiet(experiment, tmp_path, tracking_uri)
-    assert outcome.exit_code == 0 and len(outcome.finished) == 1
-    tracker = RunReader(tracking_uri, "resumable")
-    (run,) = tracker.trial_runs(with_artifacts=True)
+def test_a_trial_whose_process_died_resumes_from_its_checkpoint_in_one_continuous_run(faults_launch):
+    tracking_uri, _, markers = faults_launch
+    assert markers["died"].exists()  # the process really died
+    tracker = RunReader(tracking_uri, "faults")
+    (run,) = [r for r in tracker.trial_runs(with_artifacts=True) if r.variant == "resumable"]
     assert run.status == "FINISHED" and run.tags["ablate.attempt"] == "2"  # the process died once
     wall = tracker.metric_history(run.run_id, "episode/wall_s")
     assert [step for step, _ in wall] == list(range(1, 49))  # one curve, every episode once
     # The retry resumed: its episodes 1-16 carry the dead attempt's own clock, as in the checkpoint the dead
     # attempt left on its (deleted) run, which a restart from scratch could not reproduce.
-    (dead,) = tracker.client.search_runs(
+    dead = tracker.client.search_runs(
         [tracker.experiment_id()], "tags.`ablate.attempt` = '1'", run_view_type=ViewType.DELETED_ONLY
     )
+    (dead,) = [d for d in dead if d.data.tags.get("ablate.trial_key") == run.key]
     saved = torch.load(tracker.download(dead.info.run_id, "checkpoint.pt"), weights_only=False)
     assert len(saved["history"]) == 16
     with tempfile.TemporaryDirectory() as folder:
