@@ -13,8 +13,8 @@ from pathlib import Path
 
 from ablate.config import ConfigError
 from ablate.experiment import load_experiment
+from ablate.launch.clock import clock, stage
 from ablate.launch.grid import expand, select
-from ablate.launch.progress import clock, stage
 from ablate.launch.runner import raise_interrupted, run_experiment, signals_received
 
 

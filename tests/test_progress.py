@@ -16,8 +16,9 @@ from stores import fresh_store
 from ablate.agent.trial import EpisodeMetrics
 from ablate.config import TrialConfig
 from ablate.launch import progress
+from ablate.launch.clock import stage
 from ablate.launch.grid import GridTrial
-from ablate.launch.progress import ProgressView, makespan, stage
+from ablate.launch.progress import ProgressView, makespan
 
 
 class Clock:

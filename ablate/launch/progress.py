@@ -12,8 +12,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
@@ -22,21 +21,13 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 
+from ablate.launch.clock import clock
 from ablate.launch.grid import GridTrial, config_hash
 
 RATE_REPORTS = 4
 """Reports (one per ~2 s per trial) that a running trial's recent pace is measured over."""
 MAX_RUNNING_ROWS = 16
 """Rows of running trials shown; more are summarised in one line."""
-
-
-def clock(seconds: float) -> str:
-    """``m:ss`` (``h:mm:ss`` past an hour)."""
-    seconds = int(max(seconds, 0))
-    hours, rest = divmod(seconds, 3600)
-    if hours:
-        return f"{hours}:{rest // 60:02d}:{rest % 60:02d}"
-    return f"{seconds // 60}:{seconds % 60:02d}"
 
 
 @dataclass
@@ -487,25 +478,3 @@ class ProgressView:
             with self.lock:
                 line = self.headline()
             print(line, flush=True)
-
-
-@contextmanager
-def stage(text: str, enabled: bool = True) -> Iterator[list[float]]:
-    """A line with a running clock while a slow step runs (``text ... 0:04``), then ``text: done in 6.8 s``.
-    Yields a list that holds the step's seconds once it ends."""
-    began = time.monotonic()
-    seconds: list[float] = []
-    live = None
-    if enabled and sys.stdout.isatty():
-        live = Live(get_renderable=lambda: f"{text} ... {clock(time.monotonic() - began)}", transient=True)
-        live.__enter__()
-    elif enabled:
-        print(f"{text} ...", flush=True)
-    try:
-        yield seconds
-    finally:
-        seconds.append(time.monotonic() - began)
-        if live is not None:
-            live.__exit__(None, None, None)
-        if enabled:
-            print(f"{text}: done in {seconds[0]:.1f} s", flush=True)
