@@ -42,13 +42,3 @@ def run_quiet(ray_cluster):
         )
 
     return run
-
-
-LAUNCHES = {"run_quiet", "ray_address", "tiny_launch", "faults_launch", "notebook_run", "built_report"}
-"""Fixtures of the tests that launch real ablations (tens of seconds each, against ~0.5 s for the rest)."""
-
-
-def pytest_collection_modifyitems(config, items):
-    """The tests that launch ablations first, in their own order (module-mates stay together): with 2 workers
-    the long tests start early and the short ones fill the end, instead of a long one running alone last."""
-    items.sort(key=lambda item: not LAUNCHES & set(getattr(item, "fixturenames", ())))
