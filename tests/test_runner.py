@@ -158,6 +158,7 @@ def faults_launch(run_quiet, tmp_path_factory):
     return uri, outcome, markers
 
 
+@pytest.mark.e2e  # Ray worker processes that die mid-trial, and Tune's retries
 def test_crash_is_retried_raise_is_recorded_failed(faults_launch):
     tracking_uri, outcome, markers = faults_launch
     assert markers["crashed"].exists()  # the crash really happened
@@ -256,6 +257,7 @@ fault_marker = "{release}"
     assert finished_first <= set(finished)
 
 
+@pytest.mark.e2e  # a Ray worker process that dies after a checkpoint
 def test_a_trial_whose_process_died_resumes_from_its_checkpoint_in_one_continuous_run(faults_launch):
     tracking_uri, _, markers = faults_launch
     assert markers["died"].exists()  # the process really died
