@@ -120,6 +120,14 @@ PONG_TRAIN_CHUNK = 1024
 """Observations per forward/backward in a Pong update: bounds its activations (~130 MB for the CNN)."""
 
 
+def solve_threshold(config: TrialConfig) -> float | None:
+    """The rolling mean over ``solve_window`` episodes at which a trial counts as solved and stops: its own
+    ``solve_threshold``, else its env's reward threshold (``None``: Pong has none)."""
+    if config.solve_threshold is not None:
+        return config.solve_threshold
+    return env_info(config.env_id).reward_threshold
+
+
 def _limit_fragmentation() -> None:
     """Fix glibc's mmap threshold at 256 KB. By default it rises (to 32 MB) each time a large block is freed,
     after which a Pong trial's per-update arrays (MBs each) come from the heap and fragment it: RSS grew
@@ -173,7 +181,7 @@ def run_trial(
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
     info = env_info(config.env_id)
-    threshold = config.solve_threshold if config.solve_threshold is not None else info.reward_threshold
+    threshold = solve_threshold(config)
     n_actions = len(PONG_ACTIONS[config.action_set]) if pong else info.n_actions
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model = create_model(config.env_id, config.model, info.observation_size, n_actions).to(device)

@@ -67,12 +67,10 @@ class _Trial:
 
     @cached_property
     def threshold(self) -> float | None:
-        """The rolling mean at which it stops, solved: its own ``solve_threshold``, else its env's."""
-        if self.trial.config.solve_threshold is not None:
-            return self.trial.config.solve_threshold
-        from ablate.agent.envs import env_info  # the driver has gymnasium loaded once trials run
+        """The rolling mean at which it stops, solved (``run_trial``'s own rule)."""
+        from ablate.agent.trial import solve_threshold  # the driver has it loaded once trials run
 
-        return env_info(self.trial.config.env_id).reward_threshold
+        return solve_threshold(self.trial.config)
 
     @property
     def last_episode_reported(self) -> bool:
