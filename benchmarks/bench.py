@@ -674,10 +674,6 @@ def bench_pong_memory(episodes: int = 0, variant: str = "cnn", max_episode_steps
     ``max_episode_steps`` (`--pong-memory-cap`) cuts episodes short: as many updates in less time."""
     import resource
 
-    from ablate.experiment import load_experiment
-
-    episodes = episodes or load_experiment(PONG_EXPERIMENT).base.max_episodes
-
     import psutil
 
     process = psutil.Process()
@@ -689,7 +685,9 @@ def bench_pong_memory(episodes: int = 0, variant: str = "cnn", max_episode_steps
                 samples[row.episode] = process.memory_info().rss / 2**20
                 print(f"  episode {row.episode}: RSS {samples[row.episode]:,.0f} MB", flush=True)
 
-    run_trial(_pong_config(variant, max_episodes=episodes, max_episode_steps=max_episode_steps), on_episodes=sample)
+    config = _pong_config(variant, max_episode_steps=max_episode_steps)
+    episodes = episodes or config.max_episodes
+    run_trial(replace(config, max_episodes=episodes), on_episodes=sample)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     first, last = samples.get(100, float("nan")), samples.get(episodes, float("nan"))
     print(
