@@ -609,6 +609,29 @@ def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_
     assert "of which tuning (stage 1): 8 trials: 8 finished" in status and "16 trials: 16 finished" in status
 
 
+def test_both_stages_start_their_trials_seeds_interleaved_across_variants(tmp_path, tracking_uri, monkeypatch):
+    """Stage 2 (the trials at the chosen values) is handed to Ray in the order stage 1 is: every variant's
+    first seed, then every variant's second, the order the time-left estimate assumes."""
+    from ablate.launch.grid import schedule_order
+    from ablate.launch.runner import run_experiment
+
+    stages: list[list] = []
+
+    def finish_all(todo, events):
+        stages.append(list(todo))
+        for trial in todo:
+            events.started(trial.key)
+            events.finished(trial.key, {"auc": trial.config.learning_rate, "episodes_run": 10.0}, None, "node-1")
+
+    _fake_scheduler(monkeypatch, finish_all)
+    outcome = run_experiment(_experiment(tmp_path, TINY + TUNE), tracking_uri=tracking_uri, show_progress=False)
+    assert outcome.exit_code == 0 and len(stages) == 2
+    chosen = stages[1]
+    assert {t.config.learning_rate for t in chosen} == {0.1}  # the highest AUC won: stage 2 has trials to run
+    assert [(t.variant, t.seed) for t in chosen] == [("narrow", 0), ("deep", 0), ("narrow", 1), ("deep", 1)]
+    assert chosen == schedule_order(chosen, {}) and stages[0] == schedule_order(stages[0], {})
+
+
 def test_ctrl_c_during_tuning_then_a_rerun_finishes_both_stages_running_no_trial_twice(
     tmp_path, tracking_uri, ray_address, monkeypatch, capsys
 ):
