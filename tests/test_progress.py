@@ -332,6 +332,33 @@ def test_a_trial_costs_what_its_finished_peers_at_the_same_values_took_at_anothe
     assert slow == pytest.approx(7.2 + 100 * 0.2)  # its tuning trial's time, then 100 episodes at its last pace
 
 
+def test_an_evaluation_trial_at_a_tuned_value_is_costed_between_its_tuning_trials_and_its_variants_seeds(clock):
+    # The tuned value won on the tuning seeds, so its short tuning trials are an optimistic guide (an
+    # evaluation seed may solve later, or not at all); the variant's finished evaluation trials at the base
+    # value ran the same budget on the same seeds. The estimate takes the mean of the two.
+    def trial(name, lr, budget, stage, seed=0):
+        config = replace(TrialConfig(), learning_rate=lr, max_episodes=budget, seed=seed)
+        return GridTrial(name, "a", seed, config, stage)
+
+    trials = [trial("tuned-t", 0.1, 50, "tune"), trial("base-e", 0.03, 150, "eval"), trial("tuned-e", 0.1, 150, "eval")]
+    view = ProgressView("x", trials, 0, enabled=False, slots=1)
+    view.started("tuned-t")
+    clock.now += 3
+    view.finished("tuned-t", solved=True, summary={"episodes_run": 30})  # solved after 30 episodes: 3 s
+    seen = view._costs_seen(clock.now)
+    assert view._trial_cost(view.trials["tuned-e"], seen) == pytest.approx(3.0)  # nothing else seen yet
+    view.started("base-e")
+    clock.now += 13
+    view.finished("base-e", solved=False, summary={"episodes_run": 150})  # the base value: 13 s
+    seen = view._costs_seen(clock.now)
+    assert view._trial_cost(view.trials["tuned-e"], seen) == pytest.approx((3.0 + 13.0) / 2)
+    view.started("tuned-e")
+    clock.now += 4
+    view.finished("tuned-e", solved=True, summary={"episodes_run": 40})
+    seen = view._costs_seen(clock.now)
+    assert view._peer_cost(view.trials["tuned-e"], seen) == pytest.approx(4.0)  # its own settings' trial, once seen
+
+
 def test_a_later_stage_is_asked_again_as_tuning_trials_end(clock):
     stage_1 = [GridTrial("a-t", "a", 10_000, replace(TrialConfig(), max_episodes=100), "tune")]
     stand_ins = _trials(variants=("a",), seeds=(0, 1))

@@ -302,18 +302,22 @@ class ProgressView:
 
     def _peer_cost(self, trial: _Trial, seen: _CostsSeen) -> float | None:
         """What finished trials say a trial costs: its earlier run's (scaled to this launch's pace); else the
-        mean of its finished peers with the same settings, at its budget, else at theirs carried over to its
-        own (a tuned variant's evaluation trial from its tuning trials at the same values); else the mean of
-        its variant's finished trials at its budget."""
+        mean of its finished peers with the same settings, at its budget; else their cost carried over to its
+        budget (a tuned variant's evaluation trial from its tuning trials at the same values), halfway to the
+        mean of its variant's finished trials at its budget once there are some: the value won on the tuning
+        seeds, so its tuning trials are an optimistic guide (an evaluation seed may solve later, or never),
+        and the variant's evaluation seeds at the base value ran the whole budget; else that mean alone."""
         if trial.trial.key in self.prior:
             return self.prior[trial.trial.key] * seen.prior_scale
         peers = seen.peers.get(trial.settings, [])
         same = [cost for cost, _, budget, _ in peers if budget == trial.budget]
         if same:
             return statistics.fmean(same)
+        variant_mean = seen.means.get((trial.trial.variant, trial.budget))
         if peers:
-            return statistics.fmean(_at_budget(*peer, trial.budget) for peer in peers)
-        return seen.means.get((trial.trial.variant, trial.budget))
+            carried = statistics.fmean(_at_budget(*peer, trial.budget) for peer in peers)
+            return carried if variant_mean is None else (carried + variant_mean) / 2
+        return variant_mean
 
     def _trial_cost(self, trial: _Trial, seen: _CostsSeen) -> float | None:
         """Expected seconds of a trial that has not started: what its finished peers say (``_peer_cost``), else
