@@ -455,9 +455,8 @@ def _run_locked(
             todo_after = [t for t in later if t.key not in finished_before]
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)
-            # Seeds interleaved across variants, as in stage 1; the view is given the order Ray is given.
+            # Seeds interleaved, as in stage 1; the same view, so what stage 1 taught of costs carries over.
             todo_after = schedule_order(todo_after, tracker.trial_costs(t.key for t in todo_after))
-            # The same view: what stage 1 taught of costs carries into stage 2's estimate.
             view.add_trials(todo_after)
             if todo_after:
                 recorder.trials |= {t.key: t for t in todo_after}
