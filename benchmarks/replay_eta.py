@@ -28,8 +28,9 @@ from ablate.launch.tuning import StagePlan, unique  # noqa: E402
 
 
 def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, dict]]:
-    """The newest launch's start (s), its trials' events ``(t, kind, key, payload)`` by time, and each
-    trial's summary metrics, read straight from an SQLite store (read-only)."""
+    """The newest launch's start (s), its trials' events ``(t, kind, key, payload)`` by time, each trial's
+    summary metrics, and the seconds and episodes each trial key took in a run finished before that launch
+    (what the runner gives the estimate of earlier launches), read straight from an SQLite store (read-only)."""
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     (exp_id,) = con.execute("select experiment_id from experiments where name = ?", (experiment,)).fetchone()
     tags = {}
@@ -44,9 +45,13 @@ def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, di
     ).fetchall()
     launch = max((r for r in runs if tags.get(r[0], {}).get("ablate.role") == "launch"), key=lambda r: r[1])
     generation = tags[launch[0]].get("ablate.generation")
-    events, summaries = [], {}
-    for run, start, end, status in runs:
+    events, summaries, earlier = [], {}, {}
+    for run, start, end, status in sorted(runs, key=lambda r: r[1]):
         t = tags.get(run, {})
+        if t.get("ablate.role") == "trial" and status == "FINISHED" and end and start < launch[1]:
+            ran = con.execute("select value from latest_metrics where run_uuid = ? and key = 'episodes_run'", (run,))
+            # The newest earlier run counts, as the runner's: (seconds, episodes run).
+            earlier[t["ablate.trial_key"]] = ((end - start) / 1000, int(next(iter(ran.fetchone() or []), 0)))
         if t.get("ablate.role") == "launch" or t.get("ablate.generation") != generation or status != "FINISHED":
             continue
         key = t["ablate.trial_key"]
@@ -70,17 +75,19 @@ def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, di
         events.append((end / 1000, "finished", key, metrics))
     order = {"started": 0, "episodes": 1, "finished": 2}
     events.sort(key=lambda e: (e[0], order[e[1]]))
-    return launch[1] / 1000, events, summaries
+    return launch[1] / 1000, events, summaries, earlier
 
 
 def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
     """The scored estimates of the newest launch of ``path``'s experiment in the store at ``tracking_uri``."""
     experiment = load_experiment(path)
     db = Path(tracking_uri.removeprefix("sqlite:///"))
-    start, events, summaries = _events(db, experiment.name)
+    start, events, summaries, earlier = _events(db, experiment.name)
     evaluation = expand(experiment)
     plan = StagePlan(experiment, evaluation, tuning_trials(experiment))
-    todo = schedule_order(unique([*plan.tuning, *evaluation], set()), {})
+    todo = unique([*plan.tuning, *evaluation], set())
+    prior = {t.key: earlier[t.key][0] for t in todo if t.key in earlier}  # the runner's: stage 1's keys
+    todo = schedule_order(todo, prior)
     stage1 = {t.key for t in todo}
 
     def provisional(summaries):  # as the runner asks it
@@ -95,6 +102,8 @@ def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
             enabled=False,
             slots=slots,
             start=start,
+            prior_costs=prior,
+            prior_episodes={key: earlier[key][1] for key in prior if earlier[key][1]},
             log_estimates=True,
             later=provisional({}),
             provisional=provisional if plan.tuning else None,
@@ -113,7 +122,8 @@ def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
                 left.discard(key)
                 if not left and plan.tuning and not stage_two_known:  # stage 1 over: stage 2 is known
                     choices = plan.choices({k: summaries[k] for k in stage1 if k in summaries})
-                    view.add_trials(schedule_order(unique(plan.chosen(choices), stage1), {}))
+                    costs = {key: cost for key, (cost, _) in earlier.items()}
+                    view.add_trials(schedule_order(unique(plan.chosen(choices), stage1), costs))
                     stage_two_known = True
         view.trials_end = max(e[0] for e in events)
     return _eta_figure(f"{path} (replayed from {db})", view)
