@@ -245,6 +245,22 @@ def test_costs_from_an_earlier_launch_are_scaled_to_this_launchs_pace(clock):
     assert view.seconds_left() == pytest.approx(1.5 * (4 + 20 + 40) - 1)
 
 
+def test_a_trial_past_its_earlier_runs_time_runs_on_to_where_that_run_stopped_not_to_its_budget(clock):
+    # The earlier run of the same key (the same seed) solved after 40 of its 100 episodes in 4 s; this launch
+    # runs slower, so the trial is past its expected time with its solving episode still ahead.
+    trials = _trials(budget=100, variants=("a",), seeds=(0,))
+    view = ProgressView("x", trials, 0, enabled=False, slots=1, prior_costs={"a-s0": 4.0}, prior_episodes={"a-s0": 40})
+    view.started("a-s0")
+    for episode in (10, 20, 30):
+        clock.now += 2.0  # 0.2 s per episode: twice the earlier run's pace
+        view.episodes("a-s0", [_row(episode, 1.0)])
+    assert view.seconds_left() == pytest.approx(10 * 0.2)  # 10 episodes to go, not 70
+    for episode in (40, 50):  # this run did not stop there (another CPU's floats): the rest of its budget
+        clock.now += 2.0
+        view.episodes("a-s0", [_row(episode, 1.0)])
+    assert view.seconds_left() == pytest.approx(50 * 0.2)
+
+
 def test_the_idle_time_between_one_trial_and_the_next_counts_per_pending_trial(clock):
     view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1)
     view.started("a-s0")

@@ -150,6 +150,7 @@ class ProgressView:
         log_estimates: bool = False,
         later: Sequence[GridTrial] = (),
         provisional: Callable[[Mapping[str, Mapping[str, float]]], Sequence[GridTrial]] | None = None,
+        prior_episodes: Mapping[str, int] | None = None,
     ) -> None:
         """``trials`` in the order they will start. ``slots``: trials that can run at once (``None``: the most
         seen running at once). ``start``: the ``time.monotonic()`` the command started at, so the clock
@@ -158,7 +159,8 @@ class ProgressView:
         ``later``: stand-ins for the trials not known yet that start once every trial here has ended (a tuned
         ablation's trials at the chosen values); ``add_trials`` puts the real ones in when they are known.
         ``provisional``: the later trials as the finished trials' summaries (key -> metrics) say they would
-        be if stage 1 ended now (each variant at its best candidate so far), asked again as tuning trials end."""
+        be if stage 1 ended now (each variant at its best candidate so far), asked again as tuning trials end.
+        ``prior_episodes``: episodes by trial key that earlier launches ran (``Tracker.trial_episodes``)."""
         self.name = name
         self.trials = {t.key: _Trial(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
@@ -175,6 +177,7 @@ class ProgressView:
         self.last_line = 0.0
         self.lock = threading.Lock()
         self.prior = dict(prior_costs or {})
+        self.prior_episodes = dict(prior_episodes or {})
         self.gaps: list[float] = []
         """Seconds between a slot freeing and the next trial starting, one per start after an end."""
         self._freed: deque[float] = deque()
@@ -348,11 +351,13 @@ class ProgressView:
             return expected - elapsed
         if trial.last_episode_reported:  # not the rest of its budget: a solved trial stops where it solved
             return 0.0
-        # Past what its peers took (or none has ended): the rest of its budget at its own recent pace.
+        # Past what its peers took (or none has ended): at its own recent pace, to where its earlier run (the
+        # same seed) stopped, a slower machine's being no reason to run longer; past that, the rest of its budget.
         rate = trial.seconds_per_episode(now) or seen.rates.get(None)
         if rate is None:
             return None
-        return rate * max(trial.budget - trial.episode, 0)
+        stop = self.prior_episodes.get(trial.trial.key, trial.budget)
+        return rate * max((stop if trial.episode < stop else trial.budget) - trial.episode, 0)
 
     def seconds_left(self, now: float | None = None) -> float | None:
         """Seconds until the last trial ends, or ``None`` while nothing is known of any trial's cost."""

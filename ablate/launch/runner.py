@@ -431,7 +431,7 @@ def _run_locked(
 
     stage_two = provisional if unchosen else None
     args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
-    view = ProgressView(*args, provisional({}) if unchosen else [], stage_two)
+    view = ProgressView(*args, provisional({}) if unchosen else [], stage_two, tracker.trial_episodes(prior))
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
     options = ClusterOptions(

@@ -251,12 +251,22 @@ class Tracker(Store):
         """Seconds each of ``keys`` took (its run's start to end) when an earlier launch, of any generation,
         finished it; the newest such run counts. A trial key fixes everything that shapes the trial, so an
         earlier run of it is the best guess of its cost: the time-left estimate starts from these."""
+        runs = self._newest_finished(keys)
+        return {key: max(r.info.end_time - r.info.start_time, 0) / 1000 for key, r in runs.items()}
+
+    def trial_episodes(self, keys: Iterable[str]) -> dict[str, int]:
+        """Episodes each of ``keys`` ran in the newest earlier run that finished it: where the same trial (its
+        seed included) stopped, solved or at its budget."""
+        runs = self._newest_finished(keys)
+        return {key: int(r.data.metrics["episodes_run"]) for key, r in runs.items() if "episodes_run" in r.data.metrics}
+
+    def _newest_finished(self, keys: Iterable[str]) -> dict[str, Any]:
         wanted = set(keys)
         experiment_id = self.experiment_id(create=False)
         if experiment_id is None or not wanted:
             return {}
         query = f"tags.`{TAG_ROLE}` = 'trial' and attributes.status = 'FINISHED'"
-        costs: dict[str, float] = {}
+        runs: dict[str, Any] = {}
         token = None
         while True:
             page = self.client.search_runs(
@@ -264,11 +274,11 @@ class Tracker(Store):
             )
             for r in page:
                 key = r.data.tags.get(TAG_KEY, "")
-                if key in wanted and key not in costs and r.info.end_time and r.info.start_time:
-                    costs[key] = max(r.info.end_time - r.info.start_time, 0) / 1000
+                if key in wanted and key not in runs and r.info.end_time and r.info.start_time:
+                    runs[key] = r
             token = page.token
             if not token:
-                return costs
+                return runs
 
     def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
         """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid)."""
