@@ -122,8 +122,10 @@ def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
                 left.discard(key)
                 if not left and plan.tuning and not stage_two_known:  # stage 1 over: stage 2 is known
                     choices = plan.choices({k: summaries[k] for k in stage1 if k in summaries})
-                    costs = {key: cost for key, (cost, _) in earlier.items()}
-                    view.add_trials(schedule_order(unique(plan.chosen(choices), stage1), costs))
+                    chosen = unique(plan.chosen(choices), stage1)
+                    costs = {t.key: earlier[t.key][0] for t in chosen if t.key in earlier}
+                    episodes = {key: earlier[key][1] for key in costs if earlier[key][1]}
+                    view.add_trials(schedule_order(chosen, costs), costs, episodes)
                     stage_two_known = True
         view.trials_end = max(e[0] for e in events)
     return _eta_figure(f"{path} (replayed from {db})", view)

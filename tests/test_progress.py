@@ -261,6 +261,20 @@ def test_a_trial_past_its_earlier_runs_time_runs_on_to_where_that_run_stopped_no
     assert view.seconds_left() == pytest.approx(50 * 0.2)
 
 
+def test_a_later_stages_trials_are_costed_from_their_earlier_runs_when_they_have_some(clock):
+    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, prior_costs={"a-s0": 2.0})
+    view.started("a-s0")
+    clock.now += 4  # this launch runs twice as slow as the earlier one
+    view.finished("a-s0", solved=True)
+    view.add_trials(_trials(variants=("b",), seeds=(0,)), {"b-s0": 10.0}, {"b-s0": 40})
+    assert view.seconds_left() == pytest.approx(2 * 10.0)  # its earlier run's 10 s at this launch's pace
+    view.started("b-s0")
+    for episode in (10, 20, 30):
+        clock.now += 8.0  # 0.8 s per episode: past its expected 20 s with its solving episode ahead
+        view.episodes("b-s0", [_row(episode, 1.0)])
+    assert view._left_of_running(view.trials["b-s0"], clock.now, view._costs_seen(clock.now)) == pytest.approx(8.0)
+
+
 def test_the_idle_time_between_one_trial_and_the_next_counts_per_pending_trial(clock):
     view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1)
     view.started("a-s0")

@@ -248,10 +248,18 @@ class ProgressView:
             self._log_estimate(trial.ended_at)
         self.refresh()
 
-    def add_trials(self, trials: Sequence[GridTrial]) -> None:
-        """The next stage's trials, now known, in the order they will start (none: it has nothing to run).
-        They replace the ``later`` guesses; what this launch learned of costs carries over."""
+    def add_trials(
+        self,
+        trials: Sequence[GridTrial],
+        prior_costs: Mapping[str, float] | None = None,
+        prior_episodes: Mapping[str, int] | None = None,
+    ) -> None:
+        """The next stage's trials, now known, in the order they will start (none: it has nothing to run), with
+        what earlier launches' runs of them took (as the constructor's). They replace the ``later`` guesses;
+        what this launch learned of costs carries over."""
         with self.lock:
+            self.prior |= prior_costs or {}
+            self.prior_episodes |= prior_episodes or {}
             for t in trials:
                 self.trials[t.key] = _Trial(t)
                 if t.variant not in self.variants:

@@ -456,8 +456,9 @@ def _run_locked(
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)
             # Seeds interleaved, as in stage 1; the same view, so what stage 1 taught of costs carries over.
-            todo_after = schedule_order(todo_after, tracker.trial_costs(t.key for t in todo_after))
-            view.add_trials(todo_after)
+            costs = tracker.trial_costs(t.key for t in todo_after)  # earlier launches' runs of the same keys
+            todo_after = schedule_order(todo_after, costs)
+            view.add_trials(todo_after, costs, tracker.trial_episodes(costs))
             if todo_after:
                 recorder.trials |= {t.key: t for t in todo_after}
                 with view:
@@ -479,12 +480,8 @@ def _run_locked(
             else:
                 reason = "the scheduler ended without a result for this trial; a re-run starts it again"
             outcome.killed = tracker.kill_running_trials(launch, reason)
-            if outcome.interrupted:
-                status = "KILLED"
-            elif outcome.error or outcome.failed or outcome.killed:
-                status = "FAILED"
-            else:
-                status = "FINISHED"
+            failed = outcome.error or outcome.failed or outcome.killed
+            status = "KILLED" if outcome.interrupted else "FAILED" if failed else "FINISHED"
             tracker.finish_launch(
                 launch,
                 status,
