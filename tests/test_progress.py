@@ -17,8 +17,9 @@ from ablate.agent.trial import EpisodeMetrics
 from ablate.config import TrialConfig
 from ablate.launch import progress
 from ablate.launch.clock import stage
+from ablate.launch.estimate import makespan
 from ablate.launch.grid import GridTrial
-from ablate.launch.progress import ProgressView, makespan
+from ablate.launch.progress import ProgressView
 
 
 class Clock:

@@ -6,7 +6,6 @@ A panel redrawn four times a second on a terminal (the clock runs while Ray star
 
 from __future__ import annotations
 
-import heapq
 import statistics
 import sys
 import threading
@@ -22,6 +21,7 @@ from rich.live import Live
 from rich.table import Table
 
 from ablate.launch.clock import clock
+from ablate.launch.estimate import at_budget, makespan
 from ablate.launch.grid import GridTrial, config_hash
 
 RATE_REPORTS = 4
@@ -109,29 +109,6 @@ class _CostsSeen:
     """This launch's seconds over the earlier runs' seconds, for the trials both finished; 1 before one has."""
     overhead_s: float
     """What a trial costs beside its training (median over the finished trials that paid no worker start)."""
-
-
-def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], slots: int) -> float:
-    """Seconds until the last trial ends when ``pending_cost_s`` (in scheduling order) each take the next free
-    one of ``slots`` trial slots, the running trials holding theirs for ``running_left_s``: a long trial
-    that starts last runs alone, which a mean cost over the remaining count would not see."""
-    free_at = sorted([max(s, 0.0) for s in running_left_s] + [0.0] * max(slots - len(running_left_s), 0))
-    if not free_at:
-        free_at = [0.0]
-    heapq.heapify(free_at)
-    for cost in pending_cost_s:
-        heapq.heappush(free_at, heapq.heappop(free_at) + cost)
-    return max(free_at)
-
-
-def _at_budget(cost: float, ran: int, budget: int, rate: float | None, wanted: int) -> float:
-    """A finished trial's seconds carried over to an episode budget of ``wanted``: one that stopped early
-    (solved) would stop there again; one that ran its whole budget runs on at its last pace."""
-    if ran < budget and ran <= wanted:
-        return cost
-    if wanted <= ran:
-        return cost * wanted / max(ran, 1)
-    return cost + (wanted - budget) * (rate if rate is not None else cost / max(budget, 1))
 
 
 class ProgressView:
@@ -326,7 +303,7 @@ class ProgressView:
             return statistics.fmean(same)
         variant_mean = seen.means.get((trial.trial.variant, trial.budget))
         if peers:
-            carried = statistics.fmean(_at_budget(*peer, trial.budget) for peer in peers)
+            carried = statistics.fmean(at_budget(*peer, trial.budget) for peer in peers)
             return carried if variant_mean is None else (carried + variant_mean) / 2
         return variant_mean
 
