@@ -276,6 +276,21 @@ def test_a_later_stages_trials_are_costed_from_their_earlier_runs_when_they_have
     assert view._left_of_running(view.trials["b-s0"], clock.now, view._costs_seen(clock.now)) == pytest.approx(8.0)
 
 
+def test_a_trial_past_its_peers_time_whose_rolling_mean_does_not_climb_runs_out_its_budget(clock):
+    config = replace(TrialConfig(), env_id="CartPole-v0", max_episodes=1000, solve_window=100)
+    trials = [GridTrial(f"a-s{s}", "a", s, replace(config, seed=s)) for s in (0, 1)]
+    view = ProgressView("x", trials, already_done=0, enabled=False, slots=1, start=clock.now)
+    view.started("a-s0")
+    clock.now += 10
+    view.episodes("a-s0", [_row(100, 196.0)])
+    view.finished("a-s0", solved=True, summary={"episodes_run": 100})
+    view.started("a-s1")
+    for episode, rolling_mean in ((50, 150.0), (100, 120.0), (150, 120.0)):  # falling, then flat
+        clock.now += 5
+        view.episodes("a-s1", [_row(episode, rolling_mean)])
+    assert view.seconds_left() == pytest.approx(850 * 0.1)  # past its peer's 10 s: 850 episodes at 0.1 s
+
+
 def test_the_idle_time_between_one_trial_and_the_next_counts_per_pending_trial(clock):
     view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1)
     view.started("a-s0")
@@ -460,8 +475,9 @@ def test_a_trial_that_solved_is_writing_its_artifacts_not_running_out_its_budget
     clock.now += 5
     view.episodes("a-s1", [_row(50, 40.0)])
     clock.now += 5
-    view.episodes("a-s1", [_row(99, 150.0)])  # not yet solved: the rest of its budget may follow
+    view.episodes("a-s1", [_row(99, 150.0)])  # not yet solved
     clock.now += 3  # past the 10 s its peer took
-    assert view.seconds_left() > 50  # ~0.1 s per episode for 901 more
+    # Its rolling mean climbed 110 in 49 episodes: 45 more to the threshold take ~20 episodes (0.1 s each).
+    assert view.seconds_left() == pytest.approx(45 * 49 / 110 * 5 / 49)
     view.episodes("a-s1", [_row(100, 195.5)])  # solved: its last episode
     assert view.seconds_left() == 0.0

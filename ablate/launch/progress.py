@@ -49,8 +49,9 @@ class _Trial:
     """The trial's own training time (its summary's ``wall_s``), once finished."""
     train_s: float | None = None
     """The trial's own clock at the last episode reported (seconds since its training began)."""
-    reports: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=RATE_REPORTS))
-    """(time, episode) of the newest reports: the recent pace, which slows as a CartPole agent's episodes grow."""
+    reports: deque[tuple[float, int, float | None]] = field(default_factory=lambda: deque(maxlen=RATE_REPORTS))
+    """(time, episode, rolling mean) of the newest reports: the recent pace, which slows as a CartPole agent's
+    episodes grow, and the recent climb towards the solve threshold."""
 
     episodes_run: int | None = None
     """Episodes it ran (its summary's), once finished: fewer than its budget when it stopped early (solved)."""
@@ -83,12 +84,22 @@ class _Trial:
             return False
         return self.threshold is not None and self.rolling_mean >= self.threshold
 
+    def episodes_to_solve(self) -> float | None:
+        """Episodes until its rolling mean reaches the solve threshold at its climb over the newest reports;
+        ``None`` while it is not climbing (or has no threshold)."""
+        if self.threshold is None or len(self.reports) < 2:
+            return None
+        (_, e0, m0), (_, e1, m1) = self.reports[0], self.reports[-1]
+        if m0 is None or m1 is None or e1 <= e0 or m1 <= m0:
+            return None
+        return max((self.threshold - m1) * (e1 - e0) / (m1 - m0), self.trial.config.solve_window - e1, 0.0)
+
     def seconds_per_episode(self, now: float) -> float | None:
         """Over the newest reports when there are two, else by the trial's own clock (a worker's start and
         Tune's scheduling are not episodes: in a 4-episode Pong trial they are most of its time), else since
         the trial started."""
         if len(self.reports) >= 2 and self.reports[-1][1] > self.reports[0][1]:
-            (t0, e0), (t1, e1) = self.reports[0], self.reports[-1]
+            (t0, e0, _), (t1, e1, _) = self.reports[0], self.reports[-1]
             return (t1 - t0) / (e1 - e0)
         if self.started_at is None or not self.episode:
             return None
@@ -189,7 +200,7 @@ class ProgressView:
             trial = self.trials[key]
             trial.episode, trial.rolling_mean = rows[-1].episode, rows[-1].rolling_mean
             trial.train_s = getattr(rows[-1], "wall_s", None)
-            trial.reports.append((time.monotonic(), trial.episode))
+            trial.reports.append((time.monotonic(), trial.episode, trial.rolling_mean))
             self._log_estimate(time.monotonic())
         self.refresh()
 
@@ -337,12 +348,16 @@ class ProgressView:
         if trial.last_episode_reported:  # not the rest of its budget: a solved trial stops where it solved
             return 0.0
         # Past what its peers took (or none has ended): at its own recent pace, to where its earlier run (the
-        # same seed) stopped, a slower machine's being no reason to run longer; past that, the rest of its budget.
+        # same seed) stopped, a slower machine's being no reason to run longer; past that, the rest of its budget;
+        # sooner where its rolling mean climbs to the solve threshold first (a CartPole agent near it plays
+        # 500-step episodes: the rest of its budget at that pace would be many times what is left).
         rate = trial.seconds_per_episode(now) or seen.rates.get(None)
         if rate is None:
             return None
         stop = self.prior_episodes.get(trial.trial.key, trial.budget)
-        return rate * max((stop if trial.episode < stop else trial.budget) - trial.episode, 0)
+        left = (stop if trial.episode < stop else trial.budget) - trial.episode
+        climb = trial.episodes_to_solve()
+        return rate * max(left if climb is None else min(left, climb), 0)
 
     def seconds_left(self, now: float | None = None) -> float | None:
         """Seconds until the last trial ends, or ``None`` while nothing is known of any trial's cost."""
