@@ -27,7 +27,7 @@ from ablate.launch.grid import expand, schedule_order, tuning_trials  # noqa: E4
 from ablate.launch.tuning import StagePlan, unique  # noqa: E402
 
 
-def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, dict]]:
+def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, dict], dict[str, tuple[float, int]]]:
     """The newest launch's start (s), its trials' events ``(t, kind, key, payload)`` by time, each trial's
     summary metrics, and the seconds and episodes each trial key took in a run finished before that launch
     (what the runner gives the estimate of earlier launches), read straight from an SQLite store (read-only)."""

@@ -291,6 +291,18 @@ def test_a_trial_past_its_peers_time_whose_rolling_mean_does_not_climb_runs_out_
     assert view.seconds_left() == pytest.approx(850 * 0.1)  # past its peer's 10 s: 850 episodes at 0.1 s
 
 
+def test_a_climb_does_not_cut_a_trial_whose_earlier_run_never_solved(clock):
+    config = replace(TrialConfig(), env_id="CartPole-v0", max_episodes=1000, solve_window=100)
+    trials = [GridTrial("a-s0", "a", 0, config)]
+    earlier = {"prior_costs": {"a-s0": 5.0}, "prior_episodes": {"a-s0": 1000}}
+    view = ProgressView("x", trials, 0, enabled=False, slots=1, **earlier)
+    view.started("a-s0")
+    for episode, rolling_mean in ((50, 100.0), (100, 150.0)):  # climbing, past its earlier run's 5 s
+        clock.now += 5
+        view.episodes("a-s0", [_row(episode, rolling_mean)])
+    assert view.seconds_left() == pytest.approx(900 * 0.1)  # the same seed ran all 1,000 before: so again
+
+
 def test_the_idle_time_between_one_trial_and_the_next_counts_per_pending_trial(clock):
     view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1)
     view.started("a-s0")

@@ -143,12 +143,12 @@ class ProgressView:
         """``trials`` in the order they will start. ``slots``: trials that can run at once (``None``: the most
         seen running at once). ``start``: the ``time.monotonic()`` the command started at, so the clock
         includes imports and Ray's start. ``prior_costs``: seconds by trial key that earlier launches took
-        (``Tracker.trial_costs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``).
+        (``Tracker.earlier_runs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``).
         ``later``: stand-ins for the trials not known yet that start once every trial here has ended (a tuned
         ablation's trials at the chosen values); ``add_trials`` puts the real ones in when they are known.
         ``provisional``: the later trials as the finished trials' summaries (key -> metrics) say they would
         be if stage 1 ended now (each variant at its best candidate so far), asked again as tuning trials end.
-        ``prior_episodes``: episodes by trial key that earlier launches ran (``Tracker.trial_episodes``)."""
+        ``prior_episodes``: episodes by trial key that earlier launches ran (``Tracker.earlier_runs``)."""
         self.name = name
         self.trials = {t.key: _Trial(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
@@ -356,7 +356,9 @@ class ProgressView:
             return None
         stop = self.prior_episodes.get(trial.trial.key, trial.budget)
         left = (stop if trial.episode < stop else trial.budget) - trial.episode
-        climb = trial.episodes_to_solve()
+        # An earlier run of the same seed that ran its whole budget says no climb now reaches the threshold.
+        never_solved = trial.trial.key in self.prior_episodes and stop >= trial.budget
+        climb = None if never_solved else trial.episodes_to_solve()
         return rate * max(left if climb is None else min(left, climb), 0)
 
     def seconds_left(self, now: float | None = None) -> float | None:

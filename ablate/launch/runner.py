@@ -418,7 +418,7 @@ def _run_locked(
     outcome.launch_run_id = launch
     slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
     # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
-    prior = tracker.trial_costs(t.key for t in todo)
+    prior, prior_episodes = tracker.earlier_runs(t.key for t in todo)
     todo = schedule_order(todo, prior)
     # Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
     # choose now (each variant's best candidate so far), asked again as each one ends.
@@ -431,7 +431,7 @@ def _run_locked(
 
     stage_two = provisional if unchosen else None
     args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
-    view = ProgressView(*args, provisional({}) if unchosen else [], stage_two, tracker.trial_episodes(prior))
+    view = ProgressView(*args, provisional({}) if unchosen else [], stage_two, prior_episodes)
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
     options = ClusterOptions(
@@ -456,9 +456,9 @@ def _run_locked(
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)
             # Seeds interleaved, as in stage 1; the same view, so what stage 1 taught of costs carries over.
-            costs = tracker.trial_costs(t.key for t in todo_after)  # earlier launches' runs of the same keys
+            costs, episodes = tracker.earlier_runs(t.key for t in todo_after)  # earlier launches' runs of them
             todo_after = schedule_order(todo_after, costs)
-            view.add_trials(todo_after, costs, tracker.trial_episodes(costs))
+            view.add_trials(todo_after, costs, episodes)
             if todo_after:
                 recorder.trials |= {t.key: t for t in todo_after}
                 with view:

@@ -247,18 +247,16 @@ class Tracker(Store):
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
 
-    def trial_costs(self, keys: Iterable[str]) -> dict[str, float]:
-        """Seconds each of ``keys`` took (its run's start to end) when an earlier launch, of any generation,
-        finished it; the newest such run counts. A trial key fixes everything that shapes the trial, so an
-        earlier run of it is the best guess of its cost: the time-left estimate starts from these."""
+    def earlier_runs(self, keys: Iterable[str]) -> tuple[dict[str, float], dict[str, int]]:
+        """Seconds each of ``keys`` took (its run's start to end) and the episodes it ran, when an earlier
+        launch, of any generation, finished it; the newest such run counts. A trial key fixes everything that
+        shapes the trial, its seed included, so an earlier run of it is the best guess of its cost and of where
+        it stops: the time-left estimate starts from these."""
         runs = self._newest_finished(keys)
-        return {key: max(r.info.end_time - r.info.start_time, 0) / 1000 for key, r in runs.items()}
-
-    def trial_episodes(self, keys: Iterable[str]) -> dict[str, int]:
-        """Episodes each of ``keys`` ran in the newest earlier run that finished it: where the same trial (its
-        seed included) stopped, solved or at its budget."""
-        runs = self._newest_finished(keys)
-        return {key: int(r.data.metrics["episodes_run"]) for key, r in runs.items() if "episodes_run" in r.data.metrics}
+        costs = {key: max(r.info.end_time - r.info.start_time, 0) / 1000 for key, r in runs.items()}
+        return costs, {
+            key: int(r.data.metrics["episodes_run"]) for key, r in runs.items() if "episodes_run" in r.data.metrics
+        }
 
     def _newest_finished(self, keys: Iterable[str]) -> dict[str, Any]:
         wanted = set(keys)
