@@ -276,7 +276,9 @@ def test_a_later_stages_trials_are_costed_from_their_earlier_runs_when_they_have
     assert view._left_of_running(view.trials["b-s0"], clock.now, view._costs_seen(clock.now)) == pytest.approx(8.0)
 
 
-def test_a_trial_past_its_peers_time_whose_rolling_mean_does_not_climb_runs_out_its_budget(clock):
+def _a_peer_solved_in_10_s_then_a_second_trial_started(clock):
+    """CartPole-v0 (threshold 195 over 100 episodes), a budget of 1,000: a-s0 solved at episode 100 after 10 s,
+    then a-s1 started."""
     config = replace(TrialConfig(), env_id="CartPole-v0", max_episodes=1000, solve_window=100)
     trials = [GridTrial(f"a-s{s}", "a", s, replace(config, seed=s)) for s in (0, 1)]
     view = ProgressView("x", trials, already_done=0, enabled=False, slots=1, start=clock.now)
@@ -285,6 +287,11 @@ def test_a_trial_past_its_peers_time_whose_rolling_mean_does_not_climb_runs_out_
     view.episodes("a-s0", [_row(100, 196.0)])
     view.finished("a-s0", solved=True, summary={"episodes_run": 100})
     view.started("a-s1")
+    return view
+
+
+def test_a_trial_past_its_peers_time_whose_rolling_mean_does_not_climb_runs_out_its_budget(clock):
+    view = _a_peer_solved_in_10_s_then_a_second_trial_started(clock)
     for episode, rolling_mean in ((50, 150.0), (100, 120.0), (150, 120.0)):  # falling, then flat
         clock.now += 5
         view.episodes("a-s1", [_row(episode, rolling_mean)])
@@ -476,14 +483,7 @@ def test_the_pace_of_a_trial_with_one_report_is_read_off_its_own_clock(clock):
 def test_a_trial_that_solved_is_writing_its_artifacts_not_running_out_its_budget(clock):
     # A CartPole trial stops at the episode whose rolling mean over solve_window reaches the env's threshold
     # (195 on v0): past its peers' time, it is writing artifacts, not running its 900 remaining episodes.
-    config = replace(TrialConfig(), env_id="CartPole-v0", max_episodes=1000, solve_window=100)
-    trials = [GridTrial(f"a-s{s}", "a", s, replace(config, seed=s)) for s in (0, 1)]
-    view = ProgressView("x", trials, already_done=0, enabled=False, slots=1, start=clock.now)
-    view.started("a-s0")
-    clock.now += 10
-    view.episodes("a-s0", [_row(100, 196.0)])
-    view.finished("a-s0", solved=True, summary={"episodes_run": 100})
-    view.started("a-s1")
+    view = _a_peer_solved_in_10_s_then_a_second_trial_started(clock)
     clock.now += 5
     view.episodes("a-s1", [_row(50, 40.0)])
     clock.now += 5
