@@ -6,6 +6,7 @@ Importing this module is light: torch, Ray and MLflow load only when a function 
 
 from __future__ import annotations
 
+import sys
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -124,8 +125,9 @@ def report(
     generation: str | None = None,
 ) -> Path:
     """Write the report of an experiment from its MLflow store into ``reports_folder/<name>/`` (``report.md``,
-    ``report.html``, ``report.pdf`` where Chromium is installed, ``tables/``, ``figures/``, ``videos/``), as
-    ``ablate report`` does, and return that folder.
+    ``report.html``, ``report.typ`` and the ``report.pdf`` typeset from it, ``discussion.md`` (yours: created
+    once, never overwritten), ``tables/``, ``figures/``, ``videos/``), as ``ablate report`` does, and return that
+    folder. Where no PDF could be written, one line on stderr says why.
 
     ``name_or_file``: the experiment's name or its file. ``variants`` / ``baseline``: report a part of the
     ablation against another reference. Raises ``NoResults`` when nothing finished, ``ConfigError`` for a bad
@@ -143,10 +145,10 @@ def _write_report(
     baseline: str | None = None,
     generation: str | None = None,
 ) -> Path:
-    from ablate.reporting.document import write_report
+    from ablate.reporting.document import build_report
 
     uri = _check_store(tracking_uri)
-    return write_report(
+    result = build_report(
         _name(name_or_file),
         tracking_uri=uri,
         out_root=Path(reports_folder),
@@ -156,6 +158,9 @@ def _write_report(
         pdf=pdf,
         command=f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})",
     )
+    if result.pdf_note and pdf:  # asked for a PDF and got none: say why, in one line, where a notebook shows it
+        print(result.pdf_note, file=sys.stderr)
+    return result.folder
 
 
 def load(

@@ -78,19 +78,22 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         print(f"  FAILED {key}: {message}")
     print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
     if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
-        from ablate.reporting.document import NoResults, terminal_summary, write_report  # after the trials: heavy
+        from ablate.reporting.document import NoResults, build_report, terminal_summary  # after the trials: heavy
 
         try:
             with stage(f"writing the report into reports/{experiment.storage_name}/") as report_s:
-                folder = write_report(
+                result = build_report(
                     experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"), command=command
                 )
         except NoResults as error:  # every trial failed: say so, and leave the last good report in place
             print(f"no report: {error}")
             return outcome.exit_code
+        folder = result.folder
         print(terminal_summary(folder))
-        pdf = " and report.pdf" if (folder / "report.pdf").is_file() else ""
+        pdf = f" and {result.pdf_words()}" if result.pdf_note is None else ""
         print(f"report: {folder}/report.md, report.html{pdf}")
+        if result.pdf_note:
+            print(result.pdf_note)
     else:
         report_s = []
     report_seconds = report_s[0] if report_s else None

@@ -7,6 +7,7 @@ import os
 import select
 import subprocess
 import time
+from pathlib import Path
 
 
 class DevTools:
@@ -107,3 +108,16 @@ class DevTools:
             self.proc.wait()
         os.close(self._write)
         os.close(self._read)
+
+
+def chromium_flags(profile: Path) -> list[str]:
+    return [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={profile}",
+    ]

@@ -1,6 +1,7 @@
-"""The report: from a tiny real ablation (Ray + MLflow), its numbers against the tracked metrics and its HTML and
-PDF in headless Chromium; from small synthetic stores (the tracker's own writes, no training), Pong without a
-threshold, one seed, escaping, generations, variant selection, and the cases that must write nothing."""
+"""The report: from a tiny real ablation (Ray + MLflow), its numbers against the tracked metrics, its HTML in
+headless Chromium and its PDF typeset by the typst wheel; from small synthetic stores (the tracker's own writes, no
+training), Pong without a threshold, one seed, escaping, generations, variant selection, and the cases that must
+write nothing."""
 
 import hashlib
 import json
@@ -15,7 +16,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 import pytest
-from devtools import DevTools
+from devtools import DevTools, chromium_flags
 from scipy import stats
 from stores import fresh_store
 
@@ -25,7 +26,7 @@ from ablate.launch.curve import CurveReducer
 from ablate.launch.tracking import Tracker
 from ablate.reporting.document import write_report
 from ablate.reporting.reader import RunReader
-from ablate.reporting.writers import chromium_flags
+from ablate.reporting.typeset import page_counts
 
 ARTIFACTS = Path(__file__).parent / "artifacts"
 EXPERIMENT = """
@@ -69,11 +70,15 @@ def test_report_files(built_report):
         assert (folder / "figures" / f"{figure}.svg").is_file()
     assert list((folder / "videos").glob("small-seed*.mp4")) and list((folder / "videos").glob("big-seed*.mp4"))
     text = (folder / "report.md").read_text()
-    sections = ("Summary", "Method", "Results", "Findings", "Figures", "Videos", "Limitations", "Reproducibility")
-    for section in (*sections, "Glossary", "References"):
-        assert f"## {section}" in text, section
-    assert "Williams, R. J. (1992)" in text and "Agarwal, R." in text
-    findings = text.split("## Findings")[1].split("## Figures")[0].strip().splitlines()[2:]
+    body, appendix = text.split("\n## Appendix\n")
+    for section in ("Question", "Method", "Claims", "Figures", "Limitations"):
+        assert f"## {section} (generated)" in body, section
+    assert "## Discussion" in body and "## References" in body
+    for section in ("Method in detail", "Results", "Every comparison", "More figures", "Videos", "Every limitation"):
+        assert re.search(rf"^### [A-Z]\. {section}", appendix, flags=re.M), section
+    assert "Reproducibility (generated)" in appendix and ". Glossary" in appendix
+    assert "Williams, R. J. (1992)" in text and "Agarwal, R." in text and "MIT 6.S191" in text
+    findings = text.split("Every comparison (generated)")[1].split("\n### ")[0].strip().splitlines()[2:]
     for line in (x for x in findings if x.startswith("    - ")):  # no claim without an interval
         assert "CI" in line or "too few seeds to tell" in line, line
     figure_numbers = [int(n) for n in re.findall(r"^\*Figure (\d+)\. ", text, flags=re.M)]
@@ -161,7 +166,7 @@ window.addEventListener('load', () => {
 """
 
 
-def test_html_and_pdf_in_headless_chromium(built_report, tmp_path):
+def test_html_in_headless_chromium(built_report, tmp_path):
     browser = _chromium()
     if browser is None:
         pytest.skip("Chromium is missing and apt-get could not install it (no root or no Debian mirror)")
@@ -196,19 +201,37 @@ def test_html_and_pdf_in_headless_chromium(built_report, tmp_path):
     assert figures == images and numbered == figures and unframed == 0, found.group(0)
     assert found.group(8) == "left"  # the variant column
     assert shot.is_file() and shot.stat().st_size > 10_000
-    # The PDF: printed by the report itself, every page rendered to PNG, every figure's caption in its text.
+
+
+def test_the_pdf_is_typeset_from_pip_installed_parts(built_report):
+    """report.pdf comes from the typst wheel alone (no browser): a body of at most 4 pages before the appendix,
+    page numbers, every figure and table numbered as report.md numbers them; its pages render to PNG."""
+    folder, _ = built_report
     pdf = folder / "report.pdf"
     assert pdf.is_file() and pdf.read_bytes().startswith(b"%PDF")
-    if shutil.which("pdftoppm") is None:
-        pytest.skip("the HTML passed; pdftoppm (poppler-utils) is missing to render the PDF's pages")
+    body, total = page_counts(folder / "report.typ")
+    assert body is not None and 1 <= body <= 4 and total > body, (body, total)
+    text = (folder / "report.md").read_text()
+    figures = [int(n) for n in re.findall(r"^\*Figure (\d+)\. ", text, flags=re.M)]
+    tables = [int(n) for n in re.findall(r"^\*Table (\d+)\. ", text, flags=re.M)]
+    assert figures == list(range(1, len(figures) + 1)) and tables == list(range(1, len(tables) + 1))
+    assert len(tables) >= 5
+    if shutil.which("pdftotext") is None:
+        _chromium()  # installs poppler-utils with Chromium where apt-get can
+    if shutil.which("pdftotext") is None or shutil.which("pdftoppm") is None:
+        pytest.skip("the PDF was typeset; pdftotext/pdftoppm (poppler-utils) are missing to read it back")
+    printed = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, timeout=60).stdout
+    for number in figures:
+        assert f"Figure {number}." in printed, number
+    for number in tables:
+        assert f"Table {number}." in printed, number
+    assert re.search(rf"^1 ?/ ?{total}$", printed, flags=re.M) and re.search(rf"^{total} ?/ ?{total}$", printed, re.M)
     for old in ARTIFACTS.glob("report_pdf-*.png"):
         old.unlink()
+    ARTIFACTS.mkdir(exist_ok=True)
     subprocess.run(["pdftoppm", "-r", "40", "-png", str(pdf), str(ARTIFACTS / "report_pdf")], check=True, timeout=120)
     pages = sorted(ARTIFACTS.glob("report_pdf-*.png"))
-    assert len(pages) >= 4 and all(p.stat().st_size > 3_000 for p in pages)
-    text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, timeout=60).stdout
-    for number in range(1, figures + 1):
-        assert f"Figure {number}." in text, number
+    assert len(pages) == total and all(p.stat().st_size > 3_000 for p in pages)
 
 
 # --- synthetic stores ------------------------------------------------------------------------------------------
@@ -351,7 +374,7 @@ def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monk
     assert "MLP over the 6,400 pixels" in text and "410,118" in text
     assert "episodes to reach -15" in text and "improvement over untrained" in text
     assert "One observation of ALE/Pong-v5" in text and (folder / "figures" / "observation.png").is_file()
-    videos = text.split("## Videos")[1].split("\n## ")[0]  # Pong's are of the sampling policy, not greedy
+    videos = text.split(". Videos")[1].split("\n### ")[0]  # Pong's are of the sampling policy, not greedy
     assert videos.startswith(" of the trained agent") and "sampling its actions" in videos
     assert "Videos show one stretch of play" in text and "greedy episode" not in text
     convergence = pd.read_csv(folder / "tables" / "convergence.csv").set_index("variant")
@@ -365,11 +388,11 @@ def test_each_architectures_knobs_are_compared_with_that_architecture(store, tmp
     _, uri = store
     folder = write_report("knobs", tracking_uri=uri, out_root=tmp_path)
     text = (folder / "report.md").read_text()
-    findings = text.split("## Findings")[1].split("## Figures")[0]
+    findings = text.split("Every comparison (generated)")[1].split("\n### ")[0]
     assert "mlp-l2 against mlp" in findings.splitlines()[2]
     headers = [line for line in findings.splitlines() if line.startswith("- **")]
     assert headers == ["- **cnn-l2** vs cnn:", "- **mlp** vs cnn:", "- **mlp-l2** vs mlp:"]
-    assert "settings at once" not in text
+    assert "knobs at once" not in text and "more than one knob" not in text
     assert "| vs its reference on area under the curve (AUC) |" in text and "| vs mlp: " in text
     assert "| mlp |  | architecture = mlp |" not in text and "reference of mlp-l2" in text
     assert "mlp-l2 vs mlp" not in text  # the figure's panel titles are in the PNG, its caption says how

@@ -1,4 +1,5 @@
-"""Write ``reports/<experiment>/``: report.md, a self-contained report.html, report.pdf, figures, tables, videos.
+"""Write ``reports/<experiment>/``: report.md, a self-contained report.html, report.typ and the report.pdf typeset
+from it (the ``typst`` wheel), figures, tables, videos.
 
 Reads only from the tracking store (through ``results``), so it works from any machine that reaches it. A
 report is built in a temporary folder and swapped in whole: a failed build never replaces a good report.
@@ -22,9 +23,9 @@ import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
+from ablate.reporting import discussion
 from ablate.reporting.comparisons import comparisons
 from ablate.reporting.figures import (
-    Figure,
     figure_improvement,
     figure_observation,
     figure_overview,
@@ -34,25 +35,15 @@ from ablate.reporting.figures import (
     figure_small_multiples,
     figure_wallclock,
 )
-from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
-from ablate.reporting.findings import _findings_intro, findings, summary
-from ablate.reporting.provenance import _generation_note, _reproducibility
+from ablate.reporting.layout import build_markdown, order_figures
+from ablate.reporting.provenance import _generation_note
 from ablate.reporting.reader import RunReader
 from ablate.reporting.results import Ablation, NoResults, load_ablation, select
-from ablate.reporting.sections import (
-    GLOSSARY,
-    REFERENCES,
-    TUNING_REFERENCES,
-    _convergence_markdown,
-    _method,
-    _sampling_videos,
-    limitations,
-)
 from ablate.reporting.tables import convergence_table, trials_table
-from ablate.reporting.text import _metric_name
-from ablate.reporting.tuning_sections import dependence_section, knob_words, tuning_section
-from ablate.reporting.writers import CSS, _inline, print_pdf
+from ablate.reporting.typeset import compile_pdf as print_pdf
+from ablate.reporting.typeset import number_tables, page_counts, to_typst
+from ablate.reporting.writers import CSS, _inline
 
 
 def _video_picks(ablation: Ablation, done: pd.DataFrame) -> list[tuple[pd.Series, str]]:
@@ -105,123 +96,6 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
     return chosen
 
 
-def build_markdown(
-    ablation: Ablation,
-    figures: list[Figure],
-    videos: list[dict[str, str]],
-    table: pd.DataFrame,
-    compare: pd.DataFrame,
-    command: str = "",
-    untuned: pd.DataFrame | None = None,
-) -> tuple[str, str]:
-    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks)."""
-    description = ablation.grid.get("description") or ""
-    failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
-    numbers = {Path(f.path).stem: f.number for f in figures}
-    parts = [f"# Ablation report: {_esc(ablation.name)}", "", _esc(description), ""]
-    note = _generation_note(ablation)
-    if note:
-        parts += [note, ""]
-    if len(failed):
-        parts += [
-            f"> {len(failed)} of {len(ablation.trials)} trials did not finish (failed, killed or not run); "
-            "they are left out of the statistics and listed at the end.",
-            "",
-        ]
-    parts += ["## Summary", "", summary(ablation, table, compare), ""]
-    parts += ["## Method", "", _method(ablation, table), ""]
-    if ablation.tuning:
-        parts += ["## Tuning", "", tuning_section(ablation), ""]
-    parts += [
-        "## Results",
-        "",
-        _convergence_markdown(ablation, table),
-        "Tables as CSV: tables/convergence.csv, tables/comparisons.csv, tables/trials.csv"
-        + (", tables/tuning.csv." if ablation.tuning else "."),
-        "",
-        "## Findings",
-        "",
-        _findings_intro(ablation)
-        + ", on "
-        + ", ".join(_metric_name(m) for m in dict.fromkeys(compare.metric) if isinstance(m, str))
-        + ". Episodes: the relative change of the IQM; returns: the difference of the IQMs; each with its 95% "
-        "interval, sized as a bound where censoring makes it one.",
-        "",
-        *findings(ablation, table, compare),
-        "",
-    ]
-    if ablation.tuning and untuned is not None:
-        parts += [
-            f"## Does the finding depend on {knob_words(ablation)}?",
-            "",
-            dependence_section(ablation, compare, untuned),
-            "",
-        ]
-    parts += [
-        "## Figures",
-        "",
-    ]
-    for f in figures:
-        parts += [f"FIGURE:{f.number}", ""]
-    if _sampling_videos(ablation):
-        frames = int(ablation.grid["base"].get("video_max_frames", 500))
-        parts += [
-            "## Videos of the trained agent",
-            "",
-            "Each video is the trained policy sampling its actions, as in training, on a seed training never used: "
-            f"up to {frames:,} frames ({frames / 30:.0f} s at 30 frames/s), for two seeds per variant chosen as the "
-            "captions say. Not greedy: a Pong agent that has not learnt much holds one button for the whole video "
-            "when it always takes its most likely action. Each trial's MLflow run also holds videos of it playing "
-            "during training (`videos/`).",
-            "",
-        ]
-    else:
-        parts += [
-            "## Videos of the greedy agent",
-            "",
-            "Each video is one greedy episode (the most likely action at every step) of a trained agent, for two "
-            "seeds per variant chosen as the captions say.",
-            "",
-        ]
-    parts += [
-        "VIDEOS_PLACEHOLDER",
-        "",
-    ]
-    if len(failed):
-        parts += ["## Trials that did not finish", ""]
-        parts += [
-            f"- {_esc(r.key)}: {r.status}{(' — ' + _esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
-            for r in failed.itertuples()
-        ]
-        parts.append("")
-    parts += ["## Limitations", "", *[f"- {line}" for line in limitations(ablation, table)], ""]
-    parts += ["## Reproducibility", "", _reproducibility(ablation, command), ""]
-    parts += ["## Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
-    references = REFERENCES + (TUNING_REFERENCES if ablation.tuning else [])
-    parts += ["## References", "", *[f"- {ref}" for ref in references], ""]
-    text = "\n".join(parts).replace("Figure {parameters}", f"Figure {numbers.get('performance_vs_parameters', '–')}")
-    text = text.replace("Figure {sensitivity}", f"Figure {numbers.get('tuning_sensitivity', '–')}")
-    md_text, html_text = text, text
-    for f in figures:
-        md_text = md_text.replace(
-            f"FIGURE:{f.number}\n", f"![{f.alt}]({f.path})\n\n*Figure {f.number}. {f.caption}*\n", 1
-        )
-        html_text = html_text.replace(
-            f"FIGURE:{f.number}\n",
-            f'<figure id="figure-{f.number}"><img src="{f.path}" alt="{html.escape(f.alt)}">'
-            f"<figcaption><strong>Figure {f.number}.</strong> {f.caption}</figcaption></figure>\n",
-            1,
-        )
-    links = "\n".join(f"- [{_esc(v['caption'])}]({v['path']})" for v in videos) or "No videos were recorded."
-    blocks = "\n".join(
-        f'<figure class="video"><video controls muted loop preload="metadata" src="{html.escape(v["path"])}">'
-        f"</video><figcaption>{html.escape(v['caption'])}</figcaption></figure>"
-        for v in videos
-    )
-    html_text = html_text.replace("VIDEOS_PLACEHOLDER", f'<div class="videos">\n{blocks}\n</div>' if videos else links)
-    return md_text.replace("VIDEOS_PLACEHOLDER", links), html_text
-
-
 def report_folder(name: str, out_root: Path) -> Path:
     """``out_root/<the name's storage form>`` (``experiment.storage_name``), refusing a name no experiment could
     have (``experiment.name_problem``)."""
@@ -242,6 +116,18 @@ class ReportResult:
     attach_note: str | None
     """Why the report was not attached to the launch run (None when it was)."""
     generation_note: str
+    pages: tuple[int | None, int] | None = None
+    """The PDF's (body, total) pages, where it was written."""
+
+    def pdf_words(self) -> str:
+        """``report.pdf (9 pages: the body 3, the appendix 6)``, or the one line saying why there is none."""
+        if self.pdf_note:
+            return self.pdf_note
+        if not self.pages:
+            return "report.pdf"
+        body, total = self.pages
+        split = f": the body {body}, the appendix {total - body}" if body is not None else ""
+        return f"report.pdf ({total} page{'s' if total != 1 else ''}{split})"
 
 
 def write_report(
@@ -288,9 +174,11 @@ def build_report(
     command = command or f"ablate report {name}"
     Path(out_root).mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=out_root))
+    staging.chmod(0o755)  # mkdtemp's 0700 would make the swapped-in report readable by its owner only
     try:
         tracker = RunReader(tracking_uri, name)
-        pdf_note = _build(ablation, tracker, staging, pdf, command)
+        pdf_note = _build(ablation, tracker, staging, pdf, command, discussion.read(folder), folder)
+        discussion.keep(folder, staging)
         _swap(staging, folder)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -301,7 +189,13 @@ def build_report(
             tracker.attach_report(ablation.launch["run_id"], folder)
         except Exception as error:  # noqa: BLE001 - a read-only or remote store: the report on disk stands
             attach_note = f"not attached to the launch run: {str(error).splitlines()[0][:200]}"
-    return ReportResult(folder, pdf_note, attach_note, _generation_note(ablation))
+    pages = None
+    if pdf_note is None:
+        try:
+            pages = page_counts(folder / "report.typ")
+        except Exception:  # noqa: BLE001 - a count is a courtesy: the PDF stands without it
+            pages = None
+    return ReportResult(folder, pdf_note, attach_note, _generation_note(ablation), pages)
 
 
 def _swap(staging: Path, folder: Path) -> None:
@@ -315,7 +209,16 @@ def _swap(staging: Path, folder: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def _build(ablation: Ablation, tracker: RunReader, folder: Path, pdf: bool, command: str) -> str | None:
+def _build(
+    ablation: Ablation,
+    tracker: RunReader,
+    folder: Path,
+    pdf: bool,
+    command: str,
+    written: discussion.Discussion,
+    final: Path,
+) -> str | None:
+    """Write the report into ``folder`` (the staging folder that will become ``final``); why no PDF, or None."""
     for sub in ("figures", "tables", "videos"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     table = convergence_table(ablation)
@@ -339,13 +242,18 @@ def _build(ablation: Ablation, tracker: RunReader, folder: Path, pdf: bool, comm
         figure_sensitivity(ablation, figures_folder),
         figure_observation(ablation, tracker, figures_folder),
     ]
-    figures = [f for f in candidates if f is not None]
+    figures = order_figures([f for f in candidates if f is not None])
     for number, figure in enumerate(figures, 1):
         figure.number = number
-        figure.caption = figure.caption.replace("{next}", str(number + 1))
-        figure.caption = figure.caption.replace("Figures 1-2", f"Figures 1-{min(2, len(figures))}")
+    numbers = {Path(f.path).stem: f.number for f in figures}
+    curves = [n for n in (numbers.get("learning_curves_episodes"), numbers.get("learning_curves_by_variant")) if n]
+    for figure in figures:
+        figure.caption = figure.caption.replace("{next}", str(numbers.get("learning_curves_by_variant", "–")))
+        figure.caption = figure.caption.replace("Figures 1-2", "Figures " + " and ".join(map(str, curves)))
     videos = _videos(ablation, tracker, folder / "videos")
-    text, html_md = build_markdown(ablation, figures, videos, table, compare, command, untuned)
+    where = final / discussion.FILE
+    text, html_md = build_markdown(ablation, figures, videos, table, compare, command, untuned, written, str(where))
+    text, html_md = number_tables(text), number_tables(html_md)
     (folder / "report.md").write_text(text)
     body = markdown.markdown(html_md, extensions=["tables"])
     page = (
@@ -353,9 +261,11 @@ def _build(ablation: Ablation, tracker: RunReader, folder: Path, pdf: bool, comm
         f"</title><style>{CSS}</style></head><body>{body}</body></html>"
     )
     (folder / "report.html").write_text(_inline(page, folder))
+    written = time.strftime("%Y-%m-%d")
+    (folder / "report.typ").write_text(to_typst(text, folder, f"Ablation report: {ablation.name}", written))
     if not pdf:
         return "no PDF (--no-pdf)"
-    return print_pdf(folder / "report.html", folder / "report.pdf")
+    return print_pdf(folder / "report.typ", folder / "report.pdf")
 
 
 def terminal_summary(folder: Path) -> str:
@@ -424,7 +334,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         where = error.filename or args.out
         sys.stderr.write(f"ablate report: cannot write the report under {args.out}: {error.strerror} ({where})\n")
         return 1
-    written = "report.md, report.html" + ("" if result.pdf_note else " and report.pdf")
+    written = "report.md, report.html" + ("" if result.pdf_note else f" and {result.pdf_words()}")
     print(f"wrote {result.folder}/: {written}")
     for note in (result.generation_note, result.pdf_note, result.attach_note):
         if note and note != "no PDF (--no-pdf)":

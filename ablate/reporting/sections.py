@@ -1,5 +1,5 @@
 """What the report's sections say, besides the findings: the method (environment, algorithm, seeds, variants),
-the results tables, the limitations, the reproducibility record, the glossary and the references."""
+the results tables, what each comparison changes, and the limitations."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from ablate.reporting.figures import ablation_window
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
-from ablate.reporting.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP
+from ablate.reporting.statistics import BETTER, N_RESAMPLES, WORSE
 from ablate.reporting.text import _interval, _markdown_table
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
@@ -138,12 +138,16 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     lines.append(_markdown_table(pd.DataFrame([{k: base[k] for k in keep if k in base}])))
     if ablation.tuning:
         tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
-        lines += ["", f"Tuned per variant (see Tuning): {_esc(tuned_knobs)}; the base value above is the untuned one."]
+        lines += [
+            "",
+            f"Tuned per variant (see {{appendix:tuning}}): {_esc(tuned_knobs)}; the base value above is the untuned "
+            "one.",
+        ]
     lines += [
         "",
         "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
         f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, never "
-        "dropped: a statistic that uses one is a lower bound, marked ≥. The glossary at the end defines each term."
+        "dropped: a statistic that uses one is a lower bound, marked ≥. {appendix:glossary} defines each term."
         + (
             " With fewer than 4 seeds the IQM trims nothing: it is the plain mean, and the findings call it so."
             if len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
@@ -234,16 +238,99 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
     return "\n".join(parts)
 
 
-def limitations(ablation: Ablation, table: pd.DataFrame) -> list[str]:
-    """What the experiment's design itself limits, read off the grid and the results."""
+def changed_settings(ablation: Ablation, variant: str) -> list[str]:
+    """What ``variant`` runs differently from its reference, in words: each knob it sets otherwise, and each tuned
+    knob whose chosen values differ (``learning rate 0.03 against 0.1``): a comparison at two tuned values changes
+    the tuned knob too."""
+    reference = ablation.reference(variant)
+    words = [k.replace("_", " ") for k in ablation.changes(variant, reference)]
+    if ablation.tuning:
+        from ablate.reporting.tuning import chosen_values, same_value
+
+        mine, theirs = chosen_values(ablation.tuning, variant), chosen_values(ablation.tuning, reference)
+        for knob, value in mine.items():
+            if knob in ablation.changes(variant, reference) or same_value(value, theirs.get(knob)):
+                continue
+            words.append(f"{knob.replace('_', ' ')} ({_value(value)} against {_value(theirs.get(knob))})")
+    return words
+
+
+def _value(value) -> str:
+    try:
+        return f"{float(value):g}"
+    except (TypeError, ValueError):
+        return str(value)
+
+
+def _and(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
+def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
+    """What each comparison changes. ``full``: the findings' opening (each variant against what); otherwise only
+    the sentence naming the comparisons that change more than one knob, or nothing when there are none."""
+    others = [v for v in ablation.variants if v != ablation.baseline]
+    several = {v: changed_settings(ablation, v) for v in others}
+    several = {v: words for v, words in several.items() if len(words) > 1}
+    confounded = (
+        [
+            f"{len(several)} comparison{'s change' if len(several) > 1 else ' changes'} more than one knob, so "
+            f"{'their differences' if len(several) > 1 else 'its difference'} cannot be put down to one of them: "
+            + "; ".join(
+                f"{_esc(v)} against {_esc(ablation.reference(v))} changes {_and(words)}" for v, words in several.items()
+            )
+            + "."
+        ]
+        if several
+        else []
+    )
+    if not full:
+        return confounded
+    extends = _extends(ablation)
+    if not extends:
+        head = f"Each variant against {_esc(ablation.baseline)}"
+    else:
+        pairs = ", ".join(f"{_esc(v)} against {_esc(ablation.reference(v))}" for v in extends)
+        head = (
+            f"Each variant against its reference: {_esc(ablation.baseline)}, or, for a variant that adds one change "
+            f"to another variant's, that variant ({pairs})"
+        )
+    if confounded:
+        return [confounded[0], head]
+    return [head]
+
+
+def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame | None = None) -> list[tuple[str, str]]:
+    """What the experiment's design itself limits, read off the grid and the results: (kind, text) pairs, the
+    kind naming the limitation (``seeds``, ``tuning``, ``shared``, ``capacity``, ``confound``, ``censoring``,
+    ``threshold``, ``wallclock``, ``videos``, ``scope``) so the body can print the ones that matter."""
     base, variants = ablation.grid["base"], ablation.grid["variants"]
-    out = []
+    out: list[tuple[str, str]] = []
     seeds = len(ablation.grid["seeds"])
+    checked = (
+        compare is not None
+        and len(compare) > 0
+        and "loo_checked" in compare
+        and bool(compare[compare.verdict.isin([BETTER, WORSE])].loo_checked.astype(bool).any())
+    )
+    claims = compare is not None and len(compare) > 0 and bool(compare.verdict.isin([BETTER, WORSE]).any())
+    if checked:
+        survive = "each claim says whether it survives leaving out any one seed."
+    elif claims:
+        survive = (
+            "leaving out one of so few seeds leaves too few for any claim, so no claim here was checked that way: "
+            "each rests on every seed."
+        )
+    else:
+        survive = "no comparison here reached a claim, so no claim was checked by leaving out a seed."
     out.append(
-        f"**{seeds} seed{'s' if seeds != 1 else ''} per variant.** Percentile bootstrap intervals over so few seeds "
-        "are too narrow more often than 5% of the time, and one unusual seed can move an IQM; each finding says "
-        "whether it survives leaving out any one seed."
-        + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else "")
+        (
+            "seeds",
+            f"**{seeds} seed{'s' if seeds != 1 else ''} per variant.** Percentile bootstrap intervals over so few "
+            "seeds are too narrow more often than 5% of the time, and one unusual seed can move an IQM; "
+            + survive
+            + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else ""),
+        )
     )
     tuned = [k for k in ("learning_rate", "episodes_per_update", "gamma") if k in base]
     touched = [v["name"] for v in variants if any(k in v["overrides"] for k in tuned)]
@@ -253,166 +340,97 @@ def limitations(ablation: Ablation, table: pd.DataFrame) -> list[str]:
         n_candidates = max((len(c) for c in tuning.get("knobs", {}).values()), default=0)
         n_seeds = len(tuning.get("seeds", []))
         out.append(
-            f"**Tuned over {n_candidates} candidates on {n_seeds} tuning seed{'s' if n_seeds != 1 else ''}.** Each "
-            "variant's choice is the best of a few candidates on a few seeds: a value between or beyond them could do "
-            "better (the Tuning section flags choices at the edge of the grid), and so few seeds choose noisily. The "
-            "evaluation seeds never took part in the choice. Knobs not tuned are the base's for every variant."
+            (
+                "tuning",
+                f"**Tuned over {n_candidates} candidates on {n_seeds} tuning seed{'s' if n_seeds != 1 else ''}.** "
+                "Each variant's choice is the best of a few candidates on a few seeds: a value between or beyond them "
+                "could do better ({appendix:tuning} flags choices at the edge of the grid), and so few seeds choose "
+                "noisily. The evaluation seeds never took part in the choice. Knobs not tuned are the base's for "
+                "every variant.",
+            )
         )
     elif tuned and architectures and len(touched) < len(variants):
         knobs = ", ".join(f"{k.replace('_', ' ')} {base[k]}" for k in tuned)
         out.append(
-            "**One training setting for all architectures.** Every variant"
-            + (f" except {', '.join(_esc(t) for t in touched)}" if touched else "")
-            + f" trains with the base {knobs}, chosen for the baseline and not tuned per architecture: one that "
-            "would learn better at its own learning rate is judged at the baseline's."
+            (
+                "shared",
+                "**One training setting for all architectures.** Every variant"
+                + (f" except {', '.join(_esc(t) for t in touched)}" if touched else "")
+                + f" trains with the base {knobs}, chosen for the baseline and not tuned per architecture: one that "
+                "would learn better at its own learning rate is judged at the baseline's.",
+            )
         )
     counts = table.parameter_count.dropna()
     if len(counts) and counts.min() > 0 and counts.max() / counts.min() >= 10:
         out.append(
-            f"**Parameter counts span {_fmt(counts.min())} to {_fmt(counts.max())}** "
-            f"({counts.max() / counts.min():,.0f}x): a difference between architectures mixes capacity with "
-            "optimisation (one learning rate moves small and large networks differently); Figure "
-            "{parameters} plots performance against size."
+            (
+                "capacity",
+                f"**Parameter counts span {_fmt(counts.min())} to {_fmt(counts.max())}** "
+                f"({counts.max() / counts.min():,.0f}x): a difference between architectures mixes capacity with "
+                "optimisation (one learning rate moves small and large networks differently); Figure "
+                "{parameters} plots performance against size.",
+            )
         )
     for variant in ablation.variants:
         reference = ablation.reference(variant)
-        groups = _setting_groups(ablation.changes(variant, reference))
-        if variant != ablation.baseline and len(groups) > 1:
+        words = changed_settings(ablation, variant)
+        if variant != ablation.baseline and len(words) > 1:
             out.append(
-                f"**{_esc(variant)} changes {len(groups)} settings at once** against {_esc(reference)} "
-                f"({', '.join(groups)}): its difference from {_esc(reference)} cannot be attributed to any one of "
-                "them."
+                (
+                    "confound",
+                    f"**{_esc(variant)} changes {len(words)} knobs at once** against {_esc(reference)} "
+                    f"({_and(words)}): its difference from {_esc(reference)} cannot be attributed to any one of them.",
+                )
             )
     finished = ablation.finished
     if ablation.threshold is not None and len(finished) and (finished.solved != 1).any():
         unsolved = int((finished.solved != 1).sum())
         out.append(
-            f"**Censoring.** {unsolved} of {len(finished)} trials did not solve within the budget; for them episodes "
-            "to solve is only known to exceed it, so statistics that use them are bounds, and a longer budget could "
-            "reorder those variants."
+            (
+                "censoring",
+                f"**Censoring.** {unsolved} of {len(finished)} trials did not solve within the budget; for them "
+                "episodes to solve is only known to exceed it, so statistics that use them are bounds, and a longer "
+                "budget could reorder those variants.",
+            )
         )
     if ablation.threshold is None:
         out.append(
-            "**No solve threshold.** No trial stops early; comparisons rest on returns within this budget, and a "
-            "longer budget could reorder variants that are still improving."
+            (
+                "threshold",
+                "**No solve threshold.** No trial stops early; comparisons rest on returns within this budget, and a "
+                "longer budget could reorder variants that are still improving.",
+            )
         )
     out.append(
-        "**Wall-clock times come from contended CPUs.** Trials ran several at a time on "
-        f"{_esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
-        "its tracking; seconds move between runs and machines. Compare variants on episodes; read seconds as rough "
-        "cost."
+        (
+            "wallclock",
+            "**Wall-clock times come from contended CPUs.** Trials ran several at a time on "
+            f"{_esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
+            "its tracking; seconds move between runs and machines. Compare variants on episodes; read seconds as "
+            "rough cost.",
+        )
     )
     if _sampling_videos(ablation):
         out.append(
-            "**Videos show one stretch of play** per chosen seed (the trained policy sampling its actions, up to "
-            f"{_fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average."
+            (
+                "videos",
+                "**Videos show one stretch of play** per chosen seed (the trained policy sampling its actions, up to "
+                f"{_fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average.",
+            )
         )
     else:
         out.append(
-            "**Videos show one greedy episode** per chosen seed (the most likely action at every step, after "
-            "training): a single episode, not an average, and not the sampling policy that was trained."
+            (
+                "videos",
+                "**Videos show one greedy episode** per chosen seed (the most likely action at every step, after "
+                "training): a single episode, not an average, and not the sampling policy that was trained.",
+            )
         )
     out.append(
-        f"**One environment and budget** ({_esc(ablation.env_id)}, {_fmt(base.get('max_episodes'))} "
-        "episodes): the findings say nothing about other tasks or longer training."
+        (
+            "scope",
+            f"**One environment and budget** ({_esc(ablation.env_id)}, {_fmt(base.get('max_episodes'))} "
+            "episodes): the findings say nothing about other tasks or longer training.",
+        )
     )
     return out
-
-
-GLOSSARY = [
-    ("Return", "The sum of an episode's rewards (CartPole: steps balanced; Pong: points won minus points lost)."),
-    ("Rolling mean return", "The mean return of the last W episodes (W = the solve window); learning curves plot it."),
-    (
-        "Solved; episodes to solve",
-        "The first episode at which the rolling mean over a full window reaches the threshold; the trial stops there.",
-    ),
-    (
-        "Censored (≥)",
-        "A seed that never solved has an episodes-to-solve value only known to exceed the budget; it "
-        "is counted as the budget. A median or IQM that uses such a value is a lower bound, written ≥, and the upper "
-        "end of its interval is no bound on the truth.",
-    ),
-    (
-        "At least",
-        "A difference sized by a bound: censoring can only make the true gap larger, so the report gives "
-        "its lower end (and the 95% lower bound of that), never an upper end.",
-    ),
-    (
-        "IQM (interquartile mean)",
-        "The mean of the middle 50% of the seeds' values (25% trimmed from each end): "
-        "less sensitive to one outlying seed than the mean, more efficient than the median (Agarwal et al., 2021). "
-        "With fewer than 4 seeds it trims nothing and is the plain mean: the findings then say mean.",
-    ),
-    (
-        "95% CI (percentile bootstrap)",
-        f"Resample the seeds with replacement {N_RESAMPLES:,} times (seeded), "
-        "recompute the statistic each time, and take the 2.5th and 97.5th percentiles. Two variants are resampled "
-        "independently. With few seeds these intervals are optimistic.",
-    ),
-    (
-        "AUC (area under the curve)",
-        "The mean rolling return over the whole budget; a trial that stopped because it "
-        "solved keeps its last value. Higher is better; it rewards learning early and separates variants that never "
-        "solve.",
-    ),
-    (
-        "Return after E episodes",
-        "The rolling mean return at episode E, compared at the same budgets for every variant.",
-    ),
-    (
-        "Improvement over the untrained policy",
-        f"Final rolling mean return minus the mean return of the first "
-        f"{INITIAL_EPISODES} episodes (before the policy has learnt much).",
-    ),
-    (
-        "Probability of improvement",
-        "P(X < Y) + P(X = Y)/2 for X a random seed of the variant and Y one of the "
-        "baseline, on episodes to solve (Agarwal et al., 2021); 0.5 means no difference. Where every pair is ordered "
-        "the same way the bootstrap collapses to a point (1.00 [1.00, 1.00]), which only says the sample has no other "
-        "pair; there the interval is the exact Clopper-Pearson bound for min(n, m) successes in min(n, m) trials.",
-    ),
-    (
-        "Too few seeds to tell",
-        "When a rank test could not reach 95% confidence even with the seeds perfectly ordered "
-        f"(smallest two-sided p = 2 / C(n+m, n) > {1 - CONFIDENCE:.2f}, e.g. 3 seeds against 3), or one side has one "
-        "seed, the report makes no claim either way: the estimate is shown, the verdict is this.",
-    ),
-    (
-        "Seeds needed",
-        f"For a comparison not separated: how many seeds per variant the report's own rule (the 95% interval "
-        "excludes no difference, censoring permitting) would need to separate the difference in 80% of experiments, "
-        "found by drawing that many seeds with replacement from the observed ones, 100 times. More than "
-        f"{SEEDS_CAP}: no effect this large is in sight; fewer: the experiment had too few seeds.",
-    ),
-    (
-        "Smallest effect of interest",
-        "The smallest difference worth finding, as a fraction of the reference's value: 10% unless the experiment "
-        "file sets `smallest_effect` (episodes: 10% fewer or more; returns and AUC: 10% of the reference's value "
-        "apart). The report says how many seeds would separate a difference this large, resampled from the observed "
-        "seeds shifted to it.",
-    ),
-    (
-        "Leave-one-seed-out",
-        "Each claim is recomputed with every seed in turn removed from all variants; a claim "
-        "that disappears for some seed is marked fragile.",
-    ),
-]
-
-TUNING_REFERENCES = [
-    "Patterson, A., Neumann, S., White, M., & White, A. (2024). Empirical design in reinforcement learning. "
-    "*Journal of Machine Learning Research*, 25. (Tune each arm on its own seeds, compare on fresh ones.)",
-    "Eimer, T., Lindauer, M., & Raileanu, R. (2023). Hyperparameters in reinforcement learning and how to tune "
-    "them. *ICML 2023*. (Tuning and evaluation seeds kept apart.)",
-]
-
-REFERENCES = [
-    "Williams, R. J. (1992). Simple statistical gradient-following algorithms for connectionist reinforcement "
-    "learning. *Machine Learning*, 8(3-4), 229-256. (REINFORCE.)",
-    "Agarwal, R., Schwarzer, M., Castro, P. S., Courville, A., & Bellemare, M. G. (2021). Deep reinforcement "
-    "learning at the edge of the statistical precipice. *Advances in Neural Information Processing Systems 34*. "
-    "(IQM, bootstrap intervals, probability of improvement.)",
-    "Efron, B., & Tibshirani, R. J. (1993). *An Introduction to the Bootstrap*. Chapman & Hall. (Percentile "
-    "intervals.)",
-    "Mnih, V., et al. (2015). Human-level control through deep reinforcement learning. *Nature*, 518, 529-533. "
-    "(Atari pre-processing and frame-based policies.)",
-]

@@ -1,6 +1,7 @@
 """What a tuned ablation's report adds (issue 19): the Tuning section (candidates, seeds, metric, rule, each
 variant's choice, flags) and "Does the finding depend on the learning rate?" (each comparison at the shared
-base value beside the comparison at the chosen values, on the same evaluation seeds)."""
+base value beside the comparison at the chosen values, on the same evaluation seeds, and what "no finding
+changes" means for the run: every verdict held, none was separated, or none could have been)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import pandas as pd
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import Ablation
-from ablate.reporting.statistics import BETTER, WORSE
+from ablate.reporting.statistics import BETTER, NO_CLAIM, WORSE
 from ablate.reporting.text import _markdown_table, _metric_name, _signed, _signed_pct
 from ablate.reporting.tuning import METRICS, base_values, chosen_values, edge, knobs, same_value, sensitivity
 
@@ -170,8 +171,39 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
             + "."
         )
     else:
-        head += f"No finding changes with {knob_words(ablation)}."
+        head += unchanged_words(ablation, tuned, untuned)
     return "\n".join([head, "", *lines])
+
+
+def _estimate(row: pd.Series) -> str:
+    return f"{_signed_pct(-row.point)} episodes" if row.metric.startswith("episodes_to_") else _signed(row.point)
+
+
+def unchanged_words(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFrame) -> str:
+    """What "no finding changes" means for this run: that every verdict held, that none was separated at either
+    value, or that none could have been (too few seeds at both), with the estimate that moved most."""
+    pairs = []
+    for _, row in tuned.iterrows():
+        match = untuned[(untuned.variant == row.variant) & (untuned.metric == row.metric)] if len(untuned) else untuned
+        if len(match):
+            pairs.append((match.iloc[0], row))
+    words = knob_words(ablation)
+    if pairs and all(base.verdict == NO_CLAIM and row.verdict == NO_CLAIM for base, row in pairs):
+        text = (
+            f"No finding changes with {words}, but none could: with these seeds no comparison can reach a verdict "
+            f"at either value, so this says nothing about whether {words} matters."
+        )
+        moved = [(abs(row.point - base.point), base, row) for base, row in pairs if pd.notna(row.point - base.point)]
+        if moved:
+            _, base, row = max(moved, key=lambda item: item[0])
+            text += (
+                f" The estimates did move: {_esc(row.variant)} vs {_esc(row.reference)} on {_metric_name(row.metric)} "
+                f"went from {_estimate(base)} at the base value to {_estimate(row)} at the chosen values."
+            )
+        return text
+    if all(change_kind(base.verdict, row.verdict) == "none" for base, row in pairs):
+        return f"No finding changes with {words}: no comparison was separated at either value."
+    return f"No finding changes with {words}: every verdict is the same at the base value and at the chosen values."
 
 
 def _base_values(ablation: Ablation, variant: str) -> dict:

@@ -1,14 +1,11 @@
-"""Turn the report's HTML into its final forms: one self-contained report.html (figures and videos inlined)
-and report.pdf printed by headless Chromium."""
+"""The report's HTML form: its style sheet, and one self-contained report.html (figures and videos inlined).
+The PDF is typeset from the Markdown instead (``typeset.py``): no browser is needed."""
 
 from __future__ import annotations
 
 import base64
 import html
 import re
-import shutil
-import subprocess
-import tempfile
 from pathlib import Path
 
 CSS = """
@@ -46,50 +43,3 @@ def _inline(html_text: str, folder: Path) -> str:
         return f'{match.group(1)}="data:{mime.get(path.suffix, "application/octet-stream")};base64,{data}"'
 
     return re.sub(r'(src)="((?:figures|videos)/[^"]+)"', replace, html_text)
-
-
-def find_chromium() -> str | None:
-    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
-        found = shutil.which(name)
-        if found:
-            return found
-    return None
-
-
-def chromium_flags(profile: Path) -> list[str]:
-    return [
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        f"--user-data-dir={profile}",
-    ]
-
-
-def print_pdf(html_path: Path, pdf_path: Path, timeout_s: float = 180) -> str | None:
-    """Print ``html_path`` to ``pdf_path`` with headless Chromium; the reason it could not, or None."""
-    browser = find_chromium()
-    if browser is None:
-        return "no PDF: Chromium not found (Debian: apt-get install chromium)"
-    with tempfile.TemporaryDirectory(prefix="ablate-chromium-") as profile:
-        try:
-            subprocess.run(
-                [
-                    browser,
-                    *chromium_flags(Path(profile)),
-                    "--no-pdf-header-footer",
-                    f"--print-to-pdf={pdf_path}",
-                    html_path.resolve().as_uri(),
-                ],
-                capture_output=True,
-                timeout=timeout_s,
-                check=False,
-            )
-        except (OSError, subprocess.TimeoutExpired) as error:
-            return f"no PDF: Chromium failed ({error})"
-    if not pdf_path.is_file() or pdf_path.stat().st_size == 0:
-        return "no PDF: Chromium wrote nothing"
-    return None

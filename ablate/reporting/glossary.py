@@ -1,0 +1,127 @@
+"""The report's glossary and references: the terms its sentences use, and the papers its method and statistics
+rest on (the algorithm, the course's lab, the protocol, the statistics of the claims)."""
+
+from __future__ import annotations
+
+from ablate.reporting.results import INITIAL_EPISODES, Ablation
+from ablate.reporting.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP
+
+GLOSSARY = [
+    ("Return", "The sum of an episode's rewards (CartPole: steps balanced; Pong: points won minus points lost)."),
+    ("Rolling mean return", "The mean return of the last W episodes (W = the solve window); learning curves plot it."),
+    (
+        "Solved; episodes to solve",
+        "The first episode at which the rolling mean over a full window reaches the threshold; the trial stops there.",
+    ),
+    (
+        "Censored (≥)",
+        "A seed that never solved has an episodes-to-solve value only known to exceed the budget; it "
+        "is counted as the budget. A median or IQM that uses such a value is a lower bound, written ≥, and the upper "
+        "end of its interval is no bound on the truth.",
+    ),
+    (
+        "At least",
+        "A difference sized by a bound: censoring can only make the true gap larger, so the report gives "
+        "its lower end (and the 95% lower bound of that), never an upper end.",
+    ),
+    (
+        "IQM (interquartile mean)",
+        "The mean of the middle 50% of the seeds' values (25% trimmed from each end): "
+        "less sensitive to one outlying seed than the mean, more efficient than the median (Agarwal et al., 2021). "
+        "With fewer than 4 seeds it trims nothing and is the plain mean: the findings then say mean.",
+    ),
+    (
+        "95% CI (percentile bootstrap)",
+        f"Resample the seeds with replacement {N_RESAMPLES:,} times (seeded), "
+        "recompute the statistic each time, and take the 2.5th and 97.5th percentiles. Two variants are resampled "
+        "independently. With few seeds these intervals are optimistic.",
+    ),
+    (
+        "AUC (area under the curve)",
+        "The mean rolling return over the whole budget; a trial that stopped because it "
+        "solved keeps its last value. Higher is better; it rewards learning early and separates variants that never "
+        "solve.",
+    ),
+    (
+        "Return after E episodes",
+        "The rolling mean return at episode E, compared at the same budgets for every variant.",
+    ),
+    (
+        "Improvement over the untrained policy",
+        f"Final rolling mean return minus the mean return of the first "
+        f"{INITIAL_EPISODES} episodes (before the policy has learnt much).",
+    ),
+    (
+        "Probability of improvement",
+        "P(X < Y) + P(X = Y)/2 for X a random seed of the variant and Y one of its "
+        "reference, on episodes to solve (Agarwal et al., 2021); 0.5 means no difference. Where every pair is ordered "
+        "the same way the bootstrap collapses to a point (1.00 [1.00, 1.00]), which only says the sample has no other "
+        "pair; there the interval is the exact Clopper-Pearson bound for min(n, m) successes in min(n, m) trials.",
+    ),
+    (
+        "Too few seeds to tell",
+        "When a rank test could not reach 95% confidence even with the seeds perfectly ordered "
+        f"(smallest two-sided p = 2 / C(n+m, n) > {1 - CONFIDENCE:.2f}, e.g. 3 seeds against 3), or one side has one "
+        "seed, the report makes no claim either way: the estimate is shown, the verdict is this.",
+    ),
+    (
+        "Seeds needed",
+        f"For a comparison not separated: how many seeds per variant the report's own rule (the 95% interval "
+        "excludes no difference, censoring permitting) would need to separate the difference in 80% of experiments, "
+        "found by drawing that many seeds with replacement from the observed ones, 100 times. More than "
+        f"{SEEDS_CAP}: no effect this large is in sight; fewer: the experiment had too few seeds.",
+    ),
+    (
+        "Smallest effect of interest",
+        "The smallest difference worth finding, as a fraction of the reference's value: 10% unless the experiment "
+        "file sets `smallest_effect` (episodes: 10% fewer or more; returns and AUC: 10% of the reference's value "
+        "apart). The report says how many seeds would separate a difference this large, resampled from the observed "
+        "seeds shifted to it.",
+    ),
+    (
+        "Leave-one-seed-out",
+        "Each claim is recomputed with every seed in turn removed from all variants; a claim "
+        "that disappears for some seed is marked fragile.",
+    ),
+]
+
+REFERENCES = [
+    "Williams, R. J. (1992). Simple statistical gradient-following algorithms for connectionist reinforcement "
+    "learning. *Machine Learning*, 8(3-4), 229-256. (REINFORCE.)",
+    "Amini, A., & Amini, A. MIT 6.S191: Introduction to Deep Learning, Lab 3: Reinforcement Learning (CartPole and "
+    "Pong with REINFORCE). Massachusetts Institute of Technology. (The course's lab: its policy, its loss and its "
+    "training loop are the baseline's.)",
+    "Patterson, A., Neumann, S., White, M., & White, A. (2024). Empirical design in reinforcement learning. "
+    "*Journal of Machine Learning Research*, 25. (Seeds, tuning each arm on its own seeds, comparing on fresh "
+    "ones.)",
+    "Agarwal, R., Schwarzer, M., Castro, P. S., Courville, A., & Bellemare, M. G. (2021). Deep reinforcement "
+    "learning at the edge of the statistical precipice. *Advances in Neural Information Processing Systems 34*. "
+    "(IQM, bootstrap intervals, probability of improvement.)",
+    "Colas, C., Sigaud, O., & Oudeyer, P.-Y. (2019). A hitchhiker's guide to statistical comparisons of "
+    "reinforcement learning algorithms. *ICLR 2019 Workshop on Reproducibility in Machine Learning*. (How many "
+    "seeds a comparison needs; which tests hold with few seeds.)",
+    "Mann, H. B., & Whitney, D. R. (1947). On a test of whether one of two random variables is stochastically "
+    "larger than the other. *Annals of Mathematical Statistics*, 18(1), 50-60. (The rank test behind *too few "
+    "seeds to tell*, and the probability of improvement.)",
+    "Efron, B., & Tibshirani, R. J. (1993). *An Introduction to the Bootstrap*. Chapman & Hall. (Percentile "
+    "intervals.)",
+]
+
+TUNING_REFERENCES = [
+    "Eimer, T., Lindauer, M., & Raileanu, R. (2023). Hyperparameters in reinforcement learning and how to tune "
+    "them. *ICML 2023*. (Tuning and evaluation seeds kept apart.)",
+]
+
+PONG_REFERENCES = [
+    "Mnih, V., et al. (2015). Human-level control through deep reinforcement learning. *Nature*, 518, 529-533. "
+    "(Atari pre-processing and frame-based policies.)",
+]
+
+
+def references(ablation: Ablation) -> list[str]:
+    """The references this report cites: the tuning paper only where it tuned, Atari's only for Pong."""
+    return (
+        REFERENCES
+        + (TUNING_REFERENCES if ablation.tuning else [])
+        + (PONG_REFERENCES if ablation.env_id.startswith("ALE/") else [])
+    )

@@ -1,0 +1,259 @@
+"""The report as a hand-in: a body of about four printed pages (the question, the method in a paragraph, the
+claims, two figures, the limitations that matter for this run, the student's discussion, the references), then
+an appendix with everything else (every table, every comparison, the tuning, the glossary, the record)."""
+
+from __future__ import annotations
+
+import html
+import re
+from pathlib import Path
+
+import pandas as pd
+
+from ablate.reporting.discussion import Discussion, missing_line
+from ablate.reporting.figures import Figure
+from ablate.reporting.figures import esc as _esc
+from ablate.reporting.findings import findings, summary
+from ablate.reporting.glossary import GLOSSARY, references
+from ablate.reporting.provenance import _generation_note, _reproducibility
+from ablate.reporting.results import Ablation
+from ablate.reporting.sections import (
+    _convergence_markdown,
+    _method,
+    _sampling_videos,
+    comparison_intro,
+    limitations,
+)
+from ablate.reporting.text import _metric_name
+from ablate.reporting.tuning_sections import dependence_section, knob_words, tuning_section
+
+BODY_FIGURES = (
+    "learning_curves_episodes",
+    "probability_of_improvement",
+    "episodes_to_solve",
+    "final_return",
+    "learning_curves_by_variant",
+)
+"""The figures that carry the result, in order of preference: the body prints the first two there are."""
+
+BODY_LIMITATIONS = ("seeds", "tuning", "shared", "capacity", "confound", "censoring", "threshold", "scope")
+"""The limitations the body prints (the appendix has every one, wall-clock and videos too)."""
+
+GENERATED = "(generated)"
+
+
+def order_figures(figures: list[Figure]) -> list[Figure]:
+    """The body's figures first (numbered 1 and 2), then the others in their usual order."""
+    stems = [Path(f.path).stem for f in figures]
+    body = [f for name in BODY_FIGURES for f, stem in zip(figures, stems, strict=True) if stem == name][:2]
+    return body + [f for f in figures if f not in body]
+
+
+def body_figures(figures: list[Figure]) -> list[Figure]:
+    return [f for f in figures if f.number <= 2 and Path(f.path).stem in BODY_FIGURES]
+
+
+def question(ablation: Ablation) -> str:
+    others = [v for v in ablation.variants if v != ablation.baseline]
+    primary = "episodes to solve" if ablation.any_solved else "the area under the learning curve"
+    goal = f"reach a rolling mean return of {ablation.threshold:g}" if ablation.threshold is not None else "learn"
+    description = _esc(ablation.grid.get("description") or "").strip()
+    lead = f"{description.rstrip('.')}. " if description else ""
+    varied = any(ablation.reference(v) != ablation.baseline for v in others)
+    against = "its reference (the baseline, or the variant it extends)" if varied else _esc(ablation.baseline)
+    listed = ", ".join(_esc(v) for v in others) or "none"
+    return (
+        f"{lead}Does each change to the baseline's settings change how fast REINFORCE learns to {goal} on "
+        f"`{_esc(ablation.env_id)}`? {len(others)} variant{'s' if len(others) != 1 else ''} ({listed}) "
+        f"{'are' if len(others) != 1 else 'is'} each compared with {against}, first on {primary}."
+    )
+
+
+def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
+    base = ablation.grid["base"]
+    seeds = len(ablation.grid["seeds"])
+    budget = int(base.get("max_episodes", 0))
+    window = int(base.get("solve_window", 100))
+    solve = (
+        f"a trial is solved when its mean return over {window} consecutive episodes reaches {ablation.threshold:g}, "
+        f"and stops then or after {budget:,} episodes"
+        if ablation.threshold is not None
+        else f"every trial runs {budget:,} episodes (no solve threshold)"
+    )
+    tuned = ""
+    if ablation.tuning:
+        tuning = ablation.tuning
+        tuned = (
+            f" Each variant's {knob_words(ablation).removeprefix('the ')} was chosen among "
+            f"{max((len(c) for c in tuning.get('knobs', {}).values()), default=0)} candidates on "
+            f"{len(tuning.get('seeds', []))} tuning seeds of its own, and the variants are compared at their chosen "
+            "values on evaluation seeds tuning never saw (Patterson et al., 2024; Eimer et al., 2023)."
+        )
+    return (
+        "REINFORCE (Williams, 1992), the vanilla policy gradient of the course's lab (MIT 6.S191, Lab 3), trains "
+        f"each variant's policy from {seeds} seed{'s' if seeds != 1 else ''} on `{_esc(ablation.env_id)}`: "
+        f"{solve}. A variant changes only the knobs it names (Appendix {letters['method']}).{tuned} Every number "
+        "is over seeds: interquartile means with 95% percentile bootstrap intervals (Agarwal et al., 2021); unsolved "
+        "seeds count as the budget and make a statistic a bound (≥), never dropped. A claim needs its interval to "
+        "exclude no difference, and no claim is made where the seeds could not support one (Colas et al., 2019)."
+    )
+
+
+def _discussion(ablation: Ablation, discussion: Discussion, where: str) -> list[str]:
+    if discussion.text is None:
+        return [f"## Discussion{f' — {_esc(discussion.author)}' if discussion.author else ''}", "", missing_line(where)]
+    author = discussion.author or "the author (no Author line in discussion.md)"
+    text = re.sub(r"^(#{1,4}) ", r"\1### ", discussion.text, flags=re.M)  # its headings nest under this one
+    return [f"## Discussion — {_esc(author)}", "", f"*Written by {_esc(author)}; printed as written.*", "", text]
+
+
+def build_markdown(
+    ablation: Ablation,
+    figures: list[Figure],
+    videos: list[dict[str, str]],
+    table: pd.DataFrame,
+    compare: pd.DataFrame,
+    command: str = "",
+    untuned: pd.DataFrame | None = None,
+    discussion: Discussion | None = None,
+    discussion_path: str = "discussion.md",
+) -> tuple[str, str]:
+    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks)."""
+    discussion = discussion or Discussion(None, None)
+    failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
+    numbers = {Path(f.path).stem: f.number for f in figures}
+    tuned_dependence = bool(ablation.tuning and untuned is not None)
+    appendix = ["method", "results", "comparisons"]
+    appendix[1:1] = ["tuning"] if ablation.tuning else []
+    appendix += ["dependence"] if tuned_dependence else []
+    appendix += ["figures", "videos"] + (["failed"] if len(failed) else []) + ["limitations", "record", "glossary"]
+    letters = {name: chr(ord("A") + i) for i, name in enumerate(appendix)}
+
+    author = _esc(discussion.author) if discussion.author and discussion.text else "the student"
+    parts = [f"# Ablation report: {_esc(ablation.name)}", ""]
+    note = _generation_note(ablation)
+    if note:
+        parts += [note, ""]
+    parts += [
+        f"*Every section marked {GENERATED} is written by ablate from the tracking store; the Discussion is "
+        f"{author}'s own. The appendix holds every table and comparison.*",
+        "",
+    ]
+    if len(failed):
+        parts += [
+            f"> {len(failed)} of {len(ablation.trials)} trials did not finish (failed, killed or not run); "
+            f"they are left out of the statistics and listed in Appendix {letters['failed']}.",
+            "",
+        ]
+    parts += [f"## Question {GENERATED}", "", question(ablation), ""]
+    parts += [f"## Method {GENERATED}", "", method_paragraph(ablation, letters), ""]
+    parts += [f"## Claims {GENERATED}", "", summary(ablation, table, compare), ""]
+    confounded = [line for line in comparison_intro(ablation) if line]
+    if confounded:
+        parts += [" ".join(confounded), ""]
+    parts += [
+        f"Every comparison on every metric, with its interval: Appendix {letters['comparisons']}; every table: "
+        f"Appendix {letters['results']}.",
+        "",
+    ]
+    shown = body_figures(figures)
+    parts += [f"## Figures {GENERATED}", ""] if shown else []
+    for f in shown:
+        parts += [f"FIGURE:{f.number}", ""]
+    kept = [text for kind, text in limitations(ablation, table, compare) if kind in BODY_LIMITATIONS]
+    parts += [f"## Limitations {GENERATED}", "", *[f"- {line}" for line in kept], ""]
+    parts += [*_discussion(ablation, discussion, discussion_path), ""]
+    parts += ["## References", "", *[f"- {ref}" for ref in references(ablation)], ""]
+
+    parts += ["## Appendix", ""]
+    parts += [f"### {letters['method']}. Method in detail {GENERATED}", "", _method(ablation, table), ""]
+    if ablation.tuning:
+        parts += [f"### {letters['tuning']}. Tuning {GENERATED}", "", tuning_section(ablation), ""]
+    parts += [
+        f"### {letters['results']}. Results {GENERATED}",
+        "",
+        _convergence_markdown(ablation, table),
+        "Tables as CSV: tables/convergence.csv, tables/comparisons.csv, tables/trials.csv"
+        + (", tables/tuning.csv." if ablation.tuning else "."),
+        "",
+        f"### {letters['comparisons']}. Every comparison {GENERATED}",
+        "",
+        " ".join(comparison_intro(ablation, full=True))
+        + ", on "
+        + ", ".join(_metric_name(m) for m in dict.fromkeys(compare.metric) if isinstance(m, str))
+        + ". Episodes: the relative change of the IQM; returns: the difference of the IQMs; each with its 95% "
+        "interval, sized as a bound where censoring makes it one.",
+        "",
+        *findings(ablation, table, compare),
+        "",
+    ]
+    if tuned_dependence:
+        parts += [
+            f"### {letters['dependence']}. Does the finding depend on {knob_words(ablation)}? {GENERATED}",
+            "",
+            dependence_section(ablation, compare, untuned),
+            "",
+        ]
+    rest = [f for f in figures if f not in shown]
+    parts += [f"### {letters['figures']}. More figures {GENERATED}", ""]
+    parts += [line for f in rest for line in (f"FIGURE:{f.number}", "")] or ["No other figures.", ""]
+    if _sampling_videos(ablation):
+        frames = int(ablation.grid["base"].get("video_max_frames", 500))
+        parts += [
+            f"### {letters['videos']}. Videos of the trained agent {GENERATED}",
+            "",
+            "Each video is the trained policy sampling its actions, as in training, on a seed training never used: "
+            f"up to {frames:,} frames ({frames / 30:.0f} s at 30 frames/s), for two seeds per variant chosen as the "
+            "captions say. Not greedy: a Pong agent that has not learnt much holds one button for the whole video "
+            "when it always takes its most likely action. Each trial's MLflow run also holds videos of it playing "
+            "during training (`videos/`).",
+            "",
+        ]
+    else:
+        parts += [
+            f"### {letters['videos']}. Videos of the greedy agent {GENERATED}",
+            "",
+            "Each video is one greedy episode (the most likely action at every step) of a trained agent, for two "
+            "seeds per variant chosen as the captions say.",
+            "",
+        ]
+    parts += ["VIDEOS_PLACEHOLDER", ""]
+    if len(failed):
+        parts += [f"### {letters['failed']}. Trials that did not finish {GENERATED}", ""]
+        parts += [
+            f"- {_esc(r.key)}: {r.status}{(' — ' + _esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
+            for r in failed.itertuples()
+        ]
+        parts.append("")
+    every = [text for _, text in limitations(ablation, table, compare)]
+    parts += [f"### {letters['limitations']}. Every limitation {GENERATED}", "", *[f"- {t}" for t in every], ""]
+    parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", _reproducibility(ablation, command), ""]
+    parts += [f"### {letters['glossary']}. Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
+    text = "\n".join(parts)
+    for key, value in {
+        "Figure {parameters}": f"Figure {numbers.get('performance_vs_parameters', '–')}",
+        "Figure {sensitivity}": f"Figure {numbers.get('tuning_sensitivity', '–')}",
+        "{appendix:tuning}": f"Appendix {letters.get('tuning', '–')}",
+        "{appendix:glossary}": f"Appendix {letters['glossary']}",
+        "{appendix:comparisons}": f"Appendix {letters['comparisons']}",
+    }.items():
+        text = text.replace(key, value)
+    md_text, html_text = text, text
+    for f in figures:
+        md_text = md_text.replace(
+            f"FIGURE:{f.number}\n", f"![{f.alt}]({f.path})\n\n*Figure {f.number}. {f.caption}*\n", 1
+        )
+        html_text = html_text.replace(
+            f"FIGURE:{f.number}\n",
+            f'<figure id="figure-{f.number}"><img src="{f.path}" alt="{html.escape(f.alt)}">'
+            f"<figcaption><strong>Figure {f.number}.</strong> {f.caption}</figcaption></figure>\n",
+            1,
+        )
+    links = "\n".join(f"- [{_esc(v['caption'])}]({v['path']})" for v in videos) or "No videos were recorded."
+    blocks = "\n".join(
+        f'<figure class="video"><video controls muted loop preload="metadata" src="{html.escape(v["path"])}">'
+        f"</video><figcaption>{html.escape(v['caption'])}</figcaption></figure>"
+        for v in videos
+    )
+    html_text = html_text.replace("VIDEOS_PLACEHOLDER", f'<div class="videos">\n{blocks}\n</div>' if videos else links)
+    return md_text.replace("VIDEOS_PLACEHOLDER", links), html_text

@@ -1,0 +1,135 @@
+"""ablate.reporting.layout and discussion: the hand-in's body and appendix, every sentence true for the run it
+describes (small stores: tuned values that differ, too few seeds for any claim, too few for the leave-one-out
+check, no tuning), and the student's discussion.md kept across regenerations and printed under their name."""
+
+import re
+
+import pytest
+from test_report import make_store, rising
+from test_report_tuning import make_tuned_store
+
+from ablate.reporting import discussion
+from ablate.reporting.document import build_report, write_report
+
+
+@pytest.fixture(autouse=True)
+def _no_pdf(monkeypatch):
+    monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test")
+
+
+def _report(folder, name, uri):
+    return (write_report(name, tracking_uri=uri, out_root=folder / "reports", attach=False) / "report.md").read_text()
+
+
+def _body(text):
+    return text.split("\n## Appendix\n")[0]
+
+
+@pytest.fixture(scope="module")
+def stores(tmp_path_factory):
+    """Untuned stores: 3 seeds (no claim can exist), 4 seeds (claims, but leaving one out leaves 3 and 3)."""
+    folder = tmp_path_factory.mktemp("layout")
+    apart = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 10)}}
+    uri = make_store(folder, "three", apart, seeds=(0, 1, 2))
+    make_store(folder, "four", apart, seeds=(0, 1, 2, 3))
+    return folder, uri
+
+
+def test_too_few_seeds_for_any_claim_promises_no_leave_one_out(stores, tmp_path):
+    _, uri = stores
+    text = _report(tmp_path, "three", uri)
+    assert "too few seeds to tell" in text
+    assert "no comparison here reached a claim, so no claim was checked by leaving out a seed" in _body(text)
+    assert "survives leaving out any one seed" not in text and "marked **fragile**" not in text
+
+
+def test_too_few_seeds_for_the_leave_one_out_check_says_so(stores, tmp_path):
+    _, uri = stores
+    text = _report(tmp_path, "four", uri)
+    assert "**lower**" in text  # 4 against 4 seeds can reach a claim ...
+    assert "no claim here was checked that way: each rests on every seed" in _body(text)  # ... but not its check
+    assert "each claim says whether it survives" not in text
+
+
+def test_an_untuned_report_says_nothing_of_tuning(stores, tmp_path):
+    _, uri = stores
+    text = _report(tmp_path, "four", uri)
+    assert "Tuning (generated)" not in text and "depend on the learning rate" not in text
+    assert "chosen among" not in text and "Eimer" not in text
+    assert "more than one knob" not in text  # a and b differ in nothing but their curves here
+
+
+@pytest.fixture(scope="module")
+def tuned4(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("tuned4")
+    return folder, make_tuned_store(folder)
+
+
+def test_a_comparison_at_two_tuned_values_names_both_changes(tuned4, tmp_path):
+    _, uri = tuned4
+    text = _report(tmp_path, "tuned", uri)
+    body = _body(text)
+    assert "deep against baseline changes hidden sizes and learning rate (0.03 against 0.1)" in body
+    assert "course against baseline changes preset and learning rate (0.001 against 0.1)" in body
+    assert "isolates one change" not in text
+    assert "**deep changes 2 knobs at once** against baseline" in text
+
+
+def test_no_change_with_the_learning_rate_says_none_could_with_three_seeds(tmp_path_factory, tmp_path):
+    folder = tmp_path_factory.mktemp("tuned3")
+    uri = make_tuned_store(folder, eval_seeds=[0, 1, 2])
+    text = _report(tmp_path, "tuned", uri)
+    depends = text.split("Does the finding depend on the learning rate? (generated)")[1].split("\n### ")[0]
+    assert "No finding changes with the learning rate, but none could" in depends
+    assert re.search(r"The estimates did move: \S+ vs baseline on .+ went from \S+ at the base value", depends)
+
+
+def test_the_body_comes_first_and_the_rest_is_in_the_appendix(tuned4, tmp_path):
+    _, uri = tuned4
+    text = _report(tmp_path, "tuned", uri)
+    body, appendix = text.split("\n## Appendix\n")
+    headings = re.findall(r"^## (.+)$", body, flags=re.M)
+    assert headings == [
+        "Question (generated)",
+        "Method (generated)",
+        "Claims (generated)",
+        "Figures (generated)",
+        "Limitations (generated)",
+        "Discussion",
+        "References",
+    ]
+    assert len(re.findall(r"^!\[", body, flags=re.M)) == 2 or "probability_of_improvement" not in text
+    for moved in ("Tuning (generated)", "Every comparison (", "Reproducibility (", "Glossary", "Wall-clock times"):
+        assert moved in appendix and moved not in body, moved
+    for reference in ("Williams, R. J. (1992)", "MIT 6.S191", "Patterson", "Agarwal", "Colas", "Eimer"):
+        assert reference in body, reference
+
+
+def test_the_discussion_is_created_once_kept_and_printed_under_its_author(stores, tmp_path):
+    _, uri = stores
+    result = build_report("four", tracking_uri=uri, out_root=tmp_path / "reports", attach=False)
+    path = result.folder / "discussion.md"
+    assert path.read_text() == discussion.TEMPLATE
+    assert oct(result.folder.stat().st_mode & 0o777) == "0o755"
+    text = (result.folder / "report.md").read_text()
+    assert "*The discussion is missing: write it in" in text and "the student's own" in text
+    mine = "Author: Ada Student\n\nI expected **b** to learn faster; it did not.\n\n- next: 10 seeds\n"
+    path.write_text(mine)
+    again = build_report("four", tracking_uri=uri, out_root=tmp_path / "reports", attach=False)
+    assert (again.folder / "discussion.md").read_text() == mine  # survives the rebuild's swap
+    text = (again.folder / "report.md").read_text()
+    body = _body(text)
+    assert "## Discussion — Ada Student" in body and "discussion is missing" not in text
+    assert "I expected **b** to learn faster; it did not.\n\n- next: 10 seeds" in body  # verbatim
+    assert "the Discussion is Ada Student's own" in body
+    typst_source = (again.folder / "report.typ").read_text()
+    assert '"Ada Student"' in typst_source or "Ada Student" in typst_source
+
+
+def test_the_discussion_template_reads_as_missing_and_an_edit_as_written(tmp_path):
+    assert discussion.read(tmp_path) == discussion.Discussion(None, None)  # no file yet
+    (tmp_path / discussion.FILE).write_text(discussion.TEMPLATE)
+    assert discussion.read(tmp_path).text is None
+    (tmp_path / discussion.FILE).write_text(discussion.TEMPLATE.replace("(your name)", "Bo"))
+    written = discussion.read(tmp_path)
+    assert written.author == "Bo" and written.text and "What surprised you?" in written.text
