@@ -22,6 +22,7 @@ from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, ModelConfig, 
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, expand, select, tuning_trials
 from ablate.launch.lock import LaunchLocked
+from ablate.launch.secrets import masked_output, remember_uri, shown
 from ablate.launch.tracking import TrackingError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -458,6 +459,13 @@ def warn_design(experiment: Experiment) -> None:
 def main(argv: list[str] | None = None) -> int:
     started_at = time.monotonic()
     args = build_parser().parse_args(argv)
+    # Every line this command prints, through Python, passes the secrets' masks (ablate.launch.secrets).
+    remember_uri(getattr(args, "tracking_uri", None))
+    with masked_output():
+        return _main(args, started_at)
+
+
+def _main(args: argparse.Namespace, started_at: float) -> int:
     try:
         if args.command == "train":
             return cmd_train(args)
@@ -484,10 +492,10 @@ def main(argv: list[str] | None = None) -> int:
 
         return cmd_report(args)
     except ConfigError as error:
-        sys.stderr.write(f"ablate {args.command}: {error}\n")
+        sys.stderr.write(f"ablate {args.command}: {shown(error)}\n")
         return EXIT_USAGE
     except (TrackingError, LaunchLocked) as error:
-        sys.stderr.write(f"ablate {args.command}: {error}\n")
+        sys.stderr.write(f"ablate {args.command}: {shown(error)}\n")
         return getattr(error, "exit_code", EXIT_FAILED)
     except KeyboardInterrupt as interrupt:  # before the launch began (SIGTERM too, in `run`: exit code 143)
         sys.stderr.write(f"ablate {args.command}: interrupted\n")

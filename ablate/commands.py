@@ -16,6 +16,7 @@ from ablate.experiment import load_experiment
 from ablate.launch.clock import clock, stage
 from ablate.launch.grid import expand, select
 from ablate.launch.runner import raise_interrupted, run_experiment, signals_received
+from ablate.launch.secrets import shown
 
 
 def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
@@ -36,7 +37,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
     chosen = select(expand(experiment), args.only, args.seeds)
     if args.max_concurrent is not None and args.max_concurrent < 1:
         raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
-    command = " ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]])
+    command = shown(" ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]]))  # as it is recorded and shown
     try:
         outcome = run_experiment(
             experiment,

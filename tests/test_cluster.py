@@ -7,10 +7,14 @@ listens on 127.0.0.1 and is stopped, pass or fail."""
 
 import os
 import secrets
+import shutil
+import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
+from urllib.parse import quote
 
 import psutil
 import pytest
@@ -71,8 +75,15 @@ def cluster(tmp_path, monkeypatch):
     requiring a Ray token; all stopped after. This process holds the MLflow login (to read what was tracked)."""
     log = open(tmp_path / "cluster.log", "w")  # noqa: SIM115 - closed at the end
     processes = []
-    # The planted secrets: searched for afterwards in everything ablate recorded or printed.
-    password, token = f"planted-pw-{secrets.token_hex(12)}", f"plantedtoken{secrets.token_hex(24)}"
+    # The planted secrets: searched for afterwards in everything ablate recorded or printed. The password holds
+    # a raw '@', '/' and ':', which a URI's userinfo must carry as its own.
+    password, token = (
+        f"planted@pw/{secrets.token_hex(6)}:{secrets.token_hex(6)}",
+        f"plantedtoken{secrets.token_hex(24)}",
+    )
+    # Ray's session logs in a folder of the test's (a short path: Ray's socket paths must fit 107 bytes)
+    ray_tmp = Path(tempfile.mkdtemp(prefix="ablate-ray-", dir="/tmp"))
+    monkeypatch.setenv("RAY_TMPDIR", str(ray_tmp))
     control = tmp_path / "control"  # the worker node sees this folder (and so the token's file) only
     control.mkdir()
     token_file = local_cluster.write_secret(control / "ray_token", token + "\n")
@@ -132,11 +143,13 @@ def cluster(tmp_path, monkeypatch):
             "token_file": token_file,
             "secrets": (password, token),
             "outputs": [],
+            "ray_tmp": ray_tmp,
         }
     finally:
         for process in reversed(processes):
             local_cluster.stop_process(process)
         log.close()
+        shutil.rmtree(ray_tmp, ignore_errors=True)
 
 
 def _safe(store):
@@ -190,12 +203,12 @@ def _env(cluster, ray_token=True, login=True):
     return env
 
 
-def _ablate(cluster, name, episodes, extra="", env=None, **credentials):
-    folder = cluster["tmp"] / name
+def _ablate(cluster, name, episodes, extra="", env=None, uri=None, folder=None, **credentials):
+    folder = cluster["tmp"] / (folder or name)
     folder.mkdir()
     (folder / "exp.toml").write_text(EXPERIMENT.format(name=name, episodes=episodes, extra=extra))
     command = [sys.executable, "-m", "ablate.cli", "run", "exp.toml", "--address", cluster["gcs"]]
-    command += ["--tracking-uri", cluster["uri"], "--no-report"]
+    command += ["--tracking-uri", uri or cluster["uri"], "--no-report"]
     env = env or _env(cluster, **credentials)
     return subprocess.Popen(command, cwd=folder, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
@@ -340,8 +353,101 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     _assert_no_secret(cluster)
 
 
+def test_one_launch_per_experiment_per_store_from_any_spelling_or_machine(cluster):
+    """Two launches at once through two spellings of the server's URI (one machine: the lock file decides),
+    a third from "another machine" (its own lock folder: the store's lease decides), all refused but one,
+    naming it; the holder killed (kill -9), its lease lapses and the next launch runs the experiment."""
+    name = f"lease-{secrets.token_hex(4)}"
+    marker = cluster["control"] / f"release-{name}"
+    extra = f'fault = "block"\nfault_marker = "{marker}"'
+    host = cluster["uri"].removeprefix("http://")
+    both = [
+        _ablate(cluster, name, 20, extra, uri=uri, folder=f"{name}-{i}")
+        for i, uri in enumerate((f"http://{host}", f"http://{host}/"))
+    ]
+    deadline = time.monotonic() + 300
+    while all(launch.poll() is None for launch in both):  # the refused one ends in seconds, before Ray starts
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    refused = next(launch for launch in both if launch.poll() is not None)
+    holder = next(launch for launch in both if launch is not refused)
+    code, output = _finish(cluster, refused)
+    holder_line = f"by pid {holder.pid} on {socket.gethostname()}, started "
+    assert code == 1 and "is already being run on this store " + holder_line in _refused(output), output
+    try:
+        tracker = Tracker(cluster["uri"], name)
+        _wait_running(tracker, 2, holder)
+        elsewhere = _env(cluster) | {"HOME": str(cluster["tmp"] / "home-b")}  # another machine's lock folder
+        code, output = _finish(cluster, _ablate(cluster, name, 20, extra, env=elsewhere, folder=f"{name}-b"))
+        line = _refused(output)
+        assert code == 1 and holder_line in line and f"its lease: MLflow experiment 'ablate-lease-{name}'" in line
+        holder.kill()  # kill -9: its lease is not released, and lapses (its process on this machine is gone)
+        holder.wait()
+    finally:
+        marker.write_text("go\n")
+        if holder.poll() is None:
+            holder.kill()
+    third = _env(cluster) | {"HOME": str(cluster["tmp"] / "home-c")}
+    code, output = _finish(cluster, _ablate(cluster, name, 20, extra, env=third, folder=f"{name}-c"))
+    assert code == 0 and f"lapsed (its process {holder.pid} on this machine is gone); taking it" in output, output
+    runs = tracker.trial_runs()
+    finished = [r for r in runs if r.status == "FINISHED"]
+    assert len(finished) == 2 and len({r.key for r in finished}) == 2 and "RUNNING" not in {r.status for r in runs}
+    launches = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")
+    assert sorted(launch.info.status for launch in launches) == ["FINISHED", "KILLED"]  # one each, none refused
+
+
+def test_a_password_planted_in_every_uri_form_shows_nowhere(cluster):
+    """The login in the tracking URI itself, raw (its '@', '/' and ':' as they are) for a launch on the cluster,
+    percent-encoded for `ablate status`, in MLFLOW_TRACKING_URI for `ablate report`: every command works, and
+    the password is in no output, report, store row, artifact, lock file, Ray session log or Ray's job table."""
+    password = cluster["secrets"][0]
+    host = cluster["uri"].removeprefix("http://")
+    raw, encoded = f"http://{USER}:{password}@{host}/", f"http://{USER}:{quote(password, safe='')}@{host}"
+    no_login = _env(cluster, login=False)
+    name = f"planted-{secrets.token_hex(4)}"
+    code, output = _finish(cluster, _ablate(cluster, name, episodes=10, env=no_login, uri=raw))
+    assert code == 0, output
+    assert f"--tracking-uri http://{USER}:***@{host}/" in RunReader(cluster["uri"], name).launch_runs()[0].command
+    done = []
+    for command, env in (
+        (["status", "--tracking-uri", encoded], no_login),
+        (["status", name, "--tracking-uri", raw], no_login),
+        (["report", name, "--no-pdf"], no_login | {"MLFLOW_TRACKING_URI": raw}),
+    ):
+        done.append(
+            subprocess.run(
+                [sys.executable, "-m", "ablate.cli", *command],
+                cwd=cluster["tmp"] / name,
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=600,
+            )
+        )
+        cluster["outputs"].append(done[-1].stdout + done[-1].stderr)
+        assert done[-1].returncode == 0, done[-1].stdout + done[-1].stderr
+    assert name in done[0].stdout and "2 finished" in done[1].stdout
+    report = (cluster["tmp"] / name / "reports" / name / "report.md").read_text()
+    assert f"http://{USER}:***@{host}/" in report  # the launch's command, as the report records it
+    # Ray's job table, as anyone with the cluster's token reads it: the launch's entrypoint, masked
+    table = (
+        "import sys, ray\nfrom ablate.launch.scheduler import ensure_ray\nensure_ray(sys.argv[1])\n"
+        "print(repr([job['Entrypoint'] for job in ray._private.state.jobs()]))\n"
+    )
+    jobs = subprocess.run(
+        [sys.executable, "-c", table, cluster["gcs"]], env=_env(cluster), capture_output=True, text=True, timeout=300
+    )
+    assert jobs.returncode == 0, jobs.stderr
+    assert f"--tracking-uri http://{USER}:***@{host}/" in jobs.stdout, jobs.stdout
+    cluster["outputs"].append(jobs.stdout + jobs.stderr)
+    _assert_no_secret(cluster)
+
+
 def _assert_no_secret(cluster):
     planted = [secret.encode() for secret in cluster["secrets"]]
+    planted.append(quote(cluster["secrets"][0], safe="").encode())  # the password as a URI carries it
+    planted.append(quote(cluster["secrets"][0]).encode())
     if os.environ.get("PGPASSFILE"):  # make test-cluster-postgres: the database's password too
         planted.append(Path(os.environ["PGPASSFILE"]).read_text().strip().rsplit(":", 1)[1].encode())
     hits = []
@@ -353,7 +459,7 @@ def _assert_no_secret(cluster):
                     hits += [f"{table}.{key}" for secret in planted if secret in str(value).encode()]
     finally:
         engine.dispose()
-    for path in cluster["tmp"].rglob("*"):
+    for path in [*cluster["tmp"].rglob("*"), *cluster["ray_tmp"].rglob("*")]:  # Ray's session logs too
         if path.is_file() and path != cluster["token_file"] and not path.is_symlink():
             data = path.read_bytes()
             hits += [str(path) for secret in planted if secret in data]

@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from ablate.launch.store import TrackingError, mask_uri, redact
+from ablate.launch.secrets import mask_uri
+from ablate.launch.secrets import shown as redact
+from ablate.launch.store import TrackingError
 from ablate.launch.tracking import Tracker
 from ablate.reporting.reader import RunReader, ablation_names
 

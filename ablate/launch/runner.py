@@ -23,9 +23,8 @@ from ablate.config import ConfigError, flatten
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
-from ablate.launch.lock import launch_lock
 from ablate.launch.progress import ProgressView
-from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PARENT, TAG_PID, TAG_ROLE, Tracker, sqlite_path
+from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_ROLE, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
 # ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
@@ -284,20 +283,13 @@ def check_resources(experiment: Experiment, address: str | None) -> None:
 
 def reap_stale_runs(tracker: Tracker, storage_path: str) -> int:
     """Mark KILLED the runs a dead launch of this experiment left RUNNING (kill -9, a power cut) and remove
-    its Tune folder; returns how many runs. Called with the launch lock held, so no other launch of this
-    experiment is alive on this store, or, for a tracking server, on this machine: a RUNNING launch from
-    another machine may be alive and is left alone, with its trials."""
-    host = socket.gethostname()
-    whole_store = sqlite_path(tracker.uri) is not None  # the lock beside the file covers every machine
+    its Tune folder; returns how many runs. Called with the launch lock held (the file beside an SQLite store,
+    the store's own lease for a server or a database: ``lock.held_launch``), so no other launch of this
+    experiment is alive on this store, from any machine: every RUNNING launch of it is a dead one's."""
     running = tracker.running_runs()
     launches = [r for r in running if r.data.tags.get(TAG_ROLE) == "launch"]
-    stale = {r.info.run_id for r in launches if whole_store or r.data.tags.get(TAG_HOST) == host}
-    alive = {r.info.run_id for r in launches} - stale
-    trials = [
-        r.info.run_id
-        for r in running
-        if r.data.tags.get(TAG_ROLE) == "trial" and r.data.tags.get(TAG_PARENT) not in alive
-    ]
+    stale = {r.info.run_id for r in launches}
+    trials = [r.info.run_id for r in running if r.data.tags.get(TAG_ROLE) == "trial"]
     reason = "its launch's process died (found RUNNING by the next launch)"
     tracker.kill_runs(trials, reason)
     tracker.kill_runs(stale, "the launch's process died without closing it (found RUNNING by the next launch)")
@@ -328,7 +320,7 @@ def run_experiment(
     trials = expand(experiment)
     check_resources(experiment, address)
     tracker = Tracker(tracking_uri, experiment.name)
-    with launch_lock(tracker.lock_path(), f"experiment {experiment.name!r}", command):
+    with tracker.hold_launch(f"experiment {experiment.name!r}", command):
         reaped = reap_stale_runs(tracker, storage_path)
         outcome = _run_locked(
             experiment,

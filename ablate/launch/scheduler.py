@@ -41,6 +41,7 @@ from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 from ablate.agent.trial import run_trial
 from ablate.launch.curve import CurvePoint, CurveReducer
 from ablate.launch.grid import GridTrial
+from ablate.launch.secrets import shown
 
 REPORT_EVERY_S = 2.0
 """Seconds between metric reports from a trial: each ``tune.report`` costs ~2 ms, so never per episode."""
@@ -230,7 +231,7 @@ def ensure_ray(address: str | None) -> bool:
     problem = None
     try:
         # Only a join is refused for a token; a local start's daemons would inherit the kept descriptor.
-        with _stderr_kept() if address else contextlib.nullcontext(_Kept()) as kept:
+        with _stderr_kept() if address else contextlib.nullcontext(_Kept()) as kept, _entrypoint_shown():
             ray.init(
                 address=address or "local",
                 num_cpus=None if address else os.cpu_count(),
@@ -263,6 +264,19 @@ def ensure_ray(address: str | None) -> bool:
 
 class _Kept:
     text = ""
+
+
+@contextlib.contextmanager
+def _entrypoint_shown() -> Iterator[None]:
+    """Ray records the driver's command line (``ps``'s, not ``sys.argv``) as its job's entrypoint, which the
+    job table shows anyone on the cluster: the shown form instead, a password in ``--tracking-uri`` masked."""
+    utils = ray._private.utils
+    original = utils.get_entrypoint_name
+    utils.get_entrypoint_name = lambda: shown(original())
+    try:
+        yield
+    finally:
+        utils.get_entrypoint_name = original
 
 
 @contextlib.contextmanager

@@ -6,13 +6,17 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import hashlib
 import os
 import re
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
+
+from ablate.launch.secrets import encoded_uri, shown, split_userinfo, without_userinfo
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 SCHEMES = ("sqlite", "http", "https", "file", "postgresql", "mysql", "mssql", "databricks")
@@ -28,10 +32,6 @@ SQLITE_MAGIC = b"SQLite format 3\x00"
 
 DATABASE_SCHEMES = ("postgresql", "mysql", "mssql")
 """Schemes (and ``scheme+driver``) of the SQL servers MLflow can keep its runs in."""
-SECRET_ENV = ("MLFLOW_TRACKING_PASSWORD", "MLFLOW_TRACKING_TOKEN", "RAY_AUTH_TOKEN", "PGPASSWORD", "MYSQL_PWD")
-"""Environment variables holding secrets: their values are masked in whatever ``redact`` is given."""
-_URL_PASSWORD = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^/:@\s]*):[^/@\s]+@")
-MASK = "***"
 
 
 class TrackingError(RuntimeError):
@@ -56,11 +56,109 @@ def sqlite_path(uri: str) -> Path | None:
     return Path(uri.removeprefix("sqlite:///").split("?", 1)[0])
 
 
+def login_user() -> str | None:
+    """The MLflow user this process logs in as: ``MLFLOW_TRACKING_USERNAME``, else ``~/.mlflow/credentials``."""
+    user = os.environ.get("MLFLOW_TRACKING_USERNAME")
+    if user:
+        return user
+    import configparser
+
+    parser = configparser.ConfigParser()
+    path = os.environ.get("MLFLOW_CREDENTIALS_PATH", Path.home() / ".mlflow" / "credentials")
+    with contextlib.suppress(configparser.Error, OSError):
+        parser.read(path)
+    return parser.get("mlflow", "mlflow_tracking_username", fallback=None) or None
+
+
+_HOST_PORT = re.compile(r"^[A-Za-z0-9.-]+:\d+(/.*)?$")
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+_warned_insecure: set[str] = set()
+
+
+def open_uri(uri: str) -> str:
+    """The URI as MLflow is given it: checked (``check_uri``), its userinfo percent-encoded (a raw ``/``,
+    ``@`` or ``:`` in a password is the password), and, for a tracking server, the login moved out of it into
+    ``MLFLOW_TRACKING_USERNAME``/``PASSWORD``: no URI MLflow builds from it (artifact and run links, request
+    errors) holds the password. Its password is remembered as a secret (``secrets.remember``)."""
+    check_uri(uri)
+    uri = encoded_uri(uri)
+    head, user, password, rest = split_userinfo(uri)
+    if head.lower() in ("http://", "https://"):
+        if user is not None:
+            os.environ["MLFLOW_TRACKING_USERNAME"] = user
+            if password is not None:
+                os.environ["MLFLOW_TRACKING_PASSWORD"] = password
+            uri = without_userinfo(uri)
+        warn_insecure(uri)
+    return uri
+
+
+def warn_insecure(uri: str) -> None:
+    """Once per server: a login sent over plain HTTP to a host that is not this machine travels in clear."""
+    parsed = urlparse(uri)
+    if parsed.scheme != "http" or (parsed.hostname or "") in LOOPBACK or uri in _warned_insecure:
+        return
+    if os.environ.get("MLFLOW_TRACKING_PASSWORD") or os.environ.get("MLFLOW_TRACKING_TOKEN") or login_user():
+        _warned_insecure.add(uri)
+        sys.stderr.write(
+            f"warning: {shown(uri)} is plain HTTP to another machine: the MLflow login crosses the network in "
+            "clear; put the server behind HTTPS (docs/cluster.md, TLS)\n"
+        )
+
+
+def store_key(uri: str) -> str:
+    """One spelling per store, for the launch lock: scheme and host in lower case, the default port, no
+    login or trailing ``/``, ``localhost`` as ``127.0.0.1``, a database's driver dropped, an SQLite file's path
+    resolved; so ``http://127.0.0.1:5050`` and ``http://127.0.0.1:5050/`` are one store."""
+    db = sqlite_path(uri)
+    if db is not None:
+        return f"sqlite:///{db.resolve()}"
+    parsed = urlparse(without_userinfo(encoded_uri(uri)))
+    scheme = parsed.scheme.lower().split("+", 1)[0]
+    if not parsed.netloc:
+        return f"{scheme}:{Path(parsed.path).resolve()}" if scheme in ("", "file") else uri
+    host = (parsed.hostname or "").lower()
+    host = "127.0.0.1" if host == "localhost" else host
+    default = {"http": 80, "https": 443, "postgresql": 5432, "mysql": 3306, "mssql": 1433}.get(scheme)
+    try:
+        port = parsed.port or default
+    except ValueError:
+        port = default
+    return f"{scheme}://{host}:{port}{parsed.path.rstrip('/')}"
+
+
+def lock_file(uri: str, safe_name: str) -> Path:
+    """The file that lets one launch at a time run experiment ``safe_name`` (a storage name: ASCII letters,
+    digits, '-' and '_') on the store ``uri``: beside an SQLite file; for a server or a database, in this
+    user's cache, keyed on the store's one spelling (``store_key``), serialising this machine's launches."""
+    db = sqlite_path(uri)
+    if db is not None:
+        return db.with_name(f"{db.name}.{safe_name}.lock")
+    digest = hashlib.sha1(store_key(uri).encode()).hexdigest()[:12]
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return cache / "ablate" / "locks" / f"{digest}-{safe_name}.lock"
+
+
 def check_uri(uri: str) -> None:
-    scheme = urlparse(uri).scheme
+    if _HOST_PORT.match(uri):
+        raise TrackingError(
+            f"--tracking-uri {shown(uri)}: unknown scheme (none given); valid: http://{shown(uri)} for a tracking "
+            "server, sqlite:///path/to/mlflow.db, or another MLflow store URI (file, postgresql, mysql)",
+            exit_code=2,
+        )
+    parsed = urlparse(encoded_uri(uri))
+    try:
+        parsed.port  # noqa: B018 - raises on a port that is not a number
+    except ValueError:
+        raise TrackingError(
+            f"--tracking-uri {shown(uri)}: the port is not a number; valid: scheme://host:port "
+            "(percent-encode '/', '@' or ':' in a user or password: %2F, %40, %3A)",
+            exit_code=2,
+        ) from None
+    scheme = parsed.scheme
     if scheme and scheme not in SCHEMES and not scheme.startswith(("postgresql+", "mysql+", "mssql+")):
         raise TrackingError(
-            f"--tracking-uri {mask_uri(uri)}: unknown scheme {scheme!r}; valid: sqlite:///path/to/mlflow.db, "
+            f"--tracking-uri {shown(uri)}: unknown scheme {scheme!r}; valid: sqlite:///path/to/mlflow.db, "
             "http(s)://host:port of a tracking server, or another MLflow store URI (file, postgresql, mysql)",
             exit_code=2,
         )
@@ -145,31 +243,6 @@ def first_line(error: BaseException) -> str:
     return text[:300]
 
 
-def mask_uri(uri: str) -> str:
-    """``uri`` with the password of its ``user:password@`` part replaced by ``***`` (what errors, logs and the
-    report show of a store or server)."""
-    return _URL_PASSWORD.sub(lambda m: f"{m.group('head')}:{MASK}@", uri)
-
-
-def _secret_values() -> list[str]:
-    """The secrets this process holds: the values of ``SECRET_ENV`` and of Ray's token file, if any."""
-    values = [os.environ.get(name, "") for name in SECRET_ENV]
-    token_path = os.environ.get("RAY_AUTH_TOKEN_PATH")
-    if token_path:
-        with contextlib.suppress(OSError):
-            values.append(Path(token_path).read_text().strip())
-    return [value for value in values if len(value) >= 4]  # shorter ones would mask ordinary words
-
-
-def redact(text: str) -> str:
-    """``text`` with every URL's password and every secret this process holds (``SECRET_ENV``, Ray's token)
-    masked: applied to whatever ablate records (tags, notes, launch files) or shows (errors)."""
-    text = mask_uri(text)
-    for value in _secret_values():
-        text = text.replace(value, MASK)
-    return text
-
-
 def is_database(uri: str) -> bool:
     """Whether ``uri`` names an SQL server (PostgreSQL, MySQL, SQL Server) rather than a file or a server."""
     return urlparse(uri).scheme.split("+", 1)[0] in DATABASE_SCHEMES
@@ -181,7 +254,7 @@ def probe_database(uri: str) -> None:
     import sqlalchemy
     from sqlalchemy.pool import NullPool
 
-    shown = mask_uri(uri)
+    where = shown(uri)
     url = sqlalchemy.engine.make_url(uri)
     backend = url.get_backend_name()
     connect_args = {"connect_timeout": PROBE_TIMEOUT_S} if backend in ("postgresql", "mysql") else {}
@@ -190,34 +263,34 @@ def probe_database(uri: str) -> None:
     except ImportError as error:  # the URL's driver (psycopg, pymysql) is not installed
         extra = {"postgresql": "postgres", "mysql": "mysql"}.get(backend, backend)
         raise TrackingError(
-            f"MLflow store {shown}: no driver for {url.drivername} ({first_line(error)}); pip install -e '.[{extra}]'"
+            f"MLflow store {where}: no driver for {url.drivername} ({first_line(error)}); pip install -e '.[{extra}]'"
         ) from None
     problem = None
     try:
         with engine.connect():
             pass
     except sqlalchemy.exc.SQLAlchemyError as error:
-        problem = _database_problem(shown, getattr(error, "orig", None) or error, url)
+        problem = _database_problem(where, getattr(error, "orig", None) or error, url)
     finally:
         engine.dispose()
     if problem:  # raised outside the except: one line, not the chain of exceptions behind it
         raise TrackingError(problem)
 
 
-def _database_problem(shown: str, error: BaseException, url) -> str:
+def _database_problem(where: str, error: BaseException, url) -> str:
     full = str(error).lower()
-    text = redact(first_line(error))
+    text = shown(first_line(error))
     if "password" in full or "access denied" in full or "authentication" in full or "login failed" in full:
         where = "PGPASSWORD, a ~/.pgpass line or PGPASSFILE" if url.get_backend_name() == "postgresql" else "MYSQL_PWD"
         return (
-            f"MLflow store {shown}: the database refused the login of user {url.username!r} ({text}); "
+            f"MLflow store {where}: the database refused the login of user {url.username!r} ({text}); "
             f"check the user and give the password through {where}, not the command line"
         )
     if "does not exist" in full or "unknown database" in full:
-        return f"MLflow store {shown}: database {url.database!r} does not exist ({text}); create it, or fix the URI"
+        return f"MLflow store {where}: database {url.database!r} does not exist ({text}); create it, or fix the URI"
     if "timeout" in full or "timed out" in full:
-        return f"MLflow store {shown}: no answer in {PROBE_TIMEOUT_S} s ({text}); start the database or fix the URI"
-    return f"MLflow store {shown} cannot be reached ({text}); start the database or fix the URI"
+        return f"MLflow store {where}: no answer in {PROBE_TIMEOUT_S} s ({text}); start the database or fix the URI"
+    return f"MLflow store {where} cannot be reached ({text}); start the database or fix the URI"
 
 
 STORE_RETRY_S = 60.0
@@ -252,7 +325,7 @@ class RetryingClient:
                         raise
                     if time.monotonic() >= deadline:
                         self._lost = (
-                            f"MLflow store {self._shown_uri} stopped answering ({redact(first_line(error))}); "
+                            f"MLflow store {self._shown_uri} stopped answering ({shown(first_line(error))}); "
                             f"retried for {STORE_RETRY_S:.0f} s, the launch stops: run the same command again "
                             "once it is back (trials not recorded run again)"
                         )
@@ -279,27 +352,37 @@ def probe_server(uri: str) -> None:
         elif isinstance(error, socket.gaierror):
             reason = "unknown host"
         raise TrackingError(
-            f"MLflow tracking server {mask_uri(uri)} is unreachable ({reason}); start it or check --tracking-uri"
+            f"MLflow tracking server {shown(uri)} is unreachable ({reason}); start it or check --tracking-uri"
         ) from None
 
 
 def store_problem(uri: str, error: BaseException) -> str:
     """One line saying why the store at ``uri`` could not be opened, and what to set or start; the password
     of the URI and every secret of this process masked."""
-    shown, text, full = mask_uri(uri), redact(first_line(error)), str(error).lower()
+    where, text, full = shown(uri), shown(first_line(error)), str(error).lower()
     if not uri.startswith(("http://", "https://")):
-        return f"MLflow store {shown} cannot be used: {text}"
+        return f"MLflow store {where} cannot be used: {text}"
     status = getattr(error, "get_http_status_code", lambda: None)()
     if status == 401 or "401" in full and "authenticat" in full:
-        user = os.environ.get("MLFLOW_TRACKING_USERNAME")
-        given = f"refused the login of {user!r}" if user else "needs a login"
+        user = login_user()
+        if user:
+            return (
+                f"MLflow tracking server {where} refused the login of {user!r} (HTTP 401): wrong password, or no "
+                "such account; check MLFLOW_TRACKING_PASSWORD (or ~/.mlflow/credentials) against your account on it"
+            )
         return (
-            f"MLflow tracking server {shown} {given} (HTTP 401); set MLFLOW_TRACKING_USERNAME and "
+            f"MLflow tracking server {where} needs a login (HTTP 401); set MLFLOW_TRACKING_USERNAME and "
             "MLFLOW_TRACKING_PASSWORD (or the [mlflow] section of ~/.mlflow/credentials) to your account on it"
         )
+    if "invalid host header" in full or "dns rebinding" in full:
+        host = urlparse(uri).hostname
+        return (
+            f"MLflow tracking server {where} refused the Host header {host!r} (HTTP 403, its DNS-rebinding guard): "
+            f"start the server with --allowed-hosts naming {host!r}, or use the host name it allows"
+        )
     if status == 403 or "403" in full and "permission" in full:
-        user = os.environ.get("MLFLOW_TRACKING_USERNAME", "this user")
-        return f"MLflow tracking server {shown}: {user!r} may not do this (HTTP 403, {text}); ask its admin for EDIT"
+        user = login_user() or "this user"
+        return f"MLflow tracking server {where}: {user!r} may not do this (HTTP 403, {text}); ask its admin for EDIT"
     reason = text
     if "refused" in full:
         reason = "connection refused"
@@ -307,4 +390,4 @@ def store_problem(uri: str, error: BaseException) -> str:
         reason = f"no answer in {PROBE_TIMEOUT_S} s"
     elif "name or service not known" in full or "nodename nor servname" in full:
         reason = "unknown host"
-    return f"MLflow tracking server {shown} is unreachable ({reason}); start it or check --tracking-uri"
+    return f"MLflow tracking server {where} is unreachable ({reason}); start it or check --tracking-uri"

@@ -8,7 +8,6 @@ the scheduler), so an SQLite store never sees two writers; a tracking server wor
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import logging
 import os
@@ -20,17 +19,18 @@ from pathlib import Path
 from typing import Any
 
 from ablate.experiment import storage_name
+from ablate.launch.lock import held_launch
+from ablate.launch.secrets import shown as redact
 from ablate.launch.store import (
     RetryingClient,
     TrackingError,
     check_sqlite,
-    check_uri,
     fail_fast_http,
     is_database,
-    mask_uri,
+    lock_file,
+    open_uri,
     probe_database,
     probe_server,
-    redact,
     resolve_uri,
     sqlite_path,
     store_problem,
@@ -70,6 +70,7 @@ value, so a trial that reports every 2 s is written in a fifth of the calls; a t
 def quiet_mlflow() -> None:
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
+    os.environ["MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT"] = "true"  # its "View run ... at: URI" lines
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.WARNING)
 
@@ -99,15 +100,15 @@ class Store:
         """Opens the store and reads the experiment once, so every reason the store cannot be used surfaces
         here as a one-line ``TrackingError``, before anything is written or started. ``write=False`` (a
         report) accepts a read-only store and refuses to create one."""
-        self.uri = resolve_uri(tracking_uri)
-        self.shown_uri = mask_uri(self.uri)
+        self.uri = open_uri(resolve_uri(tracking_uri))
+        """The URI MLflow is given (``store.open_uri``: a tracking server's login moved to the environment)."""
+        self.shown_uri = redact(self.uri)
         """The URI as messages and records show it: its password masked."""
         self.display_name = unicodedata.normalize("NFC", experiment_name)
         # The MLflow experiment, its artifact folder and its lock file: the name's safe form (the name itself
         # for every name valid before names in any script were), whichever form the caller gave.
         self.experiment_name = storage_name(experiment_name)
         self._experiment_id: str | None = None
-        check_uri(self.uri)
         db = sqlite_path(self.uri)
         if db is not None:
             check_sqlite(db, write)
@@ -140,14 +141,14 @@ class Store:
         return store_problem(self.uri, error)
 
     def lock_path(self) -> Path:
-        """The file that lets one launch at a time run this experiment on this store: beside an SQLite file;
-        for a server, in this user's cache (it serialises launches from this machine only)."""
-        db = sqlite_path(self.uri)
-        safe = self.experiment_name  # a storage name: ASCII letters, digits, '-' and '_' only
-        if db is not None:
-            return db.with_name(f"{db.name}.{safe}.lock")
-        digest = hashlib.sha1(self.uri.encode()).hexdigest()[:12]
-        return Path.home() / ".cache" / "ablate" / "locks" / f"{digest}-{safe}.lock"
+        """This machine's launch lock of this experiment on this store (``store.lock_file``)."""
+        return lock_file(self.uri, self.experiment_name)
+
+    def hold_launch(self, what: str, command: str) -> contextlib.AbstractContextManager[None]:
+        """One launch of this experiment at a time on this store (``lock.held_launch``): this machine's lock,
+        and for a store other machines reach (not an SQLite file) the store's own lease."""
+        shared = sqlite_path(self.uri) is None
+        return held_launch(self.lock_path(), what, command, self.client if shared else None, self.experiment_name)
 
     def experiment_id(self, create: bool = True) -> str | None:
         if self._experiment_id is None:

@@ -16,9 +16,9 @@ from ablate.launch.tracking import (
     Store,
     TrackingError,
     TrialRun,
-    check_uri,
     fail_fast_http,
     is_database,
+    open_uri,
     probe_database,
     probe_server,
     quiet_mlflow,
@@ -56,8 +56,7 @@ def ablation_names(tracking_uri: str | None) -> list[str]:
     from mlflow.tracking import MlflowClient
 
     quiet_mlflow()
-    uri = resolve_uri(tracking_uri)
-    check_uri(uri)
+    uri = open_uri(resolve_uri(tracking_uri))
     if is_database(uri):
         probe_database(uri)
     elif uri.startswith(("http://", "https://")):

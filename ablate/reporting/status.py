@@ -12,7 +12,8 @@ from collections.abc import Iterable
 from ablate.config import ConfigError
 from ablate.experiment import Experiment, storage_name
 from ablate.launch.grid import expand, tuning_trials
-from ablate.launch.store import mask_uri, resolve_uri
+from ablate.launch.secrets import shown_uri
+from ablate.launch.store import resolve_uri
 from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
@@ -45,7 +46,7 @@ def _when(ms: int) -> str:
 
 def overview(tracking_uri: str | None) -> str:
     """One line per ablation in the store."""
-    uri = mask_uri(resolve_uri(tracking_uri))  # shown: its password masked
+    uri = shown_uri(resolve_uri(tracking_uri))
     names = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
     if not names:
         return f"no ablations in the MLflow store {uri} yet; start one with: ablate run experiments/cartpole.toml"
@@ -65,7 +66,7 @@ def overview(tracking_uri: str | None) -> str:
 def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = None) -> str:
     """An ablation's generations (newest first), each with its launches and trials by state; the newest
     generation per variant. With ``experiment`` (its file), trials of the file with no run count as pending."""
-    uri = mask_uri(resolve_uri(tracking_uri))  # shown: its password masked
+    uri = shown_uri(resolve_uri(tracking_uri))
     known = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
     if storage_name(name) not in known:  # the name as written or its storage form (``experiment.storage_name``)
         valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"
