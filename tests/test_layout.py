@@ -133,3 +133,49 @@ def test_the_discussion_template_reads_as_missing_and_an_edit_as_written(tmp_pat
     (tmp_path / discussion.FILE).write_text(discussion.TEMPLATE.replace("(your name)", "Bo"))
     written = discussion.read(tmp_path)
     assert written.author == "Bo" and written.text and "What surprised you?" in written.text
+
+
+def test_every_variant_has_a_role_in_the_variants_table(stores, tmp_path):
+    _, uri = stores
+    text = _report(tmp_path, "four", uri)
+    assert "| b | compared with a |" in text and "| a | baseline (reference) |" in text
+
+
+def test_markdown_keeps_quotes_and_counts_one_episode():
+    from ablate.reporting.figures import esc
+    from ablate.reporting.sections import _episodes
+
+    assert esc("the course's <b>") == "the course's &lt;b&gt;"
+    assert _episodes(1) == "1 episode" and _episodes(32) == "32 episodes"
+
+
+def test_the_terminal_summary_lines_up_under_its_header(tmp_path):
+    import pandas as pd
+
+    from ablate.reporting.document import terminal_summary
+
+    (tmp_path / "tables").mkdir()
+    rows = [
+        {"variant": "activation=tanh,depth=1", "seeds_run": 3, "solved": 3, "median_censored": False},
+        {"variant": "a", "seeds_run": 3, "solved": 1, "median_censored": True},
+    ]
+    for row, (median, final) in zip(rows, [(644.0, 480.2), (1000.0, 90.0)], strict=True):
+        row |= {"episodes_median": median, "final_rolling_mean_iqm": final}
+    pd.DataFrame(rows).to_csv(tmp_path / "tables" / "convergence.csv", index=False)
+    lines = terminal_summary(tmp_path).splitlines()
+    assert len({len(line) for line in lines}) == 1, lines  # every column ends where its header ends
+    assert lines[1].index("3/3") + 3 == lines[0].index("solved") + len("solved")
+
+
+def test_status_lists_variants_in_the_files_order_else_by_number():
+    from ablate.reporting.status import _variant_table
+
+    states = {
+        "k1": ("relu,depth=2", "FINISHED"),
+        "k2": ("relu,depth=1", "FINISHED"),
+        "k3": ("relu,depth=10", "RUNNING"),
+    }
+    names = [line.split()[0] for line in _variant_table(states).splitlines()[1:]]
+    assert names == ["relu,depth=1", "relu,depth=2", "relu,depth=10"]
+    names = [line.split()[0] for line in _variant_table(states, ["relu,depth=10", "relu,depth=2"]).splitlines()[1:]]
+    assert names == ["relu,depth=10", "relu,depth=2", "relu,depth=1"]

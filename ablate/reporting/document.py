@@ -274,16 +274,16 @@ def terminal_summary(folder: Path) -> str:
     if not path.is_file():
         return f"no report in {folder}"
     table = pd.read_csv(path)
-    lines = [f"{'variant':<16} {'solved':>7} {'episodes to solve (median)':>28} {'final rolling mean (IQM)':>26}"]
+    width = max([len("variant"), *(len(str(v)) for v in table.variant)])  # a grid's names run past 16 characters
+    lines = [f"{'variant':<{width}} {'solved':>7} {'episodes to solve (median)':>26} {'final rolling mean (IQM)':>24}"]
     for row in table.itertuples():
         seeds = int(row.seeds_run) if not pd.isna(row.seeds_run) else 0
         if not seeds:
-            lines.append(f"{row.variant:<16} {'no finished seeds':>7}")
+            lines.append(f"{row.variant:<{width}} no finished seeds")
             continue
         median = ("≥ " if row.median_censored else "") + _fmt(row.episodes_median)
-        lines.append(
-            f"{row.variant:<16} {int(row.solved):>3}/{seeds:<3} {median:>28} {_fmt(row.final_rolling_mean_iqm, 1):>26}"
-        )
+        solved = f"{int(row.solved)}/{seeds}"
+        lines.append(f"{row.variant:<{width}} {solved:>7} {median:>26} {_fmt(row.final_rolling_mean_iqm, 1):>24}")
     return "\n".join(lines)
 
 

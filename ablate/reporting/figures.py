@@ -34,7 +34,8 @@ BASELINE_COLOUR = "0.35"
 
 def esc(text: object) -> str:
     """User text (descriptions, variant names, errors, commands) made inert in Markdown and HTML."""
-    return html.escape(str(text)).replace("|", "&#124;").replace("`", "&#96;")
+    # quote=False: quotes are inert in Markdown and in HTML text; escaped, the Markdown read "course&#x27;s".
+    return html.escape(str(text), quote=False).replace("|", "&#124;").replace("`", "&#96;")
 
 
 def fmt(x: float | None, digits: int = 0) -> str:

@@ -76,8 +76,13 @@ def _role(ablation: Ablation, variant: str) -> str:
     if variant == ablation.baseline:
         return "baseline (reference)"
     users = [v for v in ablation.variants if v != variant and ablation.reference(v) == variant]
-    role = [f"compared with {_esc(ablation.reference(variant))}"] if variant in _extends(ablation) else []
+    role = [f"compared with {_esc(ablation.reference(variant))}"]
     return "; ".join(role + ([f"reference of {', '.join(map(_esc, users))}"] if users else []))
+
+
+def _episodes(count) -> str:
+    """``1 episode``, ``32 episodes``."""
+    return f"{count} episode{'' if str(count) == '1' else 's'}"
 
 
 def _method(ablation: Ablation, table: pd.DataFrame) -> str:
@@ -107,7 +112,7 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
         "of the policy's logits; each episode's rewards discounted (gamma "
         f"{base.get('gamma', '?')}), the returns normalised by mean and standard deviation across the update's "
         "batch; loss = softmax cross-entropy of the taken actions weighted by those returns; one Adam step per "
-        f"update of {base.get('episodes_per_update', '?')} episodes. L2 is a loss term over weight matrices; "
+        f"update of {_episodes(base.get('episodes_per_update', '?'))}. L2 is a loss term over weight matrices; "
         f"dropout is active in updates and off while acting.{reset}",
         "",
         f"**Seeds.** {len(seeds)} per variant ({', '.join(map(str, seeds))}): each seeds torch, the action sampler "

@@ -5,6 +5,7 @@ Reads through ``tracking`` and writes nothing (not even an empty SQLite file whe
 
 from __future__ import annotations
 
+import re
 import time
 from collections import Counter, defaultdict
 from collections.abc import Iterable
@@ -101,17 +102,27 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
         for launch in by_generation[generation]:
             lines.append(f"  launch {_when(launch.start_time_ms)}  {launch.status:<8}  {launch.command}".rstrip())
         if newest:
-            lines.append(_variant_table(states))
+            order = [v.name for v in experiment.variants] if experiment is not None else []
+            lines.append(_variant_table(states, order))
     return "\n".join(lines)
 
 
-def _variant_table(states: dict[str, tuple[str, str]]) -> str:
+def _natural(name: str) -> list:
+    """``depth=2`` after ``depth=1`` and ``width=16`` after ``width=8``: digits compared as numbers."""
+    return [(0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", name) if part]
+
+
+def _variant_table(states: dict[str, tuple[str, str]], order: list[str] | None = None) -> str:
+    """Trials by state per variant, in the experiment file's order (``order``), else by name with numbers as
+    numbers; never in the order the trials happened to finish."""
     per_variant: dict[str, Counter] = defaultdict(Counter)
     for variant, state in states.values():
         per_variant[variant][state] += 1
+    place = {name: i for i, name in enumerate(order or [])}
+    names = sorted(per_variant, key=lambda v: (place.get(v, len(place)), _natural(v)))
     shown = [s for s in STATES if any(c[s] for c in per_variant.values())] or ["FINISHED"]
     rows = [("variant", *(s.lower() for s in shown))]
-    rows += [(v, *(str(c[s]) for s in shown)) for v, c in per_variant.items()]
+    rows += [(v, *(str(per_variant[v][s]) for s in shown)) for v in names]
     return _table(rows, right=tuple(range(1, len(shown) + 1)), indent="  ")
 
 
