@@ -210,6 +210,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="an experiment file: train its trial of --variant and --seed instead of a preset",
     )
     train.add_argument("--variant", help="with --from: the variant's name, as in the experiment file")
+    train.add_argument(
+        "--stage",
+        choices=("eval", "tune", "base"),
+        help="with --from: eval (default), the trial the report's claims use, at the values tuning chose (read "
+        "from --tracking-uri); tune, a tuning trial (a tuning --seed, the candidate's --learning-rate); base, the "
+        "evaluation trial at the shared base value",
+    )
+    train.add_argument(
+        "--tracking-uri",
+        dest="tracking_uri",
+        help="with --from on a [tune] experiment: the store whose tuning chose the values (default: "
+        "sqlite:///mlflow.db); read only",
+    )
     add_knob_flags(train)
     train.add_argument(
         "--out", type=Path, default=None, help="output folder (default: outputs/train/<env>-s<seed>, or the trial key)"
@@ -293,41 +306,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def trial_from(args: argparse.Namespace, knobs: dict[str, Any]) -> tuple[TrialConfig, GridTrial]:
-    """The trial ``--from EXPERIMENT --variant V --seed S`` names, with only the knobs that leave its key alone."""
-    from ablate.experiment import load_experiment
-
-    experiment = load_experiment(args.from_experiment)
-    trials = expand(experiment)
-    variants = ", ".join(dict.fromkeys(t.variant for t in trials))
-    seeds = ", ".join(str(s) for s in experiment.seeds)
-    if args.variant is None or args.seed is None:
-        raise ConfigError(
-            f"--from {args.from_experiment} needs --variant (one of {variants}) and --seed (one of {seeds})"
-        )
-    changed = sorted(k for k in knobs if k not in (*NOT_IN_KEY_KNOBS, "seed"))
-    if changed or args.preset != "default":
-        flags = ", ".join(f"--{k.replace('_', '-')}" for k in changed) or "--preset"
-        raise ConfigError(
-            f"{flags}: not with --from, which trains the experiment's trial as it is (its key names its config); "
-            f"valid with --from: --no-video, --video-max-frames, --out"
-        )
-    trial = next((t for t in trials if t.variant == args.variant and t.seed == args.seed), None)
-    if trial is None:
-        if args.variant not in variants.split(", "):
-            raise ConfigError(
-                f"--variant {args.variant!r} is not a variant of {args.from_experiment}; valid: {variants}"
-            )
-        raise ConfigError(f"--seed {args.seed} is not a seed of {args.from_experiment}; valid: {seeds}")
-    extra = {k: v for k, v in knobs.items() if k in NOT_IN_KEY_KNOBS}
-    return apply_knobs(trial.config, extra), trial
-
-
 def cmd_train(args: argparse.Namespace) -> int:
     knobs = {k: getattr(args, k) for k in TRAIN_KNOBS if getattr(args, k) is not None}
     trial = None
+    chosen = None
     if args.from_experiment is not None:
-        config, trial = trial_from(args, knobs)
+        from ablate.train_from import trial_from
+
+        chosen = trial_from(args, knobs, NOT_IN_KEY_KNOBS)
+        config, trial = chosen.config, chosen.trial
     elif args.variant is not None:
         raise ConfigError("--variant: only with --from EXPERIMENT (a preset has no variants)")
     else:
@@ -335,7 +322,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     name = trial.key if trial else f"{config.env_id.replace('/', '_')}-s{config.seed}"
     out = args.out or Path("outputs/train") / name
     if trial:
-        print(f"trial {trial.key}: variant {trial.variant}, seed {trial.seed} of {args.from_experiment}")
+        print(
+            f"trial {trial.key}: variant {trial.variant}, seed {trial.seed} of {args.from_experiment}, {chosen.words}"
+        )
 
     from ablate.agent.trial import run_trial  # heavy imports only once the input is known to be good
 
@@ -345,6 +334,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     summary = result.summary()
     if trial:
         summary = {"trial_key": trial.key, "experiment_file": str(args.from_experiment), **summary}
+        summary |= {"stage": chosen.stage, "tuned_values": chosen.values}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     solved = (
         f"solved at episode {result.episodes_to_solve}"

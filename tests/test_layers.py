@@ -21,6 +21,7 @@ LAYERS = {
     "api": 4,
     "__init__": 4,
     "commands": 5,
+    "train_from": 5,
     "cli": 5,
 }
 RAY_ALLOWED = {"launch/scheduler.py"}

@@ -610,6 +610,29 @@ def test_a_tuned_ablation_reuses_the_untuned_trials_tunes_then_evaluates_at_the_
     status = detail(tracking_uri, "tiny", tuned)
     assert "of which tuning (stage 1): 8 trials: 8 finished" in status and "16 trials: 16 finished" in status
 
+    # issue 27: `ablate train --from` reruns the trial the report shows: the evaluation trial at the chosen value
+    # by default, a tuning trial with --stage tune; each the same episodes as its tracked run.
+    from ablate.cli import main
+
+    def rerun(out, *argv):
+        argv = ["train", "--from", tuned.path, "--variant", "deep", *argv, "--tracking-uri", tracking_uri]
+        assert main([*argv, "--no-video", "--out", str(tmp_path / out)]) == 0
+        return json.loads((tmp_path / out / "summary.json").read_text())
+
+    chosen = document["choices"]["deep"]["values"]["learning_rate"]
+    for summary, stage, seed, lr in (
+        (rerun("eval", "--seed", "1"), "eval", 1, chosen),
+        (rerun("tune", "--stage", "tune", "--seed", "10001", "--learning-rate", "0.01"), "tune", 10_001, 0.01),
+    ):
+        (tracked,) = [
+            r for r in runs if r.variant == "deep" and r.seed == seed and float(r.params["learning_rate"]) == lr
+        ]
+        assert summary["trial_key"] == tracked.key and summary["stage"] == stage
+        assert summary["tuned_values"] == {"learning_rate": lr}
+        assert summary["episodes_run"] == tracked.metrics["episodes_run"]
+        assert summary["env_steps"] == tracked.metrics["env_steps"]  # the same episodes, step for step
+        assert summary["final_rolling_mean"] == pytest.approx(tracked.metrics["final_rolling_mean"], abs=1e-9)
+
 
 def test_both_stages_start_their_trials_seeds_interleaved_across_variants(tmp_path, tracking_uri, monkeypatch):
     """Stage 2 (the trials at the chosen values) is handed to Ray in the order stage 1 is: every variant's
