@@ -194,9 +194,16 @@ class Results:
     ``curves``: long form, one row per trial and episode (variant, seed, episode, return, rolling_mean, wall_s).
     ``convergence``: one row per variant (solved seeds, episodes to solve with intervals, final return, ...),
     as ``tables/convergence.csv``. ``comparisons``: each variant against its reference, per metric, with its
-    interval and verdict, as ``tables/comparisons.csv``. ``tuning``: a tuned launch's stage 1, one row per
-    tuning trial (variant, seed, each tuned knob, the metric, status), as ``tables/tuning.csv``; empty for an
-    untuned ablation. ``figure(name)``: one of the report's figures.
+    interval and verdict, as ``tables/comparisons.csv``; its columns (docs/python.md has a table of them):
+    ``variant``, ``reference``, ``metric``; ``point``, ``low``, ``high`` (positive is better: episodes
+    1 - IQM ratio, returns the IQM difference); ``change``, ``change_low``, ``change_high`` in ``change_unit``
+    (the report's sign and units: episodes the % change of the IQM, + is more episodes; returns the difference);
+    ``verdict`` (better, worse, not separated, no claim); ``bound`` ("", "at least", "censored");
+    ``variant_value``, ``reference_value`` (the IQMs); ``n_variant``, ``n_reference`` (seeds); ``loo_checked``,
+    ``fragile_seeds`` (the leave-one-seed-out check); ``seeds_needed``, ``seeds_needed_smallest`` (``inf``: more
+    than ``seeds_cap``); ``seeds_cap``; ``p_improvement``, ``p_improvement_ci_low``, ``p_improvement_ci_high``.
+    ``tuning``: a tuned launch's stage 1, one row per tuning trial (variant, seed, each tuned knob, the metric,
+    status), as ``tables/tuning.csv``; empty for an untuned ablation. ``figure(name)``: one of the report's figures.
     """
 
     ablation: Ablation = field(repr=False)

@@ -161,3 +161,36 @@ def test_comparisons_are_against_each_variants_reference():
     assert compare_metric(ablation, "mlp", "auc", stability=False).point == pytest.approx(4.0)
     table = comparisons(replace(ablation, grid=ablation.grid | {"seeds": list(range(5))}), stability=False)
     assert dict(zip(table.variant, table.reference, strict=True)) == {"mlp": "cnn", "mlp-l2": "mlp"}
+
+
+def test_the_table_carries_the_reports_sign_and_units_and_a_testable_seed_cap():
+    # issue 27: the report said "change +5% (95% CI -21% to +40%)", results.comparisons "point -0.049,
+    # low -0.40, high 0.21", and seeds_needed = 51 meant "more than 50"
+    from ablate.reporting.findings import finding
+    from ablate.reporting.statistics import SEEDS_CAP
+
+    ablation = _frame({"a": [500, 520, 540, 560, 580], "b": [510, 530, 560, 600, 640]}, metric_values=None)
+    compare = comparisons(ablation)
+    row = compare[compare.metric == "episodes_to_solve"].iloc[0]
+    assert row.change == pytest.approx(-100 * row.point) and row.change > 0  # b needs more episodes: +
+    assert (row.change_low, row.change_high) == pytest.approx((-100 * row.high, -100 * row.low))
+    assert row.change_unit.startswith("% episodes")
+    text = finding(row, ablation, convergence_table(ablation))
+    assert f"change {row.change:+.0f}%" in text and f"95% CI {row.change_low:+.0f}% to {row.change_high:+.0f}%" in text
+    auc = compare[compare.metric == "auc"].iloc[0]
+    assert auc.change == auc.point and auc.change_unit.startswith("return")
+    assert (compare.seeds_cap == SEEDS_CAP).all()
+    needed = compare.seeds_needed.dropna()
+    assert not ((needed > SEEDS_CAP) & ~np.isinf(needed)).any()  # past the cap it is inf, never cap + 1
+
+
+def test_every_comparisons_column_is_documented_in_python_md_and_help():
+    from pathlib import Path
+
+    from ablate.api import Results
+
+    ablation = _frame({"a": [500, 520, 540, 560, 580], "b": [510, 530, 560, 600, 640]})
+    page = (Path(__file__).parents[1] / "docs" / "python.md").read_text()
+    for column in comparisons(ablation).columns:
+        assert f"`{column}`" in page, column
+        assert f"``{column}``" in Results.__doc__, column

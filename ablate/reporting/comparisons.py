@@ -12,6 +12,7 @@ from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import (
     BETTER,
     CONFIDENCE,
+    SEEDS_CAP,
     WORSE,
     _episodes_comparison,
     _return_comparison,
@@ -52,7 +53,8 @@ class Comparison:
     so the leave-one-seed-out check says nothing and is not made."""
     seeds_needed: float = np.nan
     """Where not separated: seeds per variant the decision rule would need to separate the observed difference
-    (``statistics.seeds_needed``; ``SEEDS_CAP + 1``: more than the cap); NaN where separated or not computed."""
+    (``statistics.seeds_needed``; ``SEEDS_CAP + 1``: more than the cap, ``inf`` in the table); NaN where separated
+    or not computed."""
     seeds_needed_smallest: float = np.nan
     """The same for a difference of the experiment's ``smallest_effect``."""
 
@@ -167,4 +169,30 @@ def comparisons(ablation: Ablation, stability: bool = True, power: bool = True) 
     for column in columns:
         if column not in frame:
             frame[column] = np.nan if column.startswith("p_") else ""
+    return in_report_units(frame)
+
+
+CHANGE_UNITS = {
+    True: "% episodes (variant against reference; + is more episodes)",
+    False: "return (variant minus reference; + is higher)",
+}
+
+
+def in_report_units(frame: pd.DataFrame) -> pd.DataFrame:
+    """Add the estimate in the report's sign and units beside ``point``/``low``/``high`` (whose sign is "positive
+    is better"): ``change``, ``change_low``, ``change_high`` and ``change_unit``. Episodes: the relative change of
+    the IQM in percent, + for more episodes (the report's "change +5% (95% CI -21% to +40%)"); returns: the
+    difference of the IQMs. And ``seeds_needed`` past the largest count tried as ``inf`` (more than ``seeds_cap``
+    seeds per variant), not ``seeds_cap + 1``."""
+    frame = frame.copy()
+    episodes = frame.metric.astype(str).str.startswith("episodes_to_").to_numpy(bool)
+    point, low, high = (pd.to_numeric(frame[c], errors="coerce").to_numpy(float) for c in ("point", "low", "high"))
+    frame["change"] = np.where(episodes, -100 * point, point)
+    frame["change_low"] = np.where(episodes, -100 * high, low)
+    frame["change_high"] = np.where(episodes, -100 * low, high)
+    frame["change_unit"] = [CHANGE_UNITS[bool(e)] for e in episodes]
+    frame["seeds_cap"] = SEEDS_CAP
+    for column in ("seeds_needed", "seeds_needed_smallest"):
+        values = pd.to_numeric(frame[column], errors="coerce")
+        frame[column] = values.where(~(values > SEEDS_CAP), np.inf)
     return frame
