@@ -63,3 +63,72 @@ class Adam:
         self.steps = state["steps"]
         for mine, saved in zip(self.exp_avg + self.exp_avg_sq, state["exp_avg"] + state["exp_avg_sq"], strict=True):
             mine.copy_(saved)
+
+
+class StackedAdam:
+    """``Adam`` for a population: each parameter is a stack of M members' tensors (member first), each member
+    with its own learning rate and step count. Adam is elementwise, so every member's slice is updated exactly
+    as its own ``Adam`` would update it (tested bit for bit): the same operations on the same values, only the
+    two per-member scalars (step size and bias correction) come from a tensor instead of a Python float."""
+
+    def __init__(
+        self,
+        params: Iterable[torch.Tensor],
+        lrs: Iterable[float],
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-8,
+    ) -> None:
+        self.params = [p for p in params if p.requires_grad]
+        self.lrs = [float(lr) for lr in lrs]
+        if any(lr <= 0 for lr in self.lrs):
+            raise ValueError(f"learning rates must be positive, got {self.lrs}")
+        self.beta1, self.beta2 = betas
+        self.eps = eps
+        self.steps = [0] * len(self.lrs)
+        self.exp_avg = [torch.zeros_like(p) for p in self.params]
+        self.exp_avg_sq = [torch.zeros_like(p) for p in self.params]
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        for p in self.params:
+            p.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        self.steps = [s + 1 for s in self.steps]
+        # Adam's Python floats, per member: rounded to float32 as the scalar arguments of its kernels are.
+        step_sizes = [-lr / (1 - self.beta1**s) for lr, s in zip(self.lrs, self.steps, strict=True)]
+        corrections = [(1 - self.beta2**s) ** 0.5 for s in self.steps]
+        device = self.params[0].device if self.params else None
+        neg_step = torch.tensor(step_sizes, dtype=torch.float32, device=device)
+        correction = torch.tensor(corrections, dtype=torch.float32, device=device)
+        for p, exp_avg, exp_avg_sq in zip(self.params, self.exp_avg, self.exp_avg_sq, strict=True):
+            if p.grad is None:
+                continue
+            grad = p.grad
+            shape = (-1,) + (1,) * (p.dim() - 1)
+            exp_avg.lerp_(grad, 1 - self.beta1)
+            exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
+            denom = (exp_avg_sq.sqrt() / correction.view(shape)).add_(self.eps)
+            # addcdiv_'s kernel computes p + (value * exp_avg) / denom, in that order.
+            p.add_(neg_step.view(shape) * exp_avg / denom)
+
+    def member_state(self, member: int) -> dict:
+        """Member ``member``'s state in ``Adam.state_dict``'s form (a trial's checkpoint)."""
+        return {
+            "steps": self.steps[member],
+            "exp_avg": [t[member].clone() for t in self.exp_avg],
+            "exp_avg_sq": [t[member].clone() for t in self.exp_avg_sq],
+        }
+
+    def load_member_state(self, member: int, state: dict) -> None:
+        self.steps[member] = state["steps"]
+        for mine, saved in zip(self.exp_avg + self.exp_avg_sq, state["exp_avg"] + state["exp_avg_sq"], strict=True):
+            mine[member].copy_(saved)
+
+    def keep(self, members: list[int], params: list[torch.Tensor]) -> None:
+        """Only ``members`` go on, their parameters now ``params`` (new stacks of the kept members' slices)."""
+        self.params = [p for p in params if p.requires_grad]
+        self.lrs = [self.lrs[m] for m in members]
+        self.steps = [self.steps[m] for m in members]
+        self.exp_avg = [t[members].clone() for t in self.exp_avg]
+        self.exp_avg_sq = [t[members].clone() for t in self.exp_avg_sq]

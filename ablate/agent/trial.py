@@ -8,33 +8,23 @@ from __future__ import annotations
 
 import csv
 import ctypes
-import io
-import math
 import os
 import sys
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
-import numpy as np
 import torch
-from threadpoolctl import threadpool_limits
 
 from ablate.agent.collectors import (
-    PongCollector,
-    TrainingVideos,
-    VectorCollector,
     record_greedy_episode,
     record_pong_episode,
     video_writer,
 )
-from ablate.agent.envs import PONG_ACTIONS, env_info, is_pong
-from ablate.agent.optim import Adam
-from ablate.agent.policies import Policy, create_model, parameter_count
-from ablate.agent.reinforce import discount_rewards, normalize, train_step
+from ablate.agent.envs import env_info, is_pong
+from ablate.agent.policies import Policy
 from ablate.config import TrialConfig
 
 
@@ -160,163 +150,30 @@ def run_trial(
     resume_from: bytes | None = None,
     on_checkpoint: Callable[[bytes], None] | None = None,
 ) -> TrialResult:
-    """Train one REINFORCE agent as ``config`` says and return its per-episode metrics and weights.
+    """Train one REINFORCE agent as ``config`` says and return its per-episode metrics and weights: a
+    population of one (``population.run_population``), so a trial and a population member are one code path.
 
     ``on_episodes`` receives each update's new episodes as they finish. With ``artifacts_dir``, the trial
     writes ``episodes.csv``, ``weights.pt``, ``learning_curve.png`` and (if ``record_video``) ``video.mp4``;
     a Pong trial also ``observation.png`` and, with ``video_every``, ``videos/episode_NNNNN.mp4``.
 
     Every ``config.checkpoint_interval`` episodes, ``on_checkpoint`` receives a bytes blob of the whole trial
-    state (weights, optimizer, RNGs, emulators, episode history). ``resume_from`` = such a blob: the trial
+    state (weights, optimizer, RNGs, envs, episode history). ``resume_from`` = such a blob: the trial
     restores it, hands the saved history to ``on_episodes`` in one call, and goes on from the next episode;
-    a resumed Pong trial returns exactly what the unbroken one would have.
+    a resumed trial returns exactly what the unbroken one would have. Raises ``TrialFailed`` (a NaN loss).
     """
-    _inject_fault(config)
-    started = time.perf_counter()
-    torch.set_num_threads(1)  # tiny networks: threads cost more than they give, and trials run side by side
-    threadpool_limits(1, user_api="blas")  # the same for numpy's acting path (OpenBLAS would spin 2 threads)
-    pong = is_pong(config.env_id)
-    if pong:
-        _limit_fragmentation()
-    torch.manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
-    info = env_info(config.env_id)
-    threshold = solve_threshold(config)
-    n_actions = len(PONG_ACTIONS[config.action_set]) if pong else info.n_actions
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    model = create_model(config.env_id, config.model, info.observation_size, n_actions).to(device)
-    optimizer = Adam(model.parameters(), lr=config.learning_rate)
-    videos = TrainingVideos(
-        Path(artifacts_dir) if artifacts_dir is not None and pong else None,
-        config.video_every,
-        config.video_max_frames,
-        info.video_fps,
+    from ablate.agent.population import run_population  # it builds on this module's types
+
+    [outcome] = run_population(
+        [config],
+        on_episodes=(lambda _, rows: on_episodes(rows)) if on_episodes is not None else None,
+        artifacts_dirs=[artifacts_dir],
+        resume_from=[resume_from],
+        on_checkpoint=(lambda _, blob: on_checkpoint(blob)) if on_checkpoint is not None else None,
     )
-    collector = PongCollector(config, videos) if pong else VectorCollector(config)
-
-    history: list[EpisodeMetrics] = []
-    window: deque[float] = deque(maxlen=config.solve_window)
-    env_steps = 0
-    episodes_to_solve: int | None = None
-    updates = 0
-    if resume_from is not None:
-        saved = torch.load(io.BytesIO(resume_from), weights_only=False)
-        model.load_state_dict(saved["model"])
-        optimizer.load_state_dict(saved["optimizer"])
-        torch.set_rng_state(saved["torch_rng"])
-        rng.bit_generator.state = saved["numpy_rng"]
-        history = [EpisodeMetrics(*row) for row in saved["history"]]
-        window.extend(m.episode_return for m in history[-config.solve_window :])
-        env_steps, updates, episodes_to_solve = saved["env_steps"], saved["updates"], saved["episodes_to_solve"]
-        collector.set_state(saved["collector"], config, len(history))
-        started -= saved["wall_s"]
-        if on_episodes is not None and history:
-            on_episodes(list(history))
-    every = config.checkpoint_interval if on_checkpoint is not None else 0
-    next_checkpoint = (len(history) // every + 1) * every if every else None
-    chunk = PONG_TRAIN_CHUNK if pong else None
-    try:
-        while len(history) < config.max_episodes and episodes_to_solve is None:
-            count = min(config.episodes_per_update, config.max_episodes - len(history))
-            episodes = collector.collect(model, rng, count, budget=config.max_episodes - len(history))
-            # Returns are discounted within each episode, then normalised across the whole batch.
-            returns = [discount_rewards(e.rewards, config.gamma, config.reset_on_score) for e in episodes]
-            stats = train_step(
-                model,
-                optimizer,
-                np.concatenate([e.observations for e in episodes]),
-                np.concatenate([e.actions for e in episodes]),
-                normalize(np.concatenate(returns)),
-                l2=config.l2,
-                chunk_size=chunk,
-            )
-            if not math.isfinite(stats.loss):
-                raise TrialFailed(
-                    f"loss became {stats.loss} at episode {len(history) + count}; "
-                    f"try a smaller learning_rate (now {config.learning_rate})"
-                )
-            updates += 1
-            if config.fault == "raise":
-                raise TrialFailed("injected fault: raise after the first update (tests only)")
-            wall_s = time.perf_counter() - started
-            new: list[EpisodeMetrics] = []
-            for e in episodes:
-                env_steps += len(e.actions)
-                episode_return = float(e.rewards.sum())
-                window.append(episode_return)
-                rolling = float(np.mean(window))
-                new.append(
-                    EpisodeMetrics(
-                        len(history) + len(new) + 1,
-                        episode_return,
-                        len(e.actions),
-                        stats.loss,
-                        stats.entropy,
-                        rolling,
-                        env_steps,
-                        wall_s,
-                        updates,
-                    )
-                )
-                if (
-                    episodes_to_solve is None
-                    and threshold is not None
-                    and len(window) == config.solve_window
-                    and rolling >= threshold
-                ):
-                    episodes_to_solve = new[-1].episode
-            del episodes, returns
-            history.extend(new)
-            if on_episodes is not None:
-                on_episodes(new)
-            if next_checkpoint is not None and len(history) >= next_checkpoint and len(history) < config.max_episodes:
-                on_checkpoint(
-                    _checkpoint(
-                        model, optimizer, rng, collector, history, env_steps, updates, episodes_to_solve, wall_s
-                    )
-                )
-                next_checkpoint = (len(history) // every + 1) * every
-                if config.fault == "crash_after_checkpoint" and not Path(config.fault_marker).exists():
-                    Path(config.fault_marker).write_text("crashed after a checkpoint\n")
-                    os._exit(17)  # the process dies with a checkpoint taken: its retry must resume from it
-    finally:
-        collector.close()
-
-    result = TrialResult(
-        config=config,
-        episodes=history,
-        episodes_to_solve=episodes_to_solve,
-        solve_threshold=threshold,
-        env_steps=env_steps,
-        wall_s=time.perf_counter() - started,
-        parameter_count=parameter_count(model),
-        state_dict={k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
-    )
-    if artifacts_dir is not None:
-        result.artifacts.update({f"videos/{p.name}": p for p in videos.paths if p.exists()})
-        write_artifacts(result, model, Path(artifacts_dir))
-    return result
-
-
-def _checkpoint(model, optimizer, rng, collector, history, env_steps, updates, episodes_to_solve, wall_s) -> bytes:
-    buffer = io.BytesIO()
-    torch.save(
-        {
-            "version": 1,
-            "model": model.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "torch_rng": torch.get_rng_state(),
-            "numpy_rng": rng.bit_generator.state,
-            "collector": collector.state(len(history)),
-            "history": [tuple(m) for m in history],
-            "env_steps": env_steps,
-            "updates": updates,
-            "episodes_to_solve": episodes_to_solve,
-            "wall_s": wall_s,
-        },
-        buffer,
-    )
-    return buffer.getvalue()
+    if isinstance(outcome, TrialFailed):
+        raise outcome
+    return outcome
 
 
 def write_artifacts(result: TrialResult, model: Policy, folder: Path) -> None:

@@ -1,0 +1,327 @@
+"""A population's dense CartPole policies as stacked tensors: one numpy forward to act for every member, one
+batched forward, loss and backward to learn, one ``StackedAdam`` step; episodes from one ``CartPoleBatch``.
+
+Every member keeps its single trial's random streams (initial weights, actions, envs, dropout masks), so a
+population of one is its single trial bit for bit, and a member of a larger one follows it until float
+differences in the batched products first flip a sampled action.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ablate.agent.envs import env_info
+from ablate.agent.optim import StackedAdam
+from ablate.agent.policies import _NUMPY_ACTIVATIONS, Policy, create_model
+from ablate.agent.reinforce import UpdateStats, normalize
+from ablate.agent.vector_cartpole import CartPoleBatch, StreamDraws, generator_at
+from ablate.config import TrialConfig
+
+_STACKABLE_ACTIVATIONS = ("relu", "tanh", "elu")
+"""Those acting has a numpy stand-in for (``policies._NUMPY_ACTIVATIONS``): a member acts in numpy exactly as
+its single trial does. GELU's single trial acts through torch, so a GELU variant keeps its own path."""
+
+
+def stackable(config: TrialConfig) -> bool:
+    """Whether ``config`` trains in a stacked population (CartPole's dense MLP), not its own path."""
+    return (
+        config.env_id.startswith("CartPole")
+        and config.model.architecture == "mlp"
+        and config.model.activation in _STACKABLE_ACTIVATIONS
+    )
+
+
+def population_group(config: TrialConfig) -> tuple | None:
+    """Configs with one group share a population: the same network and batch shape (everything else, the
+    seed, learning rate, L2, discount, budget and stop rule, is per member). ``None``: a population of one."""
+    if not stackable(config):
+        return None
+    return (config.env_id, config.model, config.episodes_per_update)
+
+
+_BLOCK_STEPS = 64
+"""Steps of action uniforms read from the streams at a time."""
+
+
+class Batch(NamedTuple):
+    """One member's episodes of one update."""
+
+    lengths: np.ndarray
+    """Steps of each episode, in order."""
+    episode_returns: np.ndarray
+    observations: np.ndarray
+    """Every episode's observations, concatenated in order (the update's batch)."""
+    actions: np.ndarray
+    weights: np.ndarray
+    """Normalised discounted returns: the policy-gradient weights."""
+
+
+class StackedMLP:
+    """M dense policies of one architecture, each layer's weights and biases stacked member-first, with the
+    names, order and shapes of ``Policy`` parameters (a member's slice loads into a ``Policy`` as it is)."""
+
+    def __init__(self, policies: Sequence[Policy], device: torch.device) -> None:
+        body = policies[0].body
+        self.template = policies[0]
+        self.linear = [k for k, m in enumerate(body) if isinstance(m, nn.Linear)]
+        self.activations = {k: body[k + 1] for k in self.linear[:-1]}
+        self.dropout = next((m.p for m in body if isinstance(m, nn.Dropout)), 0.0)
+        self.names = [name for name, _ in policies[0].named_parameters()]
+        self.params = [
+            torch.stack([dict(p.named_parameters())[name].detach() for p in policies]).to(device).requires_grad_()
+            for name in self.names
+        ]
+        self._numpy: list | None = None
+
+    @property
+    def members(self) -> int:
+        return self.params[0].shape[0]
+
+    def layers(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        return [(self.params[2 * i], self.params[2 * i + 1]) for i in range(len(self.linear))]
+
+    def refresh(self) -> None:
+        """Acting's numpy copies of the weights (as ``Policy.act_logits`` keeps them), after each update."""
+        self._numpy = [
+            (w.detach().cpu().numpy().transpose(0, 2, 1).copy(), b.detach().cpu().numpy()[:, None, :].copy())
+            for w, b in self.layers()
+        ]
+
+    def act_logits(self, observations: np.ndarray) -> np.ndarray:
+        """(M, N, obs) float32 -> (M, N, actions) logits, every member's ``Policy.act_logits`` in one pass."""
+        if self._numpy is None:
+            self.refresh()
+        x = observations
+        for (weight, bias), k in zip(self._numpy, self.linear, strict=True):
+            x = np.matmul(x, weight)
+            x += bias
+            if k in self.activations:
+                x = _NUMPY_ACTIVATIONS[type(self.activations[k])](x)
+        return x
+
+    def logits(self, x: torch.Tensor, masks: list[torch.Tensor]) -> torch.Tensor:
+        """Training forward, (M, T, obs) -> (M, T, actions); ``masks``: each dropout layer's scaled mask."""
+        single = self.members == 1
+        for i, ((weight, bias), k) in enumerate(zip(self.layers(), self.linear, strict=True)):
+            # One member: the same kernel as nn.Linear, so a population of one is its single trial exactly.
+            x = (
+                F.linear(x[0], weight[0], bias[0])[None]
+                if single
+                else torch.baddbmm(bias[:, None], x, weight.transpose(1, 2))
+            )
+            if k in self.activations:
+                x = self.activations[k](x)
+                if masks:
+                    x = x * masks[i]
+        return x
+
+    def member_state(self, member: int) -> dict[str, torch.Tensor]:
+        return {name: p[member].detach().cpu().clone() for name, p in zip(self.names, self.params, strict=True)}
+
+    def load_member_state(self, member: int, state: dict[str, torch.Tensor]) -> None:
+        with torch.no_grad():
+            for name, p in zip(self.names, self.params, strict=True):
+                p[member].copy_(state[name])
+        self._numpy = None
+
+    def keep(self, members: list[int]) -> None:
+        self.params = [p.detach()[members].clone().requires_grad_() for p in self.params]
+        self._numpy = None
+
+
+class StackedBackend:
+    """A population of CartPole dense-MLP members (``population_group`` equal): its episodes, updates and
+    per-member state. Slots are members' positions in the current stacks; ``keep`` drops those that left."""
+
+    def __init__(self, configs: Sequence[TrialConfig], device: torch.device) -> None:
+        self.configs = list(configs)
+        info = env_info(configs[0].env_id)
+        self.num_envs = configs[0].episodes_per_update
+        policies, self.generators = [], []
+        for config in configs:
+            torch.manual_seed(config.seed)  # initial weights as run_trial draws them, then dropout's stream
+            policies.append(create_model(config.env_id, config.model, info.observation_size, info.n_actions))
+            generator = torch.Generator()
+            generator.set_state(torch.get_rng_state())
+            self.generators.append(generator)
+        self.model = StackedMLP(policies, device)
+        self.device = device
+        self.optimizer = StackedAdam(self.model.params, [c.learning_rate for c in configs])
+        self.env = CartPoleBatch([c.seed for c in configs], self.num_envs, info.max_episode_steps)
+        self.actions = StreamDraws([np.random.default_rng(c.seed) for c in configs], 64 * self.num_envs)
+
+    # --- episodes ---
+    def collect(self, counts: Sequence[int], budgets: Sequence[int]) -> list[Batch]:
+        """Every member's next ``counts[i]`` episodes, from a reset, all members stepped together. A member
+        samples and draws exactly as ``collectors.collect_episodes`` does alone, until its own episodes end."""
+        m, n = self.model.members, self.num_envs
+        counts_a = np.asarray(counts)
+        observations = self.env.reset()
+        active = np.arange(n)[None, :] < counts_a[:, None]
+        lengths = np.zeros((m, n), np.int64)
+        collecting = active.any(axis=1)
+        obs_steps, action_steps = [], []
+        taken = np.zeros(m, np.int64)
+        block = np.zeros((m, 0, n))
+        while collecting.any():
+            logits = self.model.act_logits(observations)
+            t = len(action_steps) % _BLOCK_STEPS
+            if t == 0:  # the next steps' uniforms of every member: a member that acts takes n a step, in order
+                self.actions.take(taken)
+                taken[:] = 0
+                block = self.actions.peek(_BLOCK_STEPS * n).reshape(m, _BLOCK_STEPS, n)
+            u = block[:, t]
+            taken += n * collecting
+            # choose_action's inverse-CDF sampling, per row.
+            cumulative = np.cumsum(np.exp(logits - logits.max(axis=2, keepdims=True)), axis=2)
+            u = u[:, :, None] * cumulative[:, :, -1:]
+            actions = np.minimum((cumulative < u).sum(axis=2), logits.shape[2] - 1)
+            obs_steps.append(observations)
+            action_steps.append(actions)
+            observations, _, terminated, truncated = self.env.step(actions, collecting)
+            finished = active & (terminated | truncated)
+            lengths[finished] = len(action_steps)
+            active &= ~finished
+            collecting = active.any(axis=1)
+        self.actions.take(taken)
+        return self._batches(counts_a, lengths, np.stack(obs_steps, axis=2), np.stack(action_steps, axis=2))
+
+    def _batches(self, counts: np.ndarray, lengths: np.ndarray, obs: np.ndarray, actions: np.ndarray) -> list[Batch]:
+        steps = obs.shape[2]
+        valid = np.arange(steps)[None, None, :] < lengths[:, :, None]
+        gamma = np.array([c.gamma for c in self.configs])[:, None]
+        # reinforce.discount_rewards for every episode at once (CartPole pays 1.0 a step): the same operations.
+        running = np.zeros(lengths.shape)
+        returns = np.zeros(valid.shape)
+        for t in range(steps - 1, -1, -1):
+            running = np.where(valid[:, :, t], 1.0 + gamma * running, 0.0)
+            returns[:, :, t] = running
+        batches = []
+        for i, count in enumerate(counts):
+            episode_lengths = lengths[i, :count]
+            batches.append(
+                Batch(
+                    episode_lengths,
+                    episode_lengths.astype(np.float64),
+                    obs[i][valid[i]],
+                    actions[i][valid[i]].astype(np.int64),
+                    normalize(returns[i][valid[i]]),
+                )
+            )
+        return batches
+
+    # --- updates ---
+    def update(self, batches: Sequence[Batch]) -> list[UpdateStats]:
+        """One batched forward, loss and backward over every member's batch, then one Adam step for all."""
+        sizes = [len(b.actions) for b in batches]
+        longest = max(sizes)
+        m = len(batches)
+        if m == 1:  # the batch's own memory, as train_step reads it: gemm's result can depend on alignment
+            x, actions = torch.from_numpy(batches[0].observations)[None], torch.from_numpy(batches[0].actions)[None]
+        else:
+            x = torch.zeros(m, longest, batches[0].observations.shape[1])
+            actions = torch.zeros(m, longest, dtype=torch.int64)
+            for i, b in enumerate(batches):
+                x[i, : sizes[i]] = torch.from_numpy(b.observations)
+                actions[i, : sizes[i]] = torch.from_numpy(b.actions)
+        masks = self._dropout_masks(sizes, longest)
+        x, actions = x.to(self.device), actions.to(self.device)
+        self.optimizer.zero_grad()
+        logits = self.model.logits(x, masks)
+        n_actions = logits.shape[2]
+        cross_entropy = F.cross_entropy(logits.reshape(-1, n_actions), actions.reshape(-1), reduction="none")
+        cross_entropy = cross_entropy.reshape(m, longest)
+        # reinforce.compute_loss per member, over its own observations only.
+        losses = [
+            (cross_entropy[i, : sizes[i]] * torch.from_numpy(b.weights).to(self.device)).mean()
+            for i, b in enumerate(batches)
+        ]
+        total = sum(losses)
+        for i, config in enumerate(self.configs):
+            if config.l2 > 0:
+                weights = [w[i] for w, _ in self.model.layers()]
+                penalty = sum((w.pow(2).sum() for w in weights), torch.zeros((), device=self.device))
+                total = total + config.l2 * penalty
+        total.backward()
+        with torch.no_grad():
+            log_probs = F.log_softmax(logits, dim=2)
+            entropy = -(log_probs.exp() * log_probs).sum(dim=2)
+            entropies = [entropy[i, : sizes[i]].sum() for i in range(m)]
+            values = torch.stack([torch.stack(losses).detach(), torch.stack(entropies)]).cpu().tolist()
+        self.optimizer.step()
+        self.model.refresh()
+        return [UpdateStats(loss, entropy / max(size, 1)) for loss, entropy, size in zip(*values, sizes, strict=True)]
+
+    def _dropout_masks(self, sizes: list[int], longest: int) -> list[torch.Tensor]:
+        """Each dropout layer's mask (scaled by 1/(1-p)), per member from its own generator, drawn as
+        ``F.dropout`` draws them in its single trial (a bernoulli over that layer's (T, width) output)."""
+        p = self.model.dropout
+        if p <= 0:
+            return []
+        masks = []
+        for w, _ in self.model.layers()[:-1]:
+            width = w.shape[1]
+            mask = torch.zeros(len(sizes), longest, width)
+            for i, size in enumerate(sizes):
+                mask[i, :size] = torch.empty(size, width).bernoulli_(1 - p, generator=self.generators[i]).div_(1 - p)
+            masks.append(mask.to(self.device))
+        return masks
+
+    # --- members ---
+    def policy(self, slot: int) -> Policy:
+        """Member ``slot`` as a ``Policy`` (its video, its weights)."""
+        config = self.configs[slot]
+        info = env_info(config.env_id)
+        policy = create_model(config.env_id, config.model, info.observation_size, info.n_actions)
+        policy.load_state_dict(self.model.member_state(slot))
+        return policy
+
+    def state(self, slot: int) -> dict:
+        """Member ``slot``'s part of a checkpoint, in run_trial's format."""
+        return {
+            "model": self.model.member_state(slot),
+            "optimizer": self.optimizer.member_state(slot),
+            "torch_rng": self.generators[slot].get_state(),
+            "numpy_rng": self.actions.states()[slot],
+            "collector": {"env_streams": self.env.stream_states(slot)},
+        }
+
+    def restore(self, slot: int, saved: dict, episodes_done: int) -> None:
+        config = self.configs[slot]
+        self.model.load_member_state(slot, saved["model"])
+        self.optimizer.load_member_state(slot, saved["optimizer"])
+        self.generators[slot].set_state(saved["torch_rng"])
+        self.actions.set_state(slot, saved["numpy_rng"])
+        streams = saved["collector"].get("env_streams")
+        if streams is None:
+            # A checkpoint of the Gymnasium-env collector, which could not save its envs' streams: re-seeded from
+            # the episode count, as it resumed (deterministic, though not the unbroken run).
+            seed = config.seed + 7919 * episodes_done
+            count = 1 if self.env.shared else self.num_envs
+            streams = [np.random.default_rng(seed + j).bit_generator.state for j in range(count)]
+        self.env.set_stream_states(slot, streams)
+
+    def keep(self, slots: list[int]) -> None:
+        """Only ``slots`` go on (the others left the population), in this order."""
+        index = np.asarray(slots, np.int64)
+        self.model.keep(slots)
+        self.optimizer.keep(slots, self.model.params)
+        self.env.keep(index)
+        self.actions.keep(index)
+        self.configs = [self.configs[s] for s in slots]
+        self.generators = [self.generators[s] for s in slots]
+
+    def video_paths(self, slot: int) -> list:
+        return []
+
+    def close(self) -> None:
+        pass
+
+
+__all__ = ["Batch", "StackedBackend", "StackedMLP", "generator_at", "population_group", "stackable"]

@@ -1,0 +1,168 @@
+"""Population trials: a member is its single trial (same episodes, loss and gradients), a member that fails or
+solves early leaves the others going, a killed population resumes each member exactly."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from ablate.agent.population import SingleBackend, can_share, run_population
+from ablate.agent.stacked import StackedBackend, population_group
+from ablate.agent.trial import TrialFailed, TrialResult, run_trial
+from ablate.config import DEFAULT, ModelConfig
+
+SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=48, episodes_per_update=8, record_video=False)
+DEEP = replace(SHORT, model=ModelConfig(hidden_sizes=(16, 16), dropout=0.2), l2=0.001)
+
+
+def _members(base):
+    """Seeds and tuning candidates (learning rates) of one variant: one population."""
+    return [replace(base, seed=s, learning_rate=lr) for s, lr in ((0, 0.03), (1, 0.1), (2, 0.01), (3, 0.03))]
+
+
+def _first_update(backend):
+    """The first batch of each member and its update's stats, the Adam step skipped (the gradients stay)."""
+    backend.optimizer.step = lambda: None
+    batches = backend.collect([8] * len(backend.configs), [48] * len(backend.configs))
+    return batches, backend.update(batches)
+
+
+@pytest.mark.parametrize("base", [SHORT, DEEP], ids=["dense", "dropout+l2"])
+def test_a_member_has_its_single_trials_first_episodes_loss_and_gradients(base):
+    configs = _members(base)
+    population = StackedBackend(configs, torch.device("cpu"))
+    batches, stats = _first_update(population)
+    for i, config in enumerate(configs):
+        single = SingleBackend(config, torch.device("cpu"), None)  # the pre-population path, nn.Linear and all
+        single.optimizer.step = lambda: None
+        [batch] = single.collect([8], [48])
+        [stat] = single.update([batch])
+        for mine, theirs in zip(batches[i], batch, strict=True):
+            np.testing.assert_array_equal(mine, theirs)  # the same episodes, bit for bit
+        assert stats[i].loss == pytest.approx(stat.loss, rel=1e-5, abs=1e-7)
+        assert stats[i].entropy == pytest.approx(stat.entropy, rel=1e-5)
+        for p, q in zip(population.model.params, single.model.parameters(), strict=True):
+            torch.testing.assert_close(p.grad[i], q.grad, rtol=1e-4, atol=1e-6)
+
+
+def test_a_population_of_one_is_its_single_trial_bit_for_bit():
+    """run_trial is a population of one, and that is the pre-population path exactly (nn.Linear's kernels)."""
+    config = replace(DEEP, seed=5)
+    single = SingleBackend(config, torch.device("cpu"), None)
+    stacked = StackedBackend([config], torch.device("cpu"))
+    for _ in range(3):
+        [a], [b] = single.collect([8], [48]), stacked.collect([8], [48])
+        for mine, theirs in zip(a, b, strict=True):
+            np.testing.assert_array_equal(mine, theirs)
+        assert single.update([a]) == stacked.update([b])
+    for name, tensor in stacked.policy(0).state_dict().items():
+        assert torch.equal(tensor, single.model.state_dict()[name]), name
+
+
+def test_members_follow_their_single_trials():
+    configs = _members(SHORT)
+    outcomes = run_population(configs)
+    for config, outcome in zip(configs, outcomes, strict=True):
+        alone = run_trial(config)
+        assert outcome.returns[:8] == alone.returns[:8]  # before any update: identical
+        assert outcome.episodes[0].loss == pytest.approx(alone.episodes[0].loss, rel=1e-5)
+        assert len(outcome.episodes) == len(alone.episodes) == 48
+
+
+def test_callbacks_are_per_member_and_in_order():
+    seen: dict[int, list] = {}
+    finished = []
+    outcomes = run_population(
+        _members(SHORT),
+        on_episodes=lambda i, rows: seen.setdefault(i, []).extend(rows),
+        on_outcome=lambda i, outcome: finished.append(i),
+    )
+    assert sorted(finished) == [0, 1, 2, 3]
+    for i, outcome in enumerate(outcomes):
+        assert [m.episode for m in seen[i]] == list(range(1, 49))
+        assert seen[i] == outcome.episodes
+
+
+def test_a_failing_member_fails_alone_and_one_that_solves_leaves_early():
+    configs = _members(SHORT)
+    configs[1] = replace(configs[1], fault="raise")
+    configs[2] = replace(configs[2], solve_threshold=1.0, solve_window=8)  # solved when its window first fills
+    order = []
+    outcomes = run_population(configs, on_outcome=lambda i, outcome: order.append(i))
+    assert isinstance(outcomes[1], TrialFailed) and "injected fault" in str(outcomes[1])
+    assert isinstance(outcomes[2], TrialResult) and outcomes[2].episodes_to_solve == 8
+    assert len(outcomes[2].episodes) == 8
+    assert order[:2] == [1, 2]  # each left as it ended, not when the population did
+    others = run_population([configs[0], configs[3]])
+    for mine, theirs in zip((outcomes[0], outcomes[3]), others, strict=True):
+        assert len(mine.episodes) == 48 and mine.returns[:8] == theirs.returns[:8]
+        assert [m.loss for m in mine.episodes] == pytest.approx([m.loss for m in theirs.episodes], rel=1e-4)
+
+
+def test_a_member_whose_weights_turn_nan_fails_alone(monkeypatch):
+    update = StackedBackend.update
+
+    def poisoned(self, batches):
+        stats = update(self, batches)
+        if len(self.configs) == 3:  # member 1's weights become NaN after the first update
+            with torch.no_grad():
+                self.model.params[0][1].fill_(float("nan"))
+            self.model.refresh()
+        return stats
+
+    monkeypatch.setattr(StackedBackend, "update", poisoned)
+    configs = _members(SHORT)[:3]
+    outcomes = run_population(configs)
+    assert isinstance(outcomes[1], TrialFailed) and "loss became nan at episode 16" in str(outcomes[1])
+    assert "learning_rate (now 0.1)" in str(outcomes[1])
+    others = run_population([configs[0], configs[2]])
+    for mine, theirs in zip((outcomes[0], outcomes[2]), others, strict=True):
+        assert len(mine.episodes) == 48 and mine.returns[:16] == theirs.returns[:16]
+        assert np.isfinite([m.loss for m in mine.episodes]).all()
+
+
+def test_a_killed_population_resumes_every_member_exactly():
+    configs = [replace(c, checkpoint_every=16) for c in _members(DEEP)]
+    blobs: dict[int, list[bytes]] = {}
+    whole = run_population(configs, on_checkpoint=lambda i, blob: blobs.setdefault(i, []).append(blob))
+    assert all(len(blobs[i]) == 2 for i in range(4))  # at 16 and 32 of 48 episodes
+    replayed: dict[int, list] = {}
+    resumed = run_population(
+        configs,
+        on_episodes=lambda i, rows: replayed.setdefault(i, []).append(rows),
+        resume_from=[blobs[i][0] for i in range(4)],
+    )
+    for i, (a, b) in enumerate(zip(whole, resumed, strict=True)):
+        assert [m[:7] for m in a.episodes] == [m[:7] for m in b.episodes]
+        for name, tensor in a.state_dict.items():
+            assert torch.equal(b.state_dict[name], tensor), (i, name)
+        assert len(replayed[i][0]) == 16  # the saved history first, in one call
+
+
+def test_a_cartpole_trial_resumes_exactly_and_reads_the_old_collectors_checkpoints():
+    config = replace(SHORT, checkpoint_every=16, episodes_per_update=2)
+    blobs = []
+    whole = run_trial(config, on_checkpoint=blobs.append)
+    resumed = run_trial(config, resume_from=blobs[0])
+    assert resumed.returns == whole.returns
+    assert [m.loss for m in resumed.episodes] == [m.loss for m in whole.episodes]
+    # A blob of the Gymnasium-env collector (no env streams): re-seeded from the episode count, as it resumed.
+    saved = torch.load(__import__("io").BytesIO(blobs[0]), weights_only=False)
+    saved["collector"] = {"reset_seed": None}
+    buffer = __import__("io").BytesIO()
+    torch.save(saved, buffer)
+    legacy = run_trial(config, resume_from=buffer.getvalue())
+    assert legacy.returns[:16] == whole.returns[:16] and len(legacy.episodes) == 48
+
+
+def test_which_configs_share_a_population():
+    assert can_share(_members(SHORT)) and can_share([replace(SHORT, gamma=0.9), replace(SHORT, l2=0.01)])
+    assert not can_share([SHORT, replace(SHORT, episodes_per_update=4)])
+    assert not can_share([SHORT, DEEP])
+    cnn = replace(SHORT, model=ModelConfig(architecture="cnn"))
+    gelu = replace(SHORT, model=ModelConfig(activation="gelu"))
+    assert population_group(cnn) is None and population_group(gelu) is None
+    assert can_share([cnn]) and not can_share([cnn, replace(cnn, seed=1)])
+    with pytest.raises(ValueError, match="cannot share"):
+        run_population([cnn, replace(cnn, seed=1)])
