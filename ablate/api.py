@@ -77,6 +77,7 @@ def run(
     reports_folder: str | Path = "reports",
     progress: bool = True,
     storage_path: str = "ray_results",
+    population: int = 1,
 ) -> RunOutcome:
     """Run an experiment's trials on Ray and track them in MLflow, as ``ablate run`` does.
 
@@ -86,6 +87,7 @@ def run(
     ``only`` / ``seeds``: run a part of the grid (variant names, evaluation seeds).
     ``fresh``: start a new generation instead of resuming the last one.
     ``report``: write ``reports_folder/<experiment>/`` afterwards (when no trial was interrupted).
+    ``population``: train up to this many trials of a variant together as one batched population (1: alone).
 
     Trials that already finished in the store are not run again. Returns the launch's ``RunOutcome``
     (``finished``, ``failed``, ``skipped``, ``exit_code``, ...); ``outcome.report_folder`` is the report's
@@ -97,6 +99,8 @@ def run(
     loaded = _experiment(experiment)
     if max_concurrent is not None and max_concurrent < 1:
         raise ConfigError(f"max_concurrent={max_concurrent} is invalid; valid: an integer >= 1")
+    if population < 1:
+        raise ConfigError(f"population={population} is invalid; valid: an integer >= 1")
     chosen = select(expand(loaded), list(only) if only is not None else None, list(seeds) if seeds else None)
     outcome = run_experiment(
         loaded,
@@ -108,6 +112,7 @@ def run(
         show_progress=progress,
         command=f"ablate.run({loaded.path!r})",
         only=chosen,
+        population=population,
     )
     if report and not outcome.interrupted and not outcome.error and (outcome.finished or outcome.skipped):
         outcome.report_folder = _write_report(loaded, tracking_uri, reports_folder)

@@ -249,6 +249,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
     run.add_argument("--fresh", action="store_true", help="start over under a new parent run (a new generation)")
     run.add_argument("--max-concurrent", dest="max_concurrent", type=int, help="trials at once (default: CPUs)")
+    run.add_argument(
+        "--population",
+        type=int,
+        default=1,
+        metavar="M",
+        help="train up to M trials of a variant together in one process, as one batched population (default 1: "
+        "each alone); CartPole's dense MLP variants only, the others run alone",
+    )
     run.add_argument("--no-report", dest="report", action="store_false", help="skip the report at the end")
     run.add_argument(
         "--only",

@@ -37,6 +37,8 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
     chosen = select(expand(experiment), args.only, args.seeds)
     if args.max_concurrent is not None and args.max_concurrent < 1:
         raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
+    if args.population < 1:
+        raise ConfigError(f"--population = {args.population} is invalid; valid: an integer >= 1")
     command = shown(" ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]]))  # as it is recorded and shown
     try:
         outcome = run_experiment(
@@ -50,6 +52,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
             only=chosen,
             started_at=started_at,
             storage_path=args.storage_path,
+            population=args.population,
         )
     except Exception as error:
         # The scheduler (and Ray) is only imported when trials run: its error class is known only then.

@@ -379,7 +379,11 @@ def _fake_scheduler(monkeypatch, body):
 
     monkeypatch.setattr(scheduler, "ensure_ray", lambda address: False)
     monkeypatch.setattr(scheduler, "largest_node_cpus", lambda: 2.0)
-    monkeypatch.setattr(scheduler, "run_trials", lambda trials, events, options, run_name, **_: body(trials, events))
+    monkeypatch.setattr(
+        scheduler,
+        "run_trials",
+        lambda plan, events, options, run_name, **_: body([t for p in plan for t in p.members], events),
+    )
 
 
 def test_a_scheduler_crash_records_the_launch_failed_with_the_error(tmp_path, tracking_uri, monkeypatch):

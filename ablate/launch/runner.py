@@ -17,12 +17,14 @@ import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 from ablate.config import ConfigError, flatten
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
+from ablate.launch.plan import member_slots, plan_populations
 from ablate.launch.progress import ProgressView
 from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_ROLE, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
@@ -310,10 +312,12 @@ def run_experiment(
     only: Sequence[GridTrial] | None = None,
     started_at: float | None = None,
     log_estimates: bool = False,
+    population: int = 1,
 ) -> RunOutcome:
     """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
     current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock.
     ``log_estimates``: keep every time-left estimate in ``outcome.view.estimates`` (``make bench``).
+    ``population``: at most this many trials train together as one population (``launch.plan``); 1: alone.
 
     Every check that can fail without Ray (the grid, the CPUs, the store, another launch) fails first. Holds
     the experiment's launch lock throughout (``LaunchLocked`` if another launch has it)."""
@@ -323,19 +327,9 @@ def run_experiment(
     with tracker.hold_launch(f"experiment {experiment.name!r}", command):
         reaped = reap_stale_runs(tracker, storage_path)
         outcome = _run_locked(
-            experiment,
-            trials,
-            tracker,
-            address,
-            fresh,
-            max_concurrent,
-            storage_path,
-            show_progress,
-            command,
-            only,
-            started_at,
-            log_estimates,
-        )
+            experiment, trials, tracker, address, fresh, max_concurrent, storage_path, show_progress, command,
+            only, started_at, log_estimates, population,
+        )  # fmt: skip
         outcome.reaped = reaped
         return outcome
 
@@ -353,6 +347,7 @@ def _run_locked(
     only: Sequence[GridTrial] | None,
     started_at: float | None,
     log_estimates: bool = False,
+    population: int = 1,
 ) -> RunOutcome:
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     evaluation = trials if only is None else list(only)
@@ -422,7 +417,11 @@ def _run_locked(
         return [t for t in trials if t.variant in unchosen]
 
     stage_two = provisional if unchosen else None
-    args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
+    # Populations: each holds a slot; its members run at once, so the estimate sees that many trial slots.
+    cores = slots or max(int(biggest), 1)
+    populations = partial(plan_populations, cap=population, slots=cores)
+    members = member_slots(populations(todo), cores) if slots else None
+    args = (experiment.name, todo, len(finished_before), show_progress, members, started_at, prior, log_estimates)
     view = ProgressView(*args, provisional({}) if unchosen else [], stage_two, prior_episodes)
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
@@ -438,7 +437,7 @@ def _run_locked(
         if plan.tuning and wanted <= set(choices):
             tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
         with view:
-            run_trials(todo, recorder, options, run_name=run_name, resume=resume)
+            run_trials(populations(todo), recorder, options, run_name=run_name, resume=resume)
         if plan.tuning and not wanted <= set(choices):
             # Stage 2: every variant whose tuning trials all finished, at its chosen values.
             choices = plan.choices(finished_runs | recorder.summaries)
@@ -455,7 +454,7 @@ def _run_locked(
                 recorder.trials |= {t.key: t for t in todo_after}
                 with view:
                     resume = tracker.latest_checkpoints(generation, (t.key for t in todo_after))
-                    run_trials(todo_after, recorder, options, run_name=run_name, resume=resume)
+                    run_trials(populations(todo_after), recorder, options, run_name=run_name, resume=resume)
     except KeyboardInterrupt as interrupt:
         outcome.interrupted = True
         signum = getattr(interrupt, "signum", None) or (signals_received[-1] if signals_received else signal.SIGINT)

@@ -38,9 +38,9 @@ import ray
 from ray import tune
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-from ablate.agent.trial import run_trial
+from ablate.agent.population import run_population
 from ablate.launch.curve import CurvePoint, CurveReducer
-from ablate.launch.grid import GridTrial
+from ablate.launch.plan import Population
 from ablate.launch.secrets import shown
 
 REPORT_EVERY_S = 2.0
@@ -105,52 +105,75 @@ def _write_folder(files: Mapping[str, bytes], folder: Path) -> None:
         path.write_bytes(data)
 
 
-def _train(params: dict[str, Any], trials: dict[str, GridTrial], checkpoints: Any) -> None:
-    """The Tune trainable: runs in a Ray worker, on any node. Exceptions become a ``failed`` report, not a
-    retry: a seeded trial that raises would raise again. Only a dead process is retried."""
-    trial = trials[params["key"]]
-    reducer = CurveReducer(trial.config.max_episodes)
-    pending: list[CurvePoint] = []
+def _train(params: dict[str, Any], populations: dict[str, Population], checkpoints: Any) -> None:
+    """The Tune trainable: runs one population in a Ray worker, on any node. Each member's events travel in
+    the population's reports, under its own key. A member's exception (a NaN loss) becomes its ``failed``
+    report and the others go on; an exception of the whole population fails every member still running.
+    Only a dead process is retried: a seeded trial that raises would raise again."""
+    population = populations[params["key"]]
+    keys = population.keys
+    reducers = [CurveReducer(t.config.max_episodes) for t in population.members]
+    pending: dict[str, list[CurvePoint]] = {}
+    outcome_of: dict[str, dict[str, Any]] = {}
     last = time.monotonic()
     node = ray.get_runtime_context().get_node_id()
 
-    def report(status: str, **extra: Any) -> None:
+    def report(**extra: Any) -> None:
         nonlocal last
-        tune.report({"ablate_status": status, "ablate_points": list(pending), "ablate_node": node, **extra})
+        tune.report({"ablate_points": dict(pending), "ablate_node": node, **extra})
         pending.clear()
         last = time.monotonic()
 
-    def on_episodes(rows: list) -> None:
-        pending.extend(reducer.add(rows))
+    def on_episodes(i: int, rows: list) -> None:
+        pending.setdefault(keys[i], []).extend(reducers[i].add(rows))
         if time.monotonic() - last >= REPORT_EVERY_S:
-            report("running")
+            report()
 
-    def on_checkpoint(blob: bytes) -> None:
-        report("running", ablate_checkpoint=blob)  # the points up to the checkpoint go with it
+    def on_checkpoint(i: int, blob: bytes) -> None:
+        report(ablate_checkpoint={keys[i]: blob})  # the points up to the checkpoint go with it
 
-    resume = {}
-    if checkpoints is not None:
-        resume = {"resume_from": ray.get(checkpoints.get.remote(trial.key)), "on_checkpoint": on_checkpoint}
     with tempfile.TemporaryDirectory(prefix="ablate-") as folder:
+        folders = [Path(folder) / str(i) for i in range(len(keys))]
+
+        def on_outcome(i: int, outcome: Any) -> None:
+            pending.setdefault(keys[i], []).extend(reducers[i].flush())
+            if isinstance(outcome, Exception):
+                outcome_of[keys[i]] = {"failed": f"{type(outcome).__name__}: {outcome}"}
+            else:
+                files = _read_folder(folders[i]) if folders[i].exists() else {}
+                outcome_of[keys[i]] = {"summary": outcome.summary(), "artifacts": files}
+            report(ablate_outcomes={keys[i]: outcome_of[keys[i]]})
+
+        resume = {}
+        if checkpoints is not None:
+            blobs = ray.get([checkpoints.get.remote(k) for k in keys])
+            resume = {"resume_from": blobs, "on_checkpoint": on_checkpoint}
         try:
-            result = run_trial(trial.config, on_episodes=on_episodes, artifacts_dir=folder, **resume)
-        except Exception as error:  # noqa: BLE001 - every error is recorded on the run, with its type
-            pending.extend(reducer.flush())
-            report("failed", ablate_error=f"{type(error).__name__}: {error}")
-            return
-        pending.extend(reducer.flush())
-        report("finished", ablate_summary=result.summary(), ablate_artifacts=_read_folder(Path(folder)))
+            run_population(
+                [t.config for t in population.members],
+                on_episodes=on_episodes,
+                artifacts_dirs=folders,
+                on_outcome=on_outcome,
+                **resume,
+            )
+        except Exception as error:  # noqa: BLE001 - every error is recorded on the runs, with its type
+            failed = {key: {"failed": f"{type(error).__name__}: {error}"} for key in keys if key not in outcome_of}
+            for i, key in enumerate(keys):
+                if key in failed:
+                    pending.setdefault(key, []).extend(reducers[i].flush())
+            report(ablate_outcomes=failed)
 
 
 def run_trials(
-    trials: Sequence[GridTrial],
+    plan: Sequence[Population],
     events: TrialEvents,
     options: ClusterOptions,
     run_name: str,
     resume: Mapping[str, bytes] | None = None,
 ) -> None:
-    """Run ``trials`` to completion with Ray Tune, calling ``events`` on this process as they progress.
-    ``resume``: checkpoint blobs by trial key (from a killed launch); those trials continue from them.
+    """Run the trials of ``plan`` (``launch.plan``: each population one Ray task) to completion with Ray Tune,
+    calling ``events`` per trial (member) on this process as they progress. ``resume``: checkpoint blobs by
+    trial key (from a killed launch); those trials continue from them.
 
     Raises ``KeyboardInterrupt`` on Ctrl-C after Ray's workers are stopped.
     """
@@ -160,20 +183,20 @@ def run_trials(
     os.environ["TUNE_DISABLE_SIGINT_HANDLER"] = "1"
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     started_here = ensure_ray(options.address)
-    by_key = {t.key: t for t in trials}
+    by_key = {p.key: p for p in plan}
     checkpoints = None
-    if resume or any(t.config.checkpoint_interval for t in trials):
+    if resume or any(t.config.checkpoint_interval for p in plan for t in p.members):
         # On the driver's node (a worker node may die), holding no CPU. Only where a trial checkpoints: the
         # actor is a process of its own, importing torch and Tune (~2 s of CPU) for nothing otherwise.
         here = ray.get_runtime_context().get_node_id()
         checkpoints = _Checkpoints.options(scheduling_strategy=NodeAffinitySchedulingStrategy(here, soft=False)).remote(
             dict(resume or {})
         )
-    bridge = _Bridge(events, checkpoints)
+    bridge = _Bridge(events, checkpoints, {p.key: p.keys for p in plan})
     storage = Path(options.storage_path).resolve() if "://" not in options.storage_path else None
     tuner = tune.Tuner(
         tune.with_resources(
-            tune.with_parameters(_train, trials=by_key, checkpoints=checkpoints), trial_resources(options)
+            tune.with_parameters(_train, populations=by_key, checkpoints=checkpoints), trial_resources(options)
         ),
         param_space={"key": tune.grid_search(list(by_key))},
         tune_config=tune.TuneConfig(
@@ -355,57 +378,62 @@ _CLUSTERS_DEFAULT: bool | None = None
 
 
 class _Bridge(tune.Callback):
-    """A Tune callback (runs on the driver) that turns Tune's trial lifecycle into ``TrialEvents``."""
+    """A Tune callback (runs on the driver) that turns Tune's lifecycle of populations into ``TrialEvents``
+    per member. A member's end is told as its report arrives; a population whose process died is retried
+    whole, and its members that had ended already are not told of again."""
 
-    def __init__(self, events: TrialEvents, checkpoints: Any) -> None:
+    def __init__(self, events: TrialEvents, checkpoints: Any, members: Mapping[str, list[str]]) -> None:
         self.events = events
         self.checkpoints = checkpoints
-        self.summaries: dict[str, tuple[dict[str, float], dict[str, bytes], str]] = {}
+        self.members = dict(members)
+        self.ended: set[str] = set()
 
     def __getstate__(self) -> dict:
         # Tune pickles its callbacks into its experiment state; the events (an MLflow client, a terminal
         # view) belong to this process and are no part of that state.
-        return {"events": None, "checkpoints": None, "summaries": {}}
+        return {"events": None, "checkpoints": None, "members": {}, "ended": set()}
+
+    def _running(self, trial: Any) -> list[str]:
+        return [k for k in self.members[trial.config["key"]] if k not in self.ended]
 
     def on_trial_start(self, iteration, trials, trial, **info):
-        self.events.started(trial.config["key"])
+        for key in self._running(trial):
+            self.events.started(key)
 
     def on_trial_result(self, iteration, trials, trial, result, **info):
-        key = trial.config["key"]
         # Popped: Tune keeps the last result of every trial in memory and in its experiment state.
-        points = [CurvePoint(*p) for p in result.pop("ablate_points", [])]
-        if points:
-            self.events.episodes(key, points)
-        blob = result.pop("ablate_checkpoint", None)
-        if blob is not None:
-            if self.checkpoints is not None:
-                self.checkpoints.put.remote(key, blob)
-            self.events.checkpoint(key, blob)
-        artifacts = result.pop("ablate_artifacts", None)
-        status = result.get("ablate_status")
-        if status == "failed":
-            self.events.failed(key, result.get("ablate_error", "unknown error"))
-        elif status == "finished":
-            self.summaries[key] = (dict(result["ablate_summary"]), artifacts or {}, result.get("ablate_node", ""))
-
-    def on_trial_complete(self, iteration, trials, trial, **info):
-        key = trial.config["key"]
-        if key not in self.summaries:
-            return  # a trial that reported "failed" has been recorded already
-        summary, files, node = self.summaries.pop(key)
-        if not files:
-            self.events.finished(key, summary, None, node)
-            return
-        with tempfile.TemporaryDirectory(prefix="ablate-artifacts-") as folder:
-            _write_folder(files, Path(folder))
-            self.events.finished(key, summary, Path(folder), node)
+        running = set(self._running(trial))
+        for key, points in result.pop("ablate_points", {}).items():
+            if points and key in running:
+                self.events.episodes(key, [CurvePoint(*p) for p in points])
+        for key, blob in result.pop("ablate_checkpoint", {}).items():
+            if key in running:
+                if self.checkpoints is not None:
+                    self.checkpoints.put.remote(key, blob)
+                self.events.checkpoint(key, blob)
+        node = result.get("ablate_node", "")
+        for key, outcome in result.pop("ablate_outcomes", {}).items():
+            if key not in running:
+                continue
+            self.ended.add(key)
+            if "failed" in outcome:
+                self.events.failed(key, outcome["failed"])
+            elif not outcome["artifacts"]:
+                self.events.finished(key, dict(outcome["summary"]), None, node)
+            else:
+                with tempfile.TemporaryDirectory(prefix="ablate-artifacts-") as folder:
+                    _write_folder(outcome["artifacts"], Path(folder))
+                    self.events.finished(key, dict(outcome["summary"]), Path(folder), node)
 
     def on_trial_recover(self, iteration, trials, trial, **info):
-        self.events.restarted(trial.config["key"], _error_text(trial))
+        for key in self._running(trial):
+            self.events.restarted(key, _error_text(trial))
 
     def on_trial_error(self, iteration, trials, trial, **info):
         reason = f"trial process died {MAX_PROCESS_FAILURES + 1} times: {_error_text(trial)}"
-        self.events.failed(trial.config["key"], reason)
+        for key in self._running(trial):
+            self.ended.add(key)
+            self.events.failed(key, reason)
 
 
 def _error_text(trial: Any) -> str:

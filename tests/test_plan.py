@@ -1,0 +1,127 @@
+"""A launch's plan of populations, and a launch that trains its trials as populations through real Ray: each
+member recorded as its own trial, one that fails failing alone, a population whose process died retried."""
+
+from dataclasses import replace
+
+import pytest
+from stores import fresh_store
+
+from ablate.agent.trial import run_trial
+from ablate.config import DEFAULT, ModelConfig
+from ablate.experiment import load_experiment
+from ablate.launch.grid import GridTrial, expand, trial_key
+from ablate.launch.plan import Population, member_slots, plan_populations, population_size
+from ablate.launch.tracking import Tracker
+from ablate.reporting.reader import RunReader
+
+SEEDS = """
+name = "pops"
+seeds = 6
+[base]
+env_id = "CartPole-v1"
+max_episodes = 20
+episodes_per_update = 10
+record_video = false
+[[variants]]
+name = "narrow"
+hidden_sizes = [8]
+[[variants]]
+name = "narrow_fast"
+hidden_sizes = [8]
+learning_rate = 0.1
+[[variants]]
+name = "cnn"
+architecture = "cnn"
+"""
+
+
+def _trials(tmp_path, text=SEEDS):
+    path = tmp_path / "pops.toml"
+    path.write_text(text)
+    experiment = load_experiment(path)
+    return experiment, expand(experiment)
+
+
+def test_a_cap_of_one_plans_every_trial_alone_in_order(tmp_path):
+    _, trials = _trials(tmp_path)
+    plan = plan_populations(trials, cap=1, slots=2)
+    assert [p.members for p in plan] == [(t,) for t in trials]
+    assert [p.key for p in plan] == [t.key for t in trials]  # a population of one is named by its trial
+
+
+def test_members_share_by_network_and_stage_and_the_rest_run_alone(tmp_path):
+    _, trials = _trials(tmp_path)
+    plan = plan_populations(trials, cap=4, slots=2)
+    shared = [p for p in plan if len(p.members) > 1]
+    assert sum(len(p.members) for p in plan) == len(trials) and len({p.key for p in plan}) == len(plan)
+    # narrow and narrow_fast (one network; learning rates differ) share: 12 trials in 3 populations of 4.
+    assert sorted(len(p.members) for p in shared) == [4, 4, 4]
+    assert all({t.variant for t in p.members} <= {"narrow", "narrow_fast"} for p in shared)
+    assert [len(p.members) for p in plan if p.members[0].variant == "cnn"] == [1] * 6
+    tune = [replace(t, stage="tune", key=t.key + "t") for t in trials if t.variant == "narrow"]
+    mixed = plan_populations([*trials[:6], *tune], cap=16, slots=1)
+    assert all(len({t.stage for t in p.members}) == 1 for p in mixed)  # stages never share
+
+
+def test_populations_are_sized_so_no_slot_idles():
+    assert population_size(12, slots=2, cap=16) == 6  # two populations for two slots, not one of 12
+    assert population_size(100, slots=2, cap=16) == 16
+    assert population_size(3, slots=8, cap=16) == 1
+    assert population_size(50, slots=4, cap=1) == 1
+
+
+def test_groups_split_into_balanced_populations_in_start_order(tmp_path):
+    _, trials = _trials(tmp_path)
+    narrow = [t for t in trials if t.variant == "narrow"]
+    plan = plan_populations(narrow, cap=4, slots=1)
+    assert [len(p.members) for p in plan] == [3, 3]  # 6 as 3 + 3, not 4 + 2
+    assert plan[0].members[0] == narrow[0] and member_slots(plan, 1) == 3 and member_slots(plan, 2) == 6
+
+
+def test_a_population_key_is_stable_and_names_its_members():
+    config = replace(DEFAULT, max_episodes=5)
+    members = tuple(GridTrial(trial_key("v", replace(config, seed=s)), "v", s, replace(config, seed=s)) for s in (0, 1))
+    assert Population(members).key == Population(members).key != Population(members[::-1]).key
+    assert Population(members).key.startswith(f"pop2-{members[0].key}-")
+
+
+@pytest.mark.slow
+def test_a_launch_of_populations_records_every_member_as_its_own_trial(run_quiet, tmp_path):
+    """Through real Ray and MLflow: 12 CartPole trials in two populations of 6 (each with members that raise
+    after their first update, and members whose process dies at the start, once), 6 CNN trials alone. Each
+    member is a trial of its own key and one run, its curve and artifacts a trial's; its first update's episodes
+    are those of its trial run alone."""
+    marker = tmp_path / "crashed"
+    text = SEEDS.replace('name = "narrow_fast"', 'name = "narrow_fast"\nfault = "raise"', 1).replace(
+        'name = "narrow"\n', f'name = "narrow"\nfault = "crash_once"\nfault_marker = "{marker}"\n', 1
+    )
+    experiment, trials = _trials(tmp_path, text)
+    assert [len(p.members) for p in plan_populations(trials, cap=6, slots=2)] == [6] * 2 + [1] * 6
+    uri = fresh_store(tmp_path / "mlflow.db")
+    outcome = run_quiet(experiment, tmp_path, uri, population=6)
+    assert marker.exists()  # the populations holding a narrow trial died once at their start, and were retried
+    raising = {t.key for t in trials if t.variant == "narrow_fast"}
+    assert set(outcome.failed) == raising and all("injected fault" in m for m in outcome.failed.values())
+    assert sorted(outcome.finished) == sorted(t.key for t in trials if t.key not in raising)
+    reader = RunReader(uri, "pops")
+    runs = {r.key: r for r in reader.trial_runs(with_artifacts=True)}
+    assert set(runs) == {t.key for t in trials}
+    by_key = {t.key: t for t in trials}
+    for key, run in runs.items():
+        if key in raising:
+            assert run.status == "FAILED"
+            continue
+        assert run.status == "FINISHED" and run.metrics["episodes_run"] == 20
+        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "learning_curve.png"}
+        returns = [v for _, v in reader.metric_history(run.run_id, "episode/return")]
+        assert len(returns) == 20
+        alone = run_trial(by_key[key].config)
+        assert returns[:10] == alone.returns[:10]
+    assert Tracker(uri, "pops").running_runs() == []
+    assert len(reader.trial_runs()) == len(trials)  # a retried population's members: one run each
+
+
+def test_cnn_config_is_not_stacked():
+    from ablate.agent.stacked import population_group
+
+    assert population_group(replace(DEFAULT, model=ModelConfig("cnn"))) is None
