@@ -25,7 +25,7 @@ LAYERS = {
     "cli": 5,
 }
 RAY_ALLOWED = {"launch/scheduler.py"}
-MLFLOW_ALLOWED = {"launch/tracking.py", "reporting/reader.py"}
+MLFLOW_ALLOWED = {"launch/tracking.py", "launch/mlflow_store.py", "reporting/reader.py"}
 
 
 def _layer(module: str) -> int:

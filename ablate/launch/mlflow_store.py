@@ -1,0 +1,185 @@
+"""The tracking layer's shared part: an MLflow store opened (every check that can fail, in one line), its
+experiment, its trial runs read back, and the tags both sides use. The writer (``ablate.launch.tracking``)
+and the reader (``ablate.reporting.reader``) build on it; the three are the only modules that import MLflow.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import unicodedata
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ablate.experiment import storage_name
+from ablate.launch.lock import held_launch
+from ablate.launch.secrets import shown as redact
+from ablate.launch.store import (
+    TrackingError,
+    check_sqlite,
+    fail_fast_http,
+    is_database,
+    lock_file,
+    open_uri,
+    probe_database,
+    probe_server,
+    resolve_uri,
+    sqlite_path,
+    store_problem,
+    store_setup_lock,
+)
+
+TAG_ROLE, TAG_GENERATION, TAG_KEY = "ablate.role", "ablate.generation", "ablate.trial_key"
+TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed", "ablate.error", "ablate.attempt"
+TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
+TAG_HOST, TAG_PID = "ablate.host", "ablate.pid"
+TAG_NODE = "ablate.node"
+TAG_NAME = "ablate.name"
+"""On an MLflow experiment whose name is a storage name (``experiment.storage_name``): the name as written."""
+TAG_STAGE = "ablate.stage"
+"""``tune`` (a tuning trial, stage 1 of a ``[tune]`` experiment) or ``eval``; runs without it are ``eval``."""
+
+
+def quiet_mlflow() -> None:
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")
+    os.environ["MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT"] = "true"  # its "View run ... at: URI" lines
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
+@dataclass
+class TrialRun:
+    """A tracked trial run, as the results module needs it."""
+
+    run_id: str
+    key: str
+    variant: str
+    seed: int
+    status: str
+    """MLflow status: FINISHED, FAILED, KILLED, RUNNING."""
+    params: dict[str, str]
+    metrics: dict[str, float]
+    tags: dict[str, str]
+    start_time_ms: int
+    artifacts: list[str] = field(default_factory=list)
+
+
+class Store:
+    """One MLflow experiment (one per ablation) in one store, opened: what the writer (``Tracker``, below) and
+    the report's reader (``ablate.reporting.reader``) share: the checks that open it, its experiment, its runs."""
+
+    def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
+        """Opens the store and reads the experiment once, so every reason the store cannot be used surfaces
+        here as a one-line ``TrackingError``, before anything is written or started. ``write=False`` (a
+        report) accepts a read-only store and refuses to create one."""
+        self.uri = open_uri(resolve_uri(tracking_uri))
+        """The URI MLflow is given (``store.open_uri``: a tracking server's login moved to the environment)."""
+        self.shown_uri = redact(self.uri)
+        """The URI as messages and records show it: its password masked."""
+        self.display_name = unicodedata.normalize("NFC", experiment_name)
+        # The MLflow experiment, its artifact folder and its lock file: the name's safe form (the name itself
+        # for every name valid before names in any script were), whichever form the caller gave.
+        self.experiment_name = storage_name(experiment_name)
+        self._experiment_id: str | None = None
+        db = sqlite_path(self.uri)
+        if db is not None:
+            check_sqlite(db, write)
+        if is_database(self.uri):
+            probe_database(self.uri)
+        elif self.uri.startswith(("http://", "https://")):
+            probe_server(self.uri)
+
+        from mlflow.tracking import MlflowClient
+
+        quiet_mlflow()
+        try:
+            with store_setup_lock(db), fail_fast_http():
+                self.client = MlflowClient(self.uri)
+                existing = self.client.get_experiment_by_name(self.experiment_name)
+        except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
+            raise TrackingError(self._store_problem(error)) from None
+        if existing is not None and existing.lifecycle_stage == "deleted":
+            raise TrackingError(
+                f"MLflow experiment {self.experiment_name!r} (id {existing.experiment_id}) at {self.shown_uri} "
+                "is deleted; "
+                f"restore it with `MLFLOW_TRACKING_URI={self.shown_uri} mlflow experiments restore --experiment-id "
+                f"{existing.experiment_id}`, or give the experiment another name"
+            )
+        if existing is not None:
+            self._experiment_id = existing.experiment_id
+
+    # --- experiment -------------------------------------------------------------------------------
+    def _store_problem(self, error: BaseException) -> str:
+        return store_problem(self.uri, error)
+
+    def lock_path(self) -> Path:
+        """This machine's launch lock of this experiment on this store (``store.lock_file``)."""
+        return lock_file(self.uri, self.experiment_name)
+
+    def hold_launch(self, what: str, command: str) -> contextlib.AbstractContextManager[None]:
+        """One launch of this experiment at a time on this store (``lock.held_launch``): this machine's lock,
+        and for a store other machines reach (not an SQLite file) the store's own lease."""
+        shared = sqlite_path(self.uri) is None
+        return held_launch(self.lock_path(), what, command, self.client if shared else None, self.experiment_name)
+
+    def experiment_id(self, create: bool = True) -> str | None:
+        if self._experiment_id is None:
+            existing = self.client.get_experiment_by_name(self.experiment_name)
+            if existing is not None:
+                self._experiment_id = existing.experiment_id
+            elif create:
+                # The name as written, on the experiment, where MLflow's name is its storage form.
+                tags = {TAG_NAME: self.display_name} if self.display_name != self.experiment_name else None
+                self._experiment_id = self.client.create_experiment(
+                    self.experiment_name, artifact_location=self._artifact_location(), tags=tags
+                )
+        return self._experiment_id
+
+    def _artifact_location(self) -> str | None:
+        """Beside the SQLite file for a local store; a server chooses its own."""
+        if self.uri.startswith("sqlite:///"):
+            db = Path(self.uri.removeprefix("sqlite:///")).resolve()
+            return (db.parent / "mlartifacts" / self.experiment_name).as_uri()
+        return None
+
+    # --- reading back (the writer resumes from what it wrote) -----------------------------------------
+    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
+        """Trial runs of this experiment (of one generation, if given), oldest first."""
+        experiment_id = self.experiment_id(create=False)
+        if experiment_id is None:
+            return []
+        query = f"tags.`{TAG_ROLE}` = 'trial'"
+        if generation is not None:
+            query += f" and tags.`{TAG_GENERATION}` = '{generation}'"
+        runs, token = [], None
+        while True:
+            page = self.client.search_runs(
+                [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
+            )
+            runs.extend(page)
+            token = page.token
+            if not token:
+                break
+        return [
+            TrialRun(
+                run_id=r.info.run_id,
+                key=r.data.tags.get(TAG_KEY, ""),
+                variant=r.data.tags.get(TAG_VARIANT, ""),
+                seed=int(r.data.tags.get(TAG_SEED, "-1")),
+                status=r.info.status,
+                params=dict(r.data.params),
+                metrics=dict(r.data.metrics),
+                tags=dict(r.data.tags),
+                start_time_ms=r.info.start_time,
+                artifacts=[a.path for a in self.client.list_artifacts(r.info.run_id)] if with_artifacts else [],
+            )
+            for r in runs
+        ]
+
+    def download(self, run_id: str, path: str, destination: str | Path | None = None) -> str:
+        import tempfile
+
+        destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
+        return self.client.download_artifacts(run_id, path, str(destination))
