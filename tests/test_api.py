@@ -1,5 +1,6 @@
-"""ablate.api: the notebook runs the smoke ablation through ``ablate.run``; ``ablate.load`` reads back the same
-tables ``ablate report`` writes; a Python caller's errors name Python parameters."""
+"""ablate.api: the notebook runs a small tuned ablation through ``ablate.run`` (its seeds solve) and is committed
+with its outputs; ``ablate.load`` reads back the same tables ``ablate report`` writes; a Python caller's errors
+name Python parameters."""
 
 from __future__ import annotations
 
@@ -53,7 +54,7 @@ def notebook_run(tmp_path_factory, ray_address):
     its kernel joining the session's Ray (``RAY_ADDRESS``, as a notebook on a cluster would) to spare a start."""
     top = tmp_path_factory.mktemp("quickstart")
     (top / "experiments").mkdir()
-    shutil.copy(ROOT / "experiments" / "smoke.toml", top / "experiments")
+    shutil.copy(ROOT / "experiments" / "quickstart.toml", top / "experiments")
     fresh_store(top / "examples" / "quickstart-mlflow.db")  # what its first run would create, minus 5 s
     notebook = nbformat.read(ROOT / "examples" / "quickstart.ipynb", as_version=4)
     with pytest.MonkeyPatch.context() as patch:
@@ -71,22 +72,44 @@ def test_quickstart_notebook_runs_and_shows_a_table_and_a_figure(notebook_run):
     assert any("text/html" in o.get("data", {}) and "episodes_median" in o["data"]["text/html"] for o in outputs)
     assert any("image/png" in o.get("data", {}) for o in outputs)  # the figure, inline
     assert (folder / "quickstart-mlflow.db").is_file()
+    # issue 27: a result, not the mechanics: a tuned ablation whose seeds all solve
+    results = ablate.load("quickstart", tracking_uri=f"sqlite:///{folder / 'quickstart-mlflow.db'}")
+    assert (results.convergence.solved == results.convergence.seeds_run).all() and len(results.tuning) == 6
+    assert (
+        results.ablation.tuning["choices"]["narrow"]["values"] != results.ablation.tuning["choices"]["wide"]["values"]
+    )
+
+
+def test_the_committed_notebook_shows_its_result():
+    """examples/quickstart.ipynb is committed executed (tools/make_quickstart.py --execute): a reader on the web
+    sees the table of solved seeds and the figure without running it; its cells are the generator's."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tools"))
+    from make_quickstart import build
+
+    committed = nbformat.read(ROOT / "examples" / "quickstart.ipynb", as_version=4)
+    assert [c.source for c in committed.cells] == [c.source for c in build().cells]
+    outputs = [o for cell in committed.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]
+    assert not [o for o in outputs if o.output_type == "error"]
+    assert any("episodes_median" in o.get("data", {}).get("text/html", "") for o in outputs)
+    assert any("image/png" in o.get("data", {}) for o in outputs)
 
 
 def test_load_returns_the_tables_ablate_report_writes(notebook_run, tmp_path):
     _, folder = notebook_run
     store = f"sqlite:///{folder / 'quickstart-mlflow.db'}"
-    assert main(["report", "smoke", "--tracking-uri", store, "--out", str(tmp_path), "--no-pdf"]) == 0
-    results = ablate.load("smoke", tracking_uri=store)
+    assert main(["report", "quickstart", "--tracking-uri", store, "--out", str(tmp_path), "--no-pdf"]) == 0
+    results = ablate.load("quickstart", tracking_uri=store)
     for frame, name in (
         (results.trials, "trials"),
         (results.convergence, "convergence"),
         (results.comparisons, "comparisons"),
     ):
-        written = pd.read_csv(tmp_path / "smoke" / "tables" / f"{name}.csv")
+        written = pd.read_csv(tmp_path / "quickstart" / "tables" / f"{name}.csv")
         through_csv = pd.read_csv(io.StringIO(frame.to_csv(index=False)))  # the same text round trip
         pd.testing.assert_frame_equal(through_csv, written, check_exact=False, rtol=1e-12)
-    assert set(results.curves.variant) == {"narrow", "deep"} and len(results.trials) == 4
+    assert set(results.curves.variant) == {"narrow", "wide"} and len(results.trials) == 6
     figure = results.figure("curves")
     assert figure.axes and figure.axes[0].get_lines()  # an open matplotlib figure with the curves drawn
     with pytest.raises(ValueError, match="valid: curves"):
