@@ -135,6 +135,21 @@ class StackedMLP:
         self._numpy = None
 
 
+def _sample(logits: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``reinforce.choose_action``'s inverse-CDF sampling for every row of (M, N, actions) ``logits`` with
+    uniforms ``u`` (M, N): the same float operations, so the same actions."""
+    if logits.shape[2] == 2:
+        # Its cumulative sums are [e0, e0 + e1]; u * (e0 + e1) never exceeds e0 + e1 (u < 1), so the action is
+        # whether e0 falls below it. Six array operations instead of its reductions along a 2-wide axis.
+        top = np.maximum(logits[:, :, 0], logits[:, :, 1])
+        first = np.exp(logits[:, :, 0] - top)
+        total = first + np.exp(logits[:, :, 1] - top)
+        return (first < u * total).astype(np.int64)
+    cumulative = np.cumsum(np.exp(logits - logits.max(axis=2, keepdims=True)), axis=2)
+    scaled = u[:, :, None] * cumulative[:, :, -1:]
+    return np.minimum((cumulative < scaled).sum(axis=2), logits.shape[2] - 1)
+
+
 class StackedBackend:
     """A population of CartPole dense-MLP members (``population_group`` equal): its episodes, updates and
     per-member state. Slots are members' positions in the current stacks; ``keep`` drops those that left."""
@@ -178,10 +193,7 @@ class StackedBackend:
                 block = self.actions.peek(_BLOCK_STEPS * n).reshape(m, _BLOCK_STEPS, n)
             u = block[:, t]
             taken += n * collecting
-            # choose_action's inverse-CDF sampling, per row.
-            cumulative = np.cumsum(np.exp(logits - logits.max(axis=2, keepdims=True)), axis=2)
-            u = u[:, :, None] * cumulative[:, :, -1:]
-            actions = np.minimum((cumulative < u).sum(axis=2), logits.shape[2] - 1)
+            actions = _sample(logits, u)
             obs_steps.append(observations)
             action_steps.append(actions)
             observations, _, terminated, truncated = self.env.step(actions, collecting)
@@ -234,8 +246,9 @@ class StackedBackend:
         x, actions = x.to(self.device), actions.to(self.device)
         self.optimizer.zero_grad()
         logits = self.model.logits(x, masks)
-        n_actions = logits.shape[2]
-        cross_entropy = F.cross_entropy(logits.reshape(-1, n_actions), actions.reshape(-1), reduction="none")
+        # F.cross_entropy is nll_loss of log_softmax: computed apart, the log-probabilities serve the entropy too.
+        log_probs = F.log_softmax(logits, dim=2)
+        cross_entropy = F.nll_loss(log_probs.reshape(m * longest, -1), actions.reshape(-1), reduction="none")
         cross_entropy = cross_entropy.reshape(m, longest)
         # reinforce.compute_loss per member, over its own observations only.
         losses = [
@@ -250,7 +263,7 @@ class StackedBackend:
                 total = total + config.l2 * penalty
         total.backward()
         with torch.no_grad():
-            log_probs = F.log_softmax(logits, dim=2)
+            log_probs = log_probs.detach()
             entropy = -(log_probs.exp() * log_probs).sum(dim=2)
             entropies = [entropy[i, : sizes[i]].sum() for i in range(m)]
             values = torch.stack([torch.stack(losses).detach(), torch.stack(entropies)]).cpu().tolist()

@@ -156,16 +156,19 @@ class CartPoleBatch:
         )
         self.steps += 1
         truncated = self.steps >= self.max_episode_steps
-        reward = np.ones_like(terminated, dtype=np.float32)
         reset = self.prev_done
         if reset.any():
-            drawing = reset & counting[:, None]
+            drawing = reset if counting.all() else reset & counting[:, None]
             self._redraw(drawing)
-            self.state[:, reset & ~drawing] = 0.0  # never observed: the member's next collection resets it
-            self.steps[reset] = 0
-            reward[reset] = 0.0
-            terminated[reset] = False
-            truncated[reset] = False
+            if drawing is not reset:
+                self.state[:, reset & ~drawing] = 0.0  # never observed: the member's next collection resets it
+            kept = ~reset
+            self.steps *= kept
+            reward = kept.astype(np.float32)  # 1.0 a step, 0.0 on the step that resets
+            terminated &= kept
+            truncated &= kept
+        else:
+            reward = np.ones(terminated.shape, np.float32)
         self.prev_done = terminated | truncated
         return self.state.transpose(1, 2, 0).astype(np.float32), reward, terminated, truncated
 
@@ -188,10 +191,9 @@ class CartPoleBatch:
             self.draws.ensure(counts)
             stride = np.ones(len(streams), np.int64)
             start = self.draws.pos[streams]
-        for c in range(4):
-            self.state[c, members, envs] = (
-                self.low + (self.high - self.low) * self.draws.buffer[streams, start + c * stride]
-            )
+        # One gather of the 4 components' draws (component c of an env at start + c * stride), one scatter.
+        flat = (streams * self.draws.capacity + start)[None, :] + np.arange(4)[:, None] * stride[None, :]
+        self.state[:, members, envs] = self.low + (self.high - self.low) * self.draws.buffer.reshape(-1)[flat]
         self.draws.take(counts)
 
     def keep(self, members: np.ndarray) -> None:
