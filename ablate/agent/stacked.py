@@ -1,9 +1,10 @@
 """A population's dense CartPole policies as stacked tensors: one numpy forward to act for every member, one
-batched forward, loss and backward to learn, one ``StackedAdam`` step; episodes from one ``CartPoleBatch``.
+backward to learn, one ``StackedAdam`` step; every member's episodes from one ``CartPoleBatch``.
 
-Every member keeps its single trial's random streams (initial weights, actions, envs, dropout masks), so a
-population of one is its single trial bit for bit, and a member of a larger one follows it until float
-differences in the batched products first flip a sampled action.
+Every member keeps its single trial's random streams (initial weights, actions, envs, dropout masks) and, on a
+CPU, its single trial's own forward and backward kernels on its own batch: a member's whole run is the run of
+its trial alone, bit for bit, whatever population it is in. (On a GPU, one padded batched forward: the same to
+float tolerance, until float differences first flip a sampled action.)
 """
 
 from __future__ import annotations
@@ -230,7 +231,50 @@ class StackedBackend:
 
     # --- updates ---
     def update(self, batches: Sequence[Batch]) -> list[UpdateStats]:
-        """One batched forward, loss and backward over every member's batch, then one Adam step for all."""
+        """Every member's loss and gradients in one backward, then one ``StackedAdam`` step for all. On a CPU
+        each member's forward is its single trial's own (``_member_losses``); on a GPU, one padded batched
+        forward (``_padded_losses``): there a kernel per member and layer would cost more than the math."""
+        self.optimizer.zero_grad()
+        if self.device.type == "cpu":
+            total, losses, entropies = self._member_losses(batches)
+        else:
+            total, losses, entropies = self._padded_losses(batches)
+        total.backward()
+        values = torch.stack([torch.stack(losses).detach(), torch.stack(entropies)]).cpu().tolist()
+        self.optimizer.step()
+        self.model.refresh()
+        sizes = [len(b.actions) for b in batches]
+        return [UpdateStats(loss, entropy / max(size, 1)) for loss, entropy, size in zip(*values, sizes, strict=True)]
+
+    def _member_losses(self, batches: Sequence[Batch]) -> tuple[torch.Tensor, list, list]:
+        """Each member's ``reinforce.train_step`` graph on its own batch, with its slices of the stacked
+        parameters (``unbind``: one node hands every member's gradient back into the stacks). The same kernels
+        on the same shapes as its single trial, and no padding: a member's update is its single trial's."""
+        layers = [(w.unbind(0), b.unbind(0)) for w, b in self.model.layers()]
+        p = self.model.dropout
+        total, losses, entropies = None, [], []
+        for i, (batch, config) in enumerate(zip(batches, self.configs, strict=True)):
+            x = torch.from_numpy(batch.observations)  # the batch's own memory, as train_step reads it
+            for (weights, biases), k in zip(layers, self.model.linear, strict=True):
+                x = F.linear(x, weights[i], biases[i])
+                if k in self.model.activations:
+                    x = self.model.activations[k](x)
+                    if p > 0:  # F.dropout's draw, from the member's own generator
+                        x = x * torch.empty_like(x).bernoulli_(1 - p, generator=self.generators[i]).div_(1 - p)
+            weights_t = torch.from_numpy(batch.weights)
+            loss = (F.cross_entropy(x, torch.from_numpy(batch.actions), reduction="none") * weights_t).mean()
+            losses.append(loss)
+            if config.l2 > 0:
+                penalty = sum((w[i].pow(2).sum() for w, _ in layers), torch.zeros(()))
+                loss = loss + config.l2 * penalty
+            total = loss if total is None else total + loss
+            with torch.no_grad():
+                log_probs = F.log_softmax(x, dim=1)
+                entropies.append(-(log_probs.exp() * log_probs).sum(dim=1).sum())
+        return total, losses, entropies
+
+    def _padded_losses(self, batches: Sequence[Batch]) -> tuple[torch.Tensor, list, list]:
+        """All members in one padded (M, T, obs) batch through batched products (the GPU's path)."""
         sizes = [len(b.actions) for b in batches]
         longest = max(sizes)
         m = len(batches)
@@ -244,7 +288,6 @@ class StackedBackend:
                 actions[i, : sizes[i]] = torch.from_numpy(b.actions)
         masks = self._dropout_masks(sizes, longest)
         x, actions = x.to(self.device), actions.to(self.device)
-        self.optimizer.zero_grad()
         logits = self.model.logits(x, masks)
         # F.cross_entropy is nll_loss of log_softmax: computed apart, the log-probabilities serve the entropy too.
         log_probs = F.log_softmax(logits, dim=2)
@@ -261,15 +304,11 @@ class StackedBackend:
                 weights = [w[i] for w, _ in self.model.layers()]
                 penalty = sum((w.pow(2).sum() for w in weights), torch.zeros((), device=self.device))
                 total = total + config.l2 * penalty
-        total.backward()
         with torch.no_grad():
             log_probs = log_probs.detach()
             entropy = -(log_probs.exp() * log_probs).sum(dim=2)
             entropies = [entropy[i, : sizes[i]].sum() for i in range(m)]
-            values = torch.stack([torch.stack(losses).detach(), torch.stack(entropies)]).cpu().tolist()
-        self.optimizer.step()
-        self.model.refresh()
-        return [UpdateStats(loss, entropy / max(size, 1)) for loss, entropy, size in zip(*values, sizes, strict=True)]
+        return total, losses, entropies
 
     def _dropout_masks(self, sizes: list[int], longest: int) -> list[torch.Tensor]:
         """Each dropout layer's mask (scaled by 1/(1-p)), per member from its own generator, drawn as
