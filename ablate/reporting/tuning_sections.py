@@ -193,7 +193,12 @@ def unchanged_words(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFra
             f"No finding changes with {words}, but none could: with these seeds no comparison can reach a verdict "
             f"at either value, so this says nothing about whether {words} matters."
         )
-        moved = [(abs(row.point - base.point), base, row) for base, row in pairs if pd.notna(row.point - base.point)]
+        primary = pairs[0][1].metric  # the first metric compared: episodes to solve where seeds solved, else AUC
+        moved = [
+            (abs(row.point - base.point), base, row)
+            for base, row in pairs
+            if row.metric == primary and pd.notna(row.point - base.point)
+        ]
         if moved:
             _, base, row = max(moved, key=lambda item: item[0])
             text += (
