@@ -42,3 +42,14 @@ def design_warning(seeds_per_variant: int) -> str | None:
         f"{smallest_p_value(seeds_per_variant, seeds_per_variant):.2g}); it takes at least {needed} seeds per "
         f"variant (seeds = {needed})"
     )
+
+
+def smallest_permutation_p(n: int, m: int) -> float:
+    """The smallest two-sided p-value the permutation test of the IQM difference can give with ``n`` and ``m``
+    seeds (complete separation, all values distinct). The IQM trims ``int(n / 4)`` seeds off each end, so the
+    splits that swap the variant's top trimmed seeds with the reference's bottom ones give the same difference:
+    ``C(gx + gy, gx)`` splits of the ``C(n + m, n)`` on each side (both sides where ``n == m``)."""
+    if n < 2 or m < 2:
+        return 1.0
+    gx, gy = n // 4, m // 4
+    return min(1.0, (2 if n == m else 1) * math.comb(gx + gy, gx) / math.comb(n + m, n))

@@ -1,0 +1,50 @@
+"""The report's primary claims as one family (issue 25): ``decide`` judges every primary comparison of a report
+at the looks its seeds reach and says which variants need more. Pure (numpy and SciPy, no store), below the
+launch layer, so the runner's rounds and the report call the same rule. docs/report.md#primary-claims argues
+each choice; tests/test_claims.py measures the error rates.
+
+- ``permutation``: the permutation test of the IQM difference, its TOST form, the interval it inverts to.
+- ``boundaries``: the design's looks and the alpha-spending boundary across them.
+- ``family``: Holm's step-down over the comparisons, the four verdicts, the seeds an open one would need.
+"""
+
+from ablate.claims.boundaries import ALPHA, Design, alpha_spent, nominal_levels
+from ablate.claims.family import (
+    BETTER,
+    EQUIVALENT,
+    SEEDS_CAP,
+    UNDETERMINED,
+    VERDICTS,
+    WORSE,
+    Round,
+    Verdict,
+    decide,
+    family_sentence,
+    seeds_needed,
+    smallest_p,
+)
+from ablate.claims.permutation import Question, Sample, effect_interval, iqm, p_values
+
+__all__ = [
+    "ALPHA",
+    "BETTER",
+    "EQUIVALENT",
+    "SEEDS_CAP",
+    "UNDETERMINED",
+    "VERDICTS",
+    "WORSE",
+    "Design",
+    "Question",
+    "Round",
+    "Sample",
+    "Verdict",
+    "alpha_spent",
+    "decide",
+    "effect_interval",
+    "family_sentence",
+    "iqm",
+    "nominal_levels",
+    "p_values",
+    "seeds_needed",
+    "smallest_p",
+]

@@ -1,0 +1,335 @@
+"""The report's primary claims as one family: a permutation test of the IQM difference per comparison, Holm's
+step-down over the comparisons at a family-wise 5%, equivalence by two one-sided tests (TOST), and the
+group-sequential looks (seeds added in rounds) with an alpha-spending boundary. Pure (numpy and SciPy, no
+store): below the launch layer, so the runner's rounds and the report call the same rule.
+
+``decide`` judges a family at one look (or replays every look the data reach); ``Verdict`` is one comparison's
+answer, ``Round`` a look's. docs/report.md argues each choice; tests/test_claims.py checks the error rates.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ablate.claims.boundaries import ALPHA, Design, nominal_levels
+from ablate.claims.permutation import Question, Sample, effect_interval, iqm, p_values, permutations_for
+from ablate.design import smallest_permutation_p as smallest_p
+
+BETTER, WORSE, EQUIVALENT, UNDETERMINED = "better", "worse", "equivalent", "undetermined"
+VERDICTS = (BETTER, WORSE, EQUIVALENT, UNDETERMINED)
+POWER = 0.8
+"""Share of resampled experiments that must decide a comparison for ``seeds_needed`` to count it enough."""
+SEED_COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 80, 100)
+SEEDS_CAP = SEED_COUNTS[-1]
+SEED = 20_251
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One primary comparison's answer, as the report states it and ``results.comparisons`` carries it."""
+
+    variant: str
+    reference: str
+    metric: str
+    verdict: str
+    """``better``, ``worse``, ``equivalent`` or ``undetermined`` (``VERDICTS``)."""
+    estimate: float
+    """The effect: ``relative``, IQM(variant) / IQM(reference) - 1 (-0.2: 20% fewer episodes); otherwise
+    IQM(variant) - IQM(reference). Its sign is not "better": see ``Question.lower_is_better``."""
+    low: float
+    high: float
+    """The effect's interval at the family level (the permutation test inverted at ``alpha / comparisons``,
+    so the intervals of one report hold together at 95%); ``-inf`` / ``inf`` where censoring leaves an end
+    open; NaN where not computed."""
+    p_difference: float
+    """Two-sided permutation p-value of "no difference" (the effect 0)."""
+    p_equivalence: float
+    """TOST p-value of "a difference of at least the margin": the larger of the two one-sided p-values."""
+    level: float
+    """The nominal level the comparison was last judged at (its Holm step, the look's boundary)."""
+    margin: float
+    """± the equivalence margin, in the effect's units."""
+    n_variant: int
+    n_reference: int
+    look: int
+    """The look (0 = the first) at which it was decided, or the last look made."""
+    bound: str = ""
+    """``""``; ``"at least"``: one side's IQM counts unsolved seeds as the budget, so it is a bound and only the
+    claim it supports may be made; ``"censored"``: both are, and episodes cannot decide."""
+    seeds_needed: int | None = None
+    """Where undetermined and ``seeds_estimated``: seeds per variant a fixed design would need to decide it in
+    80% of experiments resampled from these seeds; ``None`` there means more than ``seeds_cap``."""
+    seeds_estimated: bool = False
+    seeds_cap: int = SEEDS_CAP
+    reason: str = ""
+    """Where undetermined, why in words (too few seeds for any claim at the family level, censoring, ...)."""
+
+    @property
+    def decided(self) -> bool:
+        return self.verdict != UNDETERMINED
+
+    @property
+    def needs_more_than_cap(self) -> bool:
+        return self.seeds_estimated and self.seeds_needed is None
+
+
+@dataclass(frozen=True)
+class Round:
+    """The family after the last look the data reach."""
+
+    look: int
+    """Index of that look in ``Design.looks`` (-1: the data reach no look; judged as they are)."""
+    seeds: int
+    """Seeds per variant at that look."""
+    verdicts: tuple[Verdict, ...]
+    needs_seeds: tuple[str, ...]
+    """Variants that get ``step`` more seeds in the next round: those whose comparison is open and the references
+    of open comparisons. Empty when every comparison is decided or the last look was made."""
+    done: bool
+    """True when nothing is open or the last look (``max``) was made."""
+    levels: tuple[float, ...] = field(default=())
+    """The two-sided nominal level of each look made, at ``alpha / comparisons`` (Holm's first step)."""
+    spent: tuple[tuple[str, int], ...] = field(default=())
+    """(variant, seeds it was run on up to the last look made): a variant stops getting seeds once its
+    comparison is decided, unless it is the reference of one still open."""
+
+    @property
+    def open(self) -> tuple[str, ...]:
+        return tuple(v.variant for v in self.verdicts if not v.decided)
+
+
+def _bounds(sample: Sample) -> bool:
+    """Does the sample's IQM use a censored value (so it is a lower bound on the true IQM)?"""
+    if sample.censored is None:
+        return False
+    n = len(sample)
+    return int(np.sum(sample.censored)) > int(math.floor(0.25 * n)) if n else False
+
+
+@dataclass
+class _Open:
+    pair: tuple[str, str]
+    x: Sample
+    y: Sample
+    p_diff: float = 1.0
+    p_eq: float = 1.0
+    bound: str = ""
+    better: bool = False
+    estimate: float = float("nan")
+
+
+def _claim(item: _Open, question: Question, level_diff: float, level_eq: float) -> str:
+    """The claim the p-values support at these levels, with the care censoring needs; ``UNDETERMINED`` if none."""
+    x_bound, y_bound = _bounds(item.x), _bounds(item.y)
+    if x_bound and y_bound:
+        return UNDETERMINED
+    if item.p_diff <= level_diff:
+        verdict = BETTER if item.better else WORSE
+        # A variant's bound IQM can only grow (so "worse" stands, "better" does not); a reference's likewise.
+        if (x_bound and verdict == BETTER) or (y_bound and verdict == WORSE):
+            return UNDETERMINED
+        return verdict
+    if item.p_eq <= level_eq and not (x_bound or y_bound):
+        return EQUIVALENT
+    return UNDETERMINED
+
+
+def _estimate(x: Sample, y: Sample, question: Question) -> float:
+    ref, var = float(iqm(np.asarray(y.values, float))), float(iqm(np.asarray(x.values, float)))
+    return var / ref - 1 if question.relative else var - ref
+
+
+def decide(
+    samples: Mapping[str, Sample],
+    references: Mapping[str, str],
+    question: Question,
+    design: Design,
+    *,
+    intervals: bool = True,
+    estimate_seeds: bool = True,
+    permutations: int | None = None,
+) -> Round:
+    """The family's verdicts after every look the data reach, replayed from the first: ``samples`` maps each
+    variant (references included) to its values in seed order; ``references`` maps each compared variant to
+    its reference. At look j each open comparison uses the first ``design.looks[j]`` seeds of both sides;
+    Holm's step-down runs over the comparisons still open, each at ``alpha / open`` through the look's
+    spending boundary (a decided comparison's level passes to the rest, as in Maurer & Bretz 2013); a
+    comparison decided stays decided. A look is made when every variant it needs has its seeds; where the data
+    reach no look (fewer seeds than ``start``), the family is judged once on the seeds there are, as a
+    fixed design. ``intervals``: compute each verdict's interval (slower); ``estimate_seeds``: the seeds an
+    undetermined comparison would need, once the last look is made (slowest)."""
+    order = [v for v in references]
+    state = {v: _Open((v, references[v]), samples[v], samples[references[v]]) for v in order}
+    decided: dict[str, tuple[str, int, float]] = {}
+    looks = design.looks
+    k = len(order)
+    made, last_n, levels = -1, 0, []
+    spent: dict[str, int] = {}
+
+    def needed(open_names) -> set[str]:
+        return set(open_names) | {references[v] for v in open_names}
+
+    def judge(look_index: int, n: int, fractions: tuple[float, ...]) -> None:
+        open_names = [v for v in order if v not in decided]
+        for v in open_names:
+            item = state[v]
+            x, y = samples[v].first(n), samples[references[v]].first(n)
+            item.x, item.y = x, y
+            first_level = design.alpha / max(k, 1)
+            count = permutations or permutations_for(nominal_levels(fractions, first_level, design.spending)[-1])
+            item.p_diff, item.p_eq = p_values(x, y, question, count)
+            item.estimate = _estimate(x, y, question)
+            item.better = (item.estimate < 0) == question.lower_is_better if item.estimate != 0 else False
+        while open_names:
+            # Holm's step-down, released only by difference claims: a comparison shown equivalent keeps its
+            # share, since its "no difference" may be true (releasing it let a family of identical variants
+            # claim differences 18% of the time in tests/test_claims.py's narrow null at 30 seeds).
+            different = sum(1 for verdict, _, _ in decided.values() if verdict in (BETTER, WORSE))
+            level = design.alpha / (k - different)
+            level_diff = nominal_levels(fractions, level, design.spending, 2)[-1]
+            level_eq = nominal_levels(fractions, level, design.spending, 1)[-1]
+            claims = {v: _claim(state[v], question, level_diff, level_eq) for v in open_names}
+            for v in open_names:
+                state[v].last_level = level_diff  # type: ignore[attr-defined]
+                if claims[v] in (BETTER, WORSE):
+                    decided[v] = (claims[v], look_index, level_diff)
+                elif claims[v] == EQUIVALENT:
+                    decided[v] = (claims[v], look_index, level_eq)
+            if not any(claims[v] in (BETTER, WORSE) for v in open_names):
+                break
+            open_names = [v for v in open_names if v not in decided]
+
+    for j, n in enumerate(looks):
+        open_names = [v for v in order if v not in decided]
+        if not open_names:
+            break
+        if any(len(samples[v]) < n for v in needed(open_names)):
+            break
+        fractions = design.fractions[: j + 1]
+        for v in needed(open_names):
+            spent[v] = n
+        judge(j, n, fractions)
+        levels.append(nominal_levels(fractions, design.alpha / max(k, 1), design.spending)[-1])
+        made, last_n = j, n
+    if made < 0:  # the data reach no look: one judgment on what there is, as a fixed design
+        last_n = min((len(s) for s in samples.values()), default=0)
+        spent = {v: len(s) for v, s in samples.items()}
+        judge(-1, max(len(s) for s in samples.values()) if samples else 0, (1.0,))
+        levels.append(design.alpha / max(k, 1))
+    final = made < 0 or made == len(looks) - 1
+    open_names = [v for v in order if v not in decided]
+    done = final or not open_names
+    verdicts = []
+    family_level = design.alpha / max(k, 1)
+    for v in order:
+        item = state[v]
+        verdict, look_index, level = decided.get(v, (UNDETERMINED, made, getattr(item, "last_level", family_level)))
+        margin = question.margin(item.y.values)
+        low = high = float("nan")
+        if intervals and len(item.x) >= 2 and len(item.y) >= 2:
+            interval_level = levels[look_index] if look_index >= 0 and look_index < len(levels) else levels[-1]
+            _, low, high = effect_interval(item.x, item.y, question, interval_level)
+        bound = ""
+        xb, yb = _bounds(item.x), _bounds(item.y)
+        if xb and yb:
+            bound = "censored"
+        elif xb or yb:
+            bound = "at least"
+        seeds, estimated, reason = None, False, ""
+        if verdict == UNDETERMINED:
+            reason = _reason(item, question, levels[-1] if levels else family_level, bound)
+            if estimate_seeds and done and bound != "censored":
+                seeds, estimated = seeds_needed(item.x, item.y, question, family_level), True
+        verdicts.append(
+            Verdict(
+                v,
+                references[v],
+                question.metric,
+                verdict,
+                item.estimate,
+                low,
+                high,
+                item.p_diff,
+                item.p_eq,
+                level,
+                margin,
+                len(item.x),
+                len(item.y),
+                look_index,
+                bound,
+                seeds,
+                estimated,
+                SEEDS_CAP,
+                reason,
+            )
+        )
+    needs = () if done else tuple(v for v in samples if v in needed(open_names))
+    return Round(
+        made, last_n, tuple(verdicts), needs, done, tuple(levels), tuple((v, spent.get(v, 0)) for v in samples)
+    )
+
+
+def _reason(item: _Open, question: Question, level: float, bound: str) -> str:
+    n, m = len(item.x), len(item.y)
+    if min(n, m) < 2:
+        return f"{min(n, m)} seed{'s' if min(n, m) != 1 else ''}: no test"
+    if bound == "censored":
+        return "both IQMs count unsolved seeds as the budget: episodes cannot decide"
+    if smallest_p(n, m) > level:
+        return (
+            f"no ordering of {n} and {m} seeds reaches the family level (smallest possible p = "
+            f"{smallest_p(n, m):.3g} > {level:.2g})"
+        )
+    return "neither a difference nor equivalence within the margin is shown at the family level"
+
+
+def seeds_needed(x: Sample, y: Sample, question: Question, level: float, simulations: int = 40) -> int | None:
+    """The fewest seeds per variant (of ``SEED_COUNTS``) with which a fixed design decides the comparison
+    (better, worse or equivalent, with the censoring care) at ``level`` in ``POWER`` of experiments drawn with
+    replacement from these seeds; ``None``: more than ``SEEDS_CAP``. Seeded: the same seeds give the same
+    answer."""
+    if len(x) < 2 or len(y) < 2:
+        return None
+    xv, yv = np.asarray(x.values, float), np.asarray(y.values, float)
+    xc = np.zeros(len(xv), bool) if x.censored is None else np.asarray(x.censored, bool)
+    yc = np.zeros(len(yv), bool) if y.censored is None else np.asarray(y.censored, bool)
+    count = int(max(199, math.ceil(4 / level)))
+
+    def power(n: int) -> float:
+        if smallest_p(n, n) > level:
+            return 0.0
+        rng = np.random.default_rng([SEED, n, len(xv), len(yv)])
+        hits = 0
+        for _ in range(simulations):
+            ix, iy = rng.integers(0, len(xv), n), rng.integers(0, len(yv), n)
+            item = _Open(("x", "y"), Sample(xv[ix], xc[ix]), Sample(yv[iy], yc[iy]))
+            item.p_diff, item.p_eq = p_values(item.x, item.y, question, count)
+            est = _estimate(item.x, item.y, question)
+            item.better = (est < 0) == question.lower_is_better if est != 0 else False
+            hits += _claim(item, question, level, level) != UNDETERMINED
+        return hits / simulations
+
+    counts = [n for n in SEED_COUNTS if smallest_p(n, n) <= level]
+    if not counts or power(counts[-1]) < POWER:
+        return None
+    lo, hi = 0, len(counts) - 1  # power grows with seeds: bisect for the first count that reaches POWER
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if power(counts[mid]) >= POWER:
+            hi = mid
+        else:
+            lo = mid + 1
+    return counts[lo]
+
+
+def family_sentence(k: int, alpha: float = ALPHA, sequential: bool = False) -> str:
+    """The one sentence a student can repeat: which family, which correction, what level."""
+    looks = " across the rounds of seeds (an O'Brien-Fleming-type alpha-spending boundary)" if sequential else ""
+    return (
+        f"The {k} primary comparison{'s' if k != 1 else ''} form one family whose chance of any false claim is at "
+        f"most {alpha:.0%}: each is a permutation test of the IQM difference, corrected by Holm's step-down{looks}."
+    )
