@@ -104,11 +104,37 @@ class Experiment:
     per variant would separate a difference this large; it changes no trial."""
     tune: TuneSpec | None = None
     """``[tune]``: tune each variant's optimisation knobs on tuning seeds first; ``None``: no tuning stage."""
+    primary: str | None = None
+    """The metric the report's claims are made on (one of ``PRIMARY_METRICS``); ``None``: episodes to solve
+    where the env has a solve threshold, the area under the learning curve where it has none (Pong). The other
+    metrics stay in the report as exploratory. Report-level: it changes no trial."""
+
+    @property
+    def primary_metric(self) -> str:
+        """``primary``, or its default for this experiment's env."""
+        if self.primary is not None:
+            return self.primary
+        return "episodes_to_solve" if all(has_solve_threshold(v.config) for v in self.variants) else "auc"
 
     @property
     def storage_name(self) -> str:
         """The name where it names a folder, an MLflow experiment or a lock file (see ``storage_name``)."""
         return storage_name(self.name)
+
+
+PRIMARY_METRICS = {
+    "episodes_to_solve": "episodes to solve (unsolved seeds counted as the budget)",
+    "auc": "area under the learning curve",
+    "return": "return after the whole budget",
+}
+"""The metrics a report's claims can be made on, in words."""
+THRESHOLD_ENVS = ("CartPole-v0", "CartPole-v1")
+"""Envs whose spec has a reward threshold (solved at 195 and 475); Pong has none."""
+
+
+def has_solve_threshold(config: TrialConfig) -> bool:
+    """Can a trial of ``config`` solve (its own ``solve_threshold``, or its env's)?"""
+    return config.solve_threshold is not None or config.env_id in THRESHOLD_ENVS
 
 
 EXPERIMENT_KEYS = (
@@ -119,6 +145,7 @@ EXPERIMENT_KEYS = (
     "cpus_per_trial",
     "gpus_per_trial",
     "smallest_effect",
+    "primary",
     "base",
     "variants",
     "grid",
@@ -249,6 +276,17 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             f"{source}: baseline = {baseline!r} is invalid; valid: one of the variant names {sorted(seen)}"
         )
     tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), seeds)
+    primary = data.get("primary")
+    if primary is not None and primary not in PRIMARY_METRICS:
+        raise ConfigError(
+            f"{source}: primary = {_clip(primary)} is invalid; valid: one of {', '.join(PRIMARY_METRICS)} (or leave "
+            "it out: episodes_to_solve where the env has a solve threshold, else auc)"
+        )
+    if primary == "episodes_to_solve" and not all(has_solve_threshold(v.config) for v in variants):
+        raise ConfigError(
+            f"{source}: primary = 'episodes_to_solve' is invalid: {base.env_id} has no solve threshold; valid: auc or "
+            "return, or set solve_threshold in [base]"
+        )
     return Experiment(
         name,
         source,
@@ -261,6 +299,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         float(gpus),
         smallest_effect=smallest_effect,
         tune=tune,
+        primary=primary,
     )
 
 

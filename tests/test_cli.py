@@ -86,6 +86,13 @@ BAD_EXPERIMENTS = [
     # [tune] (issue 19): a refused knob, and a knob both compared and tuned
     ("[[variants]]\nname='a'\n[tune]\ndropout = [0.0, 0.2]\n", "tune.dropout: not tunable"),
     ("[grid]\nlearning_rate = [0.1]\n[tune]\nlearning_rate = [0.1]\n", "tune.learning_rate: also a [grid] axis"),
+    # the primary question (issue 25): an unknown metric, and episodes to solve where nothing can solve
+    ("primary = 'speed'\n[[variants]]\nname='a'\n", "primary = 'speed' is invalid; valid: one of episodes_to_solve"),
+    (
+        "primary = 'episodes_to_solve'\n[base]\nenv_id = 'ALE/Pong-v5'\n[[variants]]\nname='a'\n",
+        "primary = 'episodes_to_solve' is invalid: ALE/Pong-v5 has no solve threshold",
+    ),
+    ("smallest_effect = 1.5\n[[variants]]\nname='a'\n", "smallest_effect = 1.5 is invalid; valid: a fraction"),
 ]
 
 

@@ -118,6 +118,8 @@ BAD_FILES = [
     ("[[variants]]\nname='a'\nseed = 1\n", "variants[0].seed: set seeds at the top level"),
     ("[[variants]]\ndepth = 2\n", "variants[0].name: missing or empty"),
     ("gpus_per_trial = -1\n[[variants]]\nname='a'\n", "gpus_per_trial = -1 is invalid; valid: a number in [0, 16]"),
+    ("primary = 3\n[[variants]]\nname='a'\n", "primary = 3 is invalid; valid: one of episodes_to_solve, auc, return"),
+    ("smallest_effect = 0\n[[variants]]\nname='a'\n", "smallest_effect = 0 is invalid; valid: a fraction in (0, 1)"),
 ]
 
 

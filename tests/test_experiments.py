@@ -116,3 +116,22 @@ def test_cartpole_ablation_tunes_each_variants_learning_rate_past_the_probes_bes
     untuned.write_text(bench.without_tune((EXPERIMENTS / "cartpole.toml").read_text()))
     twin = load_experiment(untuned)
     assert twin.tune is None and [t.key for t in expand(twin)] == [t.key for t in expand(experiment)]
+
+
+# --- the primary question (issue 25): report-level keys leave every trial key as it was ----------------------
+
+
+def test_primary_and_smallest_effect_change_no_trial_key(tmp_path):
+    text = (EXPERIMENTS / "cartpole.toml").read_text()
+    plain = load_experiment(EXPERIMENTS / "cartpole.toml")
+    assert plain.primary is None and plain.primary_metric == "episodes_to_solve"  # CartPole can solve
+    keyed = tmp_path / "cartpole.toml"
+    keyed.write_text("primary = 'auc'\nsmallest_effect = 0.25\n" + text)
+    experiment = load_experiment(keyed)
+    assert experiment.primary_metric == "auc" and experiment.smallest_effect == 0.25
+    assert [(t.key, t.config) for t in expand(experiment)] == [(t.key, t.config) for t in expand(plain)]
+
+
+def test_pong_claims_rest_on_the_area_under_the_curve_by_default():
+    pong = load_experiment(EXPERIMENTS / "pong.toml")
+    assert pong.primary is None and pong.primary_metric == "auc"  # Pong has no solve threshold

@@ -44,8 +44,10 @@ TOP_LEVEL_MEANINGS = {
     "gpus_per_trial": "GPUs Ray reserves per trial; fractions allowed (0.25: four per GPU). A trial puts its policy "
     "on CUDA whenever torch sees one.",
     "smallest_effect": "The smallest difference worth finding, as a fraction of the reference's value (0.1: 10% "
-    "fewer or more episodes, or a return 10% of the reference's apart); the report says how many seeds would "
-    "separate it. Changes no trial.",
+    "fewer or more episodes, or a return 10% of the reference's apart): the margin within which the report calls a "
+    "primary comparison *equivalent* ([report.md](report.md#primary-claims)). Changes no trial.",
+    "primary": "The metric the report's primary claims are made on (one family, Holm at 5%); the others are "
+    "exploratory. Changes no trial.",
     "base": "A table of knobs (below) every variant starts from; the rest keep their defaults.",
     "variants": "An array of tables `[[variants]]`: each a `name` and the knobs it changes over `[base]`.",
     "grid": "A table of axes (knob = list of values) whose cartesian product adds one variant per combination, "
@@ -61,6 +63,7 @@ TOP_LEVEL_VALID = {
     "cpus_per_trial": "a number in (0, 64]",
     "gpus_per_trial": "a number in [0, 16]",
     "smallest_effect": "a fraction in (0, 1)",
+    "primary": "`episodes_to_solve` (needs a solve threshold), `auc` or `return`",
     "base": "knobs",
     "variants": f"names up to {config.MAX_VARIANT_NAME_LENGTH} characters, each unique",
     "grid": f"non-empty lists; at most {config.MAX_TRIALS:,} trials in all",
@@ -83,6 +86,7 @@ def top_level_defaults() -> dict[str, str]:
         "cpus_per_trial": _code(minimal.resources_per_trial),
         "gpus_per_trial": _code(minimal.gpus_per_trial),
         "smallest_effect": _code(minimal.smallest_effect),
+        "primary": "episodes to solve where the env has a solve threshold, else `auc` (Pong)",
         "base": "none: every knob at its default",
         "variants": "none",
         "grid": "none",
