@@ -86,11 +86,15 @@ def test_a_local_run_ignores_another_cluster_listens_on_loopback_and_ray_address
 
 
 def test_an_unreachable_cluster_is_one_line_and_exit_1_within_seconds(tmp_path):
-    started = time.monotonic()
+    # "Within seconds" is the probe's: a TCP connection refused at once (or given up after CONNECT_TIMEOUT_S),
+    # before Ray, which retries an unreachable GCS for minutes. The test checks that the refusal is the probe's,
+    # not how long the child took: on a loaded machine its imports alone took 27 s of the 60 s it once allowed.
     launch = _launch(tmp_path / "x", "x", RAY_ADDRESS=f"127.0.0.1:{local_cluster.free_port()}")
-    code, output = local_cluster.finish_process(launch, timeout_s=60)
-    assert code == 1 and time.monotonic() - started < 60
-    assert output.strip().splitlines()[-1].startswith("ablate run: cannot reach the Ray cluster at 127.0.0.1:"), output
+    code, output = local_cluster.finish_process(launch, timeout_s=1800)  # a guard against a hang only
+    assert code == 1
+    last = output.strip().splitlines()[-1]
+    assert last.startswith("ablate run: cannot reach the Ray cluster at 127.0.0.1:"), output
+    assert "(Connection refused); is its head node running?" in last, last  # the probe's answer, not Ray's
     assert "Traceback" not in output
     assert Tracker(f"sqlite:///{tmp_path / 'x' / 'mlflow.db'}", "x").latest_launch() is None  # nothing recorded
 
