@@ -292,8 +292,9 @@ def build_parser() -> argparse.ArgumentParser:
         "report",
         help="write reports/<experiment>/ (Markdown, HTML, PDF) from the MLflow store",
         description="Write reports/<experiment>/ from the MLflow store: report.md, a self-contained report.html, "
-        "report.pdf (headless Chromium), figures, tables and videos; the report is attached to the launch's MLflow "
-        "run. Nothing is written unless the whole report could be built.",
+        "report.pdf (typeset by the typst package), discussion.md (yours, kept across rebuilds), figures, tables "
+        "and videos; the report is attached to the launch's MLflow run. Nothing is written unless the whole report "
+        "could be built.",
     )
     report.add_argument("experiment", help="experiment file or name, e.g. experiments/cartpole.toml or cartpole")
     report.add_argument(
@@ -310,7 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="only these variants, comma-separated, e.g. deep,cnn; the baseline is always kept (default: all)",
     )
     report.add_argument("--baseline", help="the variant the others are compared to (default: the experiment's)")
-    report.add_argument("--no-pdf", dest="pdf", action="store_false", help="skip report.pdf (Chromium not needed)")
+    report.add_argument("--no-pdf", dest="pdf", action="store_false", help="skip report.pdf")
     return parser
 
 

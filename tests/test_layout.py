@@ -179,3 +179,23 @@ def test_status_lists_variants_in_the_files_order_else_by_number():
     assert names == ["relu,depth=1", "relu,depth=2", "relu,depth=10"]
     names = [line.split()[0] for line in _variant_table(states, ["relu,depth=10", "relu,depth=2"]).splitlines()[1:]]
     assert names == ["relu,depth=10", "relu,depth=2", "relu,depth=1"]
+
+
+def test_each_way_to_a_report_says_in_one_line_why_there_is_no_pdf(stores, tmp_path, monkeypatch, capsys):
+    import sys
+
+    import ablate
+    from ablate.cli import main
+
+    _, uri = stores
+    monkeypatch.undo()  # the real PDF path, without the typst package: as on a machine that lacks it
+    monkeypatch.setitem(sys.modules, "typst", None)
+    assert main(["report", "four", "--tracking-uri", uri, "--out", str(tmp_path / "cli")]) == 0
+    out = capsys.readouterr().out
+    assert "no PDF: the typst package is missing (pip install typst, or make setup)" in out.splitlines()
+    ablate.report("four", tracking_uri=uri, reports_folder=tmp_path / "api")
+    err = capsys.readouterr().err
+    assert "no PDF: the typst package is missing (pip install typst, or make setup)" in err.splitlines()
+    assert (
+        not (tmp_path / "api" / "four" / "report.pdf").exists() and (tmp_path / "api" / "four" / "report.typ").exists()
+    )
