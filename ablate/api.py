@@ -95,6 +95,7 @@ def run(
     """
     from ablate.launch.grid import expand, select
     from ablate.launch.runner import run_experiment
+    from ablate.reporting.rounds import judge_for
 
     loaded = _experiment(experiment)
     if max_concurrent is not None and max_concurrent < 1:
@@ -113,6 +114,7 @@ def run(
         command=f"ablate.run({loaded.path!r})",
         only=chosen,
         population=population,
+        judge=judge_for(loaded, seeds),
     )
     if report and not outcome.interrupted and not outcome.error and (outcome.finished or outcome.skipped):
         outcome.report_folder = _write_report(loaded, tracking_uri, reports_folder)

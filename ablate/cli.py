@@ -22,6 +22,7 @@ from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, ModelConfig, 
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, expand, select, tuning_trials
 from ablate.launch.lock import LaunchLocked
+from ablate.launch.rounds import dry_run_lines
 from ablate.launch.secrets import masked_output, remember_uri, shown
 from ablate.launch.tracking import TrackingError
 
@@ -434,6 +435,7 @@ def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
         ]
         rows += [(f"{t.variant} [base]", str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials]
         rows += [(f"{t.variant} [chosen]", str(t.seed), "after tuning", "the chosen values") for t in after]
+    print(*dry_run_lines(experiment, trials), sep="\n") if experiment.rounds else None
     if experiment.storage_name != experiment.name:
         print(
             f"stored as {experiment.storage_name!r}: reports/{experiment.storage_name}/, the MLflow experiment "
@@ -450,7 +452,7 @@ def warn_design(experiment: Experiment) -> None:
     """Before any compute: say when the design cannot reach a claim at 95% under the report's rule."""
     from ablate.design import design_warning
 
-    warning = design_warning(len(experiment.seeds))
+    warning = design_warning(experiment.rounds.max if experiment.rounds else len(experiment.seeds))
     if warning:
         print(f"warning: {warning}", flush=True)
 

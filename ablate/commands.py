@@ -17,6 +17,7 @@ from ablate.launch.clock import clock, stage
 from ablate.launch.grid import expand, select
 from ablate.launch.runner import raise_interrupted, run_experiment, signals_received
 from ablate.launch.secrets import shown
+from ablate.reporting.rounds import judge_for
 
 
 def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
@@ -53,6 +54,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
             started_at=started_at,
             storage_path=args.storage_path,
             population=args.population,
+            judge=judge_for(experiment, args.seeds),
         )
     except Exception as error:
         # The scheduler (and Ray) is only imported when trials run: its error class is known only then.

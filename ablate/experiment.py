@@ -32,6 +32,7 @@ from ablate.config import (
     is_int,
     is_number,
 )
+from ablate.seeds import SeedRounds, parse_seeds
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9_-]{1,100}")
 """Names used as they are where a name becomes a folder: every name valid before names in any script were."""
@@ -45,6 +46,10 @@ class Variant:
     overrides: tuple[tuple[str, Any], ...]
     config: TrialConfig
     """The base with the overrides applied; ``seed`` is left at the base's and set per trial."""
+    seeds: tuple[int, ...] | None = None
+    """Its own ``seeds`` (round 1's, with ``rounds``); ``None``: the experiment's."""
+    rounds: SeedRounds | None = None
+    """Its own seeds table; ``None``: the experiment's (or none, where its own ``seeds`` is fixed)."""
 
 
 @dataclass(frozen=True)
@@ -116,6 +121,25 @@ class Experiment:
             return self.primary
         return "episodes_to_solve" if all(has_solve_threshold(v.config) for v in self.variants) else "auc"
 
+    rounds: SeedRounds | None = None
+    """``seeds = { start, step, max }``: seeds added in rounds (``seeds`` then holds round 1's); ``None``: the
+    fixed ``seeds``."""
+
+    def seeds_of(self, variant: Variant) -> tuple[int, ...]:
+        """The variant's evaluation seeds of round 1 (every seed, without rounds)."""
+        return self.seeds if variant.seeds is None else variant.seeds
+
+    def rounds_of(self, variant: Variant) -> SeedRounds | None:
+        """The variant's seed rounds: its own table, the experiment's unless it fixes its own seeds, or none."""
+        if variant.seeds is not None:
+            return variant.rounds
+        return self.rounds
+
+    def max_seeds_of(self, variant: Variant) -> tuple[int, ...]:
+        """Every evaluation seed the variant may run (round 1's, then those rounds may add)."""
+        rounds = self.rounds_of(variant)
+        return tuple(range(rounds.max)) if rounds else self.seeds_of(variant)
+
     @property
     def storage_name(self) -> str:
         """The name where it names a folder, an MLflow experiment or a lock file (see ``storage_name``)."""
@@ -183,21 +207,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     if not isinstance(description, str):
         raise ConfigError(f"{source}: description = {description!r} is invalid; valid: a string")
 
-    seeds_value = data.get("seeds", 5)
-    if is_int(seeds_value) and 1 <= seeds_value <= 1000:
-        seeds = tuple(range(seeds_value))
-    elif (
-        isinstance(seeds_value, list)
-        and seeds_value
-        and all(is_int(s) and 0 <= s < 2**31 for s in seeds_value)
-        and len(set(seeds_value)) == len(seeds_value)
-    ):
-        seeds = tuple(seeds_value)
-    else:
-        raise ConfigError(
-            f"{source}: seeds = {seeds_value!r} is invalid; valid: a count in [1, 1000] or a list of distinct "
-            "non-negative integers"
-        )
+    seeds, rounds = parse_seeds(data.get("seeds", 5), f"{source}: seeds")
 
     cpus = data.get("cpus_per_trial", 1.0)
     if not (is_number(cpus) and 0 < cpus <= 64):
@@ -233,8 +243,10 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             raise ConfigError(
                 f"{where}name = {_clip(vname)} is invalid; valid: at most {MAX_VARIANT_NAME_LENGTH} characters"
             )
+        own_seeds, own_rounds = parse_seeds(table.pop("seeds"), f"{where}seeds") if "seeds" in table else (None, None)
         knobs = _without_seed(table, where)
-        variants.append(Variant(vname, tuple(knobs.items()), apply_knobs(base, knobs, where)))
+        config = apply_knobs(base, knobs, where)
+        variants.append(Variant(vname, tuple(knobs.items()), config, own_seeds, own_rounds))
 
     grid = data.get("grid", {})
     if not isinstance(grid, dict):
@@ -246,11 +258,12 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
                     f"{source}: grid.{key} = {values!r} is invalid; valid: a non-empty list of values to try"
                 )
         axes = list(grid)
-        count = (len(explicit) + math.prod(len(grid[a]) for a in axes)) * len(seeds)
+        per_variant = rounds.max if rounds else len(seeds)
+        count = (len(explicit) + math.prod(len(grid[a]) for a in axes)) * per_variant
         if count > MAX_TRIALS:
             sizes = " x ".join(f"{len(grid[a])} {a}" for a in axes)
             raise ConfigError(
-                f"{source}: grid: {sizes} x {len(seeds)} seeds is {count:,} trials; valid: at most {MAX_TRIALS:,}"
+                f"{source}: grid: {sizes} x {per_variant} seeds is {count:,} trials; valid: at most {MAX_TRIALS:,}"
             )
         for combo in itertools.product(*(grid[a] for a in axes)):
             knobs = _without_seed(dict(zip(axes, combo, strict=True)), f"{source}: grid.")
@@ -259,9 +272,10 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
 
     if not variants:
         raise ConfigError(f"{source}: the grid is empty; add [[variants]] tables or a [grid] with at least one axis")
-    if len(variants) * len(seeds) > MAX_TRIALS:
+    most = rounds.max if rounds else len(seeds)
+    if len(variants) * most > MAX_TRIALS:
         raise ConfigError(
-            f"{source}: {len(variants)} variants x {len(seeds)} seeds is {len(variants) * len(seeds):,} trials; "
+            f"{source}: {len(variants)} variants x {most} seeds is {len(variants) * most:,} trials; "
             f"valid: at most {MAX_TRIALS:,}"
         )
     seen: set[str] = set()
@@ -275,7 +289,9 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         raise ConfigError(
             f"{source}: baseline = {baseline!r} is invalid; valid: one of the variant names {sorted(seen)}"
         )
-    tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), seeds)
+    every_seed = {s for v in variants for s in (v.seeds or ())} | set(range(rounds.max) if rounds else seeds)
+    every_seed |= {s for v in variants if v.rounds for s in range(v.rounds.max)}
+    tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), tuple(sorted(every_seed)))
     primary = data.get("primary")
     if primary is not None and primary not in PRIMARY_METRICS:
         raise ConfigError(
@@ -300,6 +316,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         smallest_effect=smallest_effect,
         tune=tune,
         primary=primary,
+        rounds=rounds,
     )
 
 

@@ -15,6 +15,7 @@ LAYERS = {
     "config": 0,
     "experiment": 0,
     "design": 0,
+    "seeds": 0,
     "claims": 0,
     "agent": 1,
     "launch": 2,

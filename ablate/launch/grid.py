@@ -60,7 +60,7 @@ def expand(experiment: Experiment) -> list[GridTrial]:
             )
     trials = []
     for variant in experiment.variants:
-        for seed in experiment.seeds:
+        for seed in experiment.seeds_of(variant):
             config = replace(variant.config, seed=seed)
             trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
     return trials
@@ -109,7 +109,7 @@ def chosen_trials(experiment: Experiment, choices: Mapping[str, Mapping[str, Any
     for variant in experiment.variants:
         if variant.name not in choices:
             continue
-        for seed in experiment.seeds:
+        for seed in experiment.seeds_of(variant):
             config = replace(variant.config, seed=seed, **choices[variant.name])
             trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
     return trials

@@ -26,6 +26,7 @@ from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
 from ablate.launch.plan import member_slots, plan_populations
 from ablate.launch.progress import ProgressView
+from ablate.launch.rounds import Judge, Rounds
 from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_ROLE, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
@@ -90,6 +91,8 @@ class RunOutcome:
     """The launch's progress view (its clock and stage times), when trials ran."""
     report_folder: Path | None = None
     """Where ``ablate.run`` wrote the report afterwards (``None``: no report)."""
+    rounds: dict | None = None
+    """With seeds in rounds: ``rounds.json`` (``Rounds.document``): the rounds, why they stopped, seeds per variant."""
 
     @property
     def exit_code(self) -> int:
@@ -313,11 +316,14 @@ def run_experiment(
     started_at: float | None = None,
     log_estimates: bool = False,
     population: int = 1,
+    judge: Judge | None = None,
 ) -> RunOutcome:
     """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
     current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock.
     ``log_estimates``: keep every time-left estimate in ``outcome.view.estimates`` (``make bench``).
     ``population``: at most this many trials train together as one population (``launch.plan``); 1: alone.
+    ``judge``: with seeds in rounds (``experiment.rounds``), the sequential rule that decides after each round who
+    gets more seeds (``reporting.rounds.judge_for``); ``None``: round 1 only.
 
     Every check that can fail without Ray (the grid, the CPUs, the store, another launch) fails first. Holds
     the experiment's launch lock throughout (``LaunchLocked`` if another launch has it)."""
@@ -328,7 +334,7 @@ def run_experiment(
         reaped = reap_stale_runs(tracker, storage_path)
         outcome = _run_locked(
             experiment, trials, tracker, address, fresh, max_concurrent, storage_path, show_progress, command,
-            only, started_at, log_estimates, population,
+            only, started_at, log_estimates, population, judge,
         )  # fmt: skip
         outcome.reaped = reaped
         return outcome
@@ -348,6 +354,7 @@ def _run_locked(
     started_at: float | None,
     log_estimates: bool = False,
     population: int = 1,
+    judge: Judge | None = None,
 ) -> RunOutcome:
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
     evaluation = trials if only is None else list(only)
@@ -359,6 +366,10 @@ def _run_locked(
     choices = plan.choices(finished_runs)
     known = unique([*plan.tuning, *evaluation, *plan.chosen(choices)], set())
     todo = [t for t in known if t.key not in finished_before]
+    rounds = Rounds(experiment, wanted, judge, started_at) if experiment.rounds and judge else None
+    if rounds and not todo:  # round 1 is done: the next round open comparisons ask for (none: all decided)
+        todo = rounds.next_round(choices, finished_runs)
+        known += todo
     outcome = RunOutcome(
         experiment.name,
         generation,
@@ -368,6 +379,7 @@ def _run_locked(
         ui_link=tracker.ui_link(ui_port()),
     )
     if not todo:
+        outcome.rounds = rounds.document() if rounds else None
         return outcome
     from ablate.launch.scheduler import ClusterOptions, ensure_ray, largest_node_cpus, run_trials, stop_ray
 
@@ -385,7 +397,8 @@ def _run_locked(
     # Trials a killed launch left with a checkpoint continue from it.
     resume = tracker.latest_checkpoints(generation, (t.key for t in todo))
     commit = git_commit()
-    grid = grid_document(experiment, trials)
+    extra = rounds.finished_trials(choices, finished_runs) if rounds else []  # later rounds' seeds
+    grid = grid_document(experiment, unique([*trials, *extra], set()))
     launch = tracker.start_launch(
         generation,
         name=f"{experiment.name} {time.strftime('%Y-%m-%d %H:%M:%S')}",
@@ -436,13 +449,12 @@ def _run_locked(
     try:
         if plan.tuning and wanted <= set(choices):
             tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
+        if rounds and rounds.ran:  # a resumed launch starts in a later round
+            view.name = rounds.announce(show_progress)
         with view:
             run_trials(populations(todo), recorder, options, run_name=run_name, resume=resume)
-        if plan.tuning and not wanted <= set(choices):
-            # Stage 2: every variant whose tuning trials all finished, at its chosen values.
-            choices = plan.choices(finished_runs | recorder.summaries)
-            tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
-            later = unique(plan.chosen(choices), {t.key for t in known})
+
+        def run_later(later: list[GridTrial]) -> None:  # stage 2, a round of seeds: after what ran before
             todo_after = [t for t in later if t.key not in finished_before]
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)
@@ -455,6 +467,22 @@ def _run_locked(
                 with view:
                     resume = tracker.latest_checkpoints(generation, (t.key for t in todo_after))
                     run_trials(populations(todo_after), recorder, options, run_name=run_name, resume=resume)
+
+        if plan.tuning and not wanted <= set(choices):
+            # Stage 2: every variant whose tuning trials all finished, at its chosen values.
+            choices = plan.choices(finished_runs | recorder.summaries)
+            tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
+            run_later(unique(plan.chosen(choices), {t.key for t in known}))
+        while rounds is not None:  # then rounds of seeds, until the primary comparisons are decided
+            later = rounds.next_round(choices, finished_runs | recorder.summaries)
+            tracker.log_file(launch, "rounds.json", json.dumps(rounds.document(), indent=1))
+            if not later:
+                break
+            grid["trials"] += [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in later]
+            tracker.log_file(launch, "grid.json", json.dumps(grid, indent=1))
+            view.name = rounds.announce(show_progress)
+            run_later(later)
+        outcome.rounds = rounds.document() if rounds else None
     except KeyboardInterrupt as interrupt:
         outcome.interrupted = True
         signum = getattr(interrupt, "signum", None) or (signals_received[-1] if signals_received else signal.SIGINT)

@@ -311,6 +311,7 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
                 row["tracked"] = dict(run.metrics)
         (tune_rows if row.get("stage") == TUNE else rows).append(row)
     launch_info = {
+        "rounds": _json_artifact(tracker, launch_id, "rounds.json"),
         "run_id": launch_id,
         "tags": dict(launch.data.tags),
         "environment": environment,
@@ -334,6 +335,15 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
     untuned = part(at_values(trials, lambda v: base_values(tuning, v, overrides.get(v, {}))))
     variants = [v["name"] for v in grid["variants"]]
     return replace(tuned, tuning=tuning, tuning_trials=tuning_table(tune_rows, tuning, variants), untuned=untuned)
+
+
+def _json_artifact(tracker: RunReader, launch_id: str, name: str) -> dict[str, Any] | None:
+    """A launch's JSON artifact (``rounds.json``: seeds in rounds, ``launch.rounds.Rounds.document``); None where
+    the launch has none."""
+    try:
+        return json.loads(tracker.load_text(launch_id, name))
+    except Exception:  # noqa: BLE001 - no such artifact
+        return None
 
 
 def _tuning_document(tracker: RunReader, launch_id: str) -> dict[str, Any] | None:

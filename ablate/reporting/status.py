@@ -103,7 +103,7 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
             lines.append(f"  launch {_when(launch.start_time_ms)}  {launch.status:<8}  {launch.command}".rstrip())
         if newest:
             order = [v.name for v in experiment.variants] if experiment is not None else []
-            lines.append(_variant_table(states, order))
+            lines.append(_variant_table(states, order, _seeds(in_generation, experiment)))
     return "\n".join(lines)
 
 
@@ -112,18 +112,34 @@ def _natural(name: str) -> list:
     return [(0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", name) if part]
 
 
-def _variant_table(states: dict[str, tuple[str, str]], order: list[str] | None = None) -> str:
+def _seeds(runs: Iterable[TrialRun], experiment: Experiment | None) -> dict[str, str]:
+    """Per variant of an experiment with seeds in rounds, the evaluation seeds with a finished trial (``10 of
+    40``: rounds up to 40; ``3``: its own fixed seeds); ``{}`` without rounds."""
+    if experiment is None or not any(experiment.rounds_of(v) for v in experiment.variants):
+        return {}  # fixed seeds: every variant has the same, the states say how many
+    finished: dict[str, set[int]] = defaultdict(set)
+    for run in runs:
+        if run.status == "FINISHED" and run.tags.get("ablate.stage") != "tune":
+            finished[run.variant].add(run.seed)
+    most = {v.name: len(experiment.max_seeds_of(v)) for v in experiment.variants if experiment.rounds_of(v)}
+    return {v: f"{len(seeds)}{f' of {most[v]}' if v in most else ''}" for v, seeds in finished.items()}
+
+
+def _variant_table(
+    states: dict[str, tuple[str, str]], order: list[str] | None = None, seeds: dict[str, str] | None = None
+) -> str:
     """Trials by state per variant, in the experiment file's order (``order``), else by name with numbers as
-    numbers; never in the order the trials happened to finish."""
+    numbers; never in the order the trials happened to finish. ``seeds``: a last column, the evaluation seeds
+    each variant has finished (``_seeds``)."""
     per_variant: dict[str, Counter] = defaultdict(Counter)
     for variant, state in states.values():
         per_variant[variant][state] += 1
     place = {name: i for i, name in enumerate(order or [])}
     names = sorted(per_variant, key=lambda v: (place.get(v, len(place)), _natural(v)))
     shown = [s for s in STATES if any(c[s] for c in per_variant.values())] or ["FINISHED"]
-    rows = [("variant", *(s.lower() for s in shown))]
-    rows += [(v, *(str(per_variant[v][s]) for s in shown)) for v in names]
-    return _table(rows, right=tuple(range(1, len(shown) + 1)), indent="  ")
+    rows = [("variant", *(s.lower() for s in shown), *(["seeds"] if seeds else []))]
+    rows += [(v, *(str(per_variant[v][s]) for s in shown), *([seeds.get(v, "0")] if seeds else [])) for v in names]
+    return _table(rows, right=tuple(range(1, len(shown) + 1 + bool(seeds))), indent="  ")
 
 
 def _table(rows: list[tuple[str, ...]], right: tuple[int, ...] = (), indent: str = "") -> str:

@@ -1,0 +1,125 @@
+"""Seeds in rounds, the report's side: the judge the runner calls after each round (the family's sequential
+rule of ``claims.decide`` on the primary metric, each variant against the reference the report compares it
+with), and the report's words on each variant's seeds and why it stopped (``rounds.json`` of the launch).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from ablate.config import flatten
+from ablate.experiment import Experiment
+from ablate.launch.rounds import Primary
+
+SUMMARY_METRIC = {"episodes_to_solve": "episodes_to_solve", "auc": "auc", "return": "final_rolling_mean"}
+"""Each primary metric's name among a trial's summary metrics."""
+
+
+def primary_metric(experiment: Experiment) -> str:
+    """The experiment's ``primary`` (once ``Experiment.primary_metric`` exists), else its default: episodes to
+    solve where the env has a solve threshold, AUC where it has none."""
+    metric = getattr(experiment, "primary_metric", None)
+    if metric:
+        return metric
+    solvable = experiment.base.solve_threshold is not None or experiment.base.env_id.startswith("CartPole")
+    return "episodes_to_solve" if solvable else "auc"
+
+
+def references(experiment: Experiment) -> dict[str, str]:
+    """Each compared variant -> its reference, by the report's own rule (``Ablation.reference``)."""
+    import pandas as pd
+
+    from ablate.reporting.results import Ablation
+
+    grid = {
+        "experiment": experiment.name,
+        "baseline": experiment.baseline,
+        "variants": [{"name": v.name, "overrides": dict(v.overrides)} for v in experiment.variants],
+        "base": {k: list(v) if isinstance(v, tuple) else v for k, v in flatten(experiment.base).items()},
+    }
+    ablation = Ablation(experiment.name, grid, {}, pd.DataFrame(), pd.DataFrame(), {})
+    return {v.name: ablation.reference(v.name) for v in experiment.variants if v.name != experiment.baseline}
+
+
+def sample(rows: Sequence[Primary], metric: str):
+    """A variant's finished primary trials as ``claims.Sample`` (episodes: unsolved seeds count as the budget,
+    censored)."""
+    import numpy as np
+
+    from ablate.claims import Sample
+
+    if metric == "episodes_to_solve":
+        solved = [
+            r.metrics.get("solved", 0.0) == 1.0 and np.isfinite(r.metrics.get("episodes_to_solve", np.nan))
+            for r in rows
+        ]
+        values = [r.metrics["episodes_to_solve"] if ok else float(r.budget) for r, ok in zip(rows, solved, strict=True)]
+        return Sample(np.asarray(values, float), ~np.asarray(solved, bool))
+    return Sample(np.asarray([r.metrics.get(SUMMARY_METRIC[metric], np.nan) for r in rows], float))
+
+
+def judge_for(experiment: Experiment, seeds: Sequence[int] | None = None):
+    """The runner's judge (``launch.rounds.Judge``) for ``experiment``'s seed rounds: ``claims.decide`` over the
+    whole family at the design's looks, without intervals or seed estimates (the report computes those).
+    ``None`` without rounds, or when ``seeds`` (``--seeds``) asks for given seeds only."""
+    design = experiment.rounds
+    if design is None or seeds:
+        return None
+    from ablate.claims import Design, Question, decide
+
+    metric = primary_metric(experiment)
+    episodes = metric == "episodes_to_solve"
+    question = Question(
+        metric,
+        relative=episodes,
+        lower_is_better=episodes,
+        smallest_effect=experiment.smallest_effect,
+        budget=float(experiment.base.max_episodes) if episodes else None,
+    )
+    family = references(experiment)
+
+    def judge(finished: Mapping[str, Sequence[Primary]]):
+        # The comparisons whose two sides have trials: all of them, but in a launch of a part (--only).
+        asked = {v: r for v, r in family.items() if finished.get(v) and finished.get(r)}
+        samples = {name: sample(rows, metric) for name, rows in finished.items() if rows}
+        return decide(
+            samples,
+            asked,
+            question,
+            Design(design.start, design.step, design.max),
+            intervals=False,
+            estimate_seeds=False,
+        )
+
+    return judge
+
+
+WHY = {
+    "reached max": "reached the most seeds (max) undecided",
+    "time budget": "the time budget ended",
+    "trials failed": "a trial failed (a rerun retries it)",
+    "not asked": "not run by this launch (--only)",
+}
+
+
+def rounds_section(document: Mapping[str, Any] | None) -> str:
+    """Markdown: the design of the rounds, then per variant its seeds and why it got no more. ``document``: the
+    launch's ``rounds.json`` (``""`` without rounds)."""
+    if not document:
+        return ""
+    design = document["design"]
+    budget = f", no new round after {design['max_minutes']:g} minutes" if design.get("max_minutes") else ""
+    lines = [
+        f"Seeds were added in rounds: {design['start']} per variant first, then {design['step']} more per round to "
+        f"each variant whose primary comparison was still undetermined (and its reference), up to {design['max']}"
+        f"{budget}; the error rate holds across the rounds (an alpha-spending boundary). "
+        f"{document['round']} round{'s' if document['round'] != 1 else ''} ran.",
+        "",
+        "| variant | seeds | why it stopped |",
+        "| --- | --- | --- |",
+    ]
+    for name, entry in document["variants"].items():
+        why = entry.get("why") or "the reference of the others"
+        lines.append(f"| {name} | {entry.get('seeds', 0)} | {WHY.get(why, why)} |")
+    return "\n".join(lines)

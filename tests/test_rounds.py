@@ -1,0 +1,264 @@
+"""Seeds in rounds (``seeds = { start, step, max }``): the keys, their bad input, and launches whose rounds a
+fake scheduler runs with planted results: a real difference decided early, a null run to ``max``, a resume
+across rounds, ``--only``, a time budget, the dry run."""
+
+import json
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ablate.config import ConfigError
+from ablate.experiment import load_experiment
+from ablate.launch.grid import expand
+from ablate.launch.tracking import Tracker
+from ablate.reporting.reader import RunReader
+
+VARIANTS = """
+[base]
+env_id = "CartPole-v1"
+max_episodes = 1000
+[[variants]]
+name = "baseline"
+[[variants]]
+name = "fast"
+hidden_sizes = [64]
+[[variants]]
+name = "null"
+hidden_sizes = [16]
+"""
+ROUNDS = 'name = "rounds"\nseeds = { start = 5, step = 5, max = 15 }\n' + VARIANTS
+
+
+def _experiment(tmp_path, text=ROUNDS, name="exp.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return load_experiment(path)
+
+
+def test_a_fixed_seed_count_keeps_its_keys_and_a_table_starts_with_the_same_trials(tmp_path):
+    fixed = _experiment(tmp_path, 'name = "rounds"\nseeds = 5\n' + VARIANTS, "fixed.toml")
+    assert fixed.rounds is None and fixed.seeds == (0, 1, 2, 3, 4)
+    one_round = _experiment(tmp_path, 'name = "rounds"\nseeds = { start = 5, max = 5 }\n' + VARIANTS, "one.toml")
+    rounds = _experiment(tmp_path)
+    keys = [t.key for t in expand(fixed)]
+    assert [t.key for t in expand(one_round)] == keys and one_round.rounds is None
+    assert [t.key for t in expand(rounds)] == keys  # round 1 is exactly the fixed design's trials
+    assert rounds.rounds.looks == (5, 10, 15) and rounds.seeds == (0, 1, 2, 3, 4)
+    assert keys[0] == "baseline-s0-" + keys[0].rsplit("-", 1)[1] and len(keys) == 15
+    listed = _experiment(tmp_path, 'name = "rounds"\nseeds = [3, 7]\n' + VARIANTS, "listed.toml")
+    assert [t.seed for t in expand(listed)][:2] == [3, 7] and listed.rounds is None
+
+
+def test_a_variant_lists_its_own_seeds(tmp_path):
+    text = ROUNDS.replace('name = "null"\n', 'name = "null"\nseeds = 3\n')
+    text = text.replace('name = "fast"\n', 'name = "fast"\nseeds = { start = 2, step = 2, max = 6 }\n')
+    experiment = _experiment(tmp_path, text)
+    by_variant = {v.name: v for v in experiment.variants}
+    assert experiment.seeds_of(by_variant["null"]) == (0, 1, 2) and experiment.rounds_of(by_variant["null"]) is None
+    assert experiment.max_seeds_of(by_variant["fast"]) == tuple(range(6))
+    assert experiment.max_seeds_of(by_variant["baseline"]) == tuple(range(15))
+    assert [t.seed for t in expand(experiment) if t.variant == "fast"] == [0, 1]
+
+
+BAD_SEEDS = [
+    ("seeds = { start = 5, step = 5 }", "seeds.max: missing"),
+    ("seeds = { start = 0, max = 10 }", "seeds.start = 0 is invalid; valid: a count of seeds in [1, 1000]"),
+    ("seeds = { start = 5, max = 3 }", "seeds.max = 3 is invalid; valid: a count of seeds in [start = 5, 1000]"),
+    ("seeds = { start = 5, step = 0, max = 10 }", "seeds.step = 0 is invalid"),
+    ("seeds = { start = 5, max = 10, max_minutes = -1 }", "seeds.max_minutes = -1 is invalid"),
+    ("seeds = { start = 5, max = 10, stop = 3 }", "seeds.stop: unknown key; valid keys of a seeds table"),
+    ("seeds = { start = 5.5, max = 10 }", "seeds.start = 5.5 is invalid"),
+    ("seeds = 'five'", "seeds = 'five' is invalid; valid: a count in [1, 1000], a list"),
+]
+
+
+@pytest.mark.parametrize(("line", "message"), BAD_SEEDS)
+def test_a_bad_seeds_table_is_one_error_naming_file_and_key(tmp_path, line, message):
+    with pytest.raises(ConfigError) as error:
+        _experiment(tmp_path, f'name = "rounds"\n{line}\n' + VARIANTS)
+    assert str(tmp_path / "exp.toml") in str(error.value) and message in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def test_a_variants_bad_seeds_and_the_cli_exit_2_with_nothing_tracked(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text(ROUNDS.replace('name = "null"\n', 'name = "null"\nseeds = { start = 2 }\n'))
+    db = tmp_path / "mlflow.db"
+    proc = subprocess.run(
+        [sys.executable, "-m", "ablate.cli", "run", str(path), "--tracking-uri", f"sqlite:///{db}"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert f"{path}: variants[2].seeds.max: missing" in proc.stderr
+    assert not db.exists()
+
+
+def test_the_dry_run_prints_the_first_round_and_the_most(tmp_path, capsys):
+    from ablate.cli import main
+
+    path = tmp_path / "exp.toml"
+    path.write_text(ROUNDS.replace("max = 15 }", "max = 15, max_minutes = 20 }"))
+    assert main(["run", str(path), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "rounds: 15 of 15 trials" in out  # round 1: 3 variants x 5 seeds, each listed with its key
+    assert "round 1 runs 5 seeds per variant" in out and "get 5 more, up to 15 seeds" in out
+    assert "at most 3 rounds and 45 evaluation trials; no new round after 20 minutes" in out
+    assert all(f"-s{seed}-" in out for seed in range(5)) and "-s5-" not in out
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+# --- launches: a fake scheduler, planted results, the report's own sequential rule ----------------------------
+
+
+def _planted(trial) -> dict:
+    """Episodes to solve by variant and seed: ``fast`` far below the others; ``null`` and ``baseline`` from the
+    same wide distribution (never separated, never shown equivalent within 10%)."""
+    rng = np.random.default_rng([trial.seed, {"baseline": 1, "fast": 2, "null": 3}[trial.variant]])
+    episodes = 40.0 + rng.uniform(0, 5) if trial.variant == "fast" else float(rng.uniform(100, 900))
+    return {"solved": 1.0, "episodes_to_solve": episodes, "episodes_run": episodes, "auc": 400.0}
+
+
+def _fake_scheduler(monkeypatch, ran, interrupt_at=None):
+    """Ray replaced by a loop that finishes every trial with its planted result; ``ran``: each call's trials.
+    ``interrupt_at``: the call (0 = the first) that raises Ctrl-C after finishing half its trials."""
+    import ablate.launch.scheduler as scheduler
+
+    def run_trials(plan, events, options, run_name, **_):
+        trials = [t for p in plan for t in p.members]
+        ran.append(trials)
+        for i, trial in enumerate(trials):
+            if interrupt_at == len(ran) - 1 and i == len(trials) // 2:
+                raise KeyboardInterrupt
+            events.started(trial.key)
+            events.finished(trial.key, _planted(trial), None, "node-1")
+
+    monkeypatch.setattr(scheduler, "ensure_ray", lambda address: False)
+    monkeypatch.setattr(scheduler, "largest_node_cpus", lambda: 2.0)
+    monkeypatch.setattr(scheduler, "run_trials", run_trials)
+
+
+def _run(experiment, tracking_uri, **kwargs):
+    from ablate.launch.runner import run_experiment
+    from ablate.reporting.rounds import judge_for
+
+    return run_experiment(
+        experiment, tracking_uri=tracking_uri, show_progress=False, judge=judge_for(experiment), **kwargs
+    )
+
+
+def _seeds(ran) -> dict[str, list[int]]:
+    out: dict[str, list[int]] = {}
+    for call in ran:
+        for t in call:
+            out.setdefault(t.variant, []).append(t.seed)
+    return {k: sorted(v) for k, v in out.items()}
+
+
+def test_a_planted_difference_is_decided_early_and_a_null_runs_to_max(tmp_path, tracking_uri, monkeypatch, capsys):
+    ran: list = []
+    _fake_scheduler(monkeypatch, ran)
+    experiment = _experiment(tmp_path)
+    outcome = _run(experiment, tracking_uri)
+    assert outcome.exit_code == 0
+    document = outcome.rounds
+    assert document["variants"]["fast"] == {"seeds": 10, "verdict": "better", "why": "decided at round 2"}
+    assert document["variants"]["null"] == {"seeds": 15, "verdict": "undetermined", "why": "reached max"}
+    assert document["variants"]["baseline"]["seeds"] == 15 and document["round"] == 3
+    assert document["stopped"] == "max"
+    # Round 1: every variant's 5 seeds; round 2: all three to 10; round 3: only the open null and its reference.
+    assert [sorted({t.variant for t in call}) for call in ran] == [
+        ["baseline", "fast", "null"],
+        ["baseline", "fast", "null"],
+        ["baseline", "null"],
+    ]
+    assert _seeds(ran) == {"baseline": list(range(15)), "fast": list(range(10)), "null": list(range(15))}
+    # Seed k's key is the same whichever round ran it: round 1's keys are expand()'s.
+    assert {t.key for t in ran[0]} == {t.key for t in expand(experiment)}
+    # The launch records the rounds and lists every trial it ran in grid.json (the report reads both).
+    tracker = RunReader(tracking_uri, "rounds")
+    launch = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")[0]
+    grid = json.loads(tracker.load_text(launch.info.run_id, "grid.json"))
+    assert len(grid["trials"]) == 40
+    from ablate.reporting.results import _json_artifact
+
+    assert _json_artifact(tracker, launch.info.run_id, "rounds.json") == document  # as the report reads it
+    # ablate status: each variant's seeds, of the most it may get.
+    from ablate.cli import main
+
+    assert main(["status", str(experiment.path), "--tracking-uri", tracking_uri]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"^  fast\s+10\s+10 of 15$", out, re.M) and re.search(r"^  null\s+15\s+15 of 15$", out, re.M), out
+    # A rerun re-judges from the store and runs nothing: every question is answered or at its cap.
+    again: list = []
+    _fake_scheduler(monkeypatch, again)
+    rerun = _run(experiment, tracking_uri)
+    assert again == [] and rerun.launch_run_id is None and rerun.rounds["variants"] == document["variants"]
+
+
+def test_ctrl_c_in_round_2_then_a_rerun_finishes_the_rounds_running_no_trial_twice(tmp_path, tracking_uri, monkeypatch):
+    ran: list = []
+    _fake_scheduler(monkeypatch, ran, interrupt_at=1)
+    experiment = _experiment(tmp_path)
+    first = _run(experiment, tracking_uri)
+    assert first.interrupted and first.exit_code == 130
+    done_before = {t.key for call in ran for t in call} - {t.key for t in ran[1][len(ran[1]) // 2 :]}
+    again: list = []
+    _fake_scheduler(monkeypatch, again)
+    second = _run(experiment, tracking_uri)
+    assert second.exit_code == 0
+    assert not done_before & {t.key for call in again for t in call}  # no finished trial runs again
+    assert second.rounds["variants"]["fast"]["why"] == "decided at round 2"
+    assert second.rounds["variants"]["null"]["seeds"] == 15
+    finished = [r for r in Tracker(tracking_uri, "rounds").trial_runs() if r.status == "FINISHED"]
+    assert len(finished) == len({r.key for r in finished}) == 40
+
+
+def test_only_runs_its_variants_rounds_and_a_time_budget_stops_them(tmp_path, tracking_uri, monkeypatch):
+    from ablate.launch.grid import select
+
+    ran: list = []
+    _fake_scheduler(monkeypatch, ran)
+    experiment = _experiment(tmp_path)
+    only = select(expand(experiment), ["baseline,fast"], None)
+    outcome = _run(experiment, tracking_uri, only=only)
+    # The comparisons whose both sides have trials are judged: fast against baseline, decided in round 2.
+    assert outcome.exit_code == 0 and _seeds(ran) == {"baseline": list(range(10)), "fast": list(range(10))}
+    assert outcome.rounds["stopped"] == "decided" and outcome.rounds["variants"]["null"] == {"seeds": 0}
+
+    timed = _experiment(tmp_path, ROUNDS.replace("max = 15 }", "max = 15, max_minutes = 0.0001 }"), "timed.toml")
+    timed_ran: list = []
+    _fake_scheduler(monkeypatch, timed_ran)
+    outcome = _run(timed, fresh_store_uri(tmp_path))
+    assert len(timed_ran) == 1 and outcome.rounds["stopped"] == "time budget"
+    assert outcome.rounds["variants"]["null"]["why"] == "time budget"
+
+
+def fresh_store_uri(tmp_path):
+    from stores import fresh_store
+
+    return fresh_store(tmp_path / "timed.db")
+
+
+def test_the_report_section_says_each_variants_seeds_and_why_it_stopped():
+    from ablate.reporting.rounds import rounds_section
+
+    document = {
+        "design": {"start": 5, "step": 5, "max": 15, "max_minutes": None},
+        "round": 3,
+        "variants": {
+            "baseline": {"seeds": 15, "verdict": None},
+            "fast": {"seeds": 10, "verdict": "better", "why": "decided at round 2"},
+            "null": {"seeds": 15, "verdict": "undetermined", "why": "reached max"},
+        },
+    }
+    text = rounds_section(document)
+    assert "5 per variant first, then 5 more per round" in text and "up to 15" in text and "3 rounds ran" in text
+    assert "| fast | 10 | decided at round 2 |" in text
+    assert "| null | 15 | reached the most seeds (max) undecided |" in text
+    assert "| baseline | 15 | the reference of the others |" in text
+    assert rounds_section(None) == ""
