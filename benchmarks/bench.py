@@ -866,78 +866,73 @@ def bench_eta(
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def _population_speed(members: int, seed0: int, budget: int) -> tuple[float, float]:
-    """(env steps/s of a population of ``members`` default CartPole trials, seconds), on one core."""
+def _population_speed(configs: list) -> tuple[float, float, float, list]:
+    """The same trials one at a time and as one population, on one core: (steps/s alone, steps/s together,
+    s together, (alone, member) outcome pairs)."""
     from ablate.agent.population import run_population
 
-    configs = [replace(DEFAULT, seed=seed0 + i, max_episodes=budget, record_video=False) for i in range(members)]
-    started = time.perf_counter()
-    outcomes = run_population(configs)
-    wall = time.perf_counter() - started
-    return sum(o.env_steps for o in outcomes) / wall, wall
-
-
-def bench_population(repeats: int = 3, members: int = 16, budget: int = 1024, seeds: int = 32) -> None:
-    """CartPole env steps/s per core: a population of ``members`` default trials (``agent.population``) against
-    one trial, in this run, interleaved, medians of ``repeats``; then the same science: ``seeds`` seeds trained
-    as populations and one at a time, episodes to solve and AUC compared by a two-sample test (Mann-Whitney U:
-    a p-value far from 0 says the two distributions are not separated)."""
-    from scipy.stats import mannwhitneyu
-
-    torch.set_num_threads(1)
-    single, population, ratios = [], [], []
-    for repeat in range(repeats):
-        one, _ = _population_speed(1, 100 * repeat, budget)
-        many, wall = _population_speed(members, 100 * repeat, budget)
-        single.append(one)
-        population.append(many)
-        ratios.append(many / one)
-        print(
-            f"  repeat {repeat}: one trial {one:10,.0f} steps/s | population of {members} {many:10,.0f} steps/s "
-            f"({wall:.1f} s) | ratio {ratios[-1]:.1f}x",
-            flush=True,
-        )
-    print(
-        f"population: one trial median {statistics.median(single):,.0f} steps/s/core; population of {members} "
-        f"median {statistics.median(population):,.0f} steps/s/core; ratio median {statistics.median(ratios):.1f}x"
-    )
-    from ablate.agent.population import run_population
-
-    configs = [replace(DEFAULT, seed=seed, record_video=False) for seed in range(seeds)]
-    started = time.perf_counter()
-    together = [o for i in range(0, seeds, members) for o in run_population(configs[i : i + members])]
-    together_s = time.perf_counter() - started
     started = time.perf_counter()
     alone = [run_trial(c) for c in configs]
     alone_s = time.perf_counter() - started
-    figures = {}
-    for metric in ("episodes_to_solve", "auc"):
-        a = [o.summary().get(metric, DEFAULT.max_episodes + 1) for o in together]
-        b = [o.summary().get(metric, DEFAULT.max_episodes + 1) for o in alone]
-        p_value = float(mannwhitneyu(a, b).pvalue)
-        figures[metric] = {
-            "population_median": statistics.median(a),
-            "alone_median": statistics.median(b),
-            "p": p_value,
-        }
-        print(
-            f"population: {metric} over {seeds} seeds: populations median {statistics.median(a):.1f}, one at a time "
-            f"median {statistics.median(b):.1f}; Mann-Whitney p = {p_value:.2f}"
-        )
-    identical = sum(x.returns == y.returns for x, y in zip(together, alone, strict=True))
-    print(
-        f"population: {seeds} seeds in {together_s:.1f} s as populations of {members}, {alone_s:.1f} s one at a time "
-        f"({alone_s / together_s:.1f}x); {identical}/{seeds} members' whole curves identical to their trial's"
+    started = time.perf_counter()
+    together = run_population(configs)
+    together_s = time.perf_counter() - started
+    steps = sum(o.env_steps for o in alone)
+    return (
+        steps / alone_s,
+        sum(o.env_steps for o in together) / together_s,
+        together_s,
+        list(zip(alone, together, strict=True)),
     )
-    RESULTS["population"] = {
-        "single_steps_per_s_median": statistics.median(single),
-        "population_steps_per_s_median": statistics.median(population),
-        "ratio_median": statistics.median(ratios),
-        "members": members,
-        "distribution": figures,
-        "seeds_wall_s": {"populations": together_s, "one_at_a_time": alone_s},
-        "identical_curves": identical,
-    }
+
+
+def bench_population(
+    repeats: int = 3, members: tuple[int, ...] = (16, 64), budget: int = 1024, seeds: int = 32
+) -> None:
+    """CartPole env steps/s per core of a population of M default trials (``agent.population``) against the same
+    M trials run one at a time, in this run, medians of ``repeats`` (issue 26's goal at M = 16: >= 8x); then
+    the science: over ``seeds`` seeds at the default budget, each member's whole run against its trial's, and
+    episodes to solve and AUC compared by a two-sample test (Mann-Whitney U)."""
+    from scipy.stats import mannwhitneyu
+
+    torch.set_num_threads(1)
+    figures: dict[str, object] = {}
+    for m in members:
+        single, population, ratios = [], [], []
+        for repeat in range(repeats):
+            configs = [
+                replace(DEFAULT, seed=1000 * repeat + i, max_episodes=budget, record_video=False) for i in range(m)
+            ]
+            one, many, wall, _ = _population_speed(configs)
+            single.append(one)
+            population.append(many)
+            ratios.append(many / one)
+            print(
+                f"  M={m} repeat {repeat}: one at a time {one:10,.0f} steps/s | population {many:10,.0f} steps/s "
+                f"({wall:.1f} s) | ratio {ratios[-1]:.1f}x",
+                flush=True,
+            )
+        print(
+            f"population: {m} trials one at a time median {statistics.median(single):,.0f} steps/s/core; as a "
+            f"population median {statistics.median(population):,.0f} steps/s/core; ratio median "
+            f"{statistics.median(ratios):.1f}x"
+        )
+        figures[f"M={m}"] = {"alone": single, "population": population, "ratio_median": statistics.median(ratios)}
+    configs = [replace(DEFAULT, seed=seed, record_video=False) for seed in range(seeds)]
+    pairs = [pair for i in range(0, seeds, 16) for pair in _population_speed(configs[i : i + 16])[3]]
+    identical = sum([m[:7] for m in a.episodes] == [m[:7] for m in b.episodes] for a, b in pairs)
+    for metric in ("episodes_to_solve", "auc"):
+        alone = [a.summary().get(metric, DEFAULT.max_episodes + 1) for a, _ in pairs]
+        together = [b.summary().get(metric, DEFAULT.max_episodes + 1) for _, b in pairs]
+        p_value = float(mannwhitneyu(together, alone).pvalue)
+        figures[metric] = {"population": statistics.median(together), "alone": statistics.median(alone), "p": p_value}
+        print(
+            f"population: {metric} over {seeds} seeds: in populations of 16 median {statistics.median(together):.1f}, "
+            f"one at a time median {statistics.median(alone):.1f}; Mann-Whitney p = {p_value:.2f}"
+        )
+    print(f"population: {identical}/{seeds} members' whole runs identical to their trials' (episodes, losses)")
+    figures["identical_runs"] = identical
+    RESULTS["population"] = figures
 
 
 def bench_seeds(factor: int = 4, cap: int = 16, path: str = "experiments/cartpole.toml") -> None:

@@ -1,4 +1,5 @@
-"""Pong trials with the policy on CUDA, through the trial function itself: steps/s against the raw emulator, GPU memory.
+"""Pong trials with the policy on CUDA, through the trial function itself: steps/s against the raw emulator, GPU memory;
+and a population of CartPole members (issue 26) on CUDA against the same population on the CPU.
 
 Runs a short CNN and MLP trial of experiments/pong.toml (``run_trial``, no Ray, no MLflow imported) and prints,
 for each, agent steps per second against the raw ``ALE/Pong-v5`` emulator's on the same machine, and the GPU
@@ -20,6 +21,12 @@ There, in the repository's root::
 
 (``--wheels``: when gymnasium or ale-py cannot be imported, install the wheels in that folder into a temporary
 folder first and import them from there; nothing is installed into the Python itself.)
+
+The population part (``--members``, default 1,024 default CartPole trials at ``--cartpole-episodes`` each):
+``agent.population.run_population`` with the stacked updates on CUDA (one padded batched forward and backward
+for all members; envs and acting stay in numpy on the CPU), then on the CPU, both as env steps per second.
+Pong populations (32 CNN members) are not built yet: Pong trials run alone, so that part is not measured.
+Unmeasured so far: no GPU on the project's machines; it runs (slowly) on a CPU-only machine.
 """
 
 from __future__ import annotations
@@ -76,11 +83,24 @@ def _raw_steps_per_s(steps: int = 8000) -> float:
     return steps / spent
 
 
+def _population_steps_per_s(members: int, episodes: int, device: str) -> float:
+    """Env steps per wall second of ``members`` default CartPole trials trained as one population on ``device``."""
+    from ablate.agent.population import run_population
+    from ablate.config import DEFAULT
+
+    configs = [replace(DEFAULT, seed=i, max_episodes=episodes, record_video=False) for i in range(members)]
+    started = time.perf_counter()
+    outcomes = run_population(configs, device=device)
+    return sum(o.env_steps for o in outcomes) / (time.perf_counter() - started)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--episodes", type=int, default=10, help="episodes per trial (default 10)")
     parser.add_argument("--wheels", type=Path, help="a folder of gymnasium and ale-py wheels, used if they are missing")
     parser.add_argument("--experiment", type=Path, default=ROOT / "experiments" / "pong.toml")
+    parser.add_argument("--members", type=int, default=1024, help="CartPole population members (default 1024)")
+    parser.add_argument("--cartpole-episodes", type=int, default=64, help="episodes per CartPole member (default 64)")
     args = parser.parse_args()
     _ensure_emulator(args.wheels)
 
@@ -116,6 +136,12 @@ def main() -> int:
             f"{steps_per_s / raw:.2f}x the raw emulator; {memory}",
             flush=True,
         )
+    on_cpu = _population_steps_per_s(args.members, args.cartpole_episodes, "cpu")
+    line = f"CartPole population of {args.members}: CPU {on_cpu:,.0f} env steps/s"
+    if cuda:
+        on_gpu = _population_steps_per_s(args.members, args.cartpole_episodes, "cuda")
+        line += f"; CUDA {on_gpu:,.0f} env steps/s ({on_gpu / on_cpu:.2f}x the CPU)"
+    print(line + "; Pong CNN populations: not built yet (Pong trials run alone)", flush=True)
     heavy = [m for m in ("ray", "mlflow") if m in sys.modules]
     if heavy:
         print(f"gpu_check: imported {', '.join(heavy)}, which it must not need", file=sys.stderr)

@@ -162,6 +162,7 @@ def run_population(
     resume_from: Sequence[bytes | None] | None = None,
     on_checkpoint: Callable[[int, bytes], None] | None = None,
     on_outcome: Callable[[int, MemberOutcome], None] | None = None,
+    device: str | None = None,
 ) -> list[MemberOutcome]:
     """Train ``configs`` (``can_share``) in lockstep; member i behaves as ``run_trial(configs[i], ...)``.
 
@@ -169,7 +170,8 @@ def run_population(
     first, in one call). ``artifacts_dirs[i]``: member i's folder (``run_trial``'s artifacts). Every
     ``checkpoint_interval`` episodes, ``on_checkpoint(i, blob)`` gets member i's whole state, which
     ``resume_from[i]`` restores. ``on_outcome(i, outcome)`` as each member ends (its ``TrialResult``, or the
-    ``TrialFailed`` that stopped it alone). Returns every member's outcome, in order."""
+    ``TrialFailed`` that stopped it alone). ``device``: where the networks learn (``None``: CUDA whenever torch
+    sees a device, else the CPU). Returns every member's outcome, in order."""
     if not can_share(configs):
         raise ValueError(
             "these configs cannot share a population: " + ", ".join(str(population_group(c)) for c in configs)
@@ -179,7 +181,7 @@ def run_population(
     started = time.perf_counter()
     torch.set_num_threads(1)  # tiny networks: threads cost more than they give, and trials run side by side
     threadpool_limits(1, user_api="blas")  # the same for numpy's acting path (OpenBLAS would spin 2 threads)
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     folders = [Path(d) if d is not None else None for d in (artifacts_dirs or [None] * len(configs))]
     if stackable(configs[0]):
         backend: StackedBackend | SingleBackend = StackedBackend(configs, device)
