@@ -199,3 +199,25 @@ def test_each_way_to_a_report_says_in_one_line_why_there_is_no_pdf(stores, tmp_p
     assert (
         not (tmp_path / "api" / "four" / "report.pdf").exists() and (tmp_path / "api" / "four" / "report.typ").exists()
     )
+
+
+def test_a_launch_with_seeds_in_rounds_says_each_variants_seeds_and_why_it_stopped(tmp_path):
+    import json
+
+    from ablate.launch.tracking import Tracker
+
+    apart = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 10)}}
+    uri = make_store(tmp_path, "rounds", apart, seeds=(0, 1, 2))
+    make_store(tmp_path, "plain", apart, seeds=(0, 1, 2))
+    tracker = Tracker(uri, "rounds")
+    launch = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")[0].info.run_id
+    document = {
+        "design": {"start": 3, "step": 3, "max": 9, "max_minutes": None},
+        "round": 3,
+        "variants": {"a": {"seeds": 9}, "b": {"seeds": 9, "verdict": "undetermined", "why": "reached max"}},
+    }
+    tracker.log_file(launch, "rounds.json", json.dumps(document))
+    appendix = _report(tmp_path, "rounds", uri).split("\n## Appendix\n")[1]
+    assert "Seeds were added in rounds: 3 per variant first, then 3 more per round" in appendix
+    assert "| b | 9 | reached the most seeds (max) undecided |" in appendix
+    assert "Seeds were added in rounds" not in _report(tmp_path, "plain", uri)

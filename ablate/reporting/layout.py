@@ -17,6 +17,7 @@ from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
 from ablate.reporting.provenance import _generation_note, _reproducibility
 from ablate.reporting.results import Ablation
+from ablate.reporting.rounds import rounds_section
 from ablate.reporting.sections import (
     _convergence_markdown,
     _method,
@@ -167,6 +168,8 @@ def build_markdown(
 
     parts += ["## Appendix", ""]
     parts += [f"### {letters['method']}. Method in detail {GENERATED}", "", _method(ablation, table), ""]
+    seeds_in_rounds = rounds_section(ablation.launch.get("rounds"))  # each variant's seeds and why it stopped
+    parts += [seeds_in_rounds, ""] if seeds_in_rounds else []
     if ablation.tuning:
         parts += [f"### {letters['tuning']}. Tuning {GENERATED}", "", tuning_section(ablation), ""]
     parts += [

@@ -40,7 +40,8 @@ class Ablation:
     grid: dict[str, Any]
     launch: dict[str, Any]
     """Tags and files of the reported launch: command, commit, environment; ``generations``: every
-    generation of the experiment, newest first, with its trial counts."""
+    generation of the experiment, newest first, with its trial counts; ``rounds``: its ``rounds.json`` (seeds in
+    rounds) or None."""
     trials: pd.DataFrame
     """One row per trial of the grid: variant, seed, status, summary metrics, ``censored_episodes``, ``auc``,
     ``initial_return``, ``improvement``, ``return_at_<E>``, ``episodes_to_<L>`` (and ``reached_<L>``)."""
