@@ -316,3 +316,16 @@ def test_read_only_store_is_one_line_exit_1_at_once(tmp_path, seeded_store, caps
     assert code == 1 and "read-only" in _one_line(err), err
     assert seconds < 30
     assert _snapshot(store) == before
+
+
+def test_a_report_whose_artifacts_were_removed_is_one_line_naming_what_is_missing(
+    tmp_path, seeded_store, capsys, monkeypatch
+):
+    store = tmp_path / "store"
+    shutil.copytree(seeded_store, store)
+    shutil.rmtree(store / "mlartifacts")  # the server's artifact folder removed, the runs kept
+    monkeypatch.chdir(tmp_path)
+    code, _, err, seconds = _cli(["report", "tiny", "--tracking-uri", f"sqlite:///{store / 'mlflow.db'}"], capsys)
+    line = _one_line(err)
+    assert code == 1 and "artifact 'grid.json' of run " in line and "cannot be read" in line, err
+    assert seconds < 30

@@ -19,3 +19,19 @@ def test_cluster_up_makes_its_credentials_once_readable_by_this_user_only(tmp_pa
     assert len(password) >= 24 and len(token_file.read_text().strip()) == 64
     assert local_cluster.credentials_files(tmp_path) == (token_file, (user, password))  # kept: the admin exists
     assert local_cluster.ray_token_env(token_file) == {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN_PATH": str(token_file)}
+
+
+def test_cluster_up_keeps_an_admin_apart_from_the_drivers_account(tmp_path):
+    _, (user, password) = local_cluster.credentials_files(tmp_path)
+    admin, admin_password = local_cluster.admin_credentials(tmp_path)
+    assert (admin, user) == ("admin", "ablate") and admin_password != password and len(admin_password) >= 24
+    assert stat.S_IMODE((tmp_path / local_cluster.ADMIN_FILE).stat().st_mode) == 0o600
+    assert local_cluster.admin_credentials(tmp_path) == (admin, admin_password)  # made once
+
+
+def test_the_servers_folders_and_log_are_their_owners_only(tmp_path):
+    folder = local_cluster.private_folder(tmp_path / "a" / "b")
+    with local_cluster.private_log(folder / "cluster.log") as log:
+        log.write("x\n")
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    assert stat.S_IMODE((folder / "cluster.log").stat().st_mode) == 0o600

@@ -167,3 +167,71 @@ def test_a_store_that_goes_away_is_retried_for_a_bounded_time_then_stops_the_lau
     assert flaky.calls == calls
     with pytest.raises(ValueError):  # not the store's absence: passed through
         store.RetryingClient(_FlakyClient(good=0), "x").bad_input()
+
+
+def test_downloaded_artifacts_leave_nothing_in_the_temporary_folder_once_the_process_ends(tmp_path):
+    script = (
+        "from ablate.launch.store import download_folder\n"
+        "a, b = download_folder(), download_folder()\n"
+        "assert a != b and a.parent == b.parent and a.parent.name.startswith('ablate-artifact-')\n"
+        "(a / 'episodes.csv').write_text('x')\nprint(a.parent)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert Path(done.stdout.strip()).parent == tmp_path and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("text", "kind"),
+    [
+        ("API request to endpoint /x failed with error code 403 != 200. Response body: 'Permission denied'", "auth"),
+        ("API request to endpoint /x failed with error code 401 != 200. Response body: 'Unauthorized'", "auth"),
+        ("PermissionError: [Errno 13] Permission denied: '/srv/mlflow/artifacts/1'", "permission"),
+        ("sqlite3.OperationalError: attempt to write a readonly database", "permission"),
+        ("OSError: [Errno 28] No space left on device", "disk"),
+        ("500 Server Error: Internal Server Error for url: http://h/api. Response text: Internal Server Error", "5xx"),
+        ("HTTPConnectionPool(host='h', port=1): Max retries exceeded (Caused by NewConnectionError)", "lost"),
+        ("ValueError: not a store problem", ""),
+    ],
+)
+def test_a_failed_write_is_told_as_the_store_answered_it(text, kind):
+    from ablate.launch.store import store_fault
+
+    assert store_fault(RuntimeError(text))[0] == kind
+
+
+def test_a_store_answering_errors_is_named_at_once_or_after_the_bound_and_can_still_close_the_launch(monkeypatch):
+    from ablate.launch import store
+
+    monkeypatch.setattr(store, "STORE_RETRY_S", 0.2)
+    monkeypatch.setattr(store.time, "sleep", lambda s: None)
+
+    class Answering:
+        calls = 0
+
+        def log_text(self, error):
+            self.calls += 1
+            raise RuntimeError(error)
+
+        def set_terminated(self):
+            return "closed"
+
+    answering = Answering()
+    client = store.RetryingClient(answering, "http://h:5000")
+    with pytest.raises(TrackingError, match="refused a write: the server's disk is full") as error:
+        client.log_text("OSError: [Errno 28] No space left on device")
+    assert answering.calls == 1 and "\n" not in str(error.value)  # at once: it would answer the same again
+    with pytest.raises(TrackingError, match="answered every try of a write with a server error for 0 s"):
+        client.log_text("500 Server Error: Internal Server Error for url: http://h/x")
+    assert answering.calls > 2 and client.set_terminated() == "closed"  # retried, and the store still usable
+
+
+def test_a_password_in_a_database_uris_query_is_masked_in_the_refusal(tmp_path, monkeypatch, capsys):
+    from ablate.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    uri = f"postgresql+psycopg://mlflow@127.0.0.1:{_closed_port()}/mlflow?password={SECRET}&sslpassword={SECRET}2"
+    assert main(["status", "--tracking-uri", uri]) == 1
+    out, err = capsys.readouterr()
+    assert SECRET not in out + err and "password=***&sslpassword=***" in err, err

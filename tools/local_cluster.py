@@ -106,12 +106,11 @@ def mlflow_server(
     """``mlflow server`` on 127.0.0.1:``port``, serving artifacts from ``folder/artifacts``. ``auth``: (user,
     password) of its admin, and the server runs MLflow's basic-auth app (users kept in ``folder``). The store
     URI and the password reach the server through its environment, not its command line (``ps`` shows that)."""
-    folder.mkdir(parents=True, exist_ok=True)
+    private_folder(folder)
     env = dict(os.environ, MLFLOW_BACKEND_STORE_URI=backend or f"sqlite:///{folder / 'mlflow.db'}")
     command = [str(Path(sys.executable).parent / "mlflow"), "server"]
     if auth is not None:
-        config = folder / "basic_auth.ini"
-        config.write_text(AUTH_CONFIG.format(folder=folder.resolve(), username=auth[0]))
+        config = write_secret(folder / "basic_auth.ini", AUTH_CONFIG.format(folder=folder.resolve(), username=auth[0]))
         env.update(
             MLFLOW_AUTH_CONFIG_PATH=str(config),
             MLFLOW_AUTH_ADMIN_PASSWORD=auth[1],
@@ -129,9 +128,52 @@ def mlflow_server(
         "--workers",
         "1",
     ]
+    # umask 077: the store, the users' database and every artifact the server writes, its owner's only
     return subprocess.Popen(
-        command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env
+        command,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,
+        env=env,
+        umask=0o077,
     )
+
+
+def private_folder(path: Path) -> Path:
+    """``path`` (and missing parents) as a folder only its owner may list or enter (0700)."""
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    path.chmod(0o700)
+    return path
+
+
+def private_log(path: Path):
+    """``path`` opened for appending, readable by its owner only (0600): a server's log names its users."""
+    private_folder(path.parent)
+    return os.fdopen(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600), "a")
+
+
+def create_user(url: str, admin: tuple[str, str], user: str, password: str) -> None:
+    """As the server's ``admin`` (user, password), the account ``user`` (not an admin; MLflow gives it MANAGE
+    on the experiments it creates and the server's ``default_permission`` on the others). Kept if it exists."""
+    import base64
+    import urllib.error
+
+    request = urllib.request.Request(
+        f"{url}/api/2.0/mlflow/users/create",
+        data=json.dumps({"username": user, "password": password}).encode(),
+        headers={
+            "Content-Type": "application/json",
+            "Authorization": "Basic " + base64.b64encode(f"{admin[0]}:{admin[1]}".encode()).decode(),
+        },
+        method="POST",
+    )
+    try:
+        with urllib.request.urlopen(request, timeout=120):
+            pass
+    except urllib.error.HTTPError as error:
+        if error.code != 400 or b"already exists" not in error.read():
+            raise RuntimeError(f"creating MLflow user {user!r} as {admin[0]!r}: HTTP {error.code}") from None
 
 
 def ray_token_env(token_file: Path) -> dict[str, str]:
@@ -205,11 +247,11 @@ def up(ray_port: int, mlflow_port: int, cpus: float) -> int:
     if STATE.exists():
         print(f"a local cluster is already up ({STATE}); make cluster-down first", file=sys.stderr)
         return 1
-    folder = STATE.parent
-    folder.mkdir(exist_ok=True)
+    folder = private_folder(STATE.parent)
     token_file, credentials = credentials_files(folder)
-    log = open(folder / "cluster.log", "a")  # noqa: SIM115 - stays open in the children
-    server = mlflow_server(folder / "mlflow", mlflow_port, log=log, auth=credentials)
+    admin = admin_credentials(folder)
+    log = private_log(folder / "cluster.log")  # stays open in the children
+    server = mlflow_server(folder / "mlflow", mlflow_port, log=log, auth=admin)
     try:
         head, node_id, gcs = start_node_process(
             True, cpus, port=ray_port, log=log, detached=True, token_file=token_file
@@ -223,22 +265,41 @@ def up(ray_port: int, mlflow_port: int, cpus: float) -> int:
     )
     try:
         wait_http(f"http://127.0.0.1:{mlflow_port}/health", 120, server)
+        create_user(f"http://127.0.0.1:{mlflow_port}", admin, *credentials)
     except (RuntimeError, TimeoutError) as error:
         down()
         print(f"mlflow server: {error} (port {mlflow_port} taken? see {folder}/cluster.log)", file=sys.stderr)
         return 1
     print(f"Ray head {gcs} (node {node_id[:8]}), MLflow http://127.0.0.1:{mlflow_port}; logs in {folder}/cluster.log")
     print(f"both require credentials: . {folder / ENV_FILE} (MLflow user {credentials[0]!r}, the Ray token's file)")
+    print(f"the MLflow admin (accounts, permissions; not for runs) is in {folder / ADMIN_FILE}")
     print(f"  ablate run experiments/cartpole.toml --address {gcs} --tracking-uri http://127.0.0.1:{mlflow_port}")
     return 0
 
 
 ENV_FILE = "credentials.env"
+ADMIN_FILE = "admin.env"
+ADMIN_USER = "admin"
+
+
+def admin_credentials(folder: Path) -> tuple[str, str]:
+    """The MLflow admin (user, password) of ``make cluster-up``: made once (random) in ``folder/admin.env``
+    (this user only), for administration: the drivers log in as the account of ``credentials.env``."""
+    path = folder / ADMIN_FILE
+    if not path.is_file():
+        write_secret(
+            path,
+            f"export MLFLOW_TRACKING_USERNAME={ADMIN_USER}\n"
+            f"export MLFLOW_TRACKING_PASSWORD={secrets.token_urlsafe(24)}\n",
+        )
+    values = dict(line.removeprefix("export ").split("=", 1) for line in path.read_text().splitlines() if "=" in line)
+    return values["MLFLOW_TRACKING_USERNAME"], values["MLFLOW_TRACKING_PASSWORD"]
 
 
 def credentials_files(folder: Path) -> tuple[Path, tuple[str, str]]:
-    """The Ray token's file and the MLflow admin (user, password) of ``make cluster-up``, made once (random)
-    and kept in ``folder`` (this user only), with ``credentials.env``: the environment a client needs."""
+    """The Ray token's file and the drivers' MLflow account (user, password; not an admin) of ``make
+    cluster-up``, made once (random) and kept in ``folder`` (this user only), with ``credentials.env``: the
+    environment a client needs."""
     token_file = folder / "ray_token"
     if not token_file.is_file():
         write_secret(token_file, secrets.token_hex(32) + "\n")

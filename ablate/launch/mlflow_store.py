@@ -18,7 +18,9 @@ from ablate.launch.secrets import shown as redact
 from ablate.launch.store import (
     TrackingError,
     check_sqlite,
+    download_folder,
     fail_fast_http,
+    first_line,
     is_database,
     lock_file,
     open_uri,
@@ -179,7 +181,12 @@ class Store:
         ]
 
     def download(self, run_id: str, path: str, destination: str | Path | None = None) -> str:
-        import tempfile
-
-        destination = destination or tempfile.mkdtemp(prefix="ablate-artifact-")
-        return self.client.download_artifacts(run_id, path, str(destination))
+        """An artifact of a run, into ``destination`` or a folder of its own removed when the process ends; a
+        one-line ``TrackingError`` naming the run and the artifact when the store cannot give it (its artifact
+        folder moved or removed: MLflow's own error is a 40-line traceback)."""
+        try:
+            return self.client.download_artifacts(run_id, path, str(destination or download_folder()))
+        except Exception as error:  # noqa: BLE001 - MLflow's, the artifact store's and the file system's alike
+            problem = f"MLflow store {self.shown_uri}: artifact {path!r} of run {run_id} cannot be read"
+            problem += f" ({redact(first_line(error))}); was its artifact folder moved or removed?"
+        raise TrackingError(problem)

@@ -40,6 +40,7 @@ from ablate.launch.store import (  # noqa: F401 - the reader's, through this mod
     TrackingError,
     check_sqlite,
     fail_fast_http,
+    fail_fast_writes,
     is_database,
     lock_file,
     open_uri,
@@ -78,6 +79,8 @@ class Tracker(Store):
     def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
         super().__init__(tracking_uri, experiment_name, write)
         self.client = RetryingClient(self.client, self.shown_uri)
+        fail_fast_writes()
+        _answers_kept()
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
         self._points: dict[str, tuple[list[Any], float, int]] = {}
@@ -141,14 +144,21 @@ class Tracker(Store):
                 return runs
 
     def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
-        """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid)."""
+        """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid).
+        A store that refuses the files leaves the run FAILED, not RUNNING."""
         run = self.client.create_run(
             self.experiment_id(),
             run_name=name,
             tags={TAG_ROLE: "launch", TAG_GENERATION: generation, **{k: redact(v) for k, v in tags.items()}},
         )
-        for filename, text in files.items():
-            self.client.log_text(run.info.run_id, redact(text), filename)
+        try:
+            for filename, text in files.items():
+                self.client.log_text(run.info.run_id, redact(text), filename)
+        except Exception as error:
+            with contextlib.suppress(Exception):  # a store that stopped answering cannot be told
+                self.client.set_tag(run.info.run_id, TAG_ERROR, redact(error)[:5000])
+                self.client.set_terminated(run.info.run_id, "FAILED")
+            raise
         return run.info.run_id
 
     def log_file(self, run_id: str, filename: str, text: str) -> None:
@@ -350,6 +360,21 @@ class Tracker(Store):
                 batch = []
         if batch:
             self.client.log_batch(run_id, metrics=batch)
+
+
+def _answers_kept() -> None:
+    """MLflow's client retries a server error (500, 503) and then raises "too many 500 error responses",
+    dropping the server's answer; with no retries left (``store.fail_fast_writes``) it is told to return the
+    answer instead, which its callers raise with the answer's text, so ``RetryingClient`` can say which error
+    (a permission, a full disk) the store gave. Only the writer's process (the driver) is changed."""
+    from mlflow.utils import rest_utils
+
+    code = rest_utils.http_request.__code__
+    names = code.co_varnames[: code.co_argcount]
+    defaults = list(rest_utils.http_request.__defaults__ or ())
+    if "raise_on_status" in names and defaults:
+        defaults[names.index("raise_on_status") - (len(names) - len(defaults))] = False
+        rest_utils.http_request.__defaults__ = tuple(defaults)
 
 
 def _param_text(value: Any) -> str:
