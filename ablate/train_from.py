@@ -59,7 +59,7 @@ def trial_from(args: argparse.Namespace, knobs: dict[str, Any], not_in_key: tupl
     experiment = load_experiment(args.from_experiment)
     stage = getattr(args, "stage", None) or "eval"
     spec = experiment.tune
-    evaluation = expand(experiment)
+    evaluation = expand(experiment, every_round=True)  # a seed a later round ran is the report's too
     variants = ", ".join(dict.fromkeys(t.variant for t in evaluation))
     tuned_names = spec.knob_names if spec is not None else ()
     if args.variant is None or args.seed is None:
@@ -82,7 +82,7 @@ def trial_from(args: argparse.Namespace, knobs: dict[str, Any], not_in_key: tupl
     if spec is None:
         if stage == "tune":
             raise ConfigError(f"--stage tune: {args.from_experiment} has no [tune] table, so no tuning trials")
-        trial = _one(evaluation, args, experiment.seeds)
+        trial = _one(evaluation, args, _seeds(experiment))
         return Chosen(apply_knobs(trial.config, extra), trial, "eval", {}, "the evaluation trial (no [tune])")
     variant = next(v for v in experiment.variants if v.name == args.variant)
     own = not spec.tuned_knobs(variant)  # it sets every tuned knob itself: one trial per seed, never tuned
@@ -111,7 +111,7 @@ def trial_from(args: argparse.Namespace, knobs: dict[str, Any], not_in_key: tupl
         values = {k: getattr(trial.config, k) for k in spec.tuned_knobs(variant)}
         words = f"stage 1 (tuning) at {_values(values)}, budget {trial.config.max_episodes:,} episodes"
         return Chosen(apply_knobs(trial.config, extra), trial, "tune", values, words)
-    base_trial = _one(evaluation, args, experiment.seeds)
+    base_trial = _one(evaluation, args, _seeds(experiment))
     if stage == "base" or own:
         values = {k: getattr(base_trial.config, k) for k in tuned_names}
         why = "its own value: the variant sets it, tuning never did" if own else "the shared base value, untuned"
@@ -128,6 +128,11 @@ def trial_from(args: argparse.Namespace, knobs: dict[str, Any], not_in_key: tupl
     (trial,) = [t for t in chosen_trials(experiment, {args.variant: values}) if t.seed == args.seed]
     words = f"stage 2 (evaluation) at {_values(values)}, the value tuning chose (recorded in {shown})"
     return Chosen(apply_knobs(trial.config, extra), trial, "eval", values, words)
+
+
+def _seeds(experiment) -> tuple[int, ...]:
+    """Every evaluation seed of the experiment, its rounds' included."""
+    return tuple(sorted({s for v in experiment.variants for s in experiment.max_seeds_of(v)}))
 
 
 def _one(trials: list[GridTrial], args: argparse.Namespace, seeds: tuple[int, ...]) -> GridTrial:

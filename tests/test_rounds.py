@@ -48,6 +48,8 @@ def test_a_fixed_seed_count_keeps_its_keys_and_a_table_starts_with_the_same_tria
     assert [t.key for t in expand(rounds)] == keys  # round 1 is exactly the fixed design's trials
     assert rounds.rounds.looks == (5, 10, 15) and rounds.seeds == (0, 1, 2, 3, 4)
     assert keys[0] == "baseline-s0-" + keys[0].rsplit("-", 1)[1] and len(keys) == 15
+    every = expand(rounds, every_round=True)  # every seed the rounds may add, round 1's keys first among them
+    assert len(every) == 45 and {t.key for t in expand(rounds)} <= {t.key for t in every}
     listed = _experiment(tmp_path, 'name = "rounds"\nseeds = [3, 7]\n' + VARIANTS, "listed.toml")
     assert [t.seed for t in expand(listed)][:2] == [3, 7] and listed.rounds is None
 
@@ -262,3 +264,16 @@ def test_the_report_section_says_each_variants_seeds_and_why_it_stopped():
     assert "| null | 15 | reached the most seeds (max) undecided |" in text
     assert "| baseline | 15 | the reference of the others |" in text
     assert rounds_section(None) == ""
+
+
+def test_train_from_names_a_seed_a_later_round_runs(tmp_path):
+    import argparse
+
+    from ablate.train_from import trial_from
+
+    experiment = _experiment(tmp_path)
+    args = argparse.Namespace(from_experiment=experiment.path, variant="fast", seed=12, stage=None, preset="default")
+    chosen = trial_from(args, {"seed": 12}, ("record_video", "video_max_frames"))
+    assert chosen.trial.key in {t.key for t in expand(experiment, every_round=True)} and chosen.trial.seed == 12
+    with pytest.raises(ConfigError, match="--seed 15 is not a seed"):
+        trial_from(argparse.Namespace(**{**vars(args), "seed": 15}), {"seed": 15}, ())

@@ -44,8 +44,9 @@ def trial_key(variant: str, config: TrialConfig) -> str:
     return f"{variant_slug(variant)}-s{config.seed}-{config_hash(config)}"
 
 
-def expand(experiment: Experiment) -> list[GridTrial]:
-    """Every (variant, seed) pair, variant-major (``schedule_order`` gives the order they start in).
+def expand(experiment: Experiment, every_round: bool = False) -> list[GridTrial]:
+    """Every (variant, seed) pair, variant-major (``schedule_order`` gives the order they start in): round 1's
+    seeds where seeds come in rounds, or with ``every_round`` every seed the rounds may add (the same keys).
 
     Two variant names with one slug (``"a b"`` and ``"a_b"``) are refused rather than told apart: with equal
     knobs they would share keys (one trial answering for both), and keys must stay what earlier launches
@@ -60,7 +61,7 @@ def expand(experiment: Experiment) -> list[GridTrial]:
             )
     trials = []
     for variant in experiment.variants:
-        for seed in experiment.seeds_of(variant):
+        for seed in experiment.max_seeds_of(variant) if every_round else experiment.seeds_of(variant):
             config = replace(variant.config, seed=seed)
             trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
     return trials
