@@ -312,7 +312,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="only these variants, comma-separated, e.g. deep,cnn; the baseline is always kept (default: all)",
     )
     report.add_argument("--baseline", help="the variant the others are compared to (default: the experiment's)")
-    report.add_argument("--no-pdf", dest="pdf", action="store_false", help="skip report.pdf (report.md, report.html and report.typ are still written)")
+    report.add_argument(
+        "--no-pdf",
+        dest="pdf",
+        action="store_false",
+        help="skip report.pdf (report.md, report.html and report.typ are still written)",
+    )
     return parser
 
 
