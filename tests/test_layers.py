@@ -25,6 +25,7 @@ LAYERS = {
     "commands": 5,
     "train_from": 5,
     "cli": 5,
+    "calibration": 5,
 }
 RAY_ALLOWED = {"launch/scheduler.py"}
 MLFLOW_ALLOWED = {"launch/tracking.py", "launch/mlflow_store.py", "reporting/reader.py"}

@@ -1,0 +1,297 @@
+"""``ablate calibrate EXPERIMENT``: an A/A test of the report's claims rule. Runs (or reuses from the store) many
+seeds of the experiment's reference variant, deals them into reports of the experiment's own design in which
+every "variant" is that same configuration, and prints the share of those reports that claim any difference,
+under the primary-claims rule (ablate/claims/) and under the rule the findings used before it.
+
+The seeds are a derived experiment, ``<name>-calibrate`` (its file under ``outputs/calibrate/``), run through
+``ablate.run``: the baseline at the value tuning chose where the experiment tunes, seeds from 20,000 up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ablate.config import ConfigError
+from ablate.experiment import Experiment, load_experiment
+
+SEED_START = 20_000
+"""The calibration's seeds start here: above the evaluation seeds and the tuning seeds (10,000 up)."""
+MIN_SEEDS, MIN_REPORTS = 60, 200
+DEAL_SEED = 2025
+
+
+def add_parser(commands: Any) -> None:
+    """``ablate calibrate``'s arguments (called by ``ablate.cli.build_parser``)."""
+    calibrate = commands.add_parser(
+        "calibrate",
+        help="A/A test: how often a report of identical variants claims a difference, new rule and old",
+        description="Run (or reuse from the store) at least 60 seeds of the experiment's reference variant, at its "
+        "tuned value where the experiment tunes, deal them into A/A reports of the experiment's own design (its "
+        "variants and seeds, every one the same configuration), and print the share of reports claiming any "
+        "difference under the primary-claims rule and under the old per-comparison bootstrap rule, with 95% "
+        "intervals. Its seeds are the experiment <name>-calibrate, seeds 20000 up.",
+    )
+    calibrate.add_argument("experiment", help="experiment file, e.g. experiments/cartpole.toml")
+    calibrate.add_argument("--tracking-uri", dest="tracking_uri", default="sqlite:///mlflow.db")
+    calibrate.add_argument("--address", help="an existing Ray cluster (host:port); default: start a local one")
+    calibrate.add_argument("--pool", type=int, default=MIN_SEEDS, help="seeds of the reference to run (>= 60)")
+    calibrate.add_argument("--reports", type=int, default=MIN_REPORTS, help="A/A reports to deal (>= 200)")
+    calibrate.add_argument(
+        "--seeds", dest="design_seeds", type=int, help="seeds per variant in each report (default: the experiment's)"
+    )
+    calibrate.add_argument("--max-concurrent", dest="max_concurrent", type=int)
+
+
+# --- the derived experiment ---------------------------------------------------------------------------------
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise ConfigError(f"calibrate: cannot write {value!r} into an experiment file")
+
+
+def reference_knobs(experiment: Experiment, tuned: dict[str, Any]) -> dict[str, Any]:
+    """The reference variant's knobs as a ``[base]`` table: the file's ``[base]``, the variant's own, ``tuned``."""
+    data = tomllib.loads(Path(experiment.path).read_text(encoding="utf-8-sig"))
+    variant = next(v for v in experiment.variants if v.name == experiment.baseline)
+    return dict(data.get("base", {})) | dict(variant.overrides) | tuned
+
+
+def derived_text(experiment: Experiment, knobs: dict[str, Any], pool: int) -> str:
+    """The calibration's experiment file: the reference alone, on ``pool`` seeds that collide with none of the
+    experiment's own (evaluation or tuning)."""
+    own = [*experiment.seeds, *(experiment.tune.seeds if experiment.tune else ())]
+    start = max(SEED_START, max(own) + 1)
+    lines = [
+        f"# A/A calibration of {experiment.path}: its reference variant {experiment.baseline!r} alone, written by",
+        "# `ablate calibrate`. Every trial is the same configuration; only the seed changes.",
+        f"name = {_toml_value(experiment.name + '-calibrate')}",
+        f"description = {_toml_value('A/A calibration: ' + experiment.baseline + ' of ' + experiment.name)}",
+        f"seeds = {_toml_value(list(range(start, start + pool)))}",
+        f"baseline = {_toml_value(experiment.baseline)}",
+        f"cpus_per_trial = {_toml_value(experiment.resources_per_trial)}",
+        "",
+        "[base]",
+        *(f"{key} = {_toml_value(value)}" for key, value in knobs.items()),
+        "",
+        "[[variants]]",
+        f"name = {_toml_value(experiment.baseline)}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def tuned_values(experiment: Experiment, tracking_uri: str, run_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The values the reference is evaluated at: tuning's choice for it, read from the store; where the store
+    has none, the experiment's tuning stage is run for the reference alone first (``ablate.run --only``)."""
+    if experiment.tune is None:
+        return {}
+    variant = next(v for v in experiment.variants if v.name == experiment.baseline)
+    if not experiment.tune.tuned_knobs(variant):
+        return {}
+
+    import ablate.api as api
+
+    def read() -> dict[str, Any] | None:
+        from ablate.reporting.results import NoResults
+
+        try:
+            tuning = api.load(experiment, tracking_uri=tracking_uri).ablation.tuning or {}
+        except (NoResults, ConfigError):
+            return None
+        values = tuning.get("choices", {}).get(experiment.baseline, {}).get("values")
+        return dict(values) if values else None
+
+    values = read()
+    if values is None:
+        print(f"calibrate: no tuning choice for {experiment.baseline!r} in the store; tuning it first", flush=True)
+        api.run(experiment, only=[experiment.baseline], report=False, tracking_uri=tracking_uri, **run_kwargs)
+        values = read()
+        if values is None:
+            raise ConfigError(f"calibrate: tuning {experiment.baseline!r} left no choice in {tracking_uri}")
+    return values
+
+
+# --- the A/A reports ----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Share:
+    """How many of ``reports`` claimed any difference, with a 95% Wilson interval."""
+
+    claims: int
+    reports: int
+
+    @property
+    def rate(self) -> float:
+        return self.claims / self.reports
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        return wilson(self.claims, self.reports)
+
+    def words(self) -> str:
+        low, high = self.interval
+        return f"{self.claims} of {self.reports} reports, {self.rate:.1%} (95% CI {low:.1%} to {high:.1%})"
+
+
+def wilson(successes: int, trials: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson's score interval for a binomial share (95% by default)."""
+    if trials == 0:
+        return (0.0, 1.0)
+    p = successes / trials
+    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+@dataclass(frozen=True)
+class Calibration:
+    new: Share
+    old: Share
+    old_per_metric: dict[str, float]
+    """The old rule's per-comparison share of "better"/"worse", metric by metric."""
+    equivalent: Share
+    """Reports in which the new rule called some variant equivalent (a true claim in an A/A report)."""
+
+
+def aa_reports(
+    trials: Any, metric_names: list[str], primary: str, variants: int, seeds: int, reports: int, smallest_effect: float
+) -> Calibration:
+    """Deal the reference's seeds (``trials``: one row per finished seed, the report's columns) into ``reports``
+    disjoint A/A reports of ``variants`` groups of ``seeds`` (group 0 the baseline), and judge each by the
+    primary-claims rule on ``primary`` and by the old rule (a 95% bootstrap interval excluding 0, with the
+    censoring care) on each of ``metric_names``."""
+    import numpy as np
+
+    from ablate.claims import BETTER, EQUIVALENT, WORSE, Design, Question, Sample, decide
+    from ablate.reporting.statistics import _episodes_comparison, _return_comparison
+
+    trials = trials.sort_values("seed").reset_index(drop=True)
+    if len(trials) < variants * seeds:
+        raise ConfigError(
+            f"calibrate: {len(trials)} finished seeds cannot fill {variants} variants x {seeds} seeds; valid: --pool "
+            f">= {variants * seeds}"
+        )
+    censored = (trials.solved != 1).to_numpy() if "solved" in trials else np.zeros(len(trials), bool)
+    unreached = {
+        m: (trials[f"reached_{m.removeprefix('episodes_to_')}"] != 1).to_numpy()
+        for m in metric_names
+        if m.startswith("episodes_to_") and m != "episodes_to_solve"
+    }
+    columns = {m: trials["censored_episodes" if m == "episodes_to_solve" else m].to_numpy(float) for m in metric_names}
+    if primary not in columns:
+        column = "censored_episodes" if primary == "episodes_to_solve" else primary
+        columns[primary] = trials[column].to_numpy(float)
+    budget = float(trials.budget.max()) if "budget" in trials else None
+    episodes = primary == "episodes_to_solve"
+    question = Question(primary, episodes, episodes, smallest_effect, budget if episodes else None)
+    references = {f"v{i}": "v0" for i in range(1, variants)}
+    rng = np.random.default_rng(DEAL_SEED)
+    new = old = equivalent = 0
+    per_metric = dict.fromkeys(metric_names, 0)
+    for _ in range(reports):
+        order = rng.permutation(len(trials))[: variants * seeds].reshape(variants, seeds)
+        samples = {
+            f"v{i}": Sample(columns[primary][order[i]], censored[order[i]] if episodes else None)
+            for i in range(variants)
+        }
+        result = decide(samples, references, question, Design.fixed(seeds), intervals=False, estimate_seeds=False)
+        new += any(v.verdict in (BETTER, WORSE) for v in result.verdicts)
+        equivalent += any(v.verdict == EQUIVALENT for v in result.verdicts)
+        claimed = False
+        for metric in metric_names:
+            values = columns[metric]
+            y = order[0]
+            for i in range(1, variants):
+                x = order[i]
+                if metric.startswith("episodes_to_"):
+                    flags = unreached.get(metric, censored)
+                    verdict = _episodes_comparison(values[x], values[y], flags[x], flags[y])[3]
+                else:
+                    verdict = _return_comparison(values[x], values[y])[3]
+                hit = verdict in ("better", "worse")
+                per_metric[metric] += hit
+                claimed |= hit
+        old += claimed
+    comparisons = reports * (variants - 1)
+    return Calibration(
+        Share(new, reports),
+        Share(old, reports),
+        {m: n / comparisons for m, n in per_metric.items()},
+        Share(equivalent, reports),
+    )
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """``ablate calibrate``: 0 with the shares printed; 2 for bad input; 1 when the seeds could not be run."""
+    experiment = load_experiment(args.experiment)
+    variants = len(experiment.variants)
+    seeds = args.design_seeds or len(experiment.seeds)
+    if seeds < 2:
+        raise ConfigError(f"--seeds = {seeds} is invalid; valid: at least 2 seeds per variant")
+    pool = max(args.pool, MIN_SEEDS, variants * seeds)
+    if args.reports < MIN_REPORTS:
+        raise ConfigError(f"--reports = {args.reports} is invalid; valid: at least {MIN_REPORTS}")
+    run_kwargs = {"address": args.address, "max_concurrent": args.max_concurrent}
+    knobs = reference_knobs(experiment, tuned_values(experiment, args.tracking_uri, run_kwargs))
+    folder = Path("outputs") / "calibrate"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{experiment.storage_name}.toml"
+    path.write_text(derived_text(experiment, knobs, pool), encoding="utf-8")
+    derived = load_experiment(path)
+    import ablate.api as api
+
+    shown = ", ".join(
+        f"{k} {v}" for k, v in knobs.items() if k in dict(experiment.tune.knobs if experiment.tune else ())
+    )
+    print(
+        f"calibrate {experiment.name}: {pool} seeds of {experiment.baseline}"
+        f"{' at ' + shown if shown else ''} ({path}, seeds {derived.seeds[0]}-{derived.seeds[-1]})",
+        flush=True,
+    )
+    outcome = api.run(derived, tracking_uri=args.tracking_uri, report=False, **run_kwargs)
+    if outcome.interrupted or outcome.error or outcome.failed:
+        print(f"calibrate: the seeds did not all finish ({outcome.error or 'interrupted or failed'})")
+        return 1
+    from ablate.reporting.comparisons import comparison_metrics
+
+    ablation = api.load(derived, tracking_uri=args.tracking_uri).ablation
+    metrics = comparison_metrics(ablation)
+    primary = experiment.primary_metric
+    if primary == "return":
+        primary = f"return_at_{ablation.budgets[-1]}"
+    result = aa_reports(ablation.finished, metrics, primary, variants, seeds, args.reports, experiment.smallest_effect)
+    print(print_calibration(experiment, ablation, result, variants, seeds, primary, metrics))
+    return 0
+
+
+def print_calibration(experiment, ablation, result: Calibration, variants, seeds, primary, metrics) -> str:
+    done = ablation.finished
+    solved = int((done.solved == 1).sum()) if "solved" in done else 0
+    names = {"episodes_to_solve": "episodes to solve", "auc": "AUC"}
+    words = [names.get(m, m.replace("return_at_", "return after ") + " episodes") for m in metrics]
+    per = "; ".join(f"{names.get(m, m)} {share:.1%}" for m, share in result.old_per_metric.items())
+    return "\n".join(
+        [
+            f"{len(done)} seeds finished ({solved} solved); {result.new.reports} A/A reports of {variants} variants x "
+            f"{seeds} seeds, each variant the same configuration, dealt from them without overlap",
+            f"  new rule (permutation test of the IQM difference on {names.get(primary, primary)}, Holm over "
+            f"{variants - 1} comparisons at 5%): any better/worse in {result.new.words()}",
+            f"  old rule (a 95% bootstrap interval excluding 0 on {', '.join(words)}): any better/worse in "
+            f"{result.old.words()}; per comparison: {per}",
+            f"  (the new rule called some variant equivalent in {result.equivalent.words()}: true in an A/A test)",
+        ]
+    )
