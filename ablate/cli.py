@@ -318,6 +318,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_false",
         help="skip report.pdf (report.md, report.html and report.typ are still written)",
     )
+    from ablate.calibration import add_parser as add_calibrate
+
+    add_calibrate(commands)
     return parser
 
 
@@ -477,6 +480,10 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
             return cmd_train(args)
         if args.command == "status":
             return cmd_status(args)
+        if args.command == "calibrate":
+            from ablate.calibration import cmd_calibrate
+
+            return cmd_calibrate(args)
         if args.command == "run":
             from ablate.experiment import load_experiment
 
