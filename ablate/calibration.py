@@ -37,14 +37,21 @@ def add_parser(commands: Any) -> None:
         "intervals. Its seeds are the experiment <name>-calibrate, seeds 20000 up.",
     )
     calibrate.add_argument("experiment", help="experiment file, e.g. experiments/cartpole.toml")
-    calibrate.add_argument("--tracking-uri", dest="tracking_uri", default="sqlite:///mlflow.db")
+    calibrate.add_argument(
+        "--tracking-uri",
+        dest="tracking_uri",
+        default="sqlite:///mlflow.db",
+        help="MLflow store the seeds are run into and reused from (default: sqlite:///mlflow.db)",
+    )
     calibrate.add_argument("--address", help="an existing Ray cluster (host:port); default: start a local one")
     calibrate.add_argument("--pool", type=int, default=MIN_SEEDS, help="seeds of the reference to run (>= 60)")
     calibrate.add_argument("--reports", type=int, default=MIN_REPORTS, help="A/A reports to deal (>= 200)")
     calibrate.add_argument(
         "--seeds", dest="design_seeds", type=int, help="seeds per variant in each report (default: the experiment's)"
     )
-    calibrate.add_argument("--max-concurrent", dest="max_concurrent", type=int)
+    calibrate.add_argument(
+        "--max-concurrent", dest="max_concurrent", type=int, help="at most this many trials at once (default: CPUs)"
+    )
 
 
 # --- the derived experiment ---------------------------------------------------------------------------------
