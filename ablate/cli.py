@@ -457,10 +457,11 @@ def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
 
 
 def warn_design(experiment: Experiment) -> None:
-    """Before any compute: say when the design cannot reach a claim at 95% under the report's rule."""
+    """Before any compute: say when the design can never reach a primary claim at the family level."""
     from ablate.design import design_warning
 
-    warning = design_warning(experiment.rounds.max if experiment.rounds else len(experiment.seeds))
+    seeds = experiment.rounds.max if experiment.rounds else len(experiment.seeds)
+    warning = design_warning(seeds, len(experiment.variants) - 1)
     if warning:
         print(f"warning: {warning}", flush=True)
 

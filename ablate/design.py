@@ -1,4 +1,4 @@
-"""Can an experiment's design support a claim at all? The report's decision rule, before any compute is spent.
+"""Can an experiment's design support a claim at all? The report's rules, before any compute is spent.
 
 Standard library only, so ``ablate run --dry-run`` answers without pandas or SciPy; the report's statistics
 import the rule from here, so there is one copy of it.
@@ -31,16 +31,30 @@ def smallest_seed_count() -> int:
     return next(n for n in range(2, MAX_SEEDS_ASKED) if can_claim(n, n))
 
 
-def design_warning(seeds_per_variant: int) -> str | None:
-    """One line when ``seeds_per_variant`` seeds per variant cannot reach a claim at 95%, else ``None``."""
-    if can_claim(seeds_per_variant, seeds_per_variant):
+def can_claim_in_family(n: int, comparisons: int, alpha: float = 1 - CONFIDENCE) -> bool:
+    """Could any outcome of ``n`` seeds per variant reach a primary claim, with ``comparisons`` in the family
+    (Holm's first step tests at ``alpha / comparisons``)?"""
+    return smallest_permutation_p(n, n) <= alpha / max(comparisons, 1)
+
+
+def smallest_family_seed_count(comparisons: int) -> int:
+    """The fewest seeds per variant with which a family of ``comparisons`` can reach a primary claim."""
+    return next(n for n in range(2, MAX_SEEDS_ASKED) if can_claim_in_family(n, comparisons))
+
+
+def design_warning(seeds_per_variant: int, comparisons: int = 1) -> str | None:
+    """One line when ``seeds_per_variant`` seeds per variant can never reach a primary claim in a family of
+    ``comparisons`` (the report's rule: a permutation test of the IQM difference, Holm at 5%), else ``None``."""
+    if can_claim_in_family(seeds_per_variant, comparisons):
         return None
-    needed = smallest_seed_count()
+    needed = smallest_family_seed_count(comparisons)
+    level = (1 - CONFIDENCE) / max(comparisons, 1)
     return (
-        f"design: with {seeds_per_variant} seeds per variant no comparison can reach a claim at "
-        f"{CONFIDENCE:.0%} (the report's rank rule: the best possible p-value is "
-        f"{smallest_p_value(seeds_per_variant, seeds_per_variant):.2g}); it takes at least {needed} seeds per "
-        f"variant (seeds = {needed})"
+        f"design: with {seeds_per_variant} seeds per variant no primary comparison can reach a claim at the family "
+        f"level ({comparisons} comparison{'s' if comparisons != 1 else ''}, Holm at {1 - CONFIDENCE:.0%}: the first "
+        f"needs p <= {level:.2g}, and the best possible with {seeds_per_variant} and {seeds_per_variant} seeds is "
+        f"{smallest_permutation_p(seeds_per_variant, seeds_per_variant):.2g}); it takes at least {needed} seeds per "
+        f"variant (seeds = {needed}); every verdict would read undetermined"
     )
 
 

@@ -1,23 +1,44 @@
-"""The pre-run design check: the report's own decision rule, without pandas or SciPy."""
+"""The pre-run design check: the report's own rules, without pandas or SciPy."""
 
 import pytest
 
-from ablate.design import can_claim, design_warning, smallest_p_value, smallest_seed_count
+from ablate.design import (
+    can_claim,
+    can_claim_in_family,
+    design_warning,
+    smallest_family_seed_count,
+    smallest_p_value,
+    smallest_permutation_p,
+    smallest_seed_count,
+)
 
 
 def test_three_seeds_cannot_reach_a_claim_four_can():
+    # the exploratory (per-comparison) rule: a rank test's best p-value
     assert smallest_p_value(3, 3) == pytest.approx(0.1) and not can_claim(3, 3)
     assert smallest_p_value(4, 4) == pytest.approx(2 / 70) and can_claim(4, 4)
     assert not can_claim(1, 10)  # one seed: no interval at all
     assert smallest_seed_count() == 4
-    assert "3 seeds per variant" in design_warning(3) and "at least 4 seeds" in design_warning(3)
-    assert design_warning(4) is None and design_warning(20) is None
+
+
+def test_a_family_of_nine_needs_six_seeds_per_variant():
+    # Holm's first step tests at 0.05 / 9 = 0.0056; 5 and 5 seeds give at best 4 / 252 = 0.016, 6 and 6 4 / 924
+    assert smallest_permutation_p(5, 5) == pytest.approx(4 / 252) and smallest_permutation_p(6, 6) == pytest.approx(
+        4 / 924
+    )
+    assert not can_claim_in_family(5, 9) and can_claim_in_family(6, 9) and can_claim_in_family(5, 1)
+    assert smallest_family_seed_count(9) == 6 and smallest_family_seed_count(1) == 5  # 4 and 4: 4 / 70 = 0.057
+    warning = design_warning(5, 9)
+    assert "5 seeds per variant no primary comparison can reach a claim" in warning and "9 comparisons" in warning
+    assert "at least 6 seeds per variant (seeds = 6)" in warning and "undetermined" in warning
+    assert design_warning(6, 9) is None and design_warning(5, 1) is None and design_warning(20, 30) is None
 
 
 def test_the_rule_is_the_reports_own():
-    """The report decides with the very function and level --dry-run warns with (one copy of the rule)."""
-    from ablate import design
+    """The report decides with the very functions and level --dry-run warns with (one copy of each rule)."""
+    from ablate import claims, design
     from ablate.reporting import comparisons, statistics
 
     assert statistics.smallest_p_value is design.smallest_p_value and statistics.CONFIDENCE == design.CONFIDENCE
     assert comparisons.smallest_p_value is design.smallest_p_value
+    assert claims.smallest_p is design.smallest_permutation_p
