@@ -90,7 +90,9 @@ def test_three_seeds_against_three_support_no_claim():
     assert "Seeds needed: **too few seeds**: about 4 per variant" in line
     from ablate.reporting.findings import summary
 
-    assert "| too few seeds to tell |" in summary(ablation, convergence_table(ablation), comparisons(ablation))
+    claims = summary(ablation, convergence_table(ablation), comparisons(ablation))
+    assert "| undetermined |" in claims and "The one primary comparison is a family" in claims
+    assert "**b** vs a: **undetermined** (no ordering of 3 and 3 seeds reaches the family level" in claims
     never = _frame({"a": [None, None, None], "b": [None, None, 50]}, budget=100)  # both IQMs use the budget
     (episodes_line,) = [line for line in _findings_text(never).splitlines() if "episodes to solve" in line]
     assert "episodes cannot separate them" in episodes_line and "vs" not in episodes_line.split("tell**.")[1]
@@ -194,3 +196,48 @@ def test_every_comparisons_column_is_documented_in_python_md_and_help():
     for column in comparisons(ablation).columns:
         assert f"`{column}`" in page, column
         assert f"``{column}``" in Results.__doc__, column
+
+
+# --- the primary claims lead the report (issue 25) ------------------------------------------------------
+
+
+def test_the_summary_states_each_primary_claim_in_words_with_the_family_sentence():
+    from ablate.reporting.findings import summary
+
+    rng = np.random.default_rng(0)
+    samples = {"baseline": [int(x) for x in rng.normal(500, 60, 8)]}
+    samples["fast"] = [int(x) for x in rng.normal(200, 30, 8)]
+    samples["same"] = [int(x) for x in rng.normal(505, 20, 8)]
+    samples["never"] = [None] * 8
+    ablation = _frame(samples)
+    text = summary(ablation, convergence_table(ablation), comparisons(ablation, power=False))
+    assert text.startswith("The 3 primary comparisons form one family whose chance of any false claim is at most 5%")
+    assert "Holm's step-down" in text and "on episodes to solve" in text
+    assert re.search(r"\*\*fast\*\* is \*\*better\*\* than baseline: \d+% fewer episodes to solve \(interval", text)
+    assert "**same** is **equivalent** to baseline within ±10%" in text
+    # never solved: a bound, so "at least" and no upper end
+    assert re.search(r"\*\*never\*\* is \*\*worse\*\* than baseline: at least \d+% more .*no upper end", text)
+    assert "*Exploratory:*" in text.split("- **never**")[1]  # the ranked table comes after, labelled
+
+
+def test_an_undetermined_claim_says_why_and_the_seeds_it_would_take():
+    from ablate.reporting.findings import claims
+
+    ablation = _frame({"baseline": [500, 520, 480, 510, 530], "slower": [700, 650, 720, 690, 710]})
+    (line,) = [x for x in claims(ablation) if x.startswith("- ")]
+    assert "**worse**" in line  # one comparison at 5%: 4/252 = 0.016 is enough
+    five = _frame({"baseline": [500, 520, 480, 510, 530], **{f"v{i}": [505, 515, 495, 500, 525] for i in range(9)}})
+    lines = [x for x in claims(five) if x.startswith("- ")]
+    assert len(lines) == 9 and all("**undetermined** (no ordering of 5 and 5 seeds" in x for x in lines)
+    assert all(re.search(r"(about \d+|more than 100) seeds per variant would", x) for x in lines)
+
+
+def test_the_claims_table_has_one_row_per_comparison_and_every_verdict_field():
+    from ablate.claims import Verdict
+    from ablate.reporting.comparisons import claims_table
+
+    ablation = _frame({"baseline": [500, 520, 480, 510, 530], "slower": [700, 650, 720, 690, 710]})
+    table = claims_table(ablation)
+    assert list(table.columns) == list(Verdict.__dataclass_fields__) and len(table) == 1
+    row = table.iloc[0]
+    assert row.verdict == "worse" and row.metric == "episodes_to_solve" and row.estimate > 0.3

@@ -393,7 +393,7 @@ def test_each_architectures_knobs_are_compared_with_that_architecture(store, tmp
     headers = [line for line in findings.splitlines() if line.startswith("- **")]
     assert headers == ["- **cnn-l2** vs cnn:", "- **mlp** vs cnn:", "- **mlp-l2** vs mlp:"]
     assert "knobs at once" not in text and "more than one knob" not in text
-    assert "| vs its reference on area under the curve (AUC) |" in text and "| vs mlp: " in text
+    assert "| primary claim |" in text and "| vs mlp: " in text and "**mlp-l2** vs mlp: **undetermined**" in text
     assert "| mlp |  | architecture = mlp |" not in text and "reference of mlp-l2" in text
     assert "mlp-l2 vs mlp" not in text  # the figure's panel titles are in the PNG, its caption says how
     assert "its reference (grey)" in text

@@ -329,7 +329,8 @@ def seeds_needed(x: Sample, y: Sample, question: Question, level: float, simulat
 def family_sentence(k: int, alpha: float = ALPHA, sequential: bool = False) -> str:
     """The one sentence a student can repeat: which family, which correction, what level."""
     looks = " across the rounds of seeds (an O'Brien-Fleming-type alpha-spending boundary)" if sequential else ""
+    family = f"The {k} primary comparisons form one family" if k != 1 else "The one primary comparison is a family"
     return (
-        f"The {k} primary comparison{'s' if k != 1 else ''} form one family whose chance of any false claim is at "
-        f"most {alpha:.0%}: each is a permutation test of the IQM difference, corrected by Holm's step-down{looks}."
+        f"{family} whose chance of any false claim is at most {alpha:.0%}: each is a permutation test of the IQM "
+        f"difference, corrected by Holm's step-down{looks}."
     )

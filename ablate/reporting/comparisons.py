@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ablate.claims import Design, Question, Round, Sample, decide
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import (
     BETTER,
@@ -196,3 +197,48 @@ def in_report_units(frame: pd.DataFrame) -> pd.DataFrame:
         values = pd.to_numeric(frame[column], errors="coerce")
         frame[column] = values.where(~(values > SEEDS_CAP), np.inf)
     return frame
+
+
+def primary_question(ablation: Ablation) -> Question:
+    """What the primary claims ask: on the ablation's primary metric, effects as ratios of episodes (censored at
+    the budget) or as differences of AUC or return, with the experiment's ``smallest_effect`` as the margin."""
+    metric = ablation.primary_metric
+    episodes = metric == "episodes_to_solve"
+    budget = float(ablation.finished.budget.max()) if episodes and len(ablation.finished) else None
+    return Question(metric, episodes, episodes, ablation.smallest_effect, budget)
+
+
+def primary_claims(ablation: Ablation, intervals: bool = True, estimate_seeds: bool = True) -> Round:
+    """Every variant against its reference on the primary metric, as one family (``ablate.claims.decide``),
+    judged as a fixed design at the seeds that finished: each verdict with its interval and, where
+    undetermined, the seeds per variant it would take."""
+    question = primary_question(ablation)
+    done = ablation.finished.sort_values("seed")
+    samples = {}
+    for variant in ablation.variants:
+        rows = done[done.variant == variant]
+        if question.metric == "episodes_to_solve":
+            samples[variant] = Sample(rows.censored_episodes.to_numpy(float), (rows.solved != 1).to_numpy())
+        elif question.metric in rows:
+            samples[variant] = Sample(rows[question.metric].to_numpy(float))
+    references = {
+        v: ablation.reference(v)
+        for v in ablation.variants
+        if v != ablation.baseline and v in samples and ablation.reference(v) in samples and len(samples[v])
+    }
+    seeds = max((len(s) for s in samples.values()), default=1)
+    return decide(
+        samples, references, question, Design.fixed(max(seeds, 1)), intervals=intervals, estimate_seeds=estimate_seeds
+    )
+
+
+def claims_table(ablation: Ablation, result: Round | None = None) -> pd.DataFrame:
+    """The primary claims as a frame: one row per comparison, one column per ``ablate.claims.Verdict`` field
+    (verdict, estimate, low, high, p_difference, p_equivalence, level, margin, seeds, seeds_needed, ...)."""
+    from dataclasses import asdict
+
+    from ablate.claims import Verdict
+
+    result = result if result is not None else primary_claims(ablation)
+    columns = list(Verdict.__dataclass_fields__)
+    return pd.DataFrame([asdict(v) for v in result.verdicts], columns=columns)

@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from ablate.claims import EQUIVALENT, Question, Round, Verdict, family_sentence, iqm
+from ablate.reporting.comparisons import primary_claims, primary_question
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import Ablation
@@ -158,7 +160,12 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
 def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[str]:
     """Per variant, one line per metric; no claim without an interval, bounds worded as bounds. What holds
     for every comparison (too few seeds for any claim) is said once, first."""
-    lines = []
+    lines = [
+        "*Exploratory:* every metric, each comparison judged on its own by its 95% bootstrap interval "
+        "(unadjusted for the others: about one in twenty true nulls reads as a difference here). The report's "
+        "claims are the primary ones, above.",
+        "",
+    ]
     undecidable = compare[compare.verdict == NO_CLAIM] if len(compare) else compare
     if len(undecidable):
         pairs = sorted({(int(r.n_variant), int(r.n_reference)) for r in undecidable.itertuples()})
@@ -212,27 +219,100 @@ def _rank_key(ablation: Ablation, row: pd.Series) -> tuple:
     return (-row.auc_iqm if not pd.isna(row.auc_iqm) else np.inf,)
 
 
+def _effect_words(v: Verdict, question: Question) -> str:
+    """The effect and its family-level interval in words: "35% fewer episodes to solve (interval 12% to 52%
+    fewer)"; a difference of AUC or return signed in its units."""
+    name = _metric_name(v.metric)
+    if question.relative:
+
+        def side(x: float) -> str:
+            return f"{_pct(abs(x))} {'fewer' if x < 0 else 'more'}" if x else "no change"
+
+        if np.isnan(v.low) or np.isnan(v.high):
+            interval = "no interval"
+        elif not np.isfinite(v.low) and not np.isfinite(v.high):
+            interval = "its interval at the family level is unbounded with so few seeds"
+        elif not np.isfinite(v.high):
+            interval = f"interval: at least {side(v.low)}, no upper end"
+        elif not np.isfinite(v.low):
+            interval = f"interval: at most {side(v.high)}, no lower end"
+        elif v.high < 0:
+            interval = f"interval {_pct(-v.high)} to {_pct(-v.low)} fewer"
+        elif v.low > 0:
+            interval = f"interval {_pct(v.low)} to {_pct(v.high)} more"
+        else:
+            interval = f"interval {side(v.low)} to {side(v.high)}"
+        return f"{side(v.estimate)} {name} ({interval})"
+    if np.isnan(v.low):
+        return f"{name} {_signed(v.estimate)} (no interval)"
+    low = "−∞" if not np.isfinite(v.low) else _signed(v.low)
+    high = "+∞" if not np.isfinite(v.high) else _signed(v.high)
+    return f"{name} {_signed(v.estimate)} (interval {low} to {high})"
+
+
+def _seeds_words(v: Verdict) -> str:
+    if not v.seeds_estimated:
+        return ""
+    if v.seeds_needed is None:
+        return f"; more than {v.seeds_cap} seeds per variant would be needed to decide it"
+    return f"; about {v.seeds_needed} seeds per variant would decide it (in 80% of runs like this one)"
+
+
+def claim_line(v: Verdict, question: Question, values: tuple[float, float]) -> str:
+    """One primary claim in words a student can hand in."""
+    variant, reference = _esc(v.variant), _esc(v.reference)
+    stat = stat_name(v.n_variant, v.n_reference)
+    digits = 0 if question.relative else 1
+    at_least = "≥ " if v.bound and v.verdict == WORSE else ""
+    iqms = f"{stat} {at_least}{_fmt(values[0], digits)} vs {_fmt(values[1], digits)}"
+    seeds = f"{v.n_variant} and {v.n_reference} seeds"
+    effect = _effect_words(v, question)
+    if v.verdict in (BETTER, WORSE):
+        bound = " at least" if v.bound else ""
+        return f"- **{variant}** is **{v.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}."
+    if v.verdict == EQUIVALENT:
+        margin = _pct(question.smallest_effect)
+        return f"- **{variant}** is **equivalent** to {reference} within ±{margin}: {effect}; {iqms}; {seeds}."
+    return f"- **{variant}** vs {reference}: **undetermined** ({v.reason}): {effect}; {iqms}; {seeds}{_seeds_words(v)}."
+
+
+def claims(ablation: Ablation, result: Round | None = None) -> list[str]:
+    """The primary claims: one sentence naming the family, the correction and the level, then one line per
+    variant with its verdict, effect, interval and seeds."""
+    result = result if result is not None else primary_claims(ablation)
+    question = primary_question(ablation)
+    k = len(result.verdicts)
+    if not k:
+        return ["No variant has finished seeds to compare with its reference."]
+    done = ablation.finished
+    lines = [
+        f"{family_sentence(k)} The claims are on {_metric_name(question.metric)} (the experiment's primary "
+        f"question); each interval is simultaneous over the {k} (95% for all of them together); "
+        f"*equivalent* means within ±{_pct(question.smallest_effect)} of the reference.",
+        "",
+    ]
+    column = "censored_episodes" if question.metric == "episodes_to_solve" else question.metric
+    for v in result.verdicts:
+        x = done.loc[done.variant == v.variant, column].to_numpy(float)
+        y = done.loc[done.variant == v.reference, column].to_numpy(float)
+        lines.append(claim_line(v, question, (float(iqm(x)), float(iqm(y)))))
+    return lines
+
+
 def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> str:
-    """Variants ranked on the primary metric (episodes to solve where seeds solved, else AUC), with intervals
-    and the verdict against each variant's reference (the baseline unless the variant extends another)."""
+    """The primary claims first; then the variants ranked on the primary metric with each one's own 95%
+    interval (exploratory: unadjusted)."""
+    result = primary_claims(ablation)
+    verdicts = {v.variant: v for v in result.verdicts}
     ran = table[table.seeds_run > 0]
     ranked = sorted(ran.iterrows(), key=lambda item: _rank_key(ablation, item[1]))
-    primary = "episodes_to_solve" if ablation.any_solved else "auc"
+    primary = ablation.primary_metric
     extends = _extends(ablation)
     rows = []
     for rank, (_, row) in enumerate(ranked, 1):
         verdict = "reference" if row.variant == ablation.baseline else "–"
-        match = compare[(compare.variant == row.variant) & (compare.metric == primary)] if len(compare) else compare
-        if len(match):
-            first = match.iloc[0]
-            if first.verdict in (BETTER, WORSE):
-                notes = (["a bound"] if first.bound else []) + (["fragile"] if first.fragile_seeds else [])
-                word = {BETTER: "better", WORSE: "worse"}[first.verdict]
-                verdict = word + (f" ({'; '.join(notes)})" if notes else "")
-            elif first.verdict == NO_CLAIM:
-                verdict = "too few seeds to tell"
-            else:
-                verdict = first.verdict
+        if row.variant in verdicts:
+            verdict = verdicts[row.variant].verdict
             if extends:
                 verdict = f"vs {_esc(ablation.reference(row.variant))}: {verdict}"
         entry = {"rank": rank, "variant": _esc(row.variant)}
@@ -241,8 +321,7 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> s
         if ablation.any_solved:
             entry["episodes to solve, IQM [95% CI]"] = _episodes_cell(row, "iqm")
         entry["AUC, IQM [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
-        against = "its reference" if extends else _esc(ablation.baseline)
-        entry[f"vs {against} on {_metric_name(primary)}"] = verdict
+        entry["primary claim"] = verdict
         rows.append(entry)
     how = (
         "fewest episodes to solve (IQM, censored), ties by AUC"
@@ -251,11 +330,11 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> s
     )
     return "\n".join(
         [
-            f"Variants ranked by {how}. A rank orders point estimates only: where intervals overlap, the seeds do not "
-            "separate the variants, and the last column says what the data support against the "
-            + ("variant's reference" if extends else "baseline")
-            + " (Findings "
-            "gives each comparison with its interval).",
+            *claims(ablation, result),
+            "",
+            f"*Exploratory:* the variants ranked by {how}, each interval a 95% bootstrap interval of that variant "
+            f"alone (unadjusted: not a claim). A rank orders point estimates only; the last column repeats the "
+            f"primary claim on {_metric_name(primary)}.",
             "",
             _markdown_table(pd.DataFrame(rows)),
         ]

@@ -139,6 +139,20 @@ class Ablation:
         return float(value) if valid else Experiment.smallest_effect
 
     @property
+    def primary_metric(self) -> str:
+        """The metric the primary claims are made on: the file's ``primary`` (``return`` is the return after the
+        whole budget), else episodes to solve where a solve threshold exists, else the AUC."""
+        try:
+            value = tomllib.loads(self.launch.get("experiment_text") or "").get("primary")
+        except tomllib.TOMLDecodeError:
+            value = None
+        if value == "return" and self.budgets:
+            return f"return_at_{self.budgets[-1]}"
+        if value in ("episodes_to_solve", "auc") and not (value == "episodes_to_solve" and self.threshold is None):
+            return value
+        return "episodes_to_solve" if self.threshold is not None else "auc"
+
+    @property
     def levels(self) -> tuple[float, ...]:
         return RETURN_LEVELS.get(self.env_id, ())
 

@@ -161,6 +161,7 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
             f"{_verdict_words(row)}: {label}."
         )
     head = (
+        "*Exploratory* (unadjusted 95% intervals, each comparison on its own; the claims are the primary ones). "
         "The same comparisons on the same evaluation seeds and budget, once with every variant at the shared base "
         "value (as an untuned ablation runs them) and once at each variant's chosen value. "
     )
