@@ -226,10 +226,19 @@ def primary_claims(ablation: Ablation, intervals: bool = True, estimate_seeds: b
         for v in ablation.variants
         if v != ablation.baseline and v in samples and ablation.reference(v) in samples and len(samples[v])
     }
-    seeds = max((len(s) for s in samples.values()), default=1)
-    return decide(
-        samples, references, question, Design.fixed(max(seeds, 1)), intervals=intervals, estimate_seeds=estimate_seeds
-    )
+    design = claims_design(ablation)
+    return decide(samples, references, question, design, intervals=intervals, estimate_seeds=estimate_seeds)
+
+
+def claims_design(ablation: Ablation) -> Design:
+    """The looks the claims are judged at: the launch's seed rounds (``rounds.json``), replayed as the runner
+    judged them; else one look at the seeds that finished (a fixed design)."""
+    rounds = (ablation.launch.get("rounds") or {}).get("design") if isinstance(ablation.launch, dict) else None
+    if rounds:
+        return Design(int(rounds["start"]), int(rounds["step"]), int(rounds["max"]))
+    done = ablation.finished
+    seeds = int(done.groupby("variant").size().max()) if len(done) else 1
+    return Design.fixed(max(seeds, 1))
 
 
 def claims_table(ablation: Ablation, result: Round | None = None) -> pd.DataFrame:

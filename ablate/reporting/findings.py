@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.claims import EQUIVALENT, Question, Round, Verdict, family_sentence, iqm
-from ablate.reporting.comparisons import primary_claims, primary_question
+from ablate.reporting.comparisons import claims_design, primary_claims, primary_question
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import Ablation
@@ -284,10 +284,11 @@ def claims(ablation: Ablation, result: Round | None = None) -> list[str]:
     k = len(result.verdicts)
     if not k:
         return ["No variant has finished seeds to compare with its reference."]
-    done = ablation.finished
+    done, design = ablation.finished, claims_design(ablation)
     lines = [
-        f"{family_sentence(k)} The claims are on {_metric_name(question.metric)} (the experiment's primary "
-        f"question); each interval is simultaneous over the {k} (95% for all of them together); "
+        f"{family_sentence(k, sequential=design.max > design.start)} The claims are on "
+        f"{_metric_name(question.metric)} (the experiment's primary question); each interval is simultaneous "
+        f"over the {k} (95% for all of them together); "
         f"*equivalent* means within ±{_pct(question.smallest_effect)} of the reference.",
         "",
     ]
