@@ -80,6 +80,7 @@ def derived_text(experiment: Experiment, knobs: dict[str, Any], pool: int) -> st
     """The calibration's experiment file: the reference alone, on ``pool`` seeds that collide with none of the
     experiment's own (evaluation or tuning)."""
     own = [*experiment.seeds, *(experiment.tune.seeds if experiment.tune else ())]
+    own += [s for v in experiment.variants for s in experiment.max_seeds_of(v)]  # every seed rounds may add
     start = max(SEED_START, max(own) + 1)
     lines = [
         f"# A/A calibration of {experiment.path}: its reference variant {experiment.baseline!r} alone, written by",
@@ -175,12 +176,20 @@ class Calibration:
 
 
 def aa_reports(
-    trials: Any, metric_names: list[str], primary: str, variants: int, seeds: int, reports: int, smallest_effect: float
+    trials: Any,
+    metric_names: list[str],
+    primary: str,
+    variants: int,
+    seeds: int,
+    reports: int,
+    smallest_effect: float,
+    rounds: tuple[int, int, int] | None = None,
 ) -> Calibration:
     """Deal the reference's seeds (``trials``: one row per finished seed, the report's columns) into ``reports``
     disjoint A/A reports of ``variants`` groups of ``seeds`` (group 0 the baseline), and judge each by the
     primary-claims rule on ``primary`` and by the old rule (a 95% bootstrap interval excluding 0, with the
-    censoring care) on each of ``metric_names``."""
+    censoring care) on each of ``metric_names``. ``rounds``: (start, step, max) of seed rounds, replayed by the
+    new rule on each report's first seeds (``seeds`` is then ``max``); the old rule judges all ``seeds``."""
     import numpy as np
 
     from ablate.claims import BETTER, EQUIVALENT, WORSE, Design, Question, Sample, decide
@@ -215,7 +224,8 @@ def aa_reports(
             f"v{i}": Sample(columns[primary][order[i]], censored[order[i]] if episodes else None)
             for i in range(variants)
         }
-        result = decide(samples, references, question, Design.fixed(seeds), intervals=False, estimate_seeds=False)
+        design = Design(*rounds) if rounds else Design.fixed(seeds)
+        result = decide(samples, references, question, design, intervals=False, estimate_seeds=False)
         new += any(v.verdict in (BETTER, WORSE) for v in result.verdicts)
         equivalent += any(v.verdict == EQUIVALENT for v in result.verdicts)
         claimed = False
@@ -246,7 +256,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """``ablate calibrate``: 0 with the shares printed; 2 for bad input; 1 when the seeds could not be run."""
     experiment = load_experiment(args.experiment)
     variants = len(experiment.variants)
-    seeds = args.design_seeds or len(experiment.seeds)
+    rounds = experiment.rounds if not args.design_seeds else None
+    seeds = args.design_seeds or (rounds.max if rounds else len(experiment.seeds))
     if seeds < 2:
         raise ConfigError(f"--seeds = {seeds} is invalid; valid: at least 2 seeds per variant")
     pool = max(args.pool, MIN_SEEDS, variants * seeds)
@@ -280,7 +291,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     primary = experiment.primary_metric
     if primary == "return":
         primary = f"return_at_{ablation.budgets[-1]}"
-    result = aa_reports(ablation.finished, metrics, primary, variants, seeds, args.reports, experiment.smallest_effect)
+    result = aa_reports(
+        ablation.finished,
+        metrics,
+        primary,
+        variants,
+        seeds,
+        args.reports,
+        experiment.smallest_effect,
+        (rounds.start, rounds.step, rounds.max) if rounds else None,
+    )
     print(print_calibration(experiment, ablation, result, variants, seeds, primary, metrics))
     return 0
 

@@ -63,6 +63,8 @@ def test_aa_reports_of_identical_seeds_claim_rarely_under_the_new_rule_often_und
     assert set(result.old_per_metric) == set(metrics) and all(0 < r < 0.15 for r in result.old_per_metric.values())
     at_five = aa_reports(trials, ["auc"], "episodes_to_solve", 10, 5, 40, 0.1)
     assert at_five.new.claims == 0  # 5 seeds can reach no claim in a family of 9
+    rounds = aa_reports(_pool(np.random.default_rng(2), 90), ["auc"], "episodes_to_solve", 3, 30, 40, 0.1, (10, 10, 30))
+    assert rounds.new.reports == 40 and rounds.new.rate <= 0.15  # the rounds' design, replayed per report
 
 
 def test_a_pool_too_small_for_the_design_is_one_line_exit_2(tmp_path):
