@@ -63,8 +63,8 @@ bench: $(STAMP) ## speed and memory figures, every section (~3 h on 2 idle cores
 train: $(STAMP) ## one CartPole trial: curve, video, weights in outputs/train/ (ARGS="--preset course", ...)
 	$(BIN)/ablate train $(ARGS)
 
-ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray, track in MLflow, write the report
-	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --tracking-uri $(TRACKING_URI)
+ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray (seeds in rounds up to 30, populations of 8), track in MLflow, write the report
+	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --population 8 --tracking-uri $(TRACKING_URI)
 
 ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, each at its tuned rate, 5 seeds x 400 episodes (1 h 42 min on a fresh clone of a 2-core machine; at most 2 h)
 	$(BIN)/ablate run experiments/pong.toml --tracking-uri $(TRACKING_URI)

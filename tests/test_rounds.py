@@ -260,7 +260,7 @@ def test_the_report_section_says_each_variants_seeds_and_why_it_stopped():
     }
     text = rounds_section(document)
     assert "5 per variant first, then 5 more per round" in text and "up to 15" in text and "3 rounds ran" in text
-    assert "| fast | 10 | decided at round 2 |" in text
+    assert "| fast | 10 | better, decided at round 2 |" in text
     assert "| null | 15 | reached the most seeds (max) undecided |" in text
     assert "| baseline | 15 | the reference of the others |" in text
     assert rounds_section(None) == ""
@@ -277,3 +277,16 @@ def test_train_from_names_a_seed_a_later_round_runs(tmp_path):
     assert chosen.trial.key in {t.key for t in expand(experiment, every_round=True)} and chosen.trial.seed == 12
     with pytest.raises(ConfigError, match="--seed 15 is not a seed"):
         trial_from(argparse.Namespace(**{**vars(args), "seed": 15}), {"seed": 15}, ())
+
+
+def test_the_default_cartpole_experiment_adds_seeds_in_rounds_from_todays_five(tmp_path):
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "cartpole.toml"
+    experiment = load_experiment(path)
+    assert experiment.rounds is not None and experiment.rounds.start == 5 and experiment.rounds.step == 5
+    assert 20 <= experiment.rounds.max <= 40  # what `make ablation-cartpole` affords on 2 cores (issue 25 item 7)
+    text = re.sub(r"^seeds = \{.*\}$", "seeds = 5", path.read_text(), flags=re.M)
+    fixed = tmp_path / "cartpole.toml"
+    fixed.write_text(text)
+    assert [t.key for t in expand(load_experiment(fixed))] == [t.key for t in expand(experiment)]

@@ -121,5 +121,6 @@ def rounds_section(document: Mapping[str, Any] | None) -> str:
     ]
     for name, entry in document["variants"].items():
         why = entry.get("why") or "the reference of the others"
-        lines.append(f"| {name} | {entry.get('seeds', 0)} | {WHY.get(why, why)} |")
+        verdict = f"{entry['verdict']}, " if entry.get("verdict") and why.startswith("decided") else ""
+        lines.append(f"| {name} | {entry.get('seeds', 0)} | {verdict}{WHY.get(why, why)} |")
     return "\n".join(lines)
