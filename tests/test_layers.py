@@ -23,6 +23,7 @@ LAYERS = {
     "api": 4,
     "__init__": 4,
     "commands": 5,
+    "dry_run": 5,
     "train_from": 5,
     "cli": 5,
     "calibration": 5,
