@@ -105,6 +105,18 @@ REFERENCES = [
     "seeds to tell*, and the probability of improvement.)",
     "Efron, B., & Tibshirani, R. J. (1993). *An Introduction to the Bootstrap*. Chapman & Hall. (Percentile "
     "intervals.)",
+    "Good, P. (2005). *Permutation, Parametric and Bootstrap Tests of Hypotheses* (3rd ed.). Springer. (The "
+    "permutation test of each primary claim.)",
+    "Holm, S. (1979). A simple sequentially rejective multiple test procedure. *Scandinavian Journal of "
+    "Statistics*, 6(2), 65-70. (The primary claims as one family at 5%.)",
+    "Schuirmann, D. J. (1987). A comparison of the two one-sided tests procedure and the power approach for "
+    "assessing the equivalence of average bioavailability. *Journal of Pharmacokinetics and Biopharmaceutics*, "
+    "15(6), 657-680. (*Equivalent*: two one-sided tests within the smallest effect of interest.)",
+]
+
+ROUNDS_REFERENCES = [
+    "Lan, K. K. G., & DeMets, D. L. (1983). Discrete sequential boundaries for clinical trials. *Biometrika*, "
+    "70(3), 659-663. (Alpha spending across the rounds of seeds.)",
 ]
 
 TUNING_REFERENCES = [
@@ -119,9 +131,14 @@ PONG_REFERENCES = [
 
 
 def references(ablation: Ablation) -> list[str]:
-    """The references this report cites: the tuning paper only where it tuned, Atari's only for Pong."""
+    """The references this report cites: the alpha-spending paper only where seeds came in rounds, the tuning paper
+    only where it tuned, Atari's only for Pong."""
+    from ablate.reporting.comparisons import claims_design
+
+    design = claims_design(ablation)
     return (
         REFERENCES
+        + (ROUNDS_REFERENCES if design.max > design.start else [])
         + (TUNING_REFERENCES if ablation.tuning else [])
         + (PONG_REFERENCES if ablation.env_id.startswith("ALE/") else [])
     )
