@@ -221,3 +221,27 @@ def test_a_launch_with_seeds_in_rounds_says_each_variants_seeds_and_why_it_stopp
     assert "Seeds were added in rounds: 3 per variant first, then 3 more per round" in appendix
     assert "| b | 9 | reached the most seeds (max) undecided |" in appendix
     assert "Seeds were added in rounds" not in _report(tmp_path, "plain", uri)
+
+
+def test_seeds_that_differ_between_variants_are_said_as_a_range_not_the_grids_count(tmp_path):
+    apart = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 10)}}
+    ran = {f"a-s{s}" for s in range(6)} | {f"b-s{s}" for s in range(3)}
+    uri = make_store(tmp_path, "uneven", apart, seeds=tuple(range(6)), only=ran)
+    body = _body(_report(tmp_path, "uneven", uri))
+    assert "from 3 to 6 seeds on" in body and "from 6 seeds" not in body
+    assert "**3 to 6 seeds per variant**" in body
+    assert "(added in rounds" not in body  # no rounds.json: the range is not said to come from rounds
+
+
+def test_a_difference_claimed_by_a_later_holm_step_says_why_its_interval_still_reaches_no_change():
+    from ablate.claims import Question, Verdict
+    from ablate.reporting.findings import claim_line
+
+    question = Question("episodes_to_solve", relative=True, lower_is_better=True, smallest_effect=0.1, budget=100)
+    fields = dict(variant="v", reference="base", metric="episodes_to_solve", verdict="worse", estimate=0.86)
+    fields |= dict(p_difference=0.004, p_equivalence=0.9, level=0.01, margin=0.1, n_variant=30, n_reference=30)
+    fields |= dict(look=5, bound="", seeds_needed=None, seeds_estimated=False, seeds_cap=100, reason="")
+    crossing = claim_line(Verdict(low=-0.07, high=1.63, **fields), question, (1049.0, 564.0))
+    assert "Holm's step-down made this claim at the 1.00% level" in crossing and "still reaches no change" in crossing
+    clear = claim_line(Verdict(low=0.03, high=1.63, **fields), question, (1049.0, 564.0))
+    assert "Holm" not in clear

@@ -269,7 +269,14 @@ def claim_line(v: Verdict, question: Question, values: tuple[float, float]) -> s
     effect = _effect_words(v, question)
     if v.verdict in (BETTER, WORSE):
         bound = " at least" if v.bound else ""
-        return f"- **{variant}** is **{v.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}."
+        reaches = not (np.isnan(v.low) or np.isnan(v.high)) and v.low <= 0 <= v.high
+        step = (
+            f" (Holm's step-down made this claim at the {v.level:.2%} level; the interval, at the stricter level "
+            "shared by all the family's intervals, still reaches no change)"
+            if reaches
+            else ""
+        )
+        return f"- **{variant}** is **{v.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}{step}."
     if v.verdict == EQUIVALENT:
         margin = _pct(question.smallest_effect)
         return f"- **{variant}** is **equivalent** to {reference} within ±{margin}: {effect}; {iqms}; {seeds}."

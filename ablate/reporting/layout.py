@@ -72,7 +72,13 @@ def question(ablation: Ablation) -> str:
 
 def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
     base = ablation.grid["base"]
-    seeds = len(ablation.grid["seeds"])
+    fewest, most = ablation.seed_span
+    seeds = (
+        f"{most} seed{'s' if most != 1 else ''}"
+        if fewest == most
+        else f"{fewest} to {most} seeds"
+        + (" (added in rounds while its primary comparison was open)" if ablation.launch.get("rounds") else "")
+    )
     budget = int(base.get("max_episodes", 0))
     window = int(base.get("solve_window", 100))
     solve = (
@@ -92,7 +98,7 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
         )
     return (
         "REINFORCE (Williams, 1992), the vanilla policy gradient of the course's lab (MIT 6.S191, Lab 3), trains "
-        f"each variant's policy from {seeds} seed{'s' if seeds != 1 else ''} on `{_esc(ablation.env_id)}`: "
+        f"each variant's policy from {seeds} on `{_esc(ablation.env_id)}`: "
         f"{solve}. A variant changes only the knobs it names (Appendix {letters['method']}).{tuned} Every number "
         "is over seeds: interquartile means with 95% percentile bootstrap intervals (Agarwal et al., 2021); unsolved "
         "seeds count as the budget and make a statistic a bound (≥), never dropped. The primary claims are one family "

@@ -58,6 +58,17 @@ class Ablation:
     """The same evaluation seeds at the shared base values (the untuned comparison), when tuned."""
 
     @property
+    def seed_span(self) -> tuple[int, int]:
+        """The fewest and most finished evaluation seeds a variant has (seeds in rounds give variants different
+        counts); the grid's seed count where no trial finished."""
+        done = self.finished
+        counts = done.groupby("variant").seed.nunique() if len(done) else None
+        if counts is None or counts.empty:
+            n = len(self.grid["seeds"])
+            return n, n
+        return int(counts.min()), int(counts.max())
+
+    @property
     def variants(self) -> list[str]:
         return [v["name"] for v in self.grid["variants"]]
 

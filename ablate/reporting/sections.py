@@ -311,7 +311,7 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
     ``threshold``, ``wallclock``, ``videos``, ``scope``) so the body can print the ones that matter."""
     base, variants = ablation.grid["base"], ablation.grid["variants"]
     out: list[tuple[str, str]] = []
-    seeds = len(ablation.grid["seeds"])
+    fewest, seeds = ablation.seed_span
     checked = (
         compare is not None
         and len(compare) > 0
@@ -320,7 +320,10 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
     )
     claims = compare is not None and len(compare) > 0 and bool(compare.verdict.isin([BETTER, WORSE]).any())
     if checked:
-        survive = "each claim says whether it survives leaving out any one seed."
+        survive = (
+            "the exploratory comparisons in the appendix say whether each survives leaving out any one seed; the "
+            "primary claims rest on every seed, under the family's correction."
+        )
     elif claims:
         survive = (
             "leaving out one of so few seeds leaves too few for any claim, so no claim here was checked that way: "
@@ -331,8 +334,18 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
     out.append(
         (
             "seeds",
-            f"**{seeds} seed{'s' if seeds != 1 else ''} per variant.** Percentile bootstrap intervals over so few "
-            "seeds are too narrow more often than 5% of the time, and one unusual seed can move an IQM; "
+            (
+                f"**{seeds} seed{'s' if seeds != 1 else ''} per variant.** "
+                if fewest == seeds
+                else f"**{fewest} to {seeds} seeds per variant**"
+                + (
+                    " (in rounds: until its primary comparison was decided or the cap was reached). "
+                    if ablation.launch.get("rounds")
+                    else ". "
+                )
+            )
+            + "Percentile bootstrap intervals (the exploratory ones) over few seeds are too narrow more often than 5% "
+            "of the time, and one unusual seed can move an IQM; "
             + survive
             + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else ""),
         )
