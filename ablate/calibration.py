@@ -52,6 +52,13 @@ def add_parser(commands: Any) -> None:
     calibrate.add_argument(
         "--max-concurrent", dest="max_concurrent", type=int, help="at most this many trials at once (default: CPUs)"
     )
+    calibrate.add_argument(
+        "--population",
+        type=int,
+        default=8,
+        help="train up to M seeds together as one batched population, as make ablation-cartpole does (default 8; "
+        "1: each alone); members' runs are their single trials' bit for bit on a CPU",
+    )
 
 
 # --- the derived experiment ---------------------------------------------------------------------------------
@@ -263,7 +270,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     pool = max(args.pool, MIN_SEEDS, variants * seeds)
     if args.reports < MIN_REPORTS:
         raise ConfigError(f"--reports = {args.reports} is invalid; valid: at least {MIN_REPORTS}")
+    if args.population < 1:
+        raise ConfigError(f"--population = {args.population} is invalid; valid: an integer >= 1")
     run_kwargs = {"address": args.address, "max_concurrent": args.max_concurrent}
+    population = {"population": args.population}
     knobs = reference_knobs(experiment, tuned_values(experiment, args.tracking_uri, run_kwargs))
     folder = Path("outputs") / "calibrate"
     folder.mkdir(parents=True, exist_ok=True)
@@ -280,7 +290,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         f"{' at ' + shown if shown else ''} ({path}, seeds {derived.seeds[0]}-{derived.seeds[-1]})",
         flush=True,
     )
-    outcome = api.run(derived, tracking_uri=args.tracking_uri, report=False, **run_kwargs)
+    outcome = api.run(derived, tracking_uri=args.tracking_uri, report=False, **run_kwargs, **population)
     if outcome.interrupted or outcome.error or outcome.failed:
         print(f"calibrate: the seeds did not all finish ({outcome.error or 'interrupted or failed'})")
         return 1
