@@ -290,3 +290,25 @@ def test_the_default_cartpole_experiment_adds_seeds_in_rounds_from_todays_five(t
     fixed = tmp_path / "cartpole.toml"
     fixed.write_text(text)
     assert [t.key for t in expand(load_experiment(fixed))] == [t.key for t in expand(experiment)]
+
+
+def test_train_from_a_tuned_experiment_reruns_a_later_rounds_seed_at_the_chosen_value(tmp_path, monkeypatch):
+    import argparse
+    from dataclasses import replace
+
+    from ablate.experiment import load_experiment
+    from ablate.launch.grid import trial_key
+    from ablate.train_from import trial_from
+
+    path = tmp_path / "tuned.toml"
+    path.write_text(
+        'name = "tuned"\nseeds = { start = 2, step = 2, max = 6 }\n[base]\nmax_episodes = 40\n'
+        '[[variants]]\nname = "a"\n[[variants]]\nname = "b"\nhidden_sizes = [8]\n'
+        "[tune]\nlearning_rate = [0.01, 0.1]\nseeds = 1\n"
+    )
+    monkeypatch.setattr("ablate.train_from.store_choices", lambda *a: ({"b": {"learning_rate": 0.1}}, "a store"))
+    args = argparse.Namespace(from_experiment=str(path), variant="b", seed=5, stage=None, preset="default")
+    chosen = trial_from(args, {"seed": 5}, ())
+    variant = next(v for v in load_experiment(path).variants if v.name == "b")
+    expected = replace(variant.config, seed=5, learning_rate=0.1)
+    assert (chosen.stage, chosen.trial.seed, chosen.trial.key) == ("eval", 5, trial_key("b", expected))
