@@ -8,11 +8,9 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import platform
 import shutil
 import signal
 import socket
-import subprocess
 import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
@@ -20,12 +18,13 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
-from ablate.config import ConfigError, flatten
+from ablate.config import ConfigError
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
 from ablate.launch.plan import member_slots, plan_populations
 from ablate.launch.progress import ProgressView
+from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
 from ablate.launch.rounds import Judge, Rounds
 from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_ROLE, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
@@ -108,91 +107,6 @@ class RunOutcome:
         if self.error:
             return f"The scheduler failed ({self.error}): {counts}."
         return f"{counts} (of {self.total - self.skipped} to run; {self.skipped} finished before)."
-
-
-def git_commit() -> str:
-    """HEAD, ``-dirty`` when tracked files differ from it; ``reports/`` does not count: every ablation rewrites
-    the committed report, and the code that ran is what the commit names."""
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no", "--", ":(top)", ":(top,exclude)reports"],
-            capture_output=True,
-            text=True,
-        )
-        return commit + ("-dirty" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-_CNN_ONLY = ("model.history", "model.conv_channels", "model.kernel_size")
-
-
-def tracked_params(variant: str, config) -> dict:
-    """A trial's MLflow params: every knob that shaped it, and none that did not (the test-only fault knobs
-    unless set, the CartPole CNN's knobs on other runs, an unset ``solve_threshold``), so MLflow's params
-    table and its "diff only" view show real differences."""
-    params = {"variant": variant, **flatten(config)}
-    for key in ("fault", "fault_marker"):
-        if not params[key]:
-            del params[key]
-    if config.model.architecture != "cnn" or not config.env_id.startswith("CartPole"):
-        for key in _CNN_ONLY:
-            del params[key]
-    if params["solve_threshold"] is None:
-        del params["solve_threshold"]
-    return params
-
-
-def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
-    """What the report needs to know of the launch without reading the experiment file again."""
-    return {
-        "experiment": experiment.name,
-        "description": experiment.description,
-        "baseline": experiment.baseline,
-        "seeds": list(experiment.seeds),
-        "variants": [{"name": v.name, "overrides": dict(v.overrides)} for v in experiment.variants],
-        "base": {k: list(v) if isinstance(v, tuple) else v for k, v in flatten(experiment.base).items()},
-        "trials": [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in trials],
-    } | (
-        {
-            "tune_trials": [
-                {"key": t.key, "variant": t.variant, "seed": t.seed, "stage": t.stage}
-                for t in tuning_trials(experiment)
-            ]
-        }
-        if experiment.tune
-        else {}
-    )
-
-
-PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", "scipy", "matplotlib", "imageio")
-
-
-def environment_document() -> dict:
-    """Where the launch ran: Python, package versions, machine, CPU model and the CPU kernels torch uses."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    packages = {}
-    for name in PACKAGES:
-        try:
-            packages[name] = version(name)
-        except PackageNotFoundError:
-            packages[name] = "not installed"
-    import torch
-
-    # Float kernels differ by CPU: the model and the kernels torch picks say where the results were produced.
-    cpuinfo = Path("/proc/cpuinfo")
-    lines = cpuinfo.read_text().splitlines() if cpuinfo.is_file() else []
-    models = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
-    cpu_model = models[0] if models else platform.processor() or "unknown"
-    return {
-        "python": platform.python_version(),
-        "packages": packages,
-        "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} CPUs ({platform.platform()})",
-        "cpu_model": cpu_model,
-        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
-    }
 
 
 class _Recorder:
