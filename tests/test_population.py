@@ -36,8 +36,8 @@ def test_a_member_has_its_single_trials_first_episodes_loss_and_gradients(base):
     for i, config in enumerate(configs):
         single = SingleBackend(config, torch.device("cpu"), None)  # the pre-population path, nn.Linear and all
         single.optimizer.step = lambda: None
-        [batch] = single.collect([8], [48])
-        [stat] = single.update([batch])
+        [batch] = single.collect([8], [48]).values()
+        [stat] = single.update({0: batch}).values()
         for mine, theirs in zip(batches[i], batch, strict=True):
             np.testing.assert_array_equal(mine, theirs)  # the same episodes, bit for bit
         assert stats[i] == stat  # the same loss and entropy
@@ -51,10 +51,10 @@ def test_the_padded_batched_update_a_gpu_takes_gives_the_same_loss_and_gradients
     and gradients to float tolerance (the dropout masks are each member's own draws in both)."""
     configs = _members(base)
     exact, padded = StackedBackend(configs, torch.device("cpu")), StackedBackend(configs, torch.device("cpu"))
-    batches = exact.collect([8] * 4, [48] * 4)
+    batches = list(exact.collect([8] * 4, [48] * 4).values())
     assert all(
         (a == b).all()
-        for x, y in zip(batches, padded.collect([8] * 4, [48] * 4), strict=True)
+        for x, y in zip(batches, padded.collect([8] * 4, [48] * 4).values(), strict=True)
         for a, b in zip(x, y, strict=True)
     )
     results = []
@@ -76,10 +76,10 @@ def test_a_population_of_one_is_its_single_trial_bit_for_bit():
     single = SingleBackend(config, torch.device("cpu"), None)
     stacked = StackedBackend([config], torch.device("cpu"))
     for _ in range(3):
-        [a], [b] = single.collect([8], [48]), stacked.collect([8], [48])
+        [a], [b] = single.collect([8], [48]).values(), stacked.collect([8], [48]).values()
         for mine, theirs in zip(a, b, strict=True):
             np.testing.assert_array_equal(mine, theirs)
-        assert single.update([a]) == stacked.update([b])
+        assert single.update({0: a}) == stacked.update({0: b})
     for name, tensor in stacked.policy(0).state_dict().items():
         assert torch.equal(tensor, single.model.state_dict()[name]), name
 

@@ -66,26 +66,26 @@ class SingleBackend:
         self.collector = PongCollector(config, self.videos) if pong else VectorCollector(config)
         self.chunk = PONG_TRAIN_CHUNK if pong else None
 
-    def collect(self, counts: Sequence[int], budgets: Sequence[int]) -> list[Batch]:
+    def collect(self, counts: Sequence[int], budgets: Sequence[int]) -> dict[int, Batch]:
         config = self.config
         episodes = self.collector.collect(self.model, self.rng, counts[0], budget=budgets[0])
         # Returns are discounted within each episode, then normalised across the whole batch.
         returns = [discount_rewards(e.rewards, config.gamma, config.reset_on_score) for e in episodes]
         lengths = np.array([len(e.actions) for e in episodes], np.int64)
-        return [
-            Batch(
+        return {
+            0: Batch(
                 lengths,
                 np.array([float(e.rewards.sum()) for e in episodes]),
                 np.concatenate([e.observations for e in episodes]),
                 np.concatenate([e.actions for e in episodes]),
                 normalize(np.concatenate(returns)),
             )
-        ]
+        }
 
-    def update(self, batches: Sequence[Batch]) -> list[UpdateStats]:
+    def update(self, batches: dict[int, Batch]) -> dict[int, UpdateStats]:
         b = batches[0]
-        return [
-            train_step(
+        return {
+            0: train_step(
                 self.model,
                 self.optimizer,
                 b.observations,
@@ -94,7 +94,7 @@ class SingleBackend:
                 l2=self.config.l2,
                 chunk_size=self.chunk,
             )
-        ]
+        }
 
     def policy(self, slot: int) -> Policy:
         return self.model
@@ -207,9 +207,12 @@ def run_population(
             if not members:
                 break
             counts = [min(m.config.episodes_per_update, m.config.max_episodes - len(m.history)) for m in members]
+            # The members whose batch is complete (at least one): each updates as soon as its episodes are in,
+            # so no member waits for another's (a member's run is its single trial's, whoever is beside it).
             batches = backend.collect(counts, [m.config.max_episodes - len(m.history) for m in members])
             stats = backend.update(batches)
-            for slot, (member, batch, stat) in enumerate(zip(members, batches, stats, strict=True)):
+            for slot, batch in batches.items():
+                member, stat = members[slot], stats[slot]
                 failure = None
                 if not math.isfinite(stat.loss):
                     failure = TrialFailed(

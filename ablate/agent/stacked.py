@@ -173,7 +173,7 @@ class StackedBackend:
         self.actions = StreamDraws([np.random.default_rng(c.seed) for c in configs], 64 * self.num_envs)
 
     # --- episodes ---
-    def collect(self, counts: Sequence[int], budgets: Sequence[int]) -> list[Batch]:
+    def collect(self, counts: Sequence[int], budgets: Sequence[int]) -> dict[int, Batch]:
         """Every member's next ``counts[i]`` episodes, from a reset, all members stepped together. A member
         samples and draws exactly as ``collectors.collect_episodes`` does alone, until its own episodes end."""
         m, n = self.model.members, self.num_envs
@@ -203,7 +203,7 @@ class StackedBackend:
             active &= ~finished
             collecting = active.any(axis=1)
         self.actions.take(taken)
-        return self._batches(counts_a, lengths, np.stack(obs_steps, axis=2), np.stack(action_steps, axis=2))
+        return dict(enumerate(self._batches(counts_a, lengths, np.stack(obs_steps, axis=2), np.stack(action_steps, axis=2))))
 
     def _batches(self, counts: np.ndarray, lengths: np.ndarray, obs: np.ndarray, actions: np.ndarray) -> list[Batch]:
         steps = obs.shape[2]
@@ -230,10 +230,11 @@ class StackedBackend:
         return batches
 
     # --- updates ---
-    def update(self, batches: Sequence[Batch]) -> list[UpdateStats]:
+    def update(self, ready: dict[int, Batch]) -> dict[int, UpdateStats]:
         """Every member's loss and gradients in one backward, then one ``StackedAdam`` step for all. On a CPU
         each member's forward is its single trial's own (``_member_losses``); on a GPU, one padded batched
         forward (``_padded_losses``): there a kernel per member and layer would cost more than the math."""
+        batches = [ready[slot] for slot in range(self.model.members)]
         self.optimizer.zero_grad()
         if self.device.type == "cpu":
             total, losses, entropies = self._member_losses(batches)
@@ -244,7 +245,10 @@ class StackedBackend:
         self.optimizer.step()
         self.model.refresh()
         sizes = [len(b.actions) for b in batches]
-        return [UpdateStats(loss, entropy / max(size, 1)) for loss, entropy, size in zip(*values, sizes, strict=True)]
+        return {
+            slot: UpdateStats(loss, entropy / max(size, 1))
+            for slot, (loss, entropy, size) in enumerate(zip(*values, sizes, strict=True))
+        }
 
     def _member_losses(self, batches: Sequence[Batch]) -> tuple[torch.Tensor, list, list]:
         """Each member's ``reinforce.train_step`` graph on its own batch, with its slices of the stacked
