@@ -203,7 +203,9 @@ class StackedBackend:
             active &= ~finished
             collecting = active.any(axis=1)
         self.actions.take(taken)
-        return dict(enumerate(self._batches(counts_a, lengths, np.stack(obs_steps, axis=2), np.stack(action_steps, axis=2))))
+        return dict(
+            enumerate(self._batches(counts_a, lengths, np.stack(obs_steps, axis=2), np.stack(action_steps, axis=2)))
+        )
 
     def _batches(self, counts: np.ndarray, lengths: np.ndarray, obs: np.ndarray, actions: np.ndarray) -> list[Batch]:
         steps = obs.shape[2]
