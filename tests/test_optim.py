@@ -84,3 +84,33 @@ def test_stacked_adam_updates_each_member_as_its_own_adam_bit_for_bit():
     for i, (w, b) in enumerate(singles):
         assert torch.equal(weight[i], w) and torch.equal(bias[i], b), i
         assert stacked.member_state(i)["steps"] == 20
+
+
+def test_stacked_adam_steps_only_the_members_asked_bit_for_bit():
+    """An asynchronous population updates the members whose batch is in: each steps as its own Adam on its
+    own schedule, and the others' weights, moments and step counts stay put whatever gradient they hold."""
+    from ablate.agent.optim import StackedAdam
+
+    lrs = [1e-3, 3e-2, 0.1, 0.3]
+    generator = torch.Generator().manual_seed(1)
+    weight = torch.randn(4, 8, 4, generator=generator, requires_grad=True)
+    bias = torch.randn(4, 8, generator=generator, requires_grad=True)
+    singles = [
+        (weight[i].detach().clone().requires_grad_(), bias[i].detach().clone().requires_grad_()) for i in range(4)
+    ]
+    stacked, alone = StackedAdam([weight, bias], lrs), [Adam(list(p), lr) for p, lr in zip(singles, lrs, strict=True)]
+    schedule = [[0, 1, 2, 3], [2], [0, 3], [1], [1, 2], [0, 1, 2, 3], [3]] * 3
+    for members in schedule:
+        grads = torch.randn(4, 8, 4, generator=generator), torch.randn(4, 8, generator=generator)
+        weight.grad, bias.grad = grads[0].clone(), grads[1].clone()
+        stacked.step(members)
+        for i in members:
+            (w, b), optimizer = singles[i], alone[i]
+            w.grad, b.grad = grads[0][i].clone(), grads[1][i].clone()
+            optimizer.step()
+    for i, (w, b) in enumerate(singles):
+        assert torch.equal(weight[i], w) and torch.equal(bias[i], b), i
+        state = stacked.member_state(i)
+        assert state["steps"] == sum(i in members for members in schedule)
+        theirs = alone[i].exp_avg + alone[i].exp_avg_sq
+        assert all(torch.equal(a, b) for a, b in zip(state["exp_avg"] + state["exp_avg_sq"], theirs, strict=True))

@@ -21,10 +21,20 @@ def _members(base):
     return [replace(base, seed=s, learning_rate=lr) for s, lr in ((0, 0.03), (1, 0.1), (2, 0.01), (3, 0.03))]
 
 
+def _first_batches(backend):
+    """Each member's first batch: collections end at different steps, a member's batch comes when its own
+    episodes are in (its next collection, begun by the next call, is left unused)."""
+    first = {}
+    while len(first) < len(backend.configs):
+        for slot, batch in backend.collect([8] * len(backend.configs), [48] * len(backend.configs)).items():
+            first.setdefault(slot, batch)
+    return first
+
+
 def _first_update(backend):
     """The first batch of each member and its update's stats, the Adam step skipped (the gradients stay)."""
-    backend.optimizer.step = lambda: None
-    batches = backend.collect([8] * len(backend.configs), [48] * len(backend.configs))
+    backend.optimizer.step = lambda *members: None
+    batches = _first_batches(backend)
     return batches, backend.update(batches)
 
 
@@ -51,15 +61,12 @@ def test_the_padded_batched_update_a_gpu_takes_gives_the_same_loss_and_gradients
     and gradients to float tolerance (the dropout masks are each member's own draws in both)."""
     configs = _members(base)
     exact, padded = StackedBackend(configs, torch.device("cpu")), StackedBackend(configs, torch.device("cpu"))
-    batches = list(exact.collect([8] * 4, [48] * 4).values())
-    assert all(
-        (a == b).all()
-        for x, y in zip(batches, padded.collect([8] * 4, [48] * 4).values(), strict=True)
-        for a, b in zip(x, y, strict=True)
-    )
+    first, again = _first_batches(exact), _first_batches(padded)
+    batches = [first[slot] for slot in range(4)]
+    assert all((a == b).all() for slot in range(4) for a, b in zip(first[slot], again[slot], strict=True))
     results = []
     for backend, losses in ((exact, exact._member_losses), (padded, padded._padded_losses)):
-        total, member_losses, entropies = losses(batches)
+        total, member_losses, entropies = losses(list(range(4)), batches)
         total.backward()
         results.append(
             ([float(x.detach()) for x in member_losses], [float(e) for e in entropies], backend.model.params)
@@ -90,6 +97,30 @@ def test_members_follow_their_single_trials():
     outcomes = run_population(configs)
     for config, outcome in zip(configs, outcomes, strict=True):
         alone = run_trial(config)
+        assert [m[:7] for m in outcome.episodes] == [m[:7] for m in alone.episodes]
+        for name, tensor in alone.state_dict.items():
+            assert torch.equal(outcome.state_dict[name], tensor), name
+
+
+def test_members_with_their_own_budgets_update_when_their_own_episodes_are_in(monkeypatch):
+    """No lockstep: seeds, learning rates and budgets differ, so collections end at different steps; a collect
+    hands over only the members whose episodes are all in, and each member is still its single trial."""
+    configs = [replace(c, max_episodes=b) for c, b in zip(_members(DEEP), (48, 20, 36, 44), strict=True)]
+    handed: list[list[int]] = []
+    collect = StackedBackend.collect
+
+    def recorded(self, counts, budgets):
+        batches = collect(self, counts, budgets)
+        handed.append(sorted(batches))
+        return batches
+
+    monkeypatch.setattr(StackedBackend, "collect", recorded)
+    outcomes = run_population(configs)
+    monkeypatch.undo()
+    assert any(0 < len(slots) < 4 for slots in handed)  # members updated apart
+    for config, outcome in zip(configs, outcomes, strict=True):
+        alone = run_trial(config)
+        assert len(outcome.episodes) == config.max_episodes
         assert [m[:7] for m in outcome.episodes] == [m[:7] for m in alone.episodes]
         for name, tensor in alone.state_dict.items():
             assert torch.equal(outcome.state_dict[name], tensor), name
@@ -129,7 +160,7 @@ def test_a_member_whose_weights_turn_nan_fails_alone(monkeypatch):
 
     def poisoned(self, batches):
         stats = update(self, batches)
-        if len(self.configs) == 3:  # member 1's weights become NaN after the first update
+        if len(self.configs) == 3 and 1 in batches:  # member 1's weights become NaN after its first update
             with torch.no_grad():
                 self.model.params[0][1].fill_(float("nan"))
             self.model.refresh()
@@ -161,6 +192,21 @@ def test_a_killed_population_resumes_every_member_exactly():
         for name, tensor in a.state_dict.items():
             assert torch.equal(b.state_dict[name], tensor), (i, name)
         assert len(replayed[i][0]) == 16  # the saved history first, in one call
+
+
+def test_members_resume_from_different_points_beside_fresh_ones():
+    """One member resumes from its first checkpoint, one from its second, two start afresh, all in one
+    population: each collection in flight around them, each member ends as its unbroken run."""
+    configs = [replace(c, checkpoint_every=16) for c in _members(DEEP)]
+    blobs: dict[int, list[bytes]] = {}
+    whole = run_population(configs, on_checkpoint=lambda i, blob: blobs.setdefault(i, []).append(blob))
+    resumed = run_population(configs, resume_from=[blobs[0][0], None, blobs[2][1], None])
+    for i, (a, b) in enumerate(zip(whole, resumed, strict=True)):
+        assert [m[:7] for m in a.episodes] == [m[:7] for m in b.episodes], i
+        for name, tensor in a.state_dict.items():
+            assert torch.equal(b.state_dict[name], tensor), (i, name)
+    alone = run_trial(configs[2], resume_from=blobs[2][0])  # a member's checkpoint resumes as a trial of its own
+    assert [m[:7] for m in alone.episodes] == [m[:7] for m in whole[2].episodes]
 
 
 def test_a_cartpole_trial_resumes_exactly_and_reads_the_old_collectors_checkpoints():

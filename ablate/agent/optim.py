@@ -8,7 +8,7 @@ is tested equal to ``torch.optim.Adam``'s, step for step.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import torch
 
@@ -93,24 +93,38 @@ class StackedAdam:
             p.grad = None
 
     @torch.no_grad()
-    def step(self) -> None:
-        self.steps = [s + 1 for s in self.steps]
+    def step(self, members: Sequence[int] | None = None) -> None:
+        """One Adam step of ``members`` (slots; default all): every other member's parameters, moments and step
+        count stay as they are, whatever gradient they hold."""
+        everyone = members is None or list(members) == list(range(len(self.lrs)))
+        members = list(range(len(self.lrs))) if members is None else list(members)
+        for m in members:
+            self.steps[m] += 1
         # Adam's Python floats, per member: rounded to float32 as the scalar arguments of its kernels are.
-        step_sizes = [-lr / (1 - self.beta1**s) for lr, s in zip(self.lrs, self.steps, strict=True)]
-        corrections = [(1 - self.beta2**s) ** 0.5 for s in self.steps]
+        step_sizes = [-self.lrs[m] / (1 - self.beta1 ** self.steps[m]) for m in members]
+        corrections = [(1 - self.beta2 ** self.steps[m]) ** 0.5 for m in members]
         device = self.params[0].device if self.params else None
         neg_step = torch.tensor(step_sizes, dtype=torch.float32, device=device)
         correction = torch.tensor(corrections, dtype=torch.float32, device=device)
+        index = None if everyone else torch.tensor(members, device=device)
         for p, exp_avg, exp_avg_sq in zip(self.params, self.exp_avg, self.exp_avg_sq, strict=True):
             if p.grad is None:
                 continue
-            grad = p.grad
             shape = (-1,) + (1,) * (p.dim() - 1)
-            exp_avg.lerp_(grad, 1 - self.beta1)
-            exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
-            denom = (exp_avg_sq.sqrt() / correction.view(shape)).add_(self.eps)
-            # addcdiv_'s kernel computes p + (value * exp_avg) / denom, in that order.
-            p.add_(neg_step.view(shape) * exp_avg / denom)
+            if index is None:
+                self._update(p, p.grad, exp_avg, exp_avg_sq, neg_step.view(shape), correction.view(shape))
+                continue
+            # The members' slices, gathered, updated as above (elementwise: the same values), put back.
+            mine, avg, avg_sq = p[index], exp_avg[index], exp_avg_sq[index]
+            self._update(mine, p.grad[index], avg, avg_sq, neg_step.view(shape), correction.view(shape))
+            p[index], exp_avg[index], exp_avg_sq[index] = mine, avg, avg_sq
+
+    def _update(self, p, grad, exp_avg, exp_avg_sq, neg_step, correction) -> None:
+        exp_avg.lerp_(grad, 1 - self.beta1)
+        exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
+        denom = (exp_avg_sq.sqrt() / correction).add_(self.eps)
+        # addcdiv_'s kernel computes p + (value * exp_avg) / denom, in that order.
+        p.add_(neg_step * exp_avg / denom)
 
     def member_state(self, member: int) -> dict:
         """Member ``member``'s state in ``Adam.state_dict``'s form (a trial's checkpoint)."""

@@ -10,7 +10,6 @@ float tolerance, until float differences first flip a sampled action.)
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -20,8 +19,9 @@ from torch import nn
 from ablate.agent.envs import env_info
 from ablate.agent.optim import StackedAdam
 from ablate.agent.policies import _NUMPY_ACTIVATIONS, Policy, create_model
-from ablate.agent.reinforce import UpdateStats, normalize
-from ablate.agent.vector_cartpole import CartPoleBatch, StreamDraws, generator_at
+from ablate.agent.reinforce import UpdateStats
+from ablate.agent.stacked_episodes import Batch, StackedEpisodes
+from ablate.agent.vector_cartpole import generator_at
 from ablate.config import TrialConfig
 
 _STACKABLE_ACTIVATIONS = ("relu", "tanh", "elu")
@@ -44,23 +44,6 @@ def population_group(config: TrialConfig) -> tuple | None:
     if not stackable(config):
         return None
     return (config.env_id, config.model, config.episodes_per_update)
-
-
-_BLOCK_STEPS = 64
-"""Steps of action uniforms read from the streams at a time."""
-
-
-class Batch(NamedTuple):
-    """One member's episodes of one update."""
-
-    lengths: np.ndarray
-    """Steps of each episode, in order."""
-    episode_returns: np.ndarray
-    observations: np.ndarray
-    """Every episode's observations, concatenated in order (the update's batch)."""
-    actions: np.ndarray
-    weights: np.ndarray
-    """Normalised discounted returns: the policy-gradient weights."""
 
 
 class StackedMLP:
@@ -106,10 +89,15 @@ class StackedMLP:
                 x = _NUMPY_ACTIVATIONS[type(self.activations[k])](x)
         return x
 
-    def logits(self, x: torch.Tensor, masks: list[torch.Tensor]) -> torch.Tensor:
-        """Training forward, (M, T, obs) -> (M, T, actions); ``masks``: each dropout layer's scaled mask."""
-        single = self.members == 1
-        for i, ((weight, bias), k) in enumerate(zip(self.layers(), self.linear, strict=True)):
+    def logits(self, x: torch.Tensor, masks: list[torch.Tensor], members: list[int]) -> torch.Tensor:
+        """Training forward of ``members`` (slots, in order), (k, T, obs) -> (k, T, actions); ``masks``: each
+        dropout layer's scaled mask."""
+        layers = self.layers()
+        if len(members) < self.members:
+            index = torch.tensor(members, device=x.device)
+            layers = [(w[index], b[index]) for w, b in layers]
+        single = len(members) == 1
+        for i, ((weight, bias), k) in enumerate(zip(layers, self.linear, strict=True)):
             # One member: the same kernel as nn.Linear, so a population of one is its single trial exactly.
             x = (
                 F.linear(x[0], weight[0], bias[0])[None]
@@ -136,21 +124,6 @@ class StackedMLP:
         self._numpy = None
 
 
-def _sample(logits: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """``reinforce.choose_action``'s inverse-CDF sampling for every row of (M, N, actions) ``logits`` with
-    uniforms ``u`` (M, N): the same float operations, so the same actions."""
-    if logits.shape[2] == 2:
-        # Its cumulative sums are [e0, e0 + e1]; u * (e0 + e1) never exceeds e0 + e1 (u < 1), so the action is
-        # whether e0 falls below it. Six array operations instead of its reductions along a 2-wide axis.
-        top = np.maximum(logits[:, :, 0], logits[:, :, 1])
-        first = np.exp(logits[:, :, 0] - top)
-        total = first + np.exp(logits[:, :, 1] - top)
-        return (first < u * total).astype(np.int64)
-    cumulative = np.cumsum(np.exp(logits - logits.max(axis=2, keepdims=True)), axis=2)
-    scaled = u[:, :, None] * cumulative[:, :, -1:]
-    return np.minimum((cumulative < scaled).sum(axis=2), logits.shape[2] - 1)
-
-
 class StackedBackend:
     """A population of CartPole dense-MLP members (``population_group`` equal): its episodes, updates and
     per-member state. Slots are members' positions in the current stacks; ``keep`` drops those that left."""
@@ -169,97 +142,49 @@ class StackedBackend:
         self.model = StackedMLP(policies, device)
         self.device = device
         self.optimizer = StackedAdam(self.model.params, [c.learning_rate for c in configs])
-        self.env = CartPoleBatch([c.seed for c in configs], self.num_envs, info.max_episode_steps)
-        self.actions = StreamDraws([np.random.default_rng(c.seed) for c in configs], 64 * self.num_envs)
+        self.episodes = StackedEpisodes(
+            [c.seed for c in configs], [c.gamma for c in configs], self.num_envs, info.max_episode_steps
+        )
 
     # --- episodes ---
     def collect(self, counts: Sequence[int], budgets: Sequence[int]) -> dict[int, Batch]:
-        """Every member's next ``counts[i]`` episodes, from a reset, all members stepped together. A member
-        samples and draws exactly as ``collectors.collect_episodes`` does alone, until its own episodes end."""
-        m, n = self.model.members, self.num_envs
-        counts_a = np.asarray(counts)
-        observations = self.env.reset()
-        active = np.arange(n)[None, :] < counts_a[:, None]
-        lengths = np.zeros((m, n), np.int64)
-        collecting = active.any(axis=1)
-        obs_steps, action_steps = [], []
-        taken = np.zeros(m, np.int64)
-        block = np.zeros((m, 0, n))
-        while collecting.any():
-            logits = self.model.act_logits(observations)
-            t = len(action_steps) % _BLOCK_STEPS
-            if t == 0:  # the next steps' uniforms of every member: a member that acts takes n a step, in order
-                self.actions.take(taken)
-                taken[:] = 0
-                block = self.actions.peek(_BLOCK_STEPS * n).reshape(m, _BLOCK_STEPS, n)
-            u = block[:, t]
-            taken += n * collecting
-            actions = _sample(logits, u)
-            obs_steps.append(observations)
-            action_steps.append(actions)
-            observations, _, terminated, truncated = self.env.step(actions, collecting)
-            finished = active & (terminated | truncated)
-            lengths[finished] = len(action_steps)
-            active &= ~finished
-            collecting = active.any(axis=1)
-        self.actions.take(taken)
-        return dict(
-            enumerate(self._batches(counts_a, lengths, np.stack(obs_steps, axis=2), np.stack(action_steps, axis=2)))
-        )
-
-    def _batches(self, counts: np.ndarray, lengths: np.ndarray, obs: np.ndarray, actions: np.ndarray) -> list[Batch]:
-        steps = obs.shape[2]
-        valid = np.arange(steps)[None, None, :] < lengths[:, :, None]
-        gamma = np.array([c.gamma for c in self.configs])[:, None]
-        # reinforce.discount_rewards for every episode at once (CartPole pays 1.0 a step): the same operations.
-        running = np.zeros(lengths.shape)
-        returns = np.zeros(valid.shape)
-        for t in range(steps - 1, -1, -1):
-            running = np.where(valid[:, :, t], 1.0 + gamma * running, 0.0)
-            returns[:, :, t] = running
-        batches = []
-        for i, count in enumerate(counts):
-            episode_lengths = lengths[i, :count]
-            batches.append(
-                Batch(
-                    episode_lengths,
-                    episode_lengths.astype(np.float64),
-                    obs[i][valid[i]],
-                    actions[i][valid[i]].astype(np.int64),
-                    normalize(returns[i][valid[i]]),
-                )
-            )
-        return batches
+        """The members whose next ``counts[i]`` episodes have all ended (at least one), by slot: every member
+        steps together, each sampling and drawing exactly as ``collectors.collect_episodes`` does alone; a
+        member whose batch is not complete yet keeps its collection in flight to the next call."""
+        return self.episodes.collect(self.model.act_logits, counts)
 
     # --- updates ---
     def update(self, ready: dict[int, Batch]) -> dict[int, UpdateStats]:
-        """Every member's loss and gradients in one backward, then one ``StackedAdam`` step for all. On a CPU
-        each member's forward is its single trial's own (``_member_losses``); on a GPU, one padded batched
-        forward (``_padded_losses``): there a kernel per member and layer would cost more than the math."""
-        batches = [ready[slot] for slot in range(self.model.members)]
+        """The ``ready`` members' losses and gradients in one backward, then one ``StackedAdam`` step for them
+        alone (every other member's weights and Adam state untouched). On a CPU each member's forward is its
+        single trial's own (``_member_losses``); on a GPU, one padded batched forward (``_padded_losses``):
+        there a kernel per member and layer would cost more than the math."""
+        slots = sorted(ready)
+        batches = [ready[slot] for slot in slots]
         self.optimizer.zero_grad()
         if self.device.type == "cpu":
-            total, losses, entropies = self._member_losses(batches)
+            total, losses, entropies = self._member_losses(slots, batches)
         else:
-            total, losses, entropies = self._padded_losses(batches)
+            total, losses, entropies = self._padded_losses(slots, batches)
         total.backward()
         values = torch.stack([torch.stack(losses).detach(), torch.stack(entropies)]).cpu().tolist()
-        self.optimizer.step()
+        self.optimizer.step(slots)
         self.model.refresh()
         sizes = [len(b.actions) for b in batches]
         return {
             slot: UpdateStats(loss, entropy / max(size, 1))
-            for slot, (loss, entropy, size) in enumerate(zip(*values, sizes, strict=True))
+            for slot, loss, entropy, size in zip(slots, *values, sizes, strict=True)
         }
 
-    def _member_losses(self, batches: Sequence[Batch]) -> tuple[torch.Tensor, list, list]:
+    def _member_losses(self, slots: list[int], batches: Sequence[Batch]) -> tuple[torch.Tensor, list, list]:
         """Each member's ``reinforce.train_step`` graph on its own batch, with its slices of the stacked
         parameters (``unbind``: one node hands every member's gradient back into the stacks). The same kernels
         on the same shapes as its single trial, and no padding: a member's update is its single trial's."""
         layers = [(w.unbind(0), b.unbind(0)) for w, b in self.model.layers()]
         p = self.model.dropout
         total, losses, entropies = None, [], []
-        for i, (batch, config) in enumerate(zip(batches, self.configs, strict=True)):
+        for i, batch in zip(slots, batches, strict=True):
+            config = self.configs[i]
             x = torch.from_numpy(batch.observations)  # the batch's own memory, as train_step reads it
             for (weights, biases), k in zip(layers, self.model.linear, strict=True):
                 x = F.linear(x, weights[i], biases[i])
@@ -279,8 +204,8 @@ class StackedBackend:
                 entropies.append(-(log_probs.exp() * log_probs).sum(dim=1).sum())
         return total, losses, entropies
 
-    def _padded_losses(self, batches: Sequence[Batch]) -> tuple[torch.Tensor, list, list]:
-        """All members in one padded (M, T, obs) batch through batched products (the GPU's path)."""
+    def _padded_losses(self, slots: list[int], batches: Sequence[Batch]) -> tuple[torch.Tensor, list, list]:
+        """The members ``slots`` in one padded (k, T, obs) batch through batched products (the GPU's path)."""
         sizes = [len(b.actions) for b in batches]
         longest = max(sizes)
         m = len(batches)
@@ -292,9 +217,9 @@ class StackedBackend:
             for i, b in enumerate(batches):
                 x[i, : sizes[i]] = torch.from_numpy(b.observations)
                 actions[i, : sizes[i]] = torch.from_numpy(b.actions)
-        masks = self._dropout_masks(sizes, longest)
+        masks = self._dropout_masks(slots, sizes, longest)
         x, actions = x.to(self.device), actions.to(self.device)
-        logits = self.model.logits(x, masks)
+        logits = self.model.logits(x, masks, slots)
         # F.cross_entropy is nll_loss of log_softmax: computed apart, the log-probabilities serve the entropy too.
         log_probs = F.log_softmax(logits, dim=2)
         cross_entropy = F.nll_loss(log_probs.reshape(m * longest, -1), actions.reshape(-1), reduction="none")
@@ -305,18 +230,19 @@ class StackedBackend:
             for i, b in enumerate(batches)
         ]
         total = sum(losses)
-        for i, config in enumerate(self.configs):
-            if config.l2 > 0:
-                weights = [w[i] for w, _ in self.model.layers()]
+        for slot in slots:
+            l2 = self.configs[slot].l2
+            if l2 > 0:
+                weights = [w[slot] for w, _ in self.model.layers()]
                 penalty = sum((w.pow(2).sum() for w in weights), torch.zeros((), device=self.device))
-                total = total + config.l2 * penalty
+                total = total + l2 * penalty
         with torch.no_grad():
             log_probs = log_probs.detach()
             entropy = -(log_probs.exp() * log_probs).sum(dim=2)
             entropies = [entropy[i, : sizes[i]].sum() for i in range(m)]
         return total, losses, entropies
 
-    def _dropout_masks(self, sizes: list[int], longest: int) -> list[torch.Tensor]:
+    def _dropout_masks(self, slots: list[int], sizes: list[int], longest: int) -> list[torch.Tensor]:
         """Each dropout layer's mask (scaled by 1/(1-p)), per member from its own generator, drawn as
         ``F.dropout`` draws them in its single trial (a bernoulli over that layer's (T, width) output)."""
         p = self.model.dropout
@@ -326,8 +252,9 @@ class StackedBackend:
         for w, _ in self.model.layers()[:-1]:
             width = w.shape[1]
             mask = torch.zeros(len(sizes), longest, width)
-            for i, size in enumerate(sizes):
-                mask[i, :size] = torch.empty(size, width).bernoulli_(1 - p, generator=self.generators[i]).div_(1 - p)
+            for i, (slot, size) in enumerate(zip(slots, sizes, strict=True)):
+                generator = self.generators[slot]
+                mask[i, :size] = torch.empty(size, width).bernoulli_(1 - p, generator=generator).div_(1 - p)
             masks.append(mask.to(self.device))
         return masks
 
@@ -346,8 +273,8 @@ class StackedBackend:
             "model": self.model.member_state(slot),
             "optimizer": self.optimizer.member_state(slot),
             "torch_rng": self.generators[slot].get_state(),
-            "numpy_rng": self.actions.states()[slot],
-            "collector": {"env_streams": self.env.stream_states(slot)},
+            "numpy_rng": self.episodes.action_state(slot),
+            "collector": {"env_streams": self.episodes.env.stream_states(slot)},
         }
 
     def restore(self, slot: int, saved: dict, episodes_done: int) -> None:
@@ -355,23 +282,22 @@ class StackedBackend:
         self.model.load_member_state(slot, saved["model"])
         self.optimizer.load_member_state(slot, saved["optimizer"])
         self.generators[slot].set_state(saved["torch_rng"])
-        self.actions.set_state(slot, saved["numpy_rng"])
+        self.episodes.set_action_state(slot, saved["numpy_rng"])
         streams = saved["collector"].get("env_streams")
         if streams is None:
             # A checkpoint of the Gymnasium-env collector, which could not save its envs' streams: re-seeded from
             # the episode count, as it resumed (deterministic, though not the unbroken run).
             seed = config.seed + 7919 * episodes_done
-            count = 1 if self.env.shared else self.num_envs
+            count = 1 if self.episodes.env.shared else self.num_envs
             streams = [np.random.default_rng(seed + j).bit_generator.state for j in range(count)]
-        self.env.set_stream_states(slot, streams)
+        self.episodes.env.set_stream_states(slot, streams)
 
     def keep(self, slots: list[int]) -> None:
-        """Only ``slots`` go on (the others left the population), in this order."""
-        index = np.asarray(slots, np.int64)
+        """Only ``slots`` go on (the others left the population), in this order, with their collections in
+        flight."""
         self.model.keep(slots)
         self.optimizer.keep(slots, self.model.params)
-        self.env.keep(index)
-        self.actions.keep(index)
+        self.episodes.keep(slots)
         self.configs = [self.configs[s] for s in slots]
         self.generators = [self.generators[s] for s in slots]
 

@@ -18,22 +18,36 @@ import numpy as np
 class StreamDraws:
     """Uniform doubles of ``len(generators)`` independent PCG64 streams, pre-drawn into one (streams, capacity)
     array: a step reads every stream's next values with one fancy index. Each stream yields exactly the
-    sequence its ``Generator.random()`` calls would (one 64-bit draw per double, in order); ``states`` gives
-    each stream's state as if only the values taken so far had been drawn."""
+    sequence its ``Generator.random()`` calls would (one 64-bit draw per double, in order), or with ``scale =
+    (low, high)`` its ``Generator.uniform(low, high)`` calls (``low + (high - low) * random()``, as numpy
+    computes it); ``states`` gives each stream's state as if only the values taken so far had been drawn."""
 
-    def __init__(self, generators: Sequence[np.random.Generator], capacity: int) -> None:
+    def __init__(
+        self, generators: Sequence[np.random.Generator], capacity: int, scale: tuple[float, float] | None = None
+    ) -> None:
         self.generators = list(generators)
         self.origins = [g.bit_generator.state for g in self.generators]
         self.taken = np.zeros(len(self.generators), np.int64)
         """Doubles taken from each stream since its origin state."""
         self.capacity = capacity
-        self.buffer = np.stack([g.random(capacity) for g in self.generators]) if self.generators else np.zeros((0, 0))
+        self.scale = scale
+        self.buffer = (
+            np.stack([self._draw(g, capacity) for g in self.generators]) if self.generators else np.zeros((0, 0))
+        )
         self.pos = np.zeros(len(self.generators), np.int64)
         self.end = np.full(len(self.generators), capacity, np.int64)
         """Row s holds stream s's next values at ``buffer[s, pos[s]:end[s]]``."""
 
-    def ensure(self, need: np.ndarray) -> None:
-        """Room for ``need[s]`` more doubles of each stream ``s`` (refills the few that run short)."""
+    def _draw(self, generator: np.random.Generator, count: int) -> np.ndarray:
+        values = generator.random(count)
+        if self.scale is not None:
+            low, high = self.scale
+            values = low + (high - low) * values
+        return values
+
+    def ensure(self, need: np.ndarray | int) -> None:
+        """Room for ``need`` (or ``need[s]``) more doubles of each stream ``s`` (refills the few that run short)."""
+        need = np.broadcast_to(need, self.pos.shape)
         if len(need) and int(need.max()) > self.capacity:  # one block of draws longer than a row: widen all
             grown = 2 * int(need.max())
             self.buffer = np.pad(self.buffer, ((0, 0), (0, grown - self.capacity)))
@@ -41,33 +55,34 @@ class StreamDraws:
         for s in np.flatnonzero(self.pos + need > self.end):
             rest = self.buffer[s, self.pos[s] : self.end[s]].copy()
             self.buffer[s, : len(rest)] = rest
-            self.buffer[s, len(rest) :] = self.generators[s].random(self.capacity - len(rest))
+            self.buffer[s, len(rest) :] = self._draw(self.generators[s], self.capacity - len(rest))
             self.pos[s], self.end[s] = 0, self.capacity
 
     def peek(self, count: int) -> np.ndarray:
         """(streams, count): every stream's next ``count`` doubles, not taken yet."""
-        self.ensure(np.full(len(self.generators), count, np.int64))
+        self.ensure(count)
         return self.buffer[np.arange(len(self.generators))[:, None], self.pos[:, None] + np.arange(count)]
 
-    def take(self, counts: np.ndarray) -> None:
+    def take(self, counts: np.ndarray | int) -> None:
         """Streams ``s`` move on by ``counts[s]`` doubles (read at ``buffer[s, pos[s] + j]``, j < counts[s])."""
         self.pos += counts
         self.taken += counts
 
+    def state(self, row: int) -> dict:
+        """Stream ``row``'s state, as if only the values taken so far had been drawn from it."""
+        bit_generator = np.random.PCG64()
+        bit_generator.state = self.origins[row]
+        bit_generator.advance(int(self.taken[row]))
+        return bit_generator.state
+
     def states(self) -> list[dict]:
-        result = []
-        for origin, taken in zip(self.origins, self.taken, strict=True):
-            bit_generator = np.random.PCG64()
-            bit_generator.state = origin
-            bit_generator.advance(int(taken))
-            result.append(bit_generator.state)
-        return result
+        return [self.state(row) for row in range(len(self.generators))]
 
     def set_state(self, row: int, state: dict) -> None:
         """Stream ``row`` goes on from ``state`` (a checkpoint's)."""
         generator = generator_at(state)
         self.generators[row], self.origins[row], self.taken[row] = generator, state, 0
-        self.buffer[row] = generator.random(self.capacity)
+        self.buffer[row] = self._draw(generator, self.capacity)
         self.pos[row], self.end[row] = 0, self.capacity
 
     def keep(self, rows: np.ndarray) -> None:
@@ -88,10 +103,16 @@ def generator_at(state: dict) -> np.random.Generator:
     return np.random.Generator(bit_generator)
 
 
+_ROOM_STEPS = 64
+"""Steps (and resets) between two checks that every env stream holds the draws a step may take."""
+
+
 class CartPoleBatch:
     """``len(seeds)`` members' ``num_envs`` CartPole envs each. From 3 envs up, a member's envs share one stream
     seeded ``seed`` (``CartPoleVectorEnv``); below, env j has its own, seeded ``seed + j`` (``SyncVectorEnv``).
-    Autoreset is Gymnasium's next-step mode: the step after an episode ends resets that env (reward 0)."""
+    Autoreset is Gymnasium's next-step mode: the step after an episode ends resets that env (reward 0).
+    Every member steps at every ``step``; ``reset(members)`` starts some members' envs afresh at any time (a
+    member's next collection), as its own ``VectorEnv.reset()`` would."""
 
     # CartPoleVectorEnv's constants, computed as it computes them.
     gravity, masscart, masspole, length, force_mag, tau = 9.8, 1.0, 0.1, 0.5, 10.0, 0.02
@@ -107,106 +128,145 @@ class CartPoleBatch:
         """One stream per member (vector env) rather than one per env (sync env)."""
         self.max_episode_steps = max_episode_steps
         m = len(seeds)
-        self.state = np.zeros((4, m, num_envs))
-        self.steps = np.zeros((m, num_envs), np.int32)
-        self.prev_done = np.zeros((m, num_envs), bool)
         streams = (
             [np.random.default_rng(s) for s in seeds]
             if self.shared
             else [np.random.default_rng(s + j) for s in seeds for j in range(num_envs)]
         )
-        self.draws = StreamDraws(streams, 64 * num_envs)
+        self.draws = StreamDraws(streams, 128 * num_envs, scale=(self.low, self.high))
+        # A step or a reset takes at most 4 doubles per env from its stream: room for _ROOM_STEPS of them.
+        self._room_need = 4 * (num_envs if self.shared else 1) * _ROOM_STEPS
+        self._room = 0
+        self._limits = np.array([self.x_threshold, self.theta_threshold_radians])[:, None, None]
+        self._allocate(m)
+
+    def _allocate(self, m: int, state: np.ndarray | None = None) -> None:
+        """State and preallocated work arrays for ``m`` members (``state``: theirs, else zeros)."""
+        shape = (m, self.num_envs)
+        self.state = np.zeros((4, *shape)) if state is None else state
+        self.steps = np.zeros(shape, np.int32) if state is None else self.steps
+        self.prev_done = np.zeros(shape, bool) if state is None else self.prev_done
+        self._resetting = bool(self.prev_done.any())
+        self._done = np.zeros(shape, bool)
+        self._flag = np.zeros(shape, bool)
+        self._pair = np.zeros((2, *shape))
+        self._acc = np.zeros((2, *shape))
+        self._over = np.zeros((2, *shape), bool)
+        self._work = [np.zeros(shape) for _ in range(4)]
 
     @property
     def members(self) -> int:
         return self.state.shape[1]
 
-    def reset(self) -> np.ndarray:
-        """Every env of every member from a reset (``VectorEnv.reset()``): observations (M, N, 4) float32."""
-        self._redraw(np.ones((self.members, self.num_envs), bool))
-        self.steps[:] = 0
-        self.prev_done[:] = False
-        return self.state.transpose(1, 2, 0).astype(np.float32)
+    def observations(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Every env's observation, (M, N, 4) float32 (into ``out`` if given)."""
+        if out is None:
+            return self.state.transpose(1, 2, 0).astype(np.float32)
+        np.copyto(out, self.state.transpose(1, 2, 0), casting="same_kind")
+        return out
 
-    def step(self, actions: np.ndarray, counting: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """One step of every env (``CartPoleVectorEnv.step``): (observations, rewards, terminated, truncated).
-        ``counting`` (M,): members whose trial takes this step; an env of any other member that autoresets
-        draws nothing from its stream (its single trial has stopped stepping)."""
-        x, x_dot, theta, theta_dot = self.state
-        force = np.sign(actions - 0.5) * self.force_mag
-        costheta = np.cos(theta)
-        sintheta = np.sin(theta)
-        temp = (force + self.polemass_length * np.square(theta_dot) * sintheta) / self.total_mass
-        thetaacc = (self.gravity * sintheta - costheta * temp) / (
-            self.length * (4.0 / 3.0 - self.masspole * np.square(costheta) / self.total_mass)
-        )
-        xacc = temp - self.polemass_length * thetaacc * costheta / self.total_mass
-        x = x + self.tau * x_dot
-        x_dot = x_dot + self.tau * xacc
-        theta = theta + self.tau * theta_dot
-        theta_dot = theta_dot + self.tau * thetaacc
-        state = np.empty_like(self.state)  # np.stack's checks cost more than these four copies
-        state[0], state[1], state[2], state[3] = x, x_dot, theta, theta_dot
-        self.state = state
-        terminated = (
-            (x < -self.x_threshold)
-            | (x > self.x_threshold)
-            | (theta < -self.theta_threshold_radians)
-            | (theta > self.theta_threshold_radians)
-        )
+    def reset(self, members: np.ndarray | None = None) -> np.ndarray:
+        """The envs of ``members`` (indices; default all) from a reset, as their ``VectorEnv.reset()``: returns
+        every member's observations (M, N, 4) float32."""
+        mask = np.zeros((self.members, self.num_envs), bool)
+        mask[slice(None) if members is None else members] = True
+        self._redraw(mask)
+        self.steps[mask] = 0
+        self.prev_done[mask] = False
+        self._resetting = bool(self.prev_done.any())
+        return self.observations()
+
+    def step(self, actions: np.ndarray, observations: np.ndarray | None = None) -> np.ndarray:
+        """One step of every env (``CartPoleVectorEnv.step``), ``actions`` (M, N) of 0 and 1 (or bools). Returns
+        whether each env's episode ended at this step (terminated or truncated; an env that autoresets at this
+        step gets reward 0 and never ends at it); the observations go to ``observations`` (M, N, 4) float32 if
+        given, else ``observations()`` reads them. The returned array is reused by the next step."""
+        s = self.state
+        theta, theta_dot = s[2], s[3]
+        cos, sin, temp, work = self._work
+        np.cos(theta, out=cos)
+        np.sin(theta, out=sin)
+        # The same operations, in the same order, as CartPoleVectorEnv.step (rounding included); in place.
+        force = np.where(actions, self.force_mag, -self.force_mag)  # np.sign(actions - 0.5) * force_mag
+        np.square(theta_dot, out=temp)
+        temp *= self.polemass_length
+        temp *= sin
+        np.add(force, temp, out=temp)
+        temp /= self.total_mass
+        thetaacc, xacc = self._acc[1], self._acc[0]
+        np.multiply(self.gravity, sin, out=thetaacc)
+        np.multiply(cos, temp, out=work)
+        thetaacc -= work
+        np.square(cos, out=work)
+        work *= self.masspole
+        work /= self.total_mass
+        np.subtract(4.0 / 3.0, work, out=work)
+        work *= self.length
+        thetaacc /= work
+        np.multiply(self.polemass_length, thetaacc, out=xacc)
+        xacc *= cos
+        xacc /= self.total_mass
+        np.subtract(temp, xacc, out=xacc)
+        # Euler: x += tau * x_dot and theta += tau * theta_dot, then the velocities by tau * acceleration.
+        np.multiply(self.tau, s[1::2], out=self._pair)
+        s[0::2] += self._pair
+        self._acc *= self.tau
+        s[1::2] += self._acc
+        # x < -t | x > t is |x| > t (negation is exact), for x and theta at once.
+        np.abs(s[0::2], out=self._pair)
+        np.greater(self._pair, self._limits, out=self._over)
+        done = np.logical_or(self._over[0], self._over[1], out=self._done)
         self.steps += 1
-        truncated = self.steps >= self.max_episode_steps
-        reset = self.prev_done
-        if reset.any():
-            drawing = reset if counting.all() else reset & counting[:, None]
-            self._redraw(drawing)
-            if drawing is not reset:
-                self.state[:, reset & ~drawing] = 0.0  # never observed: the member's next collection resets it
-            kept = ~reset
-            self.steps *= kept
-            reward = kept.astype(np.float32)  # 1.0 a step, 0.0 on the step that resets
-            terminated &= kept
-            truncated &= kept
-        else:
-            reward = np.ones(terminated.shape, np.float32)
-        self.prev_done = terminated | truncated
-        return self.state.transpose(1, 2, 0).astype(np.float32), reward, terminated, truncated
+        np.greater_equal(self.steps, self.max_episode_steps, out=self._flag)
+        done |= self._flag
+        if self._resetting:
+            reset = self.prev_done
+            self._redraw(reset)
+            np.copyto(self.steps, 0, where=reset)
+            np.greater(done, reset, out=done)  # done & ~reset: an env that resets now does not end now
+        self._done, self.prev_done = self.prev_done, done
+        self._resetting = bool(done.any())
+        if observations is not None:
+            np.copyto(observations, s.transpose(1, 2, 0), casting="same_kind")
+        return done
 
     def _redraw(self, mask: np.ndarray) -> None:
         """The envs of ``mask`` (M, N) take a fresh start state: per stream, one ``uniform(size=(4, k))`` over its
         k envs to reset, in env order (vector), or ``uniform(size=(4,))`` per env (sync)."""
-        members, envs = np.nonzero(mask)
-        if not len(members):
+        self._room -= 1
+        if self._room < 0:
+            self.draws.ensure(self._room_need)
+            self._room = _ROOM_STEPS - 1
+        flat = np.flatnonzero(mask)
+        if not len(flat):
             return
+        draws = self.draws
         if self.shared:
-            k = mask.sum(axis=1)
-            self.draws.ensure(4 * k)
-            rank = (np.cumsum(mask, axis=1) - 1)[members, envs]
-            streams, stride = members, k[members]
-            start = self.draws.pos[streams] + rank
+            members = flat // self.num_envs
+            k = np.bincount(members, minlength=self.members)
             counts = 4 * k
+            rank = np.arange(len(flat)) - (np.cumsum(k) - k)[members]
+            # Component c of the r-th env to reset in a member's row is that stream's draw c * k + r.
+            start = members * draws.capacity + draws.pos[members] + rank
+            flat_draws = start + np.outer(np.arange(4), k[members])
         else:
-            streams = members * self.num_envs + envs
-            counts = 4 * mask.reshape(-1).astype(np.int64)
-            self.draws.ensure(counts)
-            stride = np.ones(len(streams), np.int64)
-            start = self.draws.pos[streams]
-        # One gather of the 4 components' draws (component c of an env at start + c * stride), one scatter.
-        flat = (streams * self.draws.capacity + start)[None, :] + np.arange(4)[:, None] * stride[None, :]
-        self.state[:, members, envs] = self.low + (self.high - self.low) * self.draws.buffer.reshape(-1)[flat]
-        self.draws.take(counts)
+            counts = np.zeros(draws.pos.shape, np.int64)
+            counts[flat] = 4
+            flat_draws = (flat * draws.capacity + draws.pos[flat]) + np.arange(4)[:, None]
+        self.state.reshape(4, -1)[:, flat] = draws.buffer.reshape(-1)[flat_draws]
+        draws.take(counts)
 
     def keep(self, members: np.ndarray) -> None:
         """Only ``members`` (indices, in order) go on."""
-        self.state = self.state[:, members]
         self.steps, self.prev_done = self.steps[members], self.prev_done[members]
+        self._allocate(len(members), np.ascontiguousarray(self.state[:, members]))
         rows = members if self.shared else (members[:, None] * self.num_envs + np.arange(self.num_envs)).reshape(-1)
         self.draws.keep(rows)
 
     def stream_states(self, member: int) -> list[dict]:
         """Member ``member``'s env streams (1, or one per env), for a checkpoint."""
         per = 1 if self.shared else self.num_envs
-        return self.draws.states()[member * per : (member + 1) * per]
+        return [self.draws.state(row) for row in range(member * per, (member + 1) * per)]
 
     def set_stream_states(self, member: int, states: list[dict]) -> None:
         per = 1 if self.shared else self.num_envs
