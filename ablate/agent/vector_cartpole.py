@@ -106,6 +106,9 @@ def generator_at(state: dict) -> np.random.Generator:
 _ROOM_STEPS = 64
 """Steps (and resets) between two checks that every env stream holds the draws a step may take."""
 
+_FEW_RESETS = 8
+"""Up to this many envs to reset at one step, ``CartPoleBatch._redraw`` works in Python integers."""
+
 
 class CartPoleBatch:
     """``len(seeds)`` members' ``num_envs`` CartPole envs each. From 3 envs up, a member's envs share one stream
@@ -241,20 +244,36 @@ class CartPoleBatch:
         if not len(flat):
             return
         draws = self.draws
-        if self.shared:
+        if self.shared and len(flat) <= _FEW_RESETS:
+            flat_draws = self._few_shared_draws(flat.tolist())
+        elif self.shared:
             members = flat // self.num_envs
             k = np.bincount(members, minlength=self.members)
-            counts = 4 * k
             rank = np.arange(len(flat)) - (np.cumsum(k) - k)[members]
             # Component c of the r-th env to reset in a member's row is that stream's draw c * k + r.
             start = members * draws.capacity + draws.pos[members] + rank
             flat_draws = start + np.outer(np.arange(4), k[members])
+            draws.take(4 * k)
         else:
-            counts = np.zeros(draws.pos.shape, np.int64)
-            counts[flat] = 4
             flat_draws = (flat * draws.capacity + draws.pos[flat]) + np.arange(4)[:, None]
+            draws.pos[flat] += 4
+            draws.taken[flat] += 4
         self.state.reshape(4, -1)[:, flat] = draws.buffer.reshape(-1)[flat_draws]
-        draws.take(counts)
+
+    def _few_shared_draws(self, flat: list[int]) -> list[list[int]]:
+        """``_redraw``'s positions in the draws' buffer for a few envs (most steps reset one or two): Python
+        integers, cheaper than a dozen array operations on arrays of one or two."""
+        draws, n = self.draws, self.num_envs
+        groups: dict[int, int] = {}
+        for f in flat:
+            groups[f // n] = groups.get(f // n, 0) + 1
+        columns: list[tuple[int, int]] = []  # (position of the env's first component, its member's k)
+        for member, k in groups.items():
+            base = member * draws.capacity + int(draws.pos[member])
+            columns += [(base + r, k) for r in range(k)]
+            draws.pos[member] += 4 * k
+            draws.taken[member] += 4 * k
+        return [[first + c * k for first, k in columns] for c in range(4)]
 
     def keep(self, members: np.ndarray) -> None:
         """Only ``members`` (indices, in order) go on."""
