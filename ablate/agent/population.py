@@ -1,8 +1,9 @@
 """Population trials: M members (seeds, and tuning candidates that differ in optimisation knobs) of one variant
-trained in lockstep in one process; ``run_trial`` is a population of one.
+trained together in one process; ``run_trial`` is a population of one.
 
-Each round every member collects its next batch of episodes and takes one Adam step; a member that solves,
-runs out of budget or fails (a NaN loss) leaves, the others go on untouched. CartPole's dense MLP members
+Every member collects its next batch of episodes and takes one Adam step as soon as its own episodes are in
+(no member waits for another's); a member that solves, runs out of budget or fails (a NaN loss) leaves, the
+others go on untouched. CartPole's dense MLP members
 share stacked tensors (``stacked.StackedBackend``: one env step, one forward, one backward for all); any other
 variant runs as a population of one on its own path (``SingleBackend``). Every member keeps a single trial's
 metrics callback, checkpoints, exact resume and artifacts. No Ray and no MLflow here.
@@ -164,7 +165,7 @@ def run_population(
     on_outcome: Callable[[int, MemberOutcome], None] | None = None,
     device: str | None = None,
 ) -> list[MemberOutcome]:
-    """Train ``configs`` (``can_share``) in lockstep; member i behaves as ``run_trial(configs[i], ...)``.
+    """Train ``configs`` (``can_share``) together; member i behaves as ``run_trial(configs[i], ...)``.
 
     ``on_episodes(i, rows)``: member i's new episodes after each update (a resumed member's saved history
     first, in one call). ``artifacts_dirs[i]``: member i's folder (``run_trial``'s artifacts). Every
