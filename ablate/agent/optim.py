@@ -114,7 +114,11 @@ class StackedAdam:
             if index is None:
                 self._update(p, p.grad, exp_avg, exp_avg_sq, neg_step.view(shape), correction.view(shape))
                 continue
-            # The members' slices, gathered, updated as above (elementwise: the same values), put back.
+            if p.device.type == "cpu":  # a few members at a time: each in place on its own slices
+                for j, m in enumerate(members):
+                    self._update(p[m], p.grad[m], exp_avg[m], exp_avg_sq[m], neg_step[j], correction[j])
+                continue
+            # Many members (a GPU): their slices gathered, updated as above (elementwise: the same values), put back.
             mine, avg, avg_sq = p[index], exp_avg[index], exp_avg_sq[index]
             self._update(mine, p.grad[index], avg, avg_sq, neg_step.view(shape), correction.view(shape))
             p[index], exp_avg[index], exp_avg_sq[index] = mine, avg, avg_sq
