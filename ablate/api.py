@@ -138,7 +138,8 @@ def report(
 
     ``name_or_file``: the experiment's name or its file. ``variants`` / ``baseline``: report a part of the
     ablation against another reference. Raises ``NoResults`` when nothing finished, ``ConfigError`` for a bad
-    name, store or variant; nothing is written then.
+    name, store or variant; nothing is written then. Finished trials whose files the store cannot give are
+    left out of the curves and figures, said in one line on stderr.
     """
     return _write_report(name_or_file, tracking_uri, reports_folder, pdf, variants, baseline, generation)
 
@@ -165,6 +166,8 @@ def _write_report(
         pdf=pdf,
         command=f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})",
     )
+    if result.missing_note:  # written without some trials' files: say which, in one line
+        print(result.missing_note, file=sys.stderr)
     if result.pdf_note and pdf:  # asked for a PDF and got none: say why, in one line, where a notebook shows it
         print(result.pdf_note, file=sys.stderr)
     return result.folder

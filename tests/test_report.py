@@ -541,3 +541,32 @@ def test_a_read_only_reports_folder_is_one_line_and_exit_1(store, good_report, c
     assert code == 1 and len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert "cannot write" in err and str(reports) in err
     assert _snapshot(good_report) == before
+
+
+def test_a_report_whose_trial_artifacts_were_removed_is_written_from_the_store_naming_what_is_missing(
+    tmp_path, monkeypatch, capsys
+):
+    # issue 28: the artifact folder of one trial run removed (its metrics and params kept) ended `ablate report`
+    # in one line, exit 1, with nothing written
+    monkeypatch.chdir(tmp_path)
+    variants = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 12)}}
+    uri = make_store(tmp_path / "store", "lossy", variants, observation=True)
+    reader = RunReader(uri, "lossy")
+    lost = next(r for r in reader.trial_runs() if r.key == "b-s1")
+    artifacts = Path(reader.client.get_run(lost.run_id).info.artifact_uri.removeprefix("file://"))
+    assert (artifacts / "episodes.csv").is_file()
+    shutil.rmtree(artifacts)
+    capsys.readouterr()  # MLflow's own lines from making the store
+    code = main(["report", "lossy", "--tracking-uri", uri, "--no-pdf"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert "b-s1" in err and "episodes.csv" in err and "written from the tracked metrics" in err, err
+    folder = tmp_path / "reports" / "lossy"
+    assert "wrote" in out and (folder / "report.md").is_file() and (folder / "report.html").is_file()
+    text = (folder / "report.md").read_text()
+    assert "b-s1" in text and "could not be read" in text  # the report says what it left out
+    trials = pd.read_csv(folder / "tables" / "trials.csv").set_index("key")
+    assert (trials.status == "FINISHED").all() and len(trials) == 6  # the trial stays, from its tracked metrics
+    assert trials.loc["b-s1", "episodes_run"] == 40 and pd.isna(trials.loc["b-s1", "auc"])
+    assert not pd.isna(trials.loc["b-s0", "auc"])

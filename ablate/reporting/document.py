@@ -37,7 +37,7 @@ from ablate.reporting.figures import (
 )
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.layout import build_markdown, order_figures
-from ablate.reporting.provenance import _generation_note
+from ablate.reporting.provenance import _generation_note, missing_artifacts_line
 from ablate.reporting.reader import RunReader
 from ablate.reporting.results import Ablation, NoResults, load_ablation, select
 from ablate.reporting.tables import convergence_table, trials_table
@@ -64,8 +64,9 @@ def _video_picks(ablation: Ablation, done: pd.DataFrame) -> list[tuple[pd.Series
 def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[str, str]]:
     chosen = []
     folder.mkdir(parents=True, exist_ok=True)
+    lost = {key for _, key in ablation.missing}  # their artifact folder is gone: no video either
     for variant in ablation.variants:
-        done = ablation.finished[ablation.finished.variant == variant]
+        done = ablation.finished[(ablation.finished.variant == variant) & ~ablation.finished.key.isin(lost)]
         if done.empty:
             continue
         for row, why in _video_picks(ablation, done):
@@ -118,6 +119,8 @@ class ReportResult:
     generation_note: str
     pages: tuple[int | None, int] | None = None
     """The PDF's (body, total) pages, where it was written."""
+    missing_note: str = ""
+    """What the store could not give and the report left out, in one line (``""`` when nothing)."""
 
     def pdf_words(self) -> str:
         """``report.pdf (9 pages: the body 3, the appendix 6)``, or the one line saying why there is none."""
@@ -195,7 +198,8 @@ def build_report(
             pages = page_counts(folder / "report.typ")
         except Exception:  # noqa: BLE001 - a count is a courtesy: the PDF stands without it
             pages = None
-    return ReportResult(folder, pdf_note, attach_note, _generation_note(ablation), pages)
+    missing = missing_artifacts_line(ablation, tracker.shown_uri)
+    return ReportResult(folder, pdf_note, attach_note, _generation_note(ablation), pages, missing)
 
 
 def _swap(staging: Path, folder: Path) -> None:
@@ -311,7 +315,8 @@ def report_command(args: argparse.Namespace) -> str:
 
 def cmd_report(args: argparse.Namespace) -> int:
     """``ablate report``: exit 0 with the report written; 1 with nothing to report; 2 for bad input. Nothing
-    is written (and no store created) unless the whole report could be built."""
+    is written (and no store created) unless the whole report could be built; finished trials whose files the
+    store cannot give are a warning line, the report written from their tracked metrics (exit 0)."""
     name = args.experiment
     if name.endswith(".toml"):
         name = load_experiment(name).name  # a bad file is a ConfigError: one line, exit 2
@@ -334,6 +339,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         where = error.filename or args.out
         sys.stderr.write(f"ablate report: cannot write the report under {args.out}: {error.strerror} ({where})\n")
         return 1
+    if result.missing_note:  # the report stands without them: a warning, exit 0
+        sys.stderr.write(f"ablate report: {result.missing_note}\n")
     written = "report.md, report.html" + ("" if result.pdf_note else f" and {result.pdf_words()}")
     print(f"wrote {result.folder}/: {written}")
     for note in (result.generation_note, result.pdf_note, result.attach_note):

@@ -320,7 +320,8 @@ def figure_parameters(ablation: Ablation, table: pd.DataFrame, folder: Path) -> 
 
 def figure_observation(ablation: Ablation, tracker: RunReader, folder: Path) -> Figure | None:
     """The trial's own picture of one observation (raw, pre-processed, frame difference), where it logged one."""
-    for run_id in ablation.finished.run_id.dropna():
+    lost = {key for _, key in ablation.missing}
+    for run_id in ablation.finished[~ablation.finished.key.isin(lost)].run_id.dropna():
         try:
             downloaded = tracker.download(run_id, "observation.png")
         except Exception:  # noqa: BLE001 - trials of envs without such a picture (CartPole)

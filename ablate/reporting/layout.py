@@ -15,7 +15,7 @@ from ablate.reporting.figures import Figure
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
-from ablate.reporting.provenance import _generation_note, _reproducibility
+from ablate.reporting.provenance import _generation_note, _reproducibility, missing_artifacts_note
 from ablate.reporting.results import Ablation
 from ablate.reporting.rounds import rounds_section
 from ablate.reporting.sections import (
@@ -154,6 +154,8 @@ def build_markdown(
             f"they are left out of the statistics and listed in Appendix {letters['failed']}.",
             "",
         ]
+    lost = missing_artifacts_note(ablation)
+    parts += [lost, ""] if lost else []
     parts += [f"## Question {GENERATED}", "", question(ablation), ""]
     parts += [f"## Method {GENERATED}", "", method_paragraph(ablation, letters), ""]
     parts += [f"## Claims {GENERATED}", "", summary(ablation, table, compare), ""]

@@ -101,3 +101,36 @@ def _generation_note(ablation: Ablation) -> str:
             f"<code>ablate report {_esc(ablation.name)} --generation {_esc(others[0]['generation'])}</code> reports it."
         )
     return note
+
+
+def _listed(keys: list[str], most: int = 3) -> str:
+    return ", ".join(keys[:most]) + (f" and {len(keys) - most} more" if len(keys) > most else "")
+
+
+def missing_artifacts_note(ablation: Ablation) -> str:
+    """The report's note on finished trials whose files the store could not give; ``""`` when none."""
+    keys = [key for _, key in ablation.missing]
+    if not keys:
+        return ""
+    one = len(keys) == 1
+    few = f"{len(keys)} finished trial{'' if one else 's'}"
+    return (
+        f"> The episodes.csv of {few} could not be read from the store ({_esc(_listed(keys))}): "
+        f"{'its' if one else 'their'} artifact folder was moved or removed. {'Its row' if one else 'Their rows'} "
+        f"in the tables {'holds' if one else 'hold'} the tracked metrics and params (solved, "
+        "episodes to solve, final rolling mean); the measures read from that file (AUC, the untrained return, "
+        "the returns at fixed budgets), learning curves and videos are left out."
+    )
+
+
+def missing_artifacts_line(ablation: Ablation, shown_uri: str) -> str:
+    """The same, in the one line the terminal gets; ``""`` when nothing is missing."""
+    keys = [key for _, key in ablation.missing]
+    if not keys:
+        return ""
+    one = len(keys) == 1
+    return (
+        f"MLflow store {shown_uri}: episodes.csv of {len(keys)} finished trial{'' if one else 's'} cannot be read "
+        f"({_listed(keys)}; was {'its' if one else 'their'} artifact folder moved or removed?): the report is "
+        f"written from the tracked metrics and params, without {'its' if one else 'their'} curves and videos"
+    )

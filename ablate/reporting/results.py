@@ -18,7 +18,7 @@ import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment
-from ablate.reporting.reader import RunReader
+from ablate.reporting.reader import RunReader, TrackingError
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.reporting.tuning import knobs as tuning_knobs
 
@@ -56,6 +56,9 @@ class Ablation:
     """``tables/tuning.csv``: one row per tuning trial (``tuning.tuning_table``)."""
     untuned: Ablation | None = None
     """The same evaluation seeds at the shared base values (the untuned comparison), when tuned."""
+    missing: list[tuple[str, str]] = field(default_factory=list)
+    """(variant, key) of finished trials whose ``episodes.csv`` the store could not give (their artifact folder moved or
+    removed): their rows hold the tracked metrics and params, without the measures and curves of that file."""
 
     @property
     def seed_span(self) -> tuple[int, int]:
@@ -309,7 +312,7 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
     planned = {trial["key"] for trial in planned_trials}
     # A tuned launch's evaluation trials at the chosen values are known only once tuning ends: not in grid.json.
     later = [{"key": r.key, "variant": r.variant, "seed": r.seed} for r in best_run.values() if r.key not in planned]
-    rows, tune_rows, curves, params = [], [], {}, {}
+    rows, tune_rows, curves, params, missing = [], [], {}, {}, []
     for trial in [*planned_trials, *later] if tuning else grid["trials"]:
         run = best_run.get(trial["key"])
         row = {"key": trial["key"], "variant": trial["variant"], "seed": trial["seed"]}
@@ -328,11 +331,15 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
         row |= {k: run.metrics.get(k, np.nan) for k in SUMMARY_COLUMNS}
         if run.status == "FINISHED":
             curve = _curve(tracker, run, trial, grid)
-            window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
-            row |= trial_measures(curve, budget, levels, window)
+            if curve is None:
+                missing.append((trial["variant"], trial["key"]))
+            else:
+                window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
+                row |= trial_measures(curve, budget, levels, window)
             if row.get("stage") != TUNE:
                 params.setdefault(trial["variant"], run.params)
-                curves[trial["key"]] = curve
+                if curve is not None:
+                    curves[trial["key"]] = curve
             else:
                 row["tracked"] = dict(run.metrics)
         (tune_rows if row.get("stage") == TUNE else rows).append(row)
@@ -345,7 +352,8 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
         "generations": generations,
     }
     if not tuning:
-        return _ablation(name, grid, launch_info, pd.DataFrame(rows), list(curves.values()), params)
+        ablation = _ablation(name, grid, launch_info, pd.DataFrame(rows), list(curves.values()), params)
+        return replace(ablation, missing=missing)
     trials = pd.DataFrame(rows)
     for knob in names:
         trials[knob] = pd.to_numeric(trials[knob], errors="coerce")
@@ -360,7 +368,8 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
     tuned = part(at_values(trials, lambda v: chosen_values(tuning, v)))
     untuned = part(at_values(trials, lambda v: base_values(tuning, v, overrides.get(v, {}))))
     variants = [v["name"] for v in grid["variants"]]
-    return replace(tuned, tuning=tuning, tuning_trials=tuning_table(tune_rows, tuning, variants), untuned=untuned)
+    tuning_trials = tuning_table(tune_rows, tuning, variants)
+    return replace(tuned, tuning=tuning, tuning_trials=tuning_trials, untuned=untuned, missing=missing)
 
 
 def _json_artifact(tracker: RunReader, launch_id: str, name: str) -> dict[str, Any] | None:
@@ -380,12 +389,16 @@ def _tuning_document(tracker: RunReader, launch_id: str) -> dict[str, Any] | Non
         return None
 
 
-def _curve(tracker: RunReader, run: Any, trial: dict[str, Any], grid: dict[str, Any]) -> pd.DataFrame:
-    """One finished trial's learning curve. The exact per-episode table is the run's episodes.csv (MLflow holds
+def _curve(tracker: RunReader, run: Any, trial: dict[str, Any], grid: dict[str, Any]) -> pd.DataFrame | None:
+    """One finished trial's learning curve; None where the store cannot give its episodes.csv (the run's
+    artifact folder moved or removed). The exact per-episode table is the run's episodes.csv (MLflow holds
     a bounded curve); the rolling mean is recomputed from the returns with the trial's own window, exactly as
     the trial computed it."""
     with tempfile.TemporaryDirectory(prefix="ablate-episodes-") as folder:
-        table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
+        try:
+            table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
+        except TrackingError:
+            return None
     returns = dict(zip(table["episode"], table["episode_return"], strict=True))
     wall = dict(zip(table["episode"], table["wall_s"], strict=True))
     episodes = sorted(returns)
@@ -451,6 +464,7 @@ def select(ablation: Ablation, variants: list[str] | None = None, baseline: str 
         params=params,
         tuning_trials=tuning_trials,
         untuned=untuned,
+        missing=[(variant, key) for variant, key in ablation.missing if variant in chosen],
     )
 
 
