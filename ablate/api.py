@@ -78,6 +78,7 @@ def run(
     progress: bool = True,
     storage_path: str = "ray_results",
     population: int = 1,
+    allow_insecure_http: bool = False,
 ) -> RunOutcome:
     """Run an experiment's trials on Ray and track them in MLflow, as ``ablate run`` does.
 
@@ -88,6 +89,8 @@ def run(
     ``fresh``: start a new generation instead of resuming the last one.
     ``report``: write ``reports_folder/<experiment>/`` afterwards (when no trial was interrupted).
     ``population``: train up to this many trials of a variant together as one batched population (1: alone).
+    ``allow_insecure_http``: let an MLflow login go over plain ``http://`` to another machine (in clear);
+    without it that is a ``TrackingError`` before anything is tracked: put the server behind HTTPS.
 
     Trials that already finished in the store are not run again. Returns the launch's ``RunOutcome``
     (``finished``, ``failed``, ``skipped``, ``exit_code``, ...); ``outcome.report_folder`` is the report's
@@ -95,6 +98,7 @@ def run(
     """
     from ablate.launch.grid import expand, select
     from ablate.launch.runner import run_experiment
+    from ablate.launch.store import insecure_http
     from ablate.reporting.rounds import judge_for
 
     loaded = _experiment(experiment)
@@ -103,21 +107,22 @@ def run(
     if population < 1:
         raise ConfigError(f"population={population} is invalid; valid: an integer >= 1")
     chosen = select(expand(loaded), list(only) if only is not None else None, list(seeds) if seeds else None)
-    outcome = run_experiment(
-        loaded,
-        tracking_uri=tracking_uri,
-        address=address,
-        fresh=fresh,
-        max_concurrent=max_concurrent,
-        storage_path=storage_path,
-        show_progress=progress,
-        command=f"ablate.run({loaded.path!r})",
-        only=chosen,
-        population=population,
-        judge=judge_for(loaded, seeds),
-    )
-    if report and not outcome.interrupted and not outcome.error and (outcome.finished or outcome.skipped):
-        outcome.report_folder = _write_report(loaded, tracking_uri, reports_folder)
+    with insecure_http(allow_insecure_http):  # the store is opened, and the report written, inside
+        outcome = run_experiment(
+            loaded,
+            tracking_uri=tracking_uri,
+            address=address,
+            fresh=fresh,
+            max_concurrent=max_concurrent,
+            storage_path=storage_path,
+            show_progress=progress,
+            command=f"ablate.run({loaded.path!r})",
+            only=chosen,
+            population=population,
+            judge=judge_for(loaded, seeds),
+        )
+        if report and not outcome.interrupted and not outcome.error and (outcome.finished or outcome.skipped):
+            outcome.report_folder = _write_report(loaded, tracking_uri, reports_folder)
     return outcome
 
 
@@ -130,6 +135,7 @@ def report(
     variants: Sequence[str] | None = None,
     baseline: str | None = None,
     generation: str | None = None,
+    allow_insecure_http: bool = False,
 ) -> Path:
     """Write the report of an experiment from its MLflow store into ``reports_folder/<name>/`` (``report.md``,
     ``report.html``, ``report.typ`` and the ``report.pdf`` typeset from it, ``discussion.md`` (yours: created
@@ -137,11 +143,14 @@ def report(
     folder. Where no PDF could be written, one line on stderr says why.
 
     ``name_or_file``: the experiment's name or its file. ``variants`` / ``baseline``: report a part of the
-    ablation against another reference. Raises ``NoResults`` when nothing finished, ``ConfigError`` for a bad
-    name, store or variant; nothing is written then. Finished trials whose files the store cannot give are
-    left out of the curves and figures, said in one line on stderr.
+    ablation against another reference. ``allow_insecure_http``: as in ``run``. Raises ``NoResults`` when nothing
+    finished, ``ConfigError`` for a bad name, store or variant; nothing is written then. Finished trials whose
+    files the store cannot give are left out of the curves and figures, said in one line on stderr.
     """
-    return _write_report(name_or_file, tracking_uri, reports_folder, pdf, variants, baseline, generation)
+    from ablate.launch.store import insecure_http
+
+    with insecure_http(allow_insecure_http):
+        return _write_report(name_or_file, tracking_uri, reports_folder, pdf, variants, baseline, generation)
 
 
 def _write_report(
@@ -180,6 +189,7 @@ def load(
     generation: str | None = None,
     variants: Sequence[str] | None = None,
     baseline: str | None = None,
+    allow_insecure_http: bool = False,
 ) -> Results:
     """Read an ablation back from its MLflow store: its trials, curves, convergence table and comparisons as
     pandas DataFrames, its figures as matplotlib figures (see ``Results``). Reads only.
@@ -188,11 +198,14 @@ def load(
     ``tracking_uri``: the store ``run`` wrote; a relative SQLite path is read from the current folder, so a
     notebook in another folder passes the path (``"sqlite:////abs/path/mlflow.db"`` or ``"sqlite:///../mlflow.db"``).
     ``generation``: an older generation (a prefix of its id) instead of the newest launch's.
+    ``allow_insecure_http``: as in ``run``.
     """
+    from ablate.launch.store import insecure_http
     from ablate.reporting.results import load_ablation, select
 
     uri = _check_store(tracking_uri)
-    ablation = load_ablation(_name(name_or_file), uri, generation)
+    with insecure_http(allow_insecure_http):
+        ablation = load_ablation(_name(name_or_file), uri, generation)
     return Results(select(ablation, list(variants) if variants else None, baseline))
 
 

@@ -24,6 +24,7 @@ from ablate.experiment import Experiment
 from ablate.launch.grid import expand, select, tuning_trials
 from ablate.launch.lock import LaunchLocked
 from ablate.launch.secrets import masked_output, remember_uri, shown
+from ablate.launch.store import insecure_http
 from ablate.launch.tracking import TrackingError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -224,6 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --from on a [tune] experiment: the store whose tuning chose the values (default: "
         "sqlite:///mlflow.db); read only",
     )
+    _insecure_http_flag(train)
     add_knob_flags(train)
     train.add_argument(
         "--out", type=Path, default=None, help="output folder (default: outputs/train/<env>-s<seed>, or the trial key)"
@@ -248,6 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="Tune's bookkeeping folder, on the driver (an NFS path or s3:// if you have one; artifacts never use it)",
     )
     run.add_argument("--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
+    _insecure_http_flag(run)
     run.add_argument("--fresh", action="store_true", help="start over under a new parent run (a new generation)")
     run.add_argument("--max-concurrent", dest="max_concurrent", type=int, help="trials at once (default: CPUs)")
     run.add_argument(
@@ -288,6 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     status.add_argument(
         "--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)"
     )
+    _insecure_http_flag(status)
 
     report = commands.add_parser(
         "report",
@@ -301,6 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument(
         "--tracking-uri", dest="tracking_uri", help="MLflow store to read (default: sqlite:///mlflow.db); never created"
     )
+    _insecure_http_flag(report)
     report.add_argument("--out", type=Path, default=Path("reports"), help="reports folder (default: reports)")
     report.add_argument(
         "--generation",
@@ -321,7 +326,18 @@ def build_parser() -> argparse.ArgumentParser:
     from ablate.calibration import add_parser as add_calibrate
 
     add_calibrate(commands)
+    _insecure_http_flag(commands.choices["calibrate"])
     return parser
+
+
+def _insecure_http_flag(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--allow-insecure-http",
+        dest="allow_insecure_http",
+        action="store_true",
+        help="let the MLflow login go over plain http:// to another machine, in clear (refused without it; "
+        "docs/cluster.md shows HTTPS through a reverse proxy)",
+    )
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -423,7 +439,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # Every line this command prints, through Python, passes the secrets' masks (ablate.launch.secrets).
     remember_uri(getattr(args, "tracking_uri", None))
-    with masked_output():
+    with masked_output(), insecure_http(getattr(args, "allow_insecure_http", False)):
         return _main(args, started_at)
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from ablate.launch import secrets
 from ablate.launch.secrets import MaskedStream, encoded_uri, mask_uri, remember, shown, split_userinfo
-from ablate.launch.store import TrackingError, check_uri, open_uri, store_key
+from ablate.launch.store import TrackingError, check_uri, insecure_http, open_uri, store_key
 
 PW = "Pl@nted/pw:9x"
 
@@ -69,14 +69,38 @@ def test_a_servers_login_leaves_the_uri_for_the_environment(monkeypatch):
     assert os.environ["MLFLOW_TRACKING_USERNAME"] == "alice" and os.environ["MLFLOW_TRACKING_PASSWORD"] == PW
 
 
-def test_plain_http_with_a_login_to_another_host_warns_once(monkeypatch, capsys):
+def test_plain_http_with_a_login_to_another_host_is_refused_unless_allowed_then_warned_once(monkeypatch, capsys):
     monkeypatch.setattr("ablate.launch.store._warned_insecure", set())
-    open_uri("http://alice:hunter22@mlflow.example:5000")
-    open_uri("http://alice:hunter22@mlflow.example:5000")
+    for name in ("MLFLOW_TRACKING_USERNAME", "MLFLOW_TRACKING_PASSWORD"):  # open_uri moves the login there
+        monkeypatch.setenv(name, "")
+    with pytest.raises(TrackingError, match="is plain HTTP to another machine") as refused:
+        open_uri("http://alice:hunter22@mlflow.example:5000")
+    assert refused.value.exit_code == 2 and "--allow-insecure-http" in str(refused.value)
+    assert "https://" in str(refused.value) and "hunter22" not in str(refused.value)
+    with pytest.raises(TrackingError):
+        open_uri("http://alice:hunter22@10.1.2.3:5000")
     open_uri("https://alice:hunter22@mlflow.example")
     open_uri("http://alice:hunter22@127.0.0.1:5000")
+    open_uri("http://alice:hunter22@127.0.0.2:5000")  # all of 127/8 is this machine
+    open_uri("http://alice:hunter22@[::1]:5000")
+    assert capsys.readouterr().err == ""
+    with insecure_http(True):
+        open_uri("http://alice:hunter22@mlflow.example:5000")
+        open_uri("http://alice:hunter22@mlflow.example:5000")
     err = capsys.readouterr().err
     assert err.count("warning:") == 1 and "plain HTTP" in err and "hunter22" not in err
+    with insecure_http(True), insecure_http(False):  # the CLI's flag reaches the API calls it makes
+        open_uri("http://alice:hunter22@mlflow.example:5000")
+    with pytest.raises(TrackingError):  # allowed only inside
+        open_uri("http://alice:hunter22@other.example:5000")
+
+
+def test_plain_http_without_a_login_is_neither_refused_nor_warned(monkeypatch, capsys, tmp_path):
+    for name in ("MLFLOW_TRACKING_USERNAME", "MLFLOW_TRACKING_PASSWORD", "MLFLOW_TRACKING_TOKEN"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("MLFLOW_CREDENTIALS_PATH", str(tmp_path / "none"))
+    assert open_uri("http://mlflow.example:5000") == "http://mlflow.example:5000"
+    assert capsys.readouterr().err == ""
 
 
 @pytest.mark.parametrize("uri", ["127.0.0.1:5050", "mlflow.example:5000/x"])

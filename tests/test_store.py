@@ -235,3 +235,52 @@ def test_a_password_in_a_database_uris_query_is_masked_in_the_refusal(tmp_path, 
     assert main(["status", "--tracking-uri", uri]) == 1
     out, err = capsys.readouterr()
     assert SECRET not in out + err and "password=***&sslpassword=***" in err, err
+
+
+@pytest.mark.parametrize("command", ["run", "status", "report"])
+@pytest.mark.parametrize("login", ["uri", "environment"])
+def test_every_command_refuses_a_login_over_plain_http_to_another_machine_in_one_line(
+    command, login, tmp_path, monkeypatch, capsys
+):
+    from ablate.cli import main
+
+    monkeypatch.setattr("ablate.launch.store._warned_insecure", set())
+    monkeypatch.setenv("MLFLOW_TRACKING_USERNAME", "alice")  # open_uri moves a URI's login here: restored after
+    monkeypatch.setenv("MLFLOW_TRACKING_PASSWORD", "" if login == "uri" else SECRET)
+    host = "192.0.2.7:5000"  # TEST-NET-1: never routed, so a request that went out would hang, not be refused
+    uri = f"http://alice:{SECRET}@{host}" if login == "uri" else f"http://{host}"
+    args = {
+        "run": ["run", str(ROOT / "experiments" / "smoke.toml")],
+        "status": ["status"],
+        "report": ["report", "smoke"],
+    }
+    monkeypatch.chdir(tmp_path)
+    started = time.monotonic()
+    code = main([*args[command], "--tracking-uri", uri])
+    wall_s = time.monotonic() - started
+    out, err = capsys.readouterr()
+    errors = err.strip().splitlines()
+    assert code == 2 and len(errors) == 1, out + err
+    assert f"ablate {command}: --tracking-uri http://" in errors[0] and "is plain HTTP to another machine" in errors[0]
+    assert "https://" in errors[0] and "--allow-insecure-http" in errors[0] and "docs/cluster.md" in errors[0]
+    assert SECRET not in out + err
+    assert not list(tmp_path.iterdir())  # nothing tracked, nothing written
+    assert wall_s < 30, wall_s  # refused before any connection
+
+
+def test_allow_insecure_http_warns_once_and_goes_on_to_the_server(tmp_path, monkeypatch, capsys):
+    from ablate.cli import main
+
+    def reached(uri: str) -> None:
+        raise TrackingError(f"reached {uri}")
+
+    monkeypatch.setattr("ablate.launch.store._warned_insecure", set())
+    monkeypatch.setattr("ablate.reporting.reader.probe_server", reached)
+    monkeypatch.setenv("MLFLOW_TRACKING_USERNAME", "alice")
+    monkeypatch.setenv("MLFLOW_TRACKING_PASSWORD", SECRET)
+    monkeypatch.chdir(tmp_path)
+    code = main(["status", "--tracking-uri", "http://192.0.2.7:5000", "--allow-insecure-http"])
+    out, err = capsys.readouterr()
+    assert code == 1 and "reached http://192.0.2.7:5000" in err, out + err
+    assert err.count("warning:") == 1 and "plain HTTP" in err and "--allow-insecure-http" in err
+    assert SECRET not in out + err

@@ -73,6 +73,7 @@ def login_user() -> str | None:
 _HOST_PORT = re.compile(r"^[A-Za-z0-9.-]+:\d+(/.*)?$")
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 _warned_insecure: set[str] = set()
+_insecure_allowed = False
 
 
 def open_uri(uri: str) -> str:
@@ -83,27 +84,57 @@ def open_uri(uri: str) -> str:
     check_uri(uri)
     uri = encoded_uri(uri)
     head, user, password, rest = split_userinfo(uri)
-    if head.lower() in ("http://", "https://"):
-        if user is not None:
-            os.environ["MLFLOW_TRACKING_USERNAME"] = user
-            if password is not None:
-                os.environ["MLFLOW_TRACKING_PASSWORD"] = password
-            uri = without_userinfo(uri)
-        warn_insecure(uri)
+    if head.lower() in ("http://", "https://") and user is not None:
+        os.environ["MLFLOW_TRACKING_USERNAME"] = user
+        if password is not None:
+            os.environ["MLFLOW_TRACKING_PASSWORD"] = password
+        uri = without_userinfo(uri)
+    warn_insecure(uri)  # a login from the URI, the environment or ~/.mlflow/credentials alike
     return uri
 
 
+@contextlib.contextmanager
+def insecure_http(allowed: bool) -> Iterator[None]:
+    """Within it, a login over plain HTTP to another machine is ``allowed`` (``--allow-insecure-http``: warned
+    once) or refused, unless an enclosing call allowed it (the CLI's flag reaches the API calls it makes); the
+    stores opened inside it are checked when they are opened."""
+    global _insecure_allowed
+    before, _insecure_allowed = _insecure_allowed, _insecure_allowed or allowed
+    try:
+        yield
+    finally:
+        _insecure_allowed = before
+
+
+def _loopback(host: str) -> bool:
+    import ipaddress
+
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host.lower() in LOOPBACK
+
+
 def warn_insecure(uri: str) -> None:
-    """Once per server: a login sent over plain HTTP to a host that is not this machine travels in clear."""
+    """A login sent over plain HTTP to a host that is not this machine travels in clear: refused, one line and
+    exit 2, unless allowed (``insecure_http``), then warned once per server."""
     parsed = urlparse(uri)
-    if parsed.scheme != "http" or (parsed.hostname or "") in LOOPBACK or uri in _warned_insecure:
+    if parsed.scheme != "http" or _loopback(parsed.hostname or "") or uri in _warned_insecure:
         return
-    if os.environ.get("MLFLOW_TRACKING_PASSWORD") or os.environ.get("MLFLOW_TRACKING_TOKEN") or login_user():
-        _warned_insecure.add(uri)
-        sys.stderr.write(
-            f"warning: {shown(uri)} is plain HTTP to another machine: the MLflow login crosses the network in "
-            "clear; put the server behind HTTPS (docs/cluster.md, TLS)\n"
+    if not (os.environ.get("MLFLOW_TRACKING_PASSWORD") or os.environ.get("MLFLOW_TRACKING_TOKEN") or login_user()):
+        return
+    if not _insecure_allowed:
+        raise TrackingError(
+            f"--tracking-uri {shown(uri)} is plain HTTP to another machine: the MLflow login would cross the "
+            "network in clear; use https:// (a reverse proxy ending TLS in front of the server: docs/cluster.md, "
+            "TLS), or on a network you trust add --allow-insecure-http (allow_insecure_http=True in Python)",
+            exit_code=2,
         )
+    _warned_insecure.add(uri)
+    sys.stderr.write(
+        f"warning: {shown(uri)} is plain HTTP to another machine: the MLflow login crosses the network in "
+        "clear (--allow-insecure-http); put the server behind HTTPS (docs/cluster.md, TLS)\n"
+    )
 
 
 def store_key(uri: str) -> str:
