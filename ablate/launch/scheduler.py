@@ -41,6 +41,7 @@ from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 from ablate.agent.population import run_population
 from ablate.launch.curve import CurvePoint, CurveReducer
 from ablate.launch.plan import Population
+from ablate.launch.ray_logs import one_line, tune_logs_to
 from ablate.launch.secrets import shown
 
 REPORT_EVERY_S = 2.0
@@ -217,13 +218,13 @@ def run_trials(
     log_path = (storage or Path.cwd()) / f"{run_name}.log"
     problem: Exception | None = None
     try:
-        with _tune_logs_to(log_path):
+        with tune_logs_to(log_path):
             tuner.fit()
     except KeyboardInterrupt:
         ray.shutdown()  # stops the workers now; the caller marks their runs killed
         raise
     except Exception as error:  # noqa: BLE001 - Tune's error, whose text is a traceback: told in one line
-        problem = _one_line(error, log_path)
+        problem = one_line(error, log_path)
     finally:
         if storage is not None:
             shutil.rmtree(storage / run_name, ignore_errors=True)  # everything is in the tracker by now
@@ -231,58 +232,6 @@ def run_trials(
             stop_ray()
     if problem is not None:  # raised outside the except: one line, not the chain of exceptions behind it
         raise problem
-
-
-class SchedulerFailed(RuntimeError):
-    """Ray or Tune ended the run with an error: its last line, and the log that holds the rest."""
-
-
-@contextlib.contextmanager
-def _tune_logs_to(path: Path) -> Iterator[None]:
-    """Ray's and Tune's log records (a dead worker's or a failed callback's traceback: 16-25 lines) go to
-    ``path`` instead of the terminal, where the progress view and one line of what happened stay."""
-    loggers = [logging.getLogger(name) for name in ("ray", "ray.tune", "ray.train", "ray.air")]
-    saved = [(logger, list(logger.handlers), logger.propagate) for logger in loggers]
-    handler: logging.Handler | None = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        handler = logging.FileHandler(path, delay=True)
-        handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
-    except OSError:
-        handler = None  # no log file: Ray's own handlers stay
-    if handler is not None:
-        for logger in loggers:
-            logger.handlers = [h for h in logger.handlers if not isinstance(h, logging.StreamHandler)]
-        loggers[0].addHandler(handler)
-        for logger in loggers[1:]:
-            logger.propagate = True
-    try:
-        yield
-    finally:
-        for logger, handlers, propagate in saved:
-            logger.handlers, logger.propagate = handlers, propagate
-        if handler is not None:
-            handler.close()
-
-
-def _one_line(error: BaseException, log_path: Path) -> Exception:
-    """Tune wraps an error of our callback in a ``TuneError`` whose text is the traceback: the store's own
-    error (``TrackingError``, one line already) is raised as it was, anything else as its last line."""
-    from ablate.launch.store import TrackingError
-
-    texts, cause = [], error
-    while cause is not None and len(texts) < 10:
-        texts.append(str(cause))
-        cause = cause.__cause__ or cause.__context__
-    lines = [line.strip() for text in texts for line in text.splitlines() if line.strip()]
-    for line in reversed(lines):
-        head, _, message = line.partition(": ")
-        if head.endswith("TrackingError") and message:
-            return TrackingError(message)
-    causes = [line for line in lines if not line.startswith(("Traceback", "File ", "^", "~"))]
-    last = causes[-1] if causes else type(error).__name__
-    where = f"; Ray's and Tune's messages: {log_path}" if log_path.is_file() else ""
-    return SchedulerFailed(f"{shown(last)[:300]}{where}")
 
 
 def trial_resources(options: ClusterOptions) -> dict[str, float]:
