@@ -1,6 +1,8 @@
 """A tiny real ablation through real Ray and a real MLflow store: runs, params, metrics, artifacts,
 resume, faults."""
 
+import contextlib
+import io
 import os
 import shutil
 import signal
@@ -159,13 +161,24 @@ def faults_launch(run_quiet, tmp_path_factory):
     folder = tmp_path_factory.mktemp("faults")
     uri = fresh_store(folder / "mlflow.db")
     markers = {"crashed": folder / "crashed-once", "died": folder / "died-after-checkpoint"}
-    outcome = run_quiet(_experiment(folder, FAULTS.format(**markers)), folder, uri)
-    return uri, outcome, markers
+    terminal = io.StringIO()  # what this process printed: Ray's driver prints from a thread of its own
+    with contextlib.redirect_stdout(terminal), contextlib.redirect_stderr(terminal):
+        outcome = run_quiet(_experiment(folder, FAULTS.format(**markers)), folder, uri)
+        # Ray publishes a worker's death after the fact (in ms: long before the launch ends); wait until it
+        # reached the launch's log, with room for a loaded machine
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and "A worker died" not in _logs(folder / "ray"):
+            time.sleep(0.2)
+    return uri, outcome, markers, (terminal.getvalue(), _logs(folder / "ray"), folder / "ray")
+
+
+def _logs(folder) -> str:
+    return "".join(path.read_text() for path in sorted(folder.glob("*.log")))
 
 
 @pytest.mark.e2e  # Ray worker processes that die mid-trial, and Tune's retries
 def test_crash_is_retried_raise_is_recorded_failed(faults_launch):
-    tracking_uri, outcome, markers = faults_launch
+    tracking_uri, outcome, markers, _ = faults_launch
     assert markers["crashed"].exists()  # the crash really happened
     assert sorted(k.split("-")[0] for k in outcome.finished) == ["crash", "ok", "resumable"]
     assert list(outcome.failed) == [k for k in outcome.failed if k.startswith("boom")] and len(outcome.failed) == 1
@@ -177,6 +190,18 @@ def test_crash_is_retried_raise_is_recorded_failed(faults_launch):
     assert runs["crash"].status == "FINISHED" and runs["crash"].tags["ablate.attempt"] == "2"
     assert runs["boom"].status == "FAILED" and "injected fault" in runs["boom"].tags["ablate.error"]
     assert runs["ok"].status == "FINISHED"
+
+
+@pytest.mark.e2e  # Ray worker processes that die mid-trial: Ray's message about it
+def test_a_dead_workers_raylet_error_goes_to_the_launchs_log_and_one_line_to_the_terminal(faults_launch):
+    _, _, markers, (terminal, log, folder) = faults_launch
+    assert markers["crashed"].exists() and "A worker died" in log  # Ray told of a death, and the log has it
+    # Ray's own line (~1,000 characters: ids, ports, OOM advice) printed to stdout from its error thread
+    assert "(raylet)" not in terminal and "Lease ID" not in terminal and "Worker exit detail" not in terminal
+    told = [line for line in terminal.splitlines() if line.startswith("Ray: a worker died")]
+    (path,) = folder.glob("*.log")
+    assert told and all(line.endswith(f"Ray's message in full: {path}") for line in told), terminal
+    assert all(len(line) < 300 for line in told)
 
 
 def _restore_sigint() -> None:
@@ -264,7 +289,7 @@ fault_marker = "{release}"
 
 @pytest.mark.e2e  # a Ray worker process that dies after a checkpoint
 def test_a_trial_whose_process_died_resumes_from_its_checkpoint_in_one_continuous_run(faults_launch):
-    tracking_uri, _, markers = faults_launch
+    tracking_uri, _, markers, _ = faults_launch
     assert markers["died"].exists()  # the process really died
     tracker = RunReader(tracking_uri, "faults")
     (run,) = [r for r in tracker.trial_runs(with_artifacts=True) if r.variant == "resumable"]

@@ -6,10 +6,18 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
+import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from ablate.launch.secrets import shown
+
+_launch_log: Path | None = None
+"""The log file of the launch running now, or of the last one: where Ray's raylet errors go (a worker's death
+is published after the fact, and may arrive once the launch's trials have ended)."""
 
 
 class SchedulerFailed(RuntimeError):
@@ -29,6 +37,8 @@ def tune_logs_to(path: Path) -> Iterator[None]:
         handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
     except OSError:
         handler = None  # no log file: Ray's own handlers stay
+    global _launch_log
+    _launch_log = path
     if handler is not None:
         for logger in loggers:
             logger.handlers = [h for h in logger.handlers if not isinstance(h, logging.StreamHandler)]
@@ -62,3 +72,47 @@ def one_line(error: BaseException, log_path: Path) -> Exception:
     last = causes[-1] if causes else type(error).__name__
     where = f"; Ray's and Tune's messages: {log_path}" if log_path.is_file() else ""
     return SchedulerFailed(f"{shown(last)[:300]}{where}")
+
+
+def route_raylet_errors(worker_module: Any) -> None:
+    """Send the errors Ray's raylets publish to the driver (``(raylet) A worker died or was killed ...``: one
+    line of ~1,000 characters per dead worker) to the launch's log file, and one short line naming it to the
+    terminal. Ray's driver prints them to stdout from a thread of its own (``listen_error_messages``), past
+    logging and ``log_to_driver=False``, through ``print_to_stdstream`` of ``worker_module``
+    (``ray._private.worker``, handed in by the scheduler); that function is replaced once per process. Other
+    messages, and raylet errors before any launch, print as Ray prints them."""
+    original = getattr(worker_module, "print_to_stdstream", None)
+    if original is None or getattr(original, "ablate_routed", False):
+        return
+
+    def print_to_stdstream(data: dict[str, Any], *args: Any, **kwargs: Any) -> None:
+        path = _launch_log
+        lines = [line for line in data.get("lines", []) if line.strip()]
+        if path is None or data.get("pid") != "raylet" or not lines:
+            return original(data, *args, **kwargs)
+        try:
+            log = path.open("a")
+        except OSError:
+            return original(data, *args, **kwargs)
+        with log:  # the terminal's line first: a message seen in the log has been told
+            for line in lines:
+                sys.stderr.write(f"{raylet_summary(line)}; Ray's message in full: {path}\n")
+            for line in lines:
+                log.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} raylet ERROR {shown(line)}\n")
+
+    print_to_stdstream.ablate_routed = True  # type: ignore[attr-defined]
+    worker_module.print_to_stdstream = print_to_stdstream
+
+
+def raylet_summary(message: str) -> str:
+    """``Ray: a worker died or was killed while executing a task by an unexpected system error (pid 11668,
+    SYSTEM_ERROR)``: the first sentence of a raylet's error, with the worker's pid and exit type where given."""
+    first = re.split(r"(?<=[a-z)])\. ", message.strip(), maxsplit=1)[0].rstrip(".")
+    first = first[:1].lower() + first[1:]
+    details = [
+        f"{label} {m.group(1)}"
+        for label, key in (("pid", "Worker PID"), ("", "Worker exit type"))
+        if (m := re.search(rf"{key}: (\S+)", message))
+    ]
+    detail = f" ({', '.join(d.strip() for d in details)})" if details else ""
+    return shown(f"Ray: {first[:200]}{detail}")

@@ -41,7 +41,7 @@ from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 from ablate.agent.population import run_population
 from ablate.launch.curve import CurvePoint, CurveReducer
 from ablate.launch.plan import Population
-from ablate.launch.ray_logs import one_line, tune_logs_to
+from ablate.launch.ray_logs import one_line, route_raylet_errors, tune_logs_to
 from ablate.launch.secrets import shown
 
 REPORT_EVERY_S = 2.0
@@ -184,6 +184,7 @@ def run_trials(
     os.environ["TUNE_DISABLE_SIGINT_HANDLER"] = "1"
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     started_here = ensure_ray(options.address)
+    route_raylet_errors(getattr(getattr(ray, "_private", None), "worker", None))  # a dead worker: one line
     by_key = {p.key: p for p in plan}
     checkpoints = None
     if resume or any(t.config.checkpoint_interval for p in plan for t in p.members):
