@@ -37,6 +37,8 @@ TAG_VARIANT, TAG_SEED, TAG_ERROR, TAG_ATTEMPT = "ablate.variant", "ablate.seed",
 TAG_COMMIT, TAG_PARENT, TAG_NOTE = "mlflow.source.git.commit", "mlflow.parentRunId", "mlflow.note.content"
 TAG_HOST, TAG_PID = "ablate.host", "ablate.pid"
 TAG_NODE = "ablate.node"
+TAG_POPULATION = "ablate.population"
+"""The population (``launch.plan.Population.key``) a trial trained in: members of one share a process."""
 TAG_NAME = "ablate.name"
 """On an MLflow experiment whose name is a storage name (``experiment.storage_name``): the name as written."""
 TAG_STAGE = "ablate.stage"

@@ -26,7 +26,7 @@ from ablate.launch.plan import member_slots, plan_populations
 from ablate.launch.progress import ProgressView
 from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
 from ablate.launch.rounds import Judge, Rounds
-from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_ROLE, Tracker
+from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_POPULATION, TAG_ROLE, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
 # ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
@@ -160,10 +160,12 @@ class _Recorder:
         if not self.closed:
             self.tracker.discard_trial(key, reason)
 
-    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None, node: str) -> None:
+    def finished(
+        self, key: str, summary: dict[str, float], artifacts: Path | None, node: str, population: str = ""
+    ) -> None:
         if not self._open(key):
             return
-        self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node})
+        self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node, TAG_POPULATION: population or key})
         self.outcome.finished.append(key)
         self.summaries[key] = dict(summary)
         self.view.finished(key, bool(summary.get("solved")), summary.get("wall_s"), summary)

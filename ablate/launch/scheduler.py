@@ -63,7 +63,9 @@ class TrialEvents(Protocol):
     def episodes(self, key: str, points: list[CurvePoint]) -> None: ...
     def checkpoint(self, key: str, blob: bytes) -> None: ...
     def restarted(self, key: str, reason: str) -> None: ...
-    def finished(self, key: str, summary: dict[str, float], artifacts: Path | None, node: str) -> None: ...
+    def finished(
+        self, key: str, summary: dict[str, float], artifacts: Path | None, node: str, population: str = ""
+    ) -> None: ...
     def failed(self, key: str, message: str) -> None: ...
 
 
@@ -421,6 +423,7 @@ class _Bridge(tune.Callback):
                     self.checkpoints.put.remote(key, blob)
                 self.events.checkpoint(key, blob)
         node = result.get("ablate_node", "")
+        population = trial.config["key"]
         for key, outcome in result.pop("ablate_outcomes", {}).items():
             if key not in running:
                 continue
@@ -428,11 +431,11 @@ class _Bridge(tune.Callback):
             if "failed" in outcome:
                 self.events.failed(key, outcome["failed"])
             elif not outcome["artifacts"]:
-                self.events.finished(key, dict(outcome["summary"]), None, node)
+                self.events.finished(key, dict(outcome["summary"]), None, node, population)
             else:
                 with tempfile.TemporaryDirectory(prefix="ablate-artifacts-") as folder:
                     _write_folder(outcome["artifacts"], Path(folder))
-                    self.events.finished(key, dict(outcome["summary"]), Path(folder), node)
+                    self.events.finished(key, dict(outcome["summary"]), Path(folder), node, population)
 
     def on_trial_recover(self, iteration, trials, trial, **info):
         for key in self._running(trial):

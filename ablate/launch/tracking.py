@@ -26,6 +26,7 @@ from ablate.launch.mlflow_store import (  # noqa: F401 - the tags and the opener
     TAG_NOTE,
     TAG_PARENT,
     TAG_PID,
+    TAG_POPULATION,
     TAG_ROLE,
     TAG_SEED,
     TAG_STAGE,
