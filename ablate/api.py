@@ -14,7 +14,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ablate.config import ConfigError
+from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment, load_experiment
 
 if TYPE_CHECKING:  # only for the annotations: the real imports are inside the functions
@@ -77,7 +77,7 @@ def run(
     reports_folder: str | Path = "reports",
     progress: bool = True,
     storage_path: str = "ray_results",
-    population: int = 1,
+    population: int = DEFAULT_POPULATION,
     allow_insecure_http: bool = False,
 ) -> RunOutcome:
     """Run an experiment's trials on Ray and track them in MLflow, as ``ablate run`` does.
@@ -88,7 +88,8 @@ def run(
     ``only`` / ``seeds``: run a part of the grid (variant names, evaluation seeds).
     ``fresh``: start a new generation instead of resuming the last one.
     ``report``: write ``reports_folder/<experiment>/`` afterwards (when no trial was interrupted).
-    ``population``: train up to this many trials of a variant together as one batched population (1: alone).
+    ``population``: train up to this many trials of a variant together as one batched population (1: each alone);
+    members are their trials alone, bit for bit, on a CPU.
     ``allow_insecure_http``: let an MLflow login go over plain ``http://`` to another machine (in clear);
     without it that is a ``TrackingError`` before anything is tracked: put the server behind HTTPS.
 

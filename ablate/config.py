@@ -14,6 +14,11 @@ from typing import Any
 SUPPORTED_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
 ARCHITECTURES = ("mlp", "cnn")
 ACTIVATIONS = ("relu", "tanh", "elu", "gelu")
+DEFAULT_POPULATION = 8
+"""At most this many trials of a variant train together as one population unless ``--population`` says otherwise:
+on a CPU each member is its trial alone, bit for bit, so a population changes speed, not results; ``launch.plan``
+sizes them smaller where that keeps every CPU busy."""
+
 FAULTS = ("", "crash_once", "crash_after_checkpoint", "raise", "block")
 MAX_NAME_LENGTH = 100
 """Characters in an experiment's name (any script). Where it names a folder, an MLflow experiment or a lock

@@ -53,7 +53,8 @@ def plan_populations(trials: Sequence[GridTrial], cap: int = 1, slots: int = 1) 
         return [Population((t,)) for t in trials]
     groups: dict[tuple, list[GridTrial]] = {}
     for position, trial in enumerate(trials):
-        group = population_group(trial.config)
+        # A test's blocked trial waits for a file before it trains: it would hold its population-mates too.
+        group = population_group(trial.config) if trial.config.fault != "block" else None
         key = (trial.stage, group) if group is not None else ("alone", position)
         groups.setdefault(key, []).append(trial)
     shareable = sum(len(g) for k, g in groups.items() if k[0] != "alone")

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
-from ablate.config import ConfigError
+from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
@@ -231,13 +231,13 @@ def run_experiment(
     only: Sequence[GridTrial] | None = None,
     started_at: float | None = None,
     log_estimates: bool = False,
-    population: int = 1,
+    population: int = DEFAULT_POPULATION,
     judge: Judge | None = None,
 ) -> RunOutcome:
     """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
     current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock.
     ``log_estimates``: keep every time-left estimate in ``outcome.view.estimates`` (``make bench``).
-    ``population``: at most this many trials train together as one population (``launch.plan``); 1: alone.
+    ``population``: at most this many trials train together as one population (``launch.plan``); 1: each alone.
     ``judge``: with seeds in rounds (``experiment.rounds``), the sequential rule that decides after each round who
     gets more seeds (``reporting.rounds.judge_for``); ``None``: round 1 only.
 
@@ -269,7 +269,7 @@ def _run_locked(
     only: Sequence[GridTrial] | None,
     started_at: float | None,
     log_estimates: bool = False,
-    population: int = 1,
+    population: int = DEFAULT_POPULATION,
     judge: Judge | None = None,
 ) -> RunOutcome:
     generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
