@@ -683,7 +683,9 @@ def test_both_stages_start_their_trials_seeds_interleaved_across_variants(tmp_pa
             events.finished(trial.key, {"auc": trial.config.learning_rate, "episodes_run": 10.0}, None, "node-1")
 
     _fake_scheduler(monkeypatch, finish_all)
-    outcome = run_experiment(_experiment(tmp_path, TINY + TUNE), tracking_uri=tracking_uri, show_progress=False)
+    # Trials alone (a population starts in the order of its first member: tests/test_plan.py).
+    experiment = _experiment(tmp_path, TINY + TUNE)
+    outcome = run_experiment(experiment, tracking_uri=tracking_uri, show_progress=False, population=1)
     assert outcome.exit_code == 0 and len(stages) == 2
     chosen = stages[1]
     assert {t.config.learning_rate for t in chosen} == {0.1}  # the highest AUC won: stage 2 has trials to run
