@@ -187,26 +187,38 @@ class PongCollector:
         (None: no end in sight); a sub-env that finishes when enough episodes are finished or under way for
         the budget stops instead of starting an episode nobody would train on."""
         while len(self.finished) < count:
-            playing = np.flatnonzero(self.playing)
-            observations = self.observations if len(playing) == len(self.envs) else self.observations[playing]
-            actions = choose_action(model, observations, rng)
-            for i, action in zip(playing, actions, strict=True):
-                env = self.envs[i]
-                observation, reward, done = env.step(int(action))
-                self.buffers[i].add(self.observations[i, 0], action, reward)
-                if i == 0 and self.videos.recording:
-                    self.videos.frame(env.frame, done)
-                if done:
-                    self.finished.append(self.buffers[i].episode())
-                    self.buffers[i].length = 0
-                    self.completed += 1
-                    if budget is not None and len(self.finished) + int(self.playing.sum()) - 1 >= budget:
-                        self.playing[i] = False
-                        continue
-                    observation = env.reset()
-                    if i == 0:
-                        self.videos.episode_started(self.completed, env.frame)
-                self.observations[i, 0] = observation
+            playing, observations = self.playing_observations()
+            self.advance(playing, choose_action(model, observations, rng), budget)
+        return self.take(count)
+
+    def playing_observations(self) -> tuple[np.ndarray, np.ndarray]:
+        """The sub-envs that step next and their observations, (playing, 1, 80, 80) int8: what to act on."""
+        playing = np.flatnonzero(self.playing)
+        return playing, self.observations if len(playing) == len(self.envs) else self.observations[playing]
+
+    def advance(self, playing: np.ndarray, actions: np.ndarray, budget: int | None) -> None:
+        """Step the ``playing`` sub-envs with ``actions``: one step of ``collect`` (a population acts for all
+        its members' emulators in one forward, then advances each member's)."""
+        for i, action in zip(playing, actions, strict=True):
+            env = self.envs[i]
+            observation, reward, done = env.step(int(action))
+            self.buffers[i].add(self.observations[i, 0], action, reward)
+            if i == 0 and self.videos.recording:
+                self.videos.frame(env.frame, done)
+            if done:
+                self.finished.append(self.buffers[i].episode())
+                self.buffers[i].length = 0
+                self.completed += 1
+                if budget is not None and len(self.finished) + int(self.playing.sum()) - 1 >= budget:
+                    self.playing[i] = False
+                    continue
+                observation = env.reset()
+                if i == 0:
+                    self.videos.episode_started(self.completed, env.frame)
+            self.observations[i, 0] = observation
+
+    def take(self, count: int) -> list[Episode]:
+        """The oldest ``count`` finished episodes, out of the queue."""
         return [self.finished.popleft() for _ in range(count)]
 
     def state(self, episodes_done: int) -> dict:

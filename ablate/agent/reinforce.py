@@ -60,13 +60,24 @@ def choose_action(
     if greedy:
         actions = logits.argmax(axis=1)
     else:
-        rng = rng if rng is not None else np.random.default_rng()
-        # Inverse-CDF sampling on the unnormalised softmax (u scaled by the total instead of dividing every
-        # probability by it); the clip guards against the last cumulative value rounding below u.
-        cumulative = np.cumsum(np.exp(logits - logits.max(axis=1, keepdims=True)), axis=1)
-        u = rng.random((len(batch), 1)) * cumulative[:, -1:]
-        actions = np.minimum((cumulative < u).sum(axis=1), logits.shape[1] - 1)
+        actions = sample_actions(logits, rng if rng is not None else np.random.default_rng())
     return int(actions[0]) if single else actions.astype(np.int64)
+
+
+def sample_actions(logits: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One action per row of ``logits`` (batch, actions), sampled from their softmax with one uniform per row
+    drawn from ``rng``: ``choose_action``'s sampling."""
+    return actions_from_uniforms(logits, rng.random((len(logits), 1)))
+
+
+def actions_from_uniforms(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+    """``sample_actions`` with its uniforms (batch, 1) given: a population draws each member's from the
+    member's own RNG, then samples every member's rows at once (row by row, the same numbers)."""
+    # Inverse-CDF sampling on the unnormalised softmax (u scaled by the total instead of dividing every
+    # probability by it); the clip guards against the last cumulative value rounding below u.
+    cumulative = np.cumsum(np.exp(logits - logits.max(axis=1, keepdims=True)), axis=1)
+    u = uniforms * cumulative[:, -1:]
+    return np.minimum((cumulative < u).sum(axis=1), logits.shape[1] - 1)
 
 
 def discount_rewards(rewards: np.ndarray, gamma: float, reset_on_nonzero: bool = False) -> np.ndarray:
