@@ -28,6 +28,7 @@ from ablate.agent.collectors import PongCollector, TrainingVideos, VectorCollect
 from ablate.agent.envs import PONG_ACTIONS, env_info, is_pong
 from ablate.agent.optim import Adam
 from ablate.agent.policies import Policy, create_model, parameter_count
+from ablate.agent.pong_population import PongPopulationBackend
 from ablate.agent.reinforce import UpdateStats, discount_rewards, normalize, train_step
 from ablate.agent.stacked import Batch, StackedBackend, population_group, stackable
 from ablate.agent.trial import (
@@ -185,7 +186,9 @@ def run_population(
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     folders = [Path(d) if d is not None else None for d in (artifacts_dirs or [None] * len(configs))]
     if stackable(configs[0]):
-        backend: StackedBackend | SingleBackend = StackedBackend(configs, device)
+        backend: StackedBackend | PongPopulationBackend | SingleBackend = StackedBackend(configs, device)
+    elif len(configs) > 1 and is_pong(configs[0].env_id):
+        backend = PongPopulationBackend(configs, device, folders)
     else:
         backend = SingleBackend(configs[0], device, folders[0])
     members = [

@@ -19,6 +19,7 @@ from torch import nn
 from ablate.agent.envs import env_info
 from ablate.agent.optim import StackedAdam
 from ablate.agent.policies import _NUMPY_ACTIVATIONS, Policy, create_model
+from ablate.agent.pong_acting import pong_population_group
 from ablate.agent.reinforce import UpdateStats
 from ablate.agent.stacked_episodes import Batch, StackedEpisodes
 from ablate.agent.vector_cartpole import generator_at
@@ -40,9 +41,10 @@ def stackable(config: TrialConfig) -> bool:
 
 def population_group(config: TrialConfig) -> tuple | None:
     """Configs with one group share a population: the same network and batch shape (everything else, the
-    seed, learning rate, L2, discount, budget and stop rule, is per member). ``None``: a population of one."""
+    seed, learning rate, L2, discount, budget and stop rule, is per member). ``None``: a population of one.
+    Pong's groups: ``pong_acting.pong_population_group``."""
     if not stackable(config):
-        return None
+        return pong_population_group(config)
     return (config.env_id, config.model, config.episodes_per_update)
 
 
