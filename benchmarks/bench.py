@@ -3,7 +3,8 @@
 Sections: `core` (course-style loop vs our trial, time to solve CartPole-v1), `runner`, `ablation` (the
 default ablation: speed-up, tracking overhead, memory), `tracking` (the single writer with 256 synthetic
 trials), `cluster` (a tiny ablation on the local default vs a joined head and a tracking server), `pong`
-and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial), `tuning` (tuned vs untuned
+and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial), `pong-population` (Pong
+populations of 8 per member against the raw emulator; RSS per member), `tuning` (tuned vs untuned
 default ablation; each launch's time-left estimate scored), `eta` (the time-left estimate against the time that
 actually remained), `population` (CartPole populations against one trial; the same results), `seeds` (the
 tuned default ablation at 4x its seeds in populations against today's launch).
@@ -701,6 +702,75 @@ def bench_pong_memory(episodes: int = 0, variant: str = "cnn", max_episode_steps
     RESULTS["pong-memory"] = {"variant": variant, "rss_mb": samples, "peak_rss_mb": peak_mb}
 
 
+PONG_POPULATION_EPISODES = {"mlp": 16, "cnn": 8}
+"""Episodes per member in the `pong-population` section's populations of 8 (twice as many in its population of
+one): ~100,000 MLP and ~60,000 CNN agent steps in all, a few minutes on one core."""
+
+
+def _pong_population_child(variant: str, members: int, episodes: int, queue) -> None:
+    """In a fresh process (its peak RSS is the population's own): ``members`` seeds of pong.toml's ``variant``
+    as one population; puts (agent steps, CPU seconds, peak RSS in MB) on ``queue``."""
+    import resource
+
+    from ablate.agent.population import run_population
+
+    configs = [_pong_config(variant, max_episodes=episodes, seed=seed) for seed in range(members)]
+    steps, first = [0], []
+
+    def count(member: int, rows) -> None:
+        steps[0] += sum(row.length for row in rows)
+        if not first:  # setup (4 ROM loads a member, ~0.15 s each) and the first episodes are behind
+            first.append((time.process_time(), steps[0]))
+
+    started = time.process_time()
+    run_population(configs, on_episodes=count, device="cpu")
+    ended = time.process_time()
+    steady = (steps[0] - first[0][1]) / (ended - first[0][0])
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    queue.put((steps[0], ended - started, steady, peak_mb))
+
+
+def bench_pong_population(members: int = 8) -> None:
+    """Pong populations (issue 26): agent steps per CPU second of a population of ``members`` seeds of the
+    pong.toml `mlp` and `cnn` variants, per member (the population's steps over its CPU time: what one
+    member's steps cost a core; from its first update on, and with setup), against the raw emulator per core
+    measured before and after; a population of one (the single trial) for reference; peak RSS of each
+    population's process over its members. Each population in a fresh process, one thread, CPU time (not
+    wall: the neighbours' load on a shared machine does not count)."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")
+    before = _raw_pong_steps_per_cpu_s()
+    rows = []
+    for variant, episodes in PONG_POPULATION_EPISODES.items():
+        for size, per_member in ((members, episodes), (1, 2 * episodes)):
+            queue = context.Queue()
+            child = context.Process(target=_pong_population_child, args=(variant, size, per_member, queue))
+            child.start()
+            steps, cpu_s, steady, peak_mb = queue.get()
+            child.join()
+            rows.append(
+                {"variant": variant, "members": size, "steps": steps, "cpu_s": cpu_s, "steady": steady}
+                | {"peak_rss_mb": peak_mb}
+            )
+            print(
+                f"  {variant} population of {size}: {steps:,} agent steps in {cpu_s:,.1f} CPU s "
+                f"({steps / cpu_s:,.0f} per CPU s, setup included; {steady:,.0f} after the first update); "
+                f"peak RSS {peak_mb:,.0f} MB ({peak_mb / size:,.0f} MB per member)",
+                flush=True,
+            )
+    raw = (before + _raw_pong_steps_per_cpu_s()) / 2
+    for row in rows:
+        row["ratio"], row["steady_ratio"] = row["steps"] / row["cpu_s"] / raw, row["steady"] / raw
+    summary = "; ".join(
+        f"{r['variant']} x{r['members']} {r['steady_ratio']:.2f}x ({r['ratio']:.2f}x with setup; "
+        f"{r['peak_rss_mb'] / r['members']:,.0f} MB/member)"
+        for r in rows
+    )
+    print(f"pong-population: raw ALE/Pong-v5 {raw:,.0f} agent steps/s/core; per member against it: {summary}")
+    RESULTS["pong-population"] = {"raw": raw, "runs": rows}
+
+
 def without_tune(text: str) -> str:
     """An experiment file's text without its ``[tune]`` table (its header up to the next table header): the
     same ablation, untuned."""
@@ -994,6 +1064,7 @@ SECTIONS = {
     "cluster": bench_cluster,
     "pong": bench_pong,
     "pong-memory": bench_pong_memory,
+    "pong-population": bench_pong_population,
     "tuning": bench_tuning,
     "eta": bench_eta,
     "population": bench_population,
