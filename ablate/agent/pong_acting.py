@@ -171,11 +171,17 @@ class StackedPongActor:
         pixel, tap = np.nonzero(out1 >= 0)
         target1 = rows[pixel] * side1 * side1 + out1[pixel, tap]
         contributions = values[pixel, None] * s["kernel1"][member[rows[pixel]], k1_pos[columns[pixel], tap]]
+        # The scatter-add over the touched positions only (a population's frames: n * 400 * 16 outputs, a few
+        # hundred touched): each target's rank among them, then one bincount of that size.
         n1 = n * side1 * side1
-        summed = np.bincount((target1[:, None] * c1 + np.arange(c1)).ravel(), contributions.ravel(), minlength=n1 * c1)
         touched = np.flatnonzero(np.bincount(target1, minlength=n1))
+        rank = np.zeros(n1, np.int64)
+        rank[touched] = np.arange(len(touched))
+        summed = np.bincount(
+            (rank[target1][:, None] * c1 + np.arange(c1)).ravel(), contributions.ravel(), minlength=len(touched) * c1
+        )
         touched_member = member[touched // (side1 * side1)]
-        pre1 = summed.reshape(n1, c1)[touched].astype(np.float32) + s["bias1"][touched_member]
+        pre1 = summed.reshape(len(touched), c1).astype(np.float32) + s["bias1"][touched_member]
         act1 = _NUMPY_ACTIVATIONS[type(self.policies[0].body[1])]
         change1 = act1(pre1) - s["background1"][touched_member]
 
