@@ -709,31 +709,35 @@ one): ~100,000 MLP and ~60,000 CNN agent steps in all, a few minutes on one core
 
 def _pong_population_child(variant: str, members: int, episodes: int, queue) -> None:
     """In a fresh process (its peak RSS is the population's own): ``members`` seeds of pong.toml's ``variant``
-    as one population; puts (agent steps, CPU seconds, peak RSS in MB) on ``queue``."""
+    as one population; puts (agent steps, CPU seconds, of them in setup, peak RSS in MB) on ``queue``. Setup:
+    building the backend (4 ROM loads a member, ~0.15 s each idle), a one-off cost over a 400-episode trial."""
     import resource
 
-    from ablate.agent.population import run_population
+    from ablate.agent import population
 
+    setup = [0.0]
+    for name in ("PongPopulationBackend", "SingleBackend"):
+        backend = getattr(population, name)
+
+        class Timed(backend):
+            def __init__(self, *args, **kwargs) -> None:
+                started = time.process_time()
+                super().__init__(*args, **kwargs)
+                setup[0] += time.process_time() - started
+
+        setattr(population, name, Timed)
     configs = [_pong_config(variant, max_episodes=episodes, seed=seed) for seed in range(members)]
-    steps, first = [0], []
-
-    def count(member: int, rows) -> None:
-        steps[0] += sum(row.length for row in rows)
-        if not first:  # setup (4 ROM loads a member, ~0.15 s each) and the first episodes are behind
-            first.append((time.process_time(), steps[0]))
-
     started = time.process_time()
-    run_population(configs, on_episodes=count, device="cpu")
-    ended = time.process_time()
-    steady = (steps[0] - first[0][1]) / (ended - first[0][0])
+    outcomes = population.run_population(configs, device="cpu")
+    spent = time.process_time() - started
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    queue.put((steps[0], ended - started, steady, peak_mb))
+    queue.put((sum(o.env_steps for o in outcomes), spent, setup[0], peak_mb))
 
 
 def bench_pong_population(members: int = 8) -> None:
     """Pong populations (issue 26): agent steps per CPU second of a population of ``members`` seeds of the
     pong.toml `mlp` and `cnn` variants, per member (the population's steps over its CPU time: what one
-    member's steps cost a core; from its first update on, and with setup), against the raw emulator per core
+    member's steps cost a core; after setup, and with it), against the raw emulator per core
     measured before and after; a population of one (the single trial) for reference; peak RSS of each
     population's process over its members. Each population in a fresh process, one thread, CPU time (not
     wall: the neighbours' load on a shared machine does not count)."""
@@ -747,15 +751,16 @@ def bench_pong_population(members: int = 8) -> None:
             queue = context.Queue()
             child = context.Process(target=_pong_population_child, args=(variant, size, per_member, queue))
             child.start()
-            steps, cpu_s, steady, peak_mb = queue.get()
+            steps, cpu_s, setup_s, peak_mb = queue.get()
             child.join()
+            steady = steps / (cpu_s - setup_s)
             rows.append(
-                {"variant": variant, "members": size, "steps": steps, "cpu_s": cpu_s, "steady": steady}
-                | {"peak_rss_mb": peak_mb}
+                {"variant": variant, "members": size, "steps": steps, "cpu_s": cpu_s, "setup_s": setup_s}
+                | {"steady": steady, "peak_rss_mb": peak_mb}
             )
             print(
-                f"  {variant} population of {size}: {steps:,} agent steps in {cpu_s:,.1f} CPU s "
-                f"({steps / cpu_s:,.0f} per CPU s, setup included; {steady:,.0f} after the first update); "
+                f"  {variant} population of {size}: {steps:,} agent steps in {cpu_s:,.1f} CPU s, "
+                f"{setup_s:,.1f} of them setup ({steady:,.0f} per CPU s after setup, {steps / cpu_s:,.0f} with it); "
                 f"peak RSS {peak_mb:,.0f} MB ({peak_mb / size:,.0f} MB per member)",
                 flush=True,
             )
