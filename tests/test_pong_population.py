@@ -122,3 +122,17 @@ def test_which_pong_configs_share_a_population():
     assert not can_share([PONG, replace(PONG, action_set="all")])
     gelu = replace(PONG, model=replace(PONG.model, activation="gelu"))
     assert population_group(gelu) is None
+
+
+def test_ablate_run_forms_pong_populations_per_arm_and_stage():
+    from ablate.experiment import load_experiment
+    from ablate.launch.grid import expand
+    from ablate.launch.plan import plan_populations
+
+    trials = expand(load_experiment("experiments/pong.toml"))
+    plan = plan_populations(trials, cap=8, slots=2)
+    assert sum(len(p.members) for p in plan) == len(trials)
+    for population in plan:
+        assert len({(t.variant, t.stage) for t in population.members}) == 1  # one arm, one stage
+        assert can_share([t.config for t in population.members])
+    assert max(len(p.members) for p in plan) > 1
