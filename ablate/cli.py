@@ -259,7 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=config_module.DEFAULT_POPULATION,
         metavar="M",
         help="train up to M trials of a variant together in one process, as one batched population (default "
-        f"{config_module.DEFAULT_POPULATION}; 1: each alone); on a CPU a member is its trial alone (CartPole: bit for bit)",
+        f"{config_module.DEFAULT_POPULATION}; 1: each alone); on a CPU a member is its trial alone "
+        "(CartPole: bit for bit)",
     )
     run.add_argument("--no-report", dest="report", action="store_false", help="skip the report at the end")
     run.add_argument(
