@@ -43,9 +43,11 @@ def test_numpy_acting_path_matches_torch_and_follows_updates():
     import numpy as np
 
     torch.manual_seed(0)
-    for activation in ("relu", "tanh", "elu", "gelu"):
-        model = create_cartpole_model(hidden_sizes=(16, 8), activation=activation, dropout=0.2).eval()
-        x = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
+    cnn = {"architecture": "cnn", "history": 5, "conv_channels": (8, 6), "kernel_size": 2}
+    for activation, extra in [(a, {}) for a in ("relu", "tanh", "elu", "gelu")] + [("tanh", cnn), ("gelu", cnn)]:
+        model = create_cartpole_model(hidden_sizes=(16, 8), activation=activation, dropout=0.2, **extra).eval()
+        assert model._numpy_ok  # CartPole's 1-D convolutions act in numpy too
+        x = np.random.default_rng(0).normal(size=(7, *model.observation_shape)).astype(np.float32)
         with torch.no_grad():
             expected = model(torch.from_numpy(x)).numpy()
         np.testing.assert_allclose(model.act_logits(x), expected, rtol=1e-5, atol=1e-6)
@@ -55,10 +57,6 @@ def test_numpy_acting_path_matches_torch_and_follows_updates():
         with torch.no_grad():
             expected = model(torch.from_numpy(x)).numpy()
         np.testing.assert_allclose(model.act_logits(x), expected, rtol=1e-5, atol=1e-6)
-    cnn = create_cartpole_model(architecture="cnn").eval()
-    window = np.zeros((2, 4, 4), np.float32)
-    with torch.no_grad():
-        np.testing.assert_allclose(cnn.act_logits(window), cnn(torch.from_numpy(window)).numpy())
 
 
 def test_pong_mlp_acts_in_numpy_on_sparse_int8_frame_differences():
@@ -113,3 +111,21 @@ def test_word_scan_nonzero_equals_torch_nonzero_in_order():
     x[2, 9:20] = 1  # several bytes of one word, spilling into the next; rows 1 and 3 stay empty
     for got, expected in zip(_nonzero_rows_columns(x), x.nonzero(as_tuple=True), strict=True):
         assert torch.equal(got, expected)
+
+
+def test_numpy_conv1d_matches_torch_and_a_stack_is_each_member_alone_exactly():
+    import numpy as np
+
+    from ablate.agent.policies import conv1d, conv1d_weight
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(3, 7, 4, 5)).astype(np.float32)  # 3 members, 7 envs, 4 channels, 5 steps
+    weight = rng.normal(size=(3, 6, 4, 2)).astype(np.float32)
+    bias = rng.normal(size=(3, 6)).astype(np.float32)
+    stacked = conv1d(x, conv1d_weight(weight), bias[:, None, :])
+    assert stacked.shape == (3, 7, 6, 4) and stacked.flags.c_contiguous
+    for i in range(3):
+        alone = conv1d(x[i], conv1d_weight(weight[i]), bias[i])
+        np.testing.assert_array_equal(stacked[i], alone)  # bit for bit: how a population acts as its trials
+        expected = torch.nn.functional.conv1d(*(torch.from_numpy(a) for a in (x[i], weight[i], bias[i])))
+        np.testing.assert_allclose(alone, expected.numpy(), rtol=1e-5, atol=1e-6)

@@ -18,10 +18,19 @@ from ablate.config import ModelConfig
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 
 
+def _numpy_gelu(x: np.ndarray) -> np.ndarray:
+    """``nn.GELU`` (the exact, erf form) for acting. SciPy's ``erf`` is scalar code per element, so an element's
+    value does not depend on where it sits in the array: a stack of members acts exactly as each member alone."""
+    from scipy.special import erf  # imported here: only a GELU policy pays for it
+
+    return x * np.float32(0.5) * (np.float32(1.0) + erf(x * np.float32(np.sqrt(0.5))))
+
+
 _NUMPY_ACTIVATIONS = {
     nn.ReLU: lambda x: np.maximum(x, 0),
     nn.Tanh: np.tanh,
     nn.ELU: lambda x: np.where(x > 0, x, np.expm1(np.minimum(x, 0))),
+    nn.GELU: _numpy_gelu,
     nn.Dropout: lambda x: x,  # acting is in eval mode: dropout is the identity
     nn.Flatten: lambda x: x.reshape(len(x), -1),  # Pong's MLP: (batch, 1, 80, 80) -> (batch, 6400)
 }
@@ -44,7 +53,7 @@ class Policy(nn.Module):
             and isinstance(body[1], nn.Linear)
         )
         self._numpy_ok = isinstance(body, nn.Sequential) and all(
-            isinstance(m, nn.Linear) or type(m) in _NUMPY_ACTIVATIONS for m in body
+            isinstance(m, nn.Linear) or _plain_conv1d(m) or type(m) in _NUMPY_ACTIVATIONS for m in body
         )
         self._sparse_stem = (
             sparse_cnn.SparseStem(body, observation_shape[1]) if sparse_cnn.fits(body, self.observation_shape) else None
@@ -107,16 +116,17 @@ class Policy(nn.Module):
         return self._numpy_stem(x, rows, columns)
 
     def act_logits(self, observations: np.ndarray) -> np.ndarray:
-        """Logits for acting: eval mode, no autograd. A dense body runs in numpy on a copy of the weights,
-        refreshed whenever a parameter changes (torch's per-call overhead is most of the cost of a forward
-        through a network this small, once per environment step); any other body runs through torch."""
+        """Logits for acting: eval mode, no autograd. A dense body (CartPole's 1-D convolutions included) runs in
+        numpy on a copy of the weights, refreshed whenever a parameter changes (torch's per-call overhead is most
+        of the cost of a forward through a network this small, once per environment step); any other body runs
+        through torch."""
         if self._parameters_list is None:
             # Cached: walking the module tree for its parameters costs ~70 us, more than the forward itself.
             self._parameters_list = list(self.parameters())
         parameters = self._parameters_list
         if self._numpy_stem_ok and parameters[0].device.type == "cpu" and observations.dtype == np.int8:
             return self._numpy_stem_logits(observations, parameters)
-        if not self._numpy_ok or parameters[0].device.type != "cpu":  # a conv body, or a policy on a GPU
+        if not self._numpy_ok or parameters[0].device.type != "cpu":  # a 2-D conv body, or a policy on a GPU
             with torch.inference_mode():
                 inputs = torch.from_numpy(observations).to(parameters[0].device)
                 return self(inputs).float().cpu().numpy()
@@ -138,7 +148,54 @@ def _numpy_layer(module: nn.Module):
     """A numpy stand-in for ``module`` when acting: (weight.T, bias) copies for a Linear, else a function."""
     if isinstance(module, nn.Linear):
         return module.weight.detach().numpy().T.copy(), module.bias.detach().numpy().copy()
+    if isinstance(module, nn.Conv1d):
+        return NumpyConv1d(conv1d_weight(module.weight.detach().numpy()), module.bias.detach().numpy().copy())
     return _NUMPY_ACTIVATIONS[type(module)]
+
+
+def _plain_conv1d(module: nn.Module) -> bool:
+    """A ``Conv1d`` that ``conv1d`` computes: stride 1, no padding or dilation, one group (CartPole's)."""
+    return (
+        isinstance(module, nn.Conv1d)
+        and module.stride == (1,)
+        and module.padding == (0,)
+        and module.dilation == (1,)
+        and module.groups == 1
+        and module.bias is not None
+    )
+
+
+def conv1d_weight(weight: np.ndarray) -> np.ndarray:
+    """A ``Conv1d`` weight (..., out, in, kernel) as the matrix ``conv1d`` multiplies patches by: (..., kernel *
+    in, out), contiguous (a patch holds its steps one after another, each step's channels together)."""
+    *lead, out, channels, kernel = weight.shape
+    moved = np.moveaxis(weight, (-1, -2, -3), (-3, -2, -1))  # (..., kernel, in, out)
+    return np.ascontiguousarray(moved).reshape(*lead, kernel * channels, out)
+
+
+def conv1d(x: np.ndarray, weight: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """A stride-1, unpadded ``Conv1d`` in numpy: (..., N, in, T) -> (..., N, out, T - kernel + 1), contiguous;
+    ``weight`` from ``conv1d_weight`` (with the same leading axes as ``x``, or none), ``bias`` broadcasting
+    against (..., N * length, out). Each (N * length, kernel * in) block of patches is one matrix product: a
+    stack of members (a leading axis) multiplies each member's block exactly as that member alone does."""
+    *lead, n, channels, steps = x.shape
+    kernel = weight.shape[-2] // channels
+    length = steps - kernel + 1
+    by_step = np.swapaxes(x, -1, -2)  # (..., N, T, in): a patch is `kernel` consecutive rows
+    patches = np.concatenate([by_step[..., j : j + length, :] for j in range(kernel)], axis=-1)
+    out = np.matmul(patches.reshape(*lead, n * length, kernel * channels), weight)
+    out += bias
+    return np.ascontiguousarray(np.swapaxes(out.reshape(*lead, n, length, -1), -1, -2))
+
+
+class NumpyConv1d:
+    """``conv1d`` with one ``Conv1d``'s weights (copies), a layer of ``Policy.act_logits``'s numpy path."""
+
+    def __init__(self, weight: np.ndarray, bias: np.ndarray) -> None:
+        self.weight, self.bias = weight, bias
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return conv1d(x, self.weight, self.bias)
 
 
 def _nonzero(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -229,6 +286,9 @@ class _TimeAsLength(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x.transpose(1, 2)
+
+
+_NUMPY_ACTIVATIONS[_TimeAsLength] = lambda x: np.swapaxes(x, -1, -2)  # CartPole's cnn acts in numpy too
 
 
 def create_pong_model(
