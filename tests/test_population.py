@@ -8,12 +8,24 @@ import pytest
 import torch
 
 from ablate.agent.population import SingleBackend, can_share, run_population
-from ablate.agent.stacked import StackedBackend, population_group
+from ablate.agent.stacked import StackedBackend
 from ablate.agent.trial import TrialFailed, TrialResult, run_trial
 from ablate.config import DEFAULT, ModelConfig
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=48, episodes_per_update=8, record_video=False)
 DEEP = replace(SHORT, model=ModelConfig(hidden_sizes=(16, 16), dropout=0.2), l2=0.001)
+CNN = replace(SHORT, model=ModelConfig(architecture="cnn", history=4, conv_channels=(16,), kernel_size=2))
+"""experiments/cartpole.toml's ``cnn`` variant."""
+DEEP_CNN = replace(
+    SHORT,
+    model=ModelConfig(
+        architecture="cnn", history=5, conv_channels=(8, 6), kernel_size=2, hidden_sizes=(16,), dropout=0.2
+    ),
+    l2=0.001,
+)
+GELU = replace(SHORT, model=ModelConfig(hidden_sizes=(16, 16), activation="gelu"))
+EXACT = [SHORT, DEEP, CNN, DEEP_CNN, GELU]
+EXACT_IDS = ["dense", "dropout+l2", "cnn", "cnn-deep+dropout+l2", "gelu"]
 
 
 def _members(base):
@@ -38,7 +50,7 @@ def _first_update(backend):
     return batches, backend.update(batches)
 
 
-@pytest.mark.parametrize("base", [SHORT, DEEP], ids=["dense", "dropout+l2"])
+@pytest.mark.parametrize("base", EXACT, ids=EXACT_IDS)
 def test_a_member_has_its_single_trials_first_episodes_loss_and_gradients(base):
     configs = _members(base)
     population = StackedBackend(configs, torch.device("cpu"))
@@ -55,7 +67,7 @@ def test_a_member_has_its_single_trials_first_episodes_loss_and_gradients(base):
             assert torch.equal(p.grad[i], q.grad)
 
 
-@pytest.mark.parametrize("base", [SHORT, DEEP], ids=["dense", "dropout+l2"])
+@pytest.mark.parametrize("base", [SHORT, DEEP, DEEP_CNN], ids=["dense", "dropout+l2", "cnn-deep+dropout+l2"])
 def test_the_padded_batched_update_a_gpu_takes_gives_the_same_loss_and_gradients(base):
     """The GPU's path (one padded batch through batched products), run here on the CPU: the members' losses
     and gradients to float tolerance (the dropout masks are each member's own draws in both)."""
@@ -77,9 +89,11 @@ def test_the_padded_batched_update_a_gpu_takes_gives_the_same_loss_and_gradients
         torch.testing.assert_close(p.grad, q.grad, rtol=1e-4, atol=1e-6)
 
 
-def test_a_population_of_one_is_its_single_trial_bit_for_bit():
-    """run_trial is a population of one, and that is the pre-population path exactly (nn.Linear's kernels)."""
-    config = replace(DEEP, seed=5)
+@pytest.mark.parametrize("base", [DEEP, DEEP_CNN], ids=["dropout+l2", "cnn-deep+dropout+l2"])
+def test_a_population_of_one_is_its_single_trial_bit_for_bit(base):
+    """run_trial is a population of one, and that is the pre-population path exactly (nn.Linear's kernels;
+    the cnn's Gymnasium envs, ``ObservationWindow`` and ``Policy.act_logits``)."""
+    config = replace(base, seed=5)
     single = SingleBackend(config, torch.device("cpu"), None)
     stacked = StackedBackend([config], torch.device("cpu"))
     for _ in range(3):
@@ -91,9 +105,10 @@ def test_a_population_of_one_is_its_single_trial_bit_for_bit():
         assert torch.equal(tensor, single.model.state_dict()[name]), name
 
 
-def test_members_follow_their_single_trials():
+@pytest.mark.parametrize("base", [DEEP, CNN], ids=["dropout+l2", "cnn"])
+def test_members_follow_their_single_trials(base):
     """Not only the first update: each member's whole run is its single trial's, bit for bit (on a CPU)."""
-    configs = _members(DEEP)
+    configs = _members(base)
     outcomes = run_population(configs)
     for config, outcome in zip(configs, outcomes, strict=True):
         alone = run_trial(config)
@@ -102,10 +117,11 @@ def test_members_follow_their_single_trials():
             assert torch.equal(outcome.state_dict[name], tensor), name
 
 
-def test_members_with_their_own_budgets_update_when_their_own_episodes_are_in(monkeypatch):
+@pytest.mark.parametrize("base", [DEEP, CNN], ids=["dropout+l2", "cnn"])
+def test_members_with_their_own_budgets_update_when_their_own_episodes_are_in(monkeypatch, base):
     """No lockstep: seeds, learning rates and budgets differ, so collections end at different steps; a collect
     hands over only the members whose episodes are all in, and each member is still its single trial."""
-    configs = [replace(c, max_episodes=b) for c, b in zip(_members(DEEP), (48, 20, 36, 44), strict=True)]
+    configs = [replace(c, max_episodes=b) for c, b in zip(_members(base), (48, 20, 36, 44), strict=True)]
     handed: list[list[int]] = []
     collect = StackedBackend.collect
 
@@ -194,10 +210,12 @@ def test_a_killed_population_resumes_every_member_exactly():
         assert len(replayed[i][0]) == 16  # the saved history first, in one call
 
 
-def test_members_resume_from_different_points_beside_fresh_ones():
+@pytest.mark.parametrize("base", [DEEP, CNN], ids=["dropout+l2", "cnn"])
+def test_members_resume_from_different_points_beside_fresh_ones(base):
     """One member resumes from its first checkpoint, one from its second, two start afresh, all in one
-    population: each collection in flight around them, each member ends as its unbroken run."""
-    configs = [replace(c, checkpoint_every=16) for c in _members(DEEP)]
+    population: each collection in flight around them (the cnn's windows too), each member ends as its
+    unbroken run."""
+    configs = [replace(c, checkpoint_every=16) for c in _members(base)]
     blobs: dict[int, list[bytes]] = {}
     whole = run_population(configs, on_checkpoint=lambda i, blob: blobs.setdefault(i, []).append(blob))
     resumed = run_population(configs, resume_from=[blobs[0][0], None, blobs[2][1], None])
@@ -229,9 +247,7 @@ def test_which_configs_share_a_population():
     assert can_share(_members(SHORT)) and can_share([replace(SHORT, gamma=0.9), replace(SHORT, l2=0.01)])
     assert not can_share([SHORT, replace(SHORT, episodes_per_update=4)])
     assert not can_share([SHORT, DEEP])
-    cnn = replace(SHORT, model=ModelConfig(architecture="cnn"))
-    gelu = replace(SHORT, model=ModelConfig(activation="gelu"))
-    assert population_group(cnn) is None and population_group(gelu) is None
-    assert can_share([cnn]) and not can_share([cnn, replace(cnn, seed=1)])
+    assert can_share(_members(CNN)) and can_share(_members(GELU))
+    assert not can_share([CNN, SHORT]) and not can_share([CNN, replace(CNN, model=replace(CNN.model, history=3))])
     with pytest.raises(ValueError, match="cannot share"):
-        run_population([cnn, replace(cnn, seed=1)])
+        run_population([CNN, SHORT])

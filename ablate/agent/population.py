@@ -3,11 +3,11 @@ trained together in one process; ``run_trial`` is a population of one.
 
 Every member collects its next batch of episodes and takes one Adam step as soon as its own episodes are in
 (no member waits for another's); a member that solves, runs out of budget or fails (a NaN loss) leaves, the
-others go on untouched. CartPole's dense MLP members
-share stacked tensors (``stacked.StackedBackend``: one env step, one forward, one backward for all); Pong's
-members act in one stacked forward and update as their trials (``pong_population.PongPopulationBackend``); any
-other variant, and a Pong population of one, runs on its own path (``SingleBackend``). Every member keeps a
-single trial's metrics callback, checkpoints, exact resume and artifacts. No Ray and no MLflow here.
+others go on untouched. CartPole's members (dense or ``cnn``) share stacked tensors (``stacked.StackedBackend``:
+one env step, one forward, one backward for all); Pong's members act in one stacked forward and update as their
+trials (``pong_population.PongPopulationBackend``); any other variant, and a Pong population of one, runs on its
+own path (``SingleBackend``). Every member keeps a single trial's metrics callback, checkpoints, exact resume and
+artifacts. No Ray and no MLflow here.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ MemberOutcome = TrialResult | TrialFailed
 
 
 class SingleBackend:
-    """One member on today's single-trial path (Pong, CartPole's ``cnn``, GELU): its ``Policy``, ``Adam``,
+    """One member on today's single-trial path (Pong): its ``Policy``, ``Adam``,
     global torch RNG and collector, exactly as ``run_trial`` ran them before populations."""
 
     def __init__(self, config: TrialConfig, device: torch.device, artifacts_dir: Path | None) -> None:

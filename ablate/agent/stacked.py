@@ -1,5 +1,5 @@
-"""A population's dense CartPole policies as stacked tensors: one numpy forward to act for every member, one
-backward to learn, one ``StackedAdam`` step; every member's episodes from one ``CartPoleBatch``.
+"""A population's CartPole policies (dense, or ``cnn``) as stacked tensors: one numpy forward to act for every
+member, one backward to learn, one ``StackedAdam`` step; every member's episodes from one ``CartPoleBatch``.
 
 Every member keeps its single trial's random streams (initial weights, actions, envs, dropout masks) and, on a
 CPU, its single trial's own forward and backward kernels on its own batch: a member's whole run is the run of
@@ -18,23 +18,26 @@ from torch import nn
 
 from ablate.agent.envs import env_info
 from ablate.agent.optim import StackedAdam
-from ablate.agent.policies import _NUMPY_ACTIVATIONS, Policy, create_model
+from ablate.agent.policies import _NUMPY_ACTIVATIONS, Policy, conv1d, conv1d_weight, create_model
 from ablate.agent.pong_acting import pong_population_group
 from ablate.agent.reinforce import UpdateStats
 from ablate.agent.stacked_episodes import Batch, StackedEpisodes
 from ablate.agent.vector_cartpole import generator_at
 from ablate.config import TrialConfig
 
-_STACKABLE_ACTIVATIONS = ("relu", "tanh", "elu")
+_STACKABLE_ACTIVATIONS = ("relu", "tanh", "elu", "gelu")
 """Those acting has a numpy stand-in for (``policies._NUMPY_ACTIVATIONS``): a member acts in numpy exactly as
-its single trial does. GELU's single trial acts through torch, so a GELU variant keeps its own path."""
+its single trial does."""
+
+_STACKABLE_ARCHITECTURES = ("mlp", "cnn")
+"""CartPole's dense MLP, and its ``cnn`` (1-D convolutions over a window of observations, then dense layers)."""
 
 
 def stackable(config: TrialConfig) -> bool:
-    """Whether ``config`` trains in a stacked population (CartPole's dense MLP), not its own path."""
+    """Whether ``config`` trains in a stacked population (CartPole's policies), not its own path."""
     return (
         config.env_id.startswith("CartPole")
-        and config.model.architecture == "mlp"
+        and config.model.architecture in _STACKABLE_ARCHITECTURES
         and config.model.activation in _STACKABLE_ACTIVATIONS
     )
 
@@ -48,58 +51,109 @@ def population_group(config: TrialConfig) -> tuple | None:
     return (config.env_id, config.model, config.episodes_per_update)
 
 
-class StackedMLP:
-    """M dense policies of one architecture, each layer's weights and biases stacked member-first, with the
-    names, order and shapes of ``Policy`` parameters (a member's slice loads into a ``Policy`` as it is)."""
+class StackedPolicy:
+    """M CartPole policies of one architecture (dense, or ``cnn``'s 1-D convolutions then dense), each layer's
+    weights and biases stacked member-first, with the names, order and shapes of ``Policy`` parameters (a
+    member's slice loads into a ``Policy`` as it is)."""
 
     def __init__(self, policies: Sequence[Policy], device: torch.device) -> None:
         body = policies[0].body
         self.template = policies[0]
-        self.linear = [k for k, m in enumerate(body) if isinstance(m, nn.Linear)]
-        self.activations = {k: body[k + 1] for k in self.linear[:-1]}
-        self.dropout = next((m.p for m in body if isinstance(m, nn.Dropout)), 0.0)
         self.names = [name for name, _ in policies[0].named_parameters()]
+        index = {name: i for i, name in enumerate(self.names)}
+        self.weighted = {
+            k: (index[f"body.{k}.weight"], index[f"body.{k}.bias"])
+            for k, m in enumerate(body)
+            if isinstance(m, nn.Linear | nn.Conv1d)
+        }
+        """Body position of each Linear and Conv1d -> the positions of its weight and bias in ``params``."""
+        self.linear = [k for k, m in enumerate(body) if isinstance(m, nn.Linear)]
+        self.convs = [k for k, m in enumerate(body) if isinstance(m, nn.Conv1d)]
+        self.activations = {k: body[k + 1] for k in self.linear[:-1] + self.convs}
+        self.dropout = next((m.p for m in body if isinstance(m, nn.Dropout)), 0.0)
+        self.weights = [i for i, name in enumerate(self.names) if name.endswith("weight")]
+        """Positions of the weights L2 penalises (``reinforce.l2_penalty``'s, in its order)."""
         self.params = [
             torch.stack([dict(p.named_parameters())[name].detach() for p in policies]).to(device).requires_grad_()
             for name in self.names
         ]
-        self._numpy: list | None = None
+        self._numpy: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
 
     @property
     def members(self) -> int:
         return self.params[0].shape[0]
 
     def layers(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        return [(self.params[2 * i], self.params[2 * i + 1]) for i in range(len(self.linear))]
+        """The dense layers' stacked (weight, bias), in order."""
+        return [(self.params[self.weighted[k][0]], self.params[self.weighted[k][1]]) for k in self.linear]
 
     def refresh(self) -> None:
         """Acting's numpy copies of the weights (as ``Policy.act_logits`` keeps them), after each update."""
-        self._numpy = [
-            (w.detach().cpu().numpy().transpose(0, 2, 1).copy(), b.detach().cpu().numpy()[:, None, :].copy())
-            for w, b in self.layers()
-        ]
+        self._numpy = {}
+        for k, (w, b) in self.weighted.items():
+            weight = self.params[w].detach().cpu().numpy()
+            weight = conv1d_weight(weight) if k in self.convs else weight.transpose(0, 2, 1).copy()
+            self._numpy[k] = (weight, self.params[b].detach().cpu().numpy()[:, None, :].copy())
 
     def act_logits(self, observations: np.ndarray) -> np.ndarray:
-        """(M, N, obs) float32 -> (M, N, actions) logits, every member's ``Policy.act_logits`` in one pass."""
+        """(M, N, *observation) float32 -> (M, N, actions) logits: every member's ``Policy.act_logits`` in one
+        pass, layer by layer the same numpy operations on each member's rows (``policies.conv1d`` included)."""
         if self._numpy is None:
             self.refresh()
         x = observations
-        for (weight, bias), k in zip(self._numpy, self.linear, strict=True):
-            x = np.matmul(x, weight)
-            x += bias
-            if k in self.activations:
-                x = _NUMPY_ACTIVATIONS[type(self.activations[k])](x)
+        for k, module in enumerate(self.template.body):
+            if k in self.convs:
+                x = conv1d(x, *self._numpy[k])
+            elif k in self._numpy:
+                weight, bias = self._numpy[k]
+                x = np.matmul(x, weight)
+                x += bias
+            elif isinstance(module, nn.Flatten):
+                x = x.reshape(*x.shape[:-2], -1)  # (M, N, channels, length): each row's channels, then time
+            else:
+                x = _NUMPY_ACTIVATIONS[type(module)](x)
+        return x
+
+    def member_logits(self, member: int, x: torch.Tensor, slices: list, generator: torch.Generator) -> torch.Tensor:
+        """Training forward of one member on its own batch: its single trial's ``Policy.forward``, module by
+        module with the same kernels and shapes, its parameters ``slices[j][member]`` (``unbind`` slices of the
+        stacks) and its dropout drawn from its own ``generator`` (as ``F.dropout`` draws in its trial)."""
+        p = self.dropout
+        for k, module in enumerate(self.template.body):
+            if k in self.weighted:
+                w, b = self.weighted[k]
+                weight, bias = slices[w][member], slices[b][member]
+                x = F.linear(x, weight, bias) if k in self.linear else module._conv_forward(x, weight, bias)
+            elif isinstance(module, nn.Dropout):
+                if p > 0:
+                    x = x * torch.empty_like(x).bernoulli_(1 - p, generator=generator).div_(1 - p)
+            else:
+                x = module(x)
         return x
 
     def logits(self, x: torch.Tensor, masks: list[torch.Tensor], members: list[int]) -> torch.Tensor:
-        """Training forward of ``members`` (slots, in order), (k, T, obs) -> (k, T, actions); ``masks``: each
-        dropout layer's scaled mask."""
-        layers = self.layers()
-        if len(members) < self.members:
-            index = torch.tensor(members, device=x.device)
-            layers = [(w[index], b[index]) for w, b in layers]
+        """Training forward of ``members`` (slots, in order), (k, T, *observation) -> (k, T, actions) in batched
+        products (the GPU's padded path); ``masks``: each dropout layer's scaled mask."""
+        index = torch.tensor(members, device=x.device) if len(members) < self.members else None
+
+        def take(k: int) -> tuple[torch.Tensor, torch.Tensor]:
+            w, b = (self.params[j] for j in self.weighted[k])
+            return (w, b) if index is None else (w[index], b[index])
+
         single = len(members) == 1
-        for i, ((weight, bias), k) in enumerate(zip(layers, self.linear, strict=True)):
+        if self.convs:
+            x = x.transpose(-1, -2)  # (k, T, features, time), as _TimeAsLength
+        for k in self.convs:
+            weight, bias = take(k)
+            m, steps, channels, length = x.shape
+            kernel = weight.shape[-1]
+            patches = x.unfold(-1, kernel, 1).transpose(2, 3).reshape(m, -1, channels * kernel)
+            x = torch.baddbmm(bias[:, None], patches, weight.reshape(m, weight.shape[1], -1).transpose(1, 2))
+            x = self.activations[k](x.reshape(m, steps, length - kernel + 1, -1).transpose(-1, -2))
+        if self.convs:
+            x = x.flatten(2)
+        for i, k in enumerate(self.linear):
+            weight, bias = take(k)
             # One member: the same kernel as nn.Linear, so a population of one is its single trial exactly.
             x = (
                 F.linear(x[0], weight[0], bias[0])[None]
@@ -127,7 +181,7 @@ class StackedMLP:
 
 
 class StackedBackend:
-    """A population of CartPole dense-MLP members (``population_group`` equal): its episodes, updates and
+    """A population of CartPole members (``population_group`` equal): its episodes, updates and
     per-member state. Slots are members' positions in the current stacks; ``keep`` drops those that left."""
 
     def __init__(self, configs: Sequence[TrialConfig], device: torch.device) -> None:
@@ -141,11 +195,12 @@ class StackedBackend:
             generator = torch.Generator()
             generator.set_state(torch.get_rng_state())
             self.generators.append(generator)
-        self.model = StackedMLP(policies, device)
+        self.model = StackedPolicy(policies, device)
         self.device = device
         self.optimizer = StackedAdam(self.model.params, [c.learning_rate for c in configs])
+        history = configs[0].model.history if configs[0].model.architecture == "cnn" else 0
         self.episodes = StackedEpisodes(
-            [c.seed for c in configs], [c.gamma for c in configs], self.num_envs, info.max_episode_steps
+            [c.seed for c in configs], [c.gamma for c in configs], self.num_envs, info.max_episode_steps, history
         )
 
     # --- episodes ---
@@ -182,23 +237,17 @@ class StackedBackend:
         """Each member's ``reinforce.train_step`` graph on its own batch, with its slices of the stacked
         parameters (``unbind``: one node hands every member's gradient back into the stacks). The same kernels
         on the same shapes as its single trial, and no padding: a member's update is its single trial's."""
-        layers = [(w.unbind(0), b.unbind(0)) for w, b in self.model.layers()]
-        p = self.model.dropout
+        slices = [p.unbind(0) for p in self.model.params]
         total, losses, entropies = None, [], []
         for i, batch in zip(slots, batches, strict=True):
             config = self.configs[i]
             x = torch.from_numpy(batch.observations)  # the batch's own memory, as train_step reads it
-            for (weights, biases), k in zip(layers, self.model.linear, strict=True):
-                x = F.linear(x, weights[i], biases[i])
-                if k in self.model.activations:
-                    x = self.model.activations[k](x)
-                    if p > 0:  # F.dropout's draw, from the member's own generator
-                        x = x * torch.empty_like(x).bernoulli_(1 - p, generator=self.generators[i]).div_(1 - p)
+            x = self.model.member_logits(i, x, slices, self.generators[i])
             weights_t = torch.from_numpy(batch.weights)
             loss = (F.cross_entropy(x, torch.from_numpy(batch.actions), reduction="none") * weights_t).mean()
             losses.append(loss)
             if config.l2 > 0:
-                penalty = sum((w[i].pow(2).sum() for w, _ in layers), torch.zeros(()))
+                penalty = sum((slices[j][i].pow(2).sum() for j in self.model.weights), torch.zeros(()))
                 loss = loss + config.l2 * penalty
             total = loss if total is None else total + loss
             with torch.no_grad():
@@ -214,7 +263,7 @@ class StackedBackend:
         if m == 1:  # the batch's own memory, as train_step reads it: gemm's result can depend on alignment
             x, actions = torch.from_numpy(batches[0].observations)[None], torch.from_numpy(batches[0].actions)[None]
         else:
-            x = torch.zeros(m, longest, batches[0].observations.shape[1])
+            x = torch.zeros(m, longest, *batches[0].observations.shape[1:])
             actions = torch.zeros(m, longest, dtype=torch.int64)
             for i, b in enumerate(batches):
                 x[i, : sizes[i]] = torch.from_numpy(b.observations)
@@ -235,7 +284,7 @@ class StackedBackend:
         for slot in slots:
             l2 = self.configs[slot].l2
             if l2 > 0:
-                weights = [w[slot] for w, _ in self.model.layers()]
+                weights = [self.model.params[j][slot] for j in self.model.weights]
                 penalty = sum((w.pow(2).sum() for w in weights), torch.zeros((), device=self.device))
                 total = total + l2 * penalty
         with torch.no_grad():
@@ -310,4 +359,4 @@ class StackedBackend:
         pass
 
 
-__all__ = ["Batch", "StackedBackend", "StackedMLP", "generator_at", "population_group", "stackable"]
+__all__ = ["Batch", "StackedBackend", "StackedPolicy", "generator_at", "population_group", "stackable"]

@@ -65,7 +65,9 @@ class StackedEpisodes:
     """Every member's CartPole envs (``CartPoleBatch``), action streams and collection in flight. Slots are
     the members' positions; ``keep`` drops those that left, their collections with them."""
 
-    def __init__(self, seeds: Sequence[int], gammas: Sequence[float], num_envs: int, max_episode_steps: int) -> None:
+    def __init__(
+        self, seeds: Sequence[int], gammas: Sequence[float], num_envs: int, max_episode_steps: int, history: int = 0
+    ) -> None:
         m, n = len(seeds), num_envs
         self.num_envs = n
         self.env = CartPoleBatch(seeds, n, max_episode_steps)
@@ -78,6 +80,11 @@ class StackedEpisodes:
         """Steps taken by the population so far; step g's observations and actions sit in ring slot g % capacity."""
         self.observations = np.zeros((self.capacity, m, n, 4), np.float32)
         self.actions = np.zeros((self.capacity, m, n), np.int8)
+        self.history = history
+        self.window = np.zeros((m, n, history, 4), np.float32) if history else None
+        """With ``history`` (CartPole's ``cnn``): each env's last ``history`` observations, oldest first, zeros
+        before its collection's reset, as ``envs.ObservationWindow`` keeps them (across the autoresets of envs
+        that are stepped on): what members act on."""
         self.collecting = np.zeros(m, bool)
         self.started = np.zeros(m, np.int64)
         """The step at which each member's collection began."""
@@ -101,15 +108,19 @@ class StackedEpisodes:
         if len(starting):
             self._start(starting, np.asarray(counts)[starting])
         capacity = self.capacity
-        ended, active = self._ended, self.active
+        ended, active, window = self._ended, self.active, self.window
         while True:
             slot = self.iteration % capacity
             if self._block is None or self._block_used == _BLOCK_STEPS:
                 self._next_block()
             u = self._block[:, self._block_used]
             self._block_used += 1
-            actions = sample_actions(act_logits(self.observations[slot]), u, self.actions[slot])
+            inputs = self.observations[slot] if window is None else window
+            actions = sample_actions(act_logits(inputs), u, self.actions[slot])
             done = self.env.step(actions, self.observations[(slot + 1) % capacity])
+            if window is not None:
+                window[:, :, :-1] = window[:, :, 1:]
+                window[:, :, -1] = self.observations[(slot + 1) % capacity]
             self.iteration += 1
             np.logical_and(active, done, out=ended)
             if not ended.any():
@@ -126,6 +137,9 @@ class StackedEpisodes:
         """``members`` begin a collection of ``counts`` episodes at this step, from a reset."""
         observations = self.env.reset(members)
         self.observations[self.iteration % self.capacity, members] = observations[members]
+        if self.window is not None:
+            self.window[members] = 0
+            self.window[members, :, -1] = observations[members]
         self.active[members] = np.arange(self.num_envs)[None, :] < counts[:, None]
         self.lengths[members] = 0
         self.counts[members] = counts
@@ -152,7 +166,11 @@ class StackedEpisodes:
         ring = (self.started[member] + np.arange(steps)) % self.capacity
         lengths = self.lengths[member, :count].copy()
         valid = np.arange(steps)[None, :] < lengths[:, None]  # (episode, step)
-        observations = self.observations[ring, member, :count].transpose(1, 0, 2)[valid]
+        observations = self.observations[ring, member, :count]  # (step, episode, 4)
+        if self.history:  # each step's window: the observations of the last `history` steps, zeros before the reset
+            padded = np.concatenate([np.zeros((self.history - 1, *observations.shape[1:]), np.float32), observations])
+            observations = np.swapaxes(np.lib.stride_tricks.sliding_window_view(padded, self.history, axis=0), -1, -2)
+        observations = np.swapaxes(observations, 0, 1)[valid]
         actions = self.actions[ring, member, :count].T[valid].astype(np.int64)
         steps_left = (lengths[:, None] - 1 - np.arange(steps)[None, :])[valid]
         weights = normalize(self.returns[member][steps_left])
@@ -180,4 +198,6 @@ class StackedEpisodes:
         self.actions = np.ascontiguousarray(self.actions[:, index])
         self.collecting, self.started, self.counts = self.collecting[index], self.started[index], self.counts[index]
         self.active, self.lengths = self.active[index], self.lengths[index]
+        if self.window is not None:
+            self.window = np.ascontiguousarray(self.window[index])
         self._ended = np.zeros_like(self.active)
