@@ -961,23 +961,39 @@ def _population_speed(configs: list) -> tuple[float, float, float, list]:
     )
 
 
+def _variant_config(variant: str | None, path: str = "experiments/cartpole.toml"):
+    """``variant``'s trial config in ``path`` (its base with its overrides), no video; ``None``: ``DEFAULT``."""
+    if variant is None:
+        return replace(DEFAULT, record_video=False)
+    from ablate.experiment import load_experiment
+
+    variants = {v.name: v for v in load_experiment(path).variants}
+    if variant not in variants:
+        raise SystemExit(f"--population-variant: {variant!r} is not a variant of {path}; valid: {', '.join(variants)}")
+    return replace(variants[variant].config, record_video=False)
+
+
 def bench_population(
-    repeats: int = 3, members: tuple[int, ...] = (16, 64), budget: int = 1024, seeds: int = 32
+    repeats: int = 3,
+    members: tuple[int, ...] = (16, 64),
+    budget: int = 1024,
+    seeds: int = 32,
+    variant: str | None = None,
 ) -> None:
     """CartPole env steps/s per core of a population of M default trials (``agent.population``) against the same
     M trials run one at a time, in this run, medians of ``repeats`` (issue 26's goal at M = 16: >= 8x); then
     the science: over ``seeds`` seeds at the default budget, each member's whole run against its trial's, and
-    episodes to solve and AUC compared by a two-sample test (Mann-Whitney U)."""
+    episodes to solve and AUC compared by a two-sample test (Mann-Whitney U). ``variant``: that variant of
+    experiments/cartpole.toml instead of the default trial (``cnn``, say)."""
     from scipy.stats import mannwhitneyu
 
     torch.set_num_threads(1)
-    figures: dict[str, object] = {}
+    base = _variant_config(variant)
+    figures: dict[str, object] = {"variant": variant or "default"}
     for m in members:
         single, population, ratios = [], [], []
         for repeat in range(repeats):
-            configs = [
-                replace(DEFAULT, seed=1000 * repeat + i, max_episodes=budget, record_video=False) for i in range(m)
-            ]
+            configs = [replace(base, seed=1000 * repeat + i, max_episodes=budget) for i in range(m)]
             one, many, wall, _ = _population_speed(configs)
             single.append(one)
             population.append(many)
@@ -993,20 +1009,26 @@ def bench_population(
             f"{statistics.median(ratios):.1f}x"
         )
         figures[f"M={m}"] = {"alone": single, "population": population, "ratio_median": statistics.median(ratios)}
-    configs = [replace(DEFAULT, seed=seed, record_video=False) for seed in range(seeds)]
-    pairs = [pair for i in range(0, seeds, 16) for pair in _population_speed(configs[i : i + 16])[3]]
-    identical = sum([m[:7] for m in a.episodes] == [m[:7] for m in b.episodes] for a, b in pairs)
-    for metric in ("episodes_to_solve", "auc"):
-        alone = [a.summary().get(metric, DEFAULT.max_episodes + 1) for a, _ in pairs]
-        together = [b.summary().get(metric, DEFAULT.max_episodes + 1) for _, b in pairs]
-        p_value = float(mannwhitneyu(together, alone).pvalue)
-        figures[metric] = {"population": statistics.median(together), "alone": statistics.median(alone), "p": p_value}
-        print(
-            f"population: {metric} over {seeds} seeds: in populations of 16 median {statistics.median(together):.1f}, "
-            f"one at a time median {statistics.median(alone):.1f}; Mann-Whitney p = {p_value:.2f}"
-        )
-    print(f"population: {identical}/{seeds} members' whole runs identical to their trials' (episodes, losses)")
-    figures["identical_runs"] = identical
+    if seeds:
+        configs = [replace(base, seed=seed) for seed in range(seeds)]
+        pairs = [pair for i in range(0, seeds, 16) for pair in _population_speed(configs[i : i + 16])[3]]
+        identical = sum([m[:7] for m in a.episodes] == [m[:7] for m in b.episodes] for a, b in pairs)
+        for metric in ("episodes_to_solve", "auc"):
+            alone = [a.summary().get(metric, base.max_episodes + 1) for a, _ in pairs]
+            together = [b.summary().get(metric, base.max_episodes + 1) for _, b in pairs]
+            p_value = float(mannwhitneyu(together, alone).pvalue)
+            figures[metric] = {
+                "population": statistics.median(together),
+                "alone": statistics.median(alone),
+                "p": p_value,
+            }
+            print(
+                f"population: {metric} over {seeds} seeds: in populations of 16 median "
+                f"{statistics.median(together):.1f}, "
+                f"one at a time median {statistics.median(alone):.1f}; Mann-Whitney p = {p_value:.2f}"
+            )
+        print(f"population: {identical}/{seeds} members' whole runs identical to their trials' (episodes, losses)")
+        figures["identical_runs"] = identical
     RESULTS["population"] = figures
 
 
@@ -1104,6 +1126,17 @@ def main() -> int:
     parser.add_argument(
         "--pong-memory-cap", type=int, default=0, help="pong-memory: cut episodes at this many steps (0: none)"
     )
+    parser.add_argument(
+        "--population-variant",
+        help="population: this variant of experiments/cartpole.toml (default: the default trial)",
+    )
+    parser.add_argument(
+        "--population-members", default="16,64", help="population: population sizes M to time, comma-separated"
+    )
+    parser.add_argument("--population-repeats", type=int, default=3, help="population: repeats per size M")
+    parser.add_argument(
+        "--population-seeds", type=int, default=32, help="population: seeds of the same-science check (0: none)"
+    )
     args = parser.parse_args()
     print(f"python {sys.version.split()[0]}, torch {torch.__version__}, {time.strftime('%Y-%m-%d %H:%M')}")
     unknown = [name for name in args.sections if name not in SECTIONS]
@@ -1124,6 +1157,12 @@ def main() -> int:
             "ablation": {"repeats": args.ablation_repeats},
             "pong-memory": {"max_episode_steps": args.pong_memory_cap, "episodes": args.pong_memory_episodes},
             "tuning": {"repeats": args.tuning_repeats},
+            "population": {
+                "variant": args.population_variant,
+                "members": tuple(int(m) for m in args.population_members.split(",")),
+                "repeats": args.population_repeats,
+                "seeds": args.population_seeds,
+            },
             "eta": {
                 "launches": tuple(args.eta_launches.split(",")),
                 **({"experiments": tuple(args.eta_experiments)} if args.eta_experiments else {}),
