@@ -421,7 +421,7 @@ def test_a_store_that_refuses_writes_or_stops_answering_ends_the_launch_as_promi
     """The server answers a write with an error (its artifact folder immutable: PermissionError): the launch
     ends within the bound saying so, recorded FAILED with nothing left RUNNING. Then the server killed mid-run:
     the launch ends in one line and exit 1 within ``STORE_BOUND_S`` of its first failed write."""
-    from ablate.launch.store import STORE_BOUND_S
+    from ablate.launch.store_writes import STORE_BOUND_S
 
     artifacts = cluster["tmp"] / "server" / "artifacts"
     artifacts.mkdir(exist_ok=True)

@@ -148,7 +148,7 @@ class _FlakyClient:
 
 
 def test_a_store_that_goes_away_is_retried_for_a_bounded_time_then_stops_the_launch_in_one_line(monkeypatch):
-    from ablate.launch import store
+    from ablate.launch import store_writes as store
 
     monkeypatch.setattr(store, "STORE_RETRY_S", 0.5)
     monkeypatch.setattr(store.time, "sleep", lambda s: None)
@@ -196,13 +196,13 @@ def test_downloaded_artifacts_leave_nothing_in_the_temporary_folder_once_the_pro
     ],
 )
 def test_a_failed_write_is_told_as_the_store_answered_it(text, kind):
-    from ablate.launch.store import store_fault
+    from ablate.launch.store_writes import store_fault
 
     assert store_fault(RuntimeError(text))[0] == kind
 
 
 def test_a_store_answering_errors_is_named_at_once_or_after_the_bound_and_can_still_close_the_launch(monkeypatch):
-    from ablate.launch import store
+    from ablate.launch import store_writes as store
 
     monkeypatch.setattr(store, "STORE_RETRY_S", 0.2)
     monkeypatch.setattr(store.time, "sleep", lambda s: None)

@@ -37,11 +37,9 @@ from ablate.launch.mlflow_store import (  # noqa: F401 - the tags and the opener
 )
 from ablate.launch.secrets import shown as redact
 from ablate.launch.store import (  # noqa: F401 - the reader's, through this module
-    RetryingClient,
     TrackingError,
     check_sqlite,
     fail_fast_http,
-    fail_fast_writes,
     is_database,
     lock_file,
     open_uri,
@@ -52,6 +50,7 @@ from ablate.launch.store import (  # noqa: F401 - the reader's, through this mod
     store_problem,
     store_setup_lock,
 )
+from ablate.launch.store_writes import RetryingClient, fail_fast_writes
 
 # A trial's curve: one point per bin of episodes (``ablate.launch.curve``: at most ~100 points however many episodes
 # run), step = the bin's last episode. MLflow's SQLite store costs ~4 ms per call plus ~55 us per value of
@@ -365,7 +364,7 @@ class Tracker(Store):
 
 def _answers_kept() -> None:
     """MLflow's client retries a server error (500, 503) and then raises "too many 500 error responses",
-    dropping the server's answer; with no retries left (``store.fail_fast_writes``) it is told to return the
+    dropping the server's answer; with no retries left (``store_writes.fail_fast_writes``) it is told to return the
     answer instead, which its callers raise with the answer's text, so ``RetryingClient`` can say which error
     (a permission, a full disk) the store gave. Only the writer's process (the driver) is changed."""
     from mlflow.utils import rest_utils
