@@ -99,6 +99,18 @@ def _cli(*args, cwd, env=None, timeout=120):
     return done, time.monotonic() - started
 
 
+def _main_in(folder, monkeypatch, capsys, argv):
+    """``ablate ARGV`` in this process, run from ``folder``: its exit code, seconds, stdout and stderr."""
+    from ablate.cli import main
+
+    monkeypatch.chdir(folder)
+    started = time.monotonic()
+    code = main(argv)
+    wall_s = time.monotonic() - started
+    out, err = capsys.readouterr()
+    return code, wall_s, out, err
+
+
 @pytest.mark.parametrize("command", ["run", "status", "report"])
 def test_every_command_refuses_an_unreachable_postgresql_store_in_one_line(command, tmp_path, monkeypatch, capsys):
     uri = f"postgresql+psycopg://mlflow:{SECRET}@127.0.0.1:{_closed_port()}/mlflow"
@@ -108,13 +120,7 @@ def test_every_command_refuses_an_unreachable_postgresql_store_in_one_line(comma
         done, wall_s = _cli(*args[command], "--tracking-uri", uri, cwd=tmp_path)
         code, out, err = done.returncode, done.stdout, done.stderr
     else:  # the same path in this process: seconds of imports fewer
-        from ablate.cli import main
-
-        monkeypatch.chdir(tmp_path)
-        started = time.monotonic()
-        code = main([*args[command], "--tracking-uri", uri])
-        wall_s = time.monotonic() - started
-        out, err = capsys.readouterr()
+        code, wall_s, out, err = _main_in(tmp_path, monkeypatch, capsys, [*args[command], "--tracking-uri", uri])
     errors = err.strip().splitlines()
     assert code == 1 and len(errors) == 1, out + err
     assert f"ablate {command}: MLflow store postgresql+psycopg://mlflow:***@127.0.0.1" in errors[0]
@@ -242,8 +248,6 @@ def test_a_password_in_a_database_uris_query_is_masked_in_the_refusal(tmp_path, 
 def test_every_command_refuses_a_login_over_plain_http_to_another_machine_in_one_line(
     command, login, tmp_path, monkeypatch, capsys
 ):
-    from ablate.cli import main
-
     monkeypatch.setattr("ablate.launch.store._warned_insecure", set())
     monkeypatch.setenv("MLFLOW_TRACKING_USERNAME", "alice")  # open_uri moves a URI's login here: restored after
     monkeypatch.setenv("MLFLOW_TRACKING_PASSWORD", "" if login == "uri" else SECRET)
@@ -254,11 +258,7 @@ def test_every_command_refuses_a_login_over_plain_http_to_another_machine_in_one
         "status": ["status"],
         "report": ["report", "smoke"],
     }
-    monkeypatch.chdir(tmp_path)
-    started = time.monotonic()
-    code = main([*args[command], "--tracking-uri", uri])
-    wall_s = time.monotonic() - started
-    out, err = capsys.readouterr()
+    code, wall_s, out, err = _main_in(tmp_path, monkeypatch, capsys, [*args[command], "--tracking-uri", uri])
     errors = err.strip().splitlines()
     assert code == 2 and len(errors) == 1, out + err
     assert f"ablate {command}: --tracking-uri http://" in errors[0] and "is plain HTTP to another machine" in errors[0]
