@@ -49,8 +49,9 @@ MemberOutcome = TrialResult | TrialFailed
 
 
 class SingleBackend:
-    """One member on today's single-trial path (Pong): its ``Policy``, ``Adam``,
-    global torch RNG and collector, exactly as ``run_trial`` ran them before populations."""
+    """One member on the single-trial path: its ``Policy``, ``Adam``, global torch RNG and collector, exactly as
+    ``run_trial`` ran them before populations. ``run_population`` takes it for a Pong population of one; every
+    CartPole config stacks, so for CartPole it is the reference that tests/test_population.py holds members to."""
 
     def __init__(self, config: TrialConfig, device: torch.device, artifacts_dir: Path | None) -> None:
         pong = is_pong(config.env_id)
