@@ -127,7 +127,9 @@ def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
                     episodes = {key: earlier[key][1] for key in costs if earlier[key][1]}
                     view.add_trials(schedule_order(chosen, costs), costs, episodes)
                     stage_two_known = True
-        view.trials_end = max(e[0] for e in events)
+        # The truth each estimate is held to: the end of the trials it could know of (stages 1 and 2); later
+        # rounds of seeds are decided by their results, so no estimate before them includes them.
+        view.trials_end = max(e[0] for e in events if e[1] == "finished" and e[2] in view.trials)
     return _eta_figure(f"{path} (replayed from {db})", view)
 
 
