@@ -24,6 +24,7 @@ from bench import _eta_figure  # noqa: E402
 from ablate.experiment import load_experiment  # noqa: E402
 from ablate.launch import progress  # noqa: E402
 from ablate.launch.grid import expand, schedule_order, tuning_trials  # noqa: E402
+from ablate.launch.plan import plan_populations  # noqa: E402
 from ablate.launch.tuning import StagePlan, unique  # noqa: E402
 
 
@@ -78,11 +79,30 @@ def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, di
     return launch[1] / 1000, events, summaries, earlier
 
 
-def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
-    """The scored estimates of the newest launch of ``path``'s experiment in the store at ``tracking_uri``."""
+def _population_cap(db: Path, experiment: str) -> int:
+    """The most members a population of the experiment's trials had (``ablate.population`` tags ``popN-...``)."""
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    rows = con.execute(
+        "select t.value from tags t join runs r on r.run_uuid = t.run_uuid join experiments e "
+        "on e.experiment_id = r.experiment_id where e.name = ? and t.key = 'ablate.population'",
+        (experiment,),
+    )
+    sizes = [int(value[3:].split("-")[0]) for (value,) in rows if value.startswith("pop")]
+    return max(sizes, default=1)
+
+
+def replay(path: str, tracking_uri: str, slots: int = 2, population: int | None = None) -> dict:
+    """The scored estimates of the newest launch of ``path``'s experiment in the store at ``tracking_uri``, its
+    trials planned as the runner planned them: populations of at most ``population`` (``None``: the largest the
+    store's tags show) on ``slots`` population slots."""
     experiment = load_experiment(path)
     db = Path(tracking_uri.removeprefix("sqlite:///"))
     start, events, summaries, earlier = _events(db, experiment.name)
+    cap = _population_cap(db, experiment.name) if population is None else population
+
+    def populations(trials):  # the runner's plan
+        return [p.keys for p in plan_populations(trials, cap=cap, slots=slots)]
+
     evaluation = expand(experiment)
     plan = StagePlan(experiment, evaluation, tuning_trials(experiment))
     todo = unique([*plan.tuning, *evaluation], set())
@@ -107,6 +127,7 @@ def replay(path: str, tracking_uri: str, slots: int = 2) -> dict:
             log_estimates=True,
             later=provisional({}),
             provisional=provisional if plan.tuning else None,
+            populations=populations if cap > 1 else None,
         )
         left, stage_two_known = set(stage1), False
         for t, kind, key, payload in events:
@@ -137,9 +158,14 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("experiment")
     parser.add_argument("--tracking-uri", required=True)
-    parser.add_argument("--slots", type=int, default=2, help="trials that ran at once (default 2: a 2-core machine)")
+    parser.add_argument(
+        "--slots", type=int, default=2, help="trials (populations) that ran at once (default 2: a 2-core machine)"
+    )
+    parser.add_argument(
+        "--population", type=int, help="the launch's --population (default: the largest population its tags show)"
+    )
     args = parser.parse_args()
-    replay(args.experiment, args.tracking_uri, args.slots)
+    replay(args.experiment, args.tracking_uri, args.slots, args.population)
     return 0
 
 

@@ -79,6 +79,39 @@ def test_cost_is_learned_per_variant_from_finished_trials_else_from_the_budget(c
     assert view.seconds_left() == pytest.approx(300)
 
 
+def test_a_population_holds_its_slot_until_its_last_member_ends_and_costs_its_longest_member(clock):
+    trials = _trials(budget=100, variants=("a",), seeds=(0, 1, 2, 3, 4, 5))
+
+    def plan(ts):  # two populations of three seeds, on one slot
+        keys = [t.key for t in ts]
+        return [keys[:3], keys[3:]]
+
+    view = ProgressView("x", trials, 0, enabled=False, slots=1, populations=plan)
+    for seed in (0, 1, 2):
+        view.started(f"a-s{seed}")
+    clock.now += 10
+    view.episodes("a-s0", [_row(40, 195.0)])
+    view.finished("a-s0", solved=True)  # 10 s: a member ends; the slot is still its population's
+    clock.now += 20
+    view.episodes("a-s1", [_row(80, 195.0)])
+    view.finished("a-s1", solved=True)  # 30 s
+    view.episodes("a-s2", [_row(50, 5.0), _row(60, 6.0)])
+    # a-s2 ran past its peers' mean (20 s): it runs on at its own pace (30 s for 60 episodes: 20 s for the 40
+    # left); then the second population's three members start together, each costed as the finished members
+    # (20 s): its cost is its longest member's, not their sum (they run at once), and it waits for the slot.
+    assert view.seconds_left() == pytest.approx(20 + 20)
+    clock.now += 5
+    view.finished("a-s2", solved=False)  # the first population took 35 s; the second starts after its last
+    view.started("a-s3")
+    assert view.gaps == [0.0]  # one slot freed (at the last member's end) and taken
+    assert view.max_running == 1  # one population running, though it had three members
+    # a-s3 runs (its cost: the finished members' mean, 25 s); a-s4 and a-s5 start with it, in its slot.
+    assert view.seconds_left() == pytest.approx((10 + 30 + 35) / 3)
+    # Each trial alone, the same events say the three members of the second population take a slot each.
+    alone = ProgressView("x", trials, 0, enabled=False, slots=1)
+    assert alone.population_of == {t.key: (t.key,) for t in trials}
+
+
 def test_recent_pace_counts_when_episodes_get_longer(clock):
     view = ProgressView("x", _trials(budget=1000, variants=("a",), seeds=(0,)), 0, enabled=False, slots=1)
     view.started("a-s0")

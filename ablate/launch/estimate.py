@@ -9,7 +9,7 @@ import heapq
 import statistics
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
@@ -144,7 +144,26 @@ class TimeLeft:
     prior_episodes: dict[str, int]
     gaps: list[float]
     slots: int | None
+    """Populations (``launch.plan``) that run at once; without ``populations``, trials."""
     max_running: int
+    populations: Callable[[Sequence[GridTrial]], Sequence[Sequence[str]]] | None
+    """The launch's plan: trials (in the order they start) as the member keys of each population, in the order
+    the populations start; ``None``: each trial alone."""
+    population_of: dict[str, tuple[str, ...]]
+    """Each trial's population: its members' keys (every trial of a launch without ``populations``: itself)."""
+
+    def plan(self, trials: Sequence[GridTrial]) -> dict[str, tuple[str, ...]]:
+        """``trials``' populations, by member key, as the launch forms them (each alone without ``populations``)."""
+        groups = self.populations(trials) if self.populations else [[t.key] for t in trials]
+        return {key: tuple(group) for group in groups for key in group}
+
+    def units(self, trials: Sequence[TrialProgress], plan: Mapping[str, tuple[str, ...]]) -> list[list[TrialProgress]]:
+        """``trials`` (in the order they start) gathered into what holds a slot: each population's members, in
+        the order of their first; a population's slot frees when its last member ends."""
+        units: dict[tuple[str, ...], list[TrialProgress]] = {}
+        for t in trials:
+            units.setdefault(plan.get(t.trial.key, (t.trial.key,)), []).append(t)
+        return list(units.values())
 
     def _costs_seen(self, now: float) -> CostsSeen:
         """What this launch has shown so far of its trials' costs (once per estimate: the trials are many)."""
@@ -250,9 +269,27 @@ class TimeLeft:
         if not running and not pending and not self.later:
             return 0.0
         seen = self._costs_seen(now)
-        running_left = [self._left_of_running(t, now, seen) for t in running]
-        costs = [self._trial_cost(t, seen) for t in pending]
-        later = [self._trial_cost(t, seen) for t in self.later]
+        # A population holds its slot until its last member ends: its members run at once, each at the pace
+        # of a member of a population (what its finished peers took), so its cost is its longest member's.
+        # A member not started yet whose mates have is costed whole from now, as a pending trial.
+        running_left, costs = [], []
+        for unit in self.units(
+            [t for t in self.trials.values() if t.state in ("running", "pending")], self.population_of
+        ):
+            if any(t.state == "running" for t in unit):
+                left = [
+                    self._left_of_running(t, now, seen) if t.state == "running" else self._trial_cost(t, seen)
+                    for t in unit
+                ]
+                running_left.append(None if None in left else max(left))  # type: ignore[type-var]
+            else:
+                cost = [self._trial_cost(t, seen) for t in unit]
+                costs.append(None if None in cost else max(cost))  # type: ignore[type-var]
+        later_plan = self.plan([t.trial for t in self.later]) if self.later else {}
+        later = []
+        for unit in self.units(self.later, later_plan):
+            cost = [self._trial_cost(t, seen) for t in unit]
+            later.append(None if None in cost else max(cost))  # type: ignore[type-var]
         if any(x is None for x in [*running_left, *costs, *later]):
             return None
         slots = self.slots or max(self.max_running, 1)

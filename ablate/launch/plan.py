@@ -68,10 +68,3 @@ def plan_populations(trials: Sequence[GridTrial], cap: int = 1, slots: int = 1) 
             chosen = tuple(members[part::count])
             plan.append((min(order[t.key] for t in chosen), Population(chosen)))
     return [population for _, population in sorted(plan, key=lambda item: item[0])]
-
-
-def member_slots(plan: Sequence[Population], slots: int) -> int:
-    """Trials running at once when ``slots`` populations of ``plan`` run at once: the time-left estimate's
-    trial slots (each member holds the population's slot for as long as it trains)."""
-    sizes = sorted((len(p.members) for p in plan), reverse=True)[:slots]
-    return max(sum(sizes), slots) if sizes else slots

@@ -43,21 +43,26 @@ class ProgressView(TimeLeft):
         later: Sequence[GridTrial] = (),
         provisional: Callable[[Mapping[str, Mapping[str, float]]], Sequence[GridTrial]] | None = None,
         prior_episodes: Mapping[str, int] | None = None,
+        populations: Callable[[Sequence[GridTrial]], Sequence[Sequence[str]]] | None = None,
     ) -> None:
-        """``trials`` in the order they will start. ``slots``: trials that can run at once (``None``: the most
-        seen running at once). ``start``: the ``time.monotonic()`` the command started at, so the clock
-        includes imports and Ray's start. ``prior_costs``: seconds by trial key that earlier launches took
+        """``trials`` in the order they will start. ``slots``: trials (populations) that can run at once
+        (``None``: the most seen running at once). ``start``: the ``time.monotonic()`` the command started at,
+        so the clock includes imports and Ray's start. ``prior_costs``: seconds by trial key that earlier launches took
         (``Tracker.earlier_runs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``).
         ``later``: stand-ins for the trials not known yet that start once every trial here has ended (a tuned
         ablation's trials at the chosen values); ``add_trials`` puts the real ones in when they are known.
         ``provisional``: the later trials as the finished trials' summaries (key -> metrics) say they would
         be if stage 1 ended now (each variant at its best candidate so far), asked again as tuning trials end.
-        ``prior_episodes``: episodes by trial key that earlier launches ran (``Tracker.earlier_runs``)."""
+        ``prior_episodes``: episodes by trial key that earlier launches ran (``Tracker.earlier_runs``).
+        ``populations``: the launch's plan (``launch.plan``) as member keys: a population holds one of ``slots``
+        until its last member ends (``None``: every trial alone)."""
         self.name = name
         self.trials = {t.key: TrialProgress(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
         self.already_done = already_done
         self.slots = slots
+        self.populations = populations
+        self.population_of = self.plan(trials)
         self.start = time.monotonic() if start is None else start
         self.first_start: float | None = None
         self.trials_end: float | None = None
@@ -90,7 +95,8 @@ class ProgressView(TimeLeft):
             trial.reports.clear()
             self.first_start = self.first_start or now
             trial.first_on_worker = not any(t.ended_at for t in self.trials.values())
-            self.max_running = max(self.max_running, self._count("running"))
+            running = {self.population_of.get(k, (k,)) for k, t in self.trials.items() if t.state == "running"}
+            self.max_running = max(self.max_running, len(running))
             if self._freed:
                 self.gaps.append(now - self._freed.popleft())
             self._log_estimate(now)
@@ -130,8 +136,8 @@ class ProgressView(TimeLeft):
             trial.state, trial.solved, trial.ended_at = state, solved, time.monotonic()
             if not self._count("pending") and not self._count("running") and not self.later:
                 self.trials_end = trial.ended_at
-            if self._count("pending"):
-                self._freed.append(trial.ended_at)
+            if self._count("pending") and all(self.trials[k].ended_at for k in self.population_of.get(key, (key,))):
+                self._freed.append(trial.ended_at)  # its population's slot
             if self.provisional and trial.trial.stage == "tune":
                 try:
                     self.later = [TrialProgress(t) for t in self.provisional(dict(self.summaries))]
@@ -145,6 +151,7 @@ class ProgressView(TimeLeft):
         trials: Sequence[GridTrial],
         prior_costs: Mapping[str, float] | None = None,
         prior_episodes: Mapping[str, int] | None = None,
+        populations: Callable[[Sequence[GridTrial]], Sequence[Sequence[str]]] | None = None,
     ) -> None:
         """The next stage's trials, now known, in the order they will start (none: it has nothing to run), with
         what earlier launches' runs of them took (as the constructor's). They replace the ``later`` guesses;
@@ -152,6 +159,7 @@ class ProgressView(TimeLeft):
         with self.lock:
             self.prior |= prior_costs or {}
             self.prior_episodes |= prior_episodes or {}
+            self.population_of |= self.plan(trials)
             for t in trials:
                 self.trials[t.key] = TrialProgress(t)
                 if t.variant not in self.variants:

@@ -22,7 +22,7 @@ from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
-from ablate.launch.plan import member_slots, plan_populations
+from ablate.launch.plan import plan_populations
 from ablate.launch.progress import ProgressView
 from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
 from ablate.launch.rounds import Judge, Rounds
@@ -346,12 +346,17 @@ def _run_locked(
         return [t for t in trials if t.variant in unchosen]
 
     stage_two = provisional if unchosen else None
-    # Populations: each holds a slot; its members run at once, so the estimate sees that many trial slots.
+    # Populations: each holds a slot until its last member ends, which the estimate sees through the plan.
     cores = slots or max(int(biggest), 1)
     populations = partial(plan_populations, cap=population, slots=cores)
-    members = member_slots(populations(todo), cores) if slots else None
-    args = (experiment.name, todo, len(finished_before), show_progress, members, started_at, prior, log_estimates)
-    view = ProgressView(*args, provisional({}) if unchosen else [], stage_two, prior_episodes)
+    args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
+    view = ProgressView(
+        *args,
+        provisional({}) if unchosen else [],
+        stage_two,
+        prior_episodes,
+        lambda trials: [p.keys for p in populations(trials)],
+    )
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
     options = ClusterOptions(
