@@ -854,19 +854,35 @@ def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> N
 
 
 def _eta_errors(view) -> dict:
-    """Each estimate logged once a quarter of the trials had ended, against the time that actually remained
-    until the last trial ended; the bound is the issue's: +-30% or +-20 s, whichever is larger."""
-    total = len(view.trials)
-    end = view.trials_end - view.start
-    points = [
-        (t, est, end - t) for t, ended, est in view.estimates if est is not None and ended >= total / 4 and t < end
-    ]
+    """Each estimate logged once a quarter of its phase's trials had ended, against the time that actually
+    remained until the last of them ended (a phase: the trials the view knew of together, ``view.phases``: a
+    launch's stages, then each round of seeds, which no estimate before it can know of); the bound is the
+    issue's: +-30% or +-20 s, whichever is larger."""
+    points, phases, quarter_at = [], [], None
+    firsts = [first for first, _ in view.phases[1:]] + [len(view.estimates)]
+    for (first, keys), last in zip(view.phases, firsts, strict=True):
+        ended_at = [view.trials[k].ended_at for k in keys if view.trials[k].ended_at is not None]
+        if not ended_at or first >= len(view.estimates):
+            continue
+        end, before = max(ended_at) - view.start, view.estimates[first][1]
+        mine = [
+            (t, est, end - t)
+            for t, ended, est in view.estimates[first:last]
+            if est is not None and t < end and ended - before >= len(keys) / 4
+        ]
+        quarter_at = (
+            quarter_at
+            if quarter_at is not None
+            else next((t for t, ended, _ in view.estimates[first:last] if ended - before >= len(keys) / 4), None)
+        )
+        within = sum(abs(est - truth) <= max(0.3 * truth, 20.0) for _, est, truth in mine)
+        phases.append({"trials": len(keys), "points": len(mine), "within_bound": within})
+        points += mine
     if not points:
-        return {"points": 0}
+        return {"points": 0, "phases": phases}
     over = [(abs(est - truth) / max(0.3 * truth, 20.0), t, est, truth) for t, est, truth in points]
     worst = max(over)
     relative = max(points, key=lambda p: abs(p[1] - p[2]) / p[2] if p[2] > 0 else 0)
-    first_quarter = next(t for t, ended, _ in view.estimates if ended >= total / 4)
     return {
         "points": len(points),
         "within_bound": sum(o <= 1 for o, *_ in over),
@@ -875,8 +891,9 @@ def _eta_errors(view) -> dict:
         "worst_estimate_s": worst[2],
         "worst_truth_s": worst[3],
         "worst_relative_error": (relative[1] - relative[2]) / relative[2] if relative[2] > 0 else 0.0,
-        "quarter_at_s": first_quarter,
-        "trials_end_s": end,
+        "quarter_at_s": quarter_at,
+        "trials_end_s": view.trials_end - view.start,
+        "phases": phases,
     }
 
 
@@ -897,6 +914,10 @@ def _eta_figure(label: str, view) -> dict:
         f"worst relative error {100 * e['worst_relative_error']:+.0f}%",
         flush=True,
     )
+    if len(e["phases"]) > 1:  # a launch in rounds of seeds: each held to its own end
+        for number, phase in enumerate(e["phases"], 1):
+            name = "stages 1 and 2" if number == 1 else f"round {number}"
+            print(f"    {name}: {phase['trials']} trials, {phase['within_bound']}/{phase['points']} within", flush=True)
     return {**errors, "trace": trace}
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sqlite3
 import sys
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 from unittest import mock
@@ -23,7 +24,7 @@ from bench import _eta_figure  # noqa: E402
 
 from ablate.experiment import load_experiment  # noqa: E402
 from ablate.launch import progress  # noqa: E402
-from ablate.launch.grid import expand, schedule_order, tuning_trials  # noqa: E402
+from ablate.launch.grid import GridTrial, expand, schedule_order, trial_key, tuning_trials  # noqa: E402
 from ablate.launch.plan import plan_populations  # noqa: E402
 from ablate.launch.tuning import StagePlan, unique  # noqa: E402
 
@@ -79,6 +80,31 @@ def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, di
     return launch[1] / 1000, events, summaries, earlier
 
 
+def _rounds(events: list[tuple], before: set[str], pool: dict) -> list[list[str]]:
+    """The keys of the trials that started after ``before``'s (stages 1 and 2), as rounds of seeds (by the
+    experiment's ``seeds = { start, step, max }``: round 2 runs seeds start .. start + step - 1), each in the
+    order its trials started. ``pool``: every trial the rounds may add, by key (``_every_seed``)."""
+    starts = {e[2]: e[0] for e in events if e[1] == "started" and e[2] not in before}
+    rounds: dict[int, list[str]] = {}
+    for key in sorted(starts, key=starts.get):
+        trial = pool[key]
+        seeds = trial.rounds
+        rounds.setdefault((trial.seed - seeds.start) // seeds.step, []).append(key)
+    return [rounds[r] for r in sorted(rounds)]
+
+
+def _every_seed(experiment, choices) -> dict:
+    """Every trial the rounds may add, by key: each variant on every seed it may run, at its chosen values."""
+    trials = {}
+    for variant in experiment.variants:
+        for seed in experiment.max_seeds_of(variant):
+            choice = choices.get(variant.name)
+            config = replace(variant.config, seed=seed, **(choice.values if choice and choice.tuned else {}))
+            trial = GridTrial(trial_key(variant.name, config), variant.name, seed, config)
+            trials[trial.key] = SimpleNamespace(trial=trial, seed=seed, rounds=experiment.rounds_of(variant))
+    return trials
+
+
 def _population_cap(db: Path, experiment: str) -> int:
     """The most members a population of the experiment's trials had (``ablate.population`` tags ``popN-...``)."""
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
@@ -129,11 +155,16 @@ def replay(path: str, tracking_uri: str, slots: int = 2, population: int | None 
             provisional=provisional if plan.tuning else None,
             populations=populations if cap > 1 else None,
         )
-        left, stage_two_known = set(stage1), False
+        left, stage_two_known = set(stage1), not plan.tuning
+        pool = _every_seed(experiment, {})
+        rounds = [] if plan.tuning else _rounds(events, stage1, pool)  # with tuning: once stage 2 is known
         for t, kind, key, payload in events:
             clock.now = t
+            if key not in view.trials and kind == "started" and stage_two_known:  # a round of seeds begins
+                keys = [k for k in rounds if key in k][0]
+                view.add_trials([pool[k].trial for k in keys])  # a phase of its own (``view.phases``)
             if key not in view.trials:
-                continue  # a stage-2 trial before add_trials: does not happen in order
+                continue
             if kind == "started":
                 view.started(key)
             elif kind == "episodes":
@@ -141,16 +172,16 @@ def replay(path: str, tracking_uri: str, slots: int = 2, population: int | None 
             else:
                 view.finished(key, bool(payload.get("solved")), payload.get("wall_s"), payload)
                 left.discard(key)
-                if not left and plan.tuning and not stage_two_known:  # stage 1 over: stage 2 is known
+                if not left and not stage_two_known:  # stage 1 over: stage 2 is known
                     choices = plan.choices({k: summaries[k] for k in stage1 if k in summaries})
                     chosen = unique(plan.chosen(choices), stage1)
                     costs = {t.key: earlier[t.key][0] for t in chosen if t.key in earlier}
                     episodes = {key: earlier[key][1] for key in costs if earlier[key][1]}
                     view.add_trials(schedule_order(chosen, costs), costs, episodes)
                     stage_two_known = True
-        # The truth each estimate is held to: the end of the trials it could know of (stages 1 and 2); later
-        # rounds of seeds are decided by their results, so no estimate before them includes them.
-        view.trials_end = max(e[0] for e in events if e[1] == "finished" and e[2] in view.trials)
+                    pool = _every_seed(experiment, choices)
+                    rounds = _rounds(events, set(view.trials), pool)
+        view.trials_end = max(e[0] for e in events if e[1] == "finished")
     return _eta_figure(f"{path} (replayed from {db})", view)
 
 

@@ -302,6 +302,8 @@ def test_a_later_stages_trials_are_costed_from_their_earlier_runs_when_they_have
     view.finished("a-s0", solved=True)
     view.add_trials(_trials(variants=("b",), seeds=(0,)), {"b-s0": 10.0}, {"b-s0": 40})
     assert view.seconds_left() == pytest.approx(2 * 10.0)  # its earlier run's 10 s at this launch's pace
+    # No stand-ins stood for b-s0 (a round of seeds): what the view knew of before did not include it.
+    assert view.phases == [(0, ["a-s0"]), (0, ["b-s0"])]  # (no estimates logged: index 0)
     view.started("b-s0")
     for episode in (10, 20, 30):
         clock.now += 8.0  # 0.8 s per episode: past its expected 20 s with its solving episode ahead
@@ -400,6 +402,7 @@ def test_a_later_stage_counts_after_this_one_and_keeps_what_was_learned(clock):
     stage_2 = [GridTrial(f"a-lr-s{s}", "a", s, replace(TrialConfig(), max_episodes=100, seed=s)) for s in (0, 1)]
     view.add_trials(stage_2)
     assert view.seconds_left() == pytest.approx(6)  # the finished trials' cost carries over
+    assert view.phases == [(0, ["a-s0", "a-s1", "a-lr-s0", "a-lr-s1"])]  # the stand-ins said it was coming
     view.started("a-lr-s0")
     view.started("a-lr-s1")
     view.finished("a-lr-s0", solved=True)

@@ -85,6 +85,9 @@ class ProgressView(TimeLeft):
         self.summaries: dict[str, Mapping[str, float]] = {}
         self.estimates: list[tuple[float, int, float | None]] = []
         """(seconds since ``start``, trials ended, the estimate in seconds) after every event."""
+        self.phases: list[tuple[int, list[str]]] = [(0, [t.key for t in trials])]
+        """(index of its first estimate, its trials' keys) for each set of trials the view knew of together: the
+        launch's, with the later stage that replaces its stand-ins; then each round of seeds."""
 
     # --- events -----------------------------------------------------------------------------------
     def started(self, key: str) -> None:
@@ -160,6 +163,10 @@ class ProgressView(TimeLeft):
             self.prior |= prior_costs or {}
             self.prior_episodes |= prior_episodes or {}
             self.population_of |= self.plan(trials)
+            if self.later or self.provisional:  # the stage its stand-ins stood for
+                self.phases[-1][1].extend(t.key for t in trials)
+            elif trials:  # a round of seeds: the estimate could not see it coming
+                self.phases.append((len(self.estimates), [t.key for t in trials]))
             for t in trials:
                 self.trials[t.key] = TrialProgress(t)
                 if t.variant not in self.variants:
