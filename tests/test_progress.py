@@ -112,6 +112,23 @@ def test_a_population_holds_its_slot_until_its_last_member_ends_and_costs_its_lo
     assert alone.population_of == {t.key: (t.key,) for t in trials}
 
 
+def test_a_trial_past_its_peers_mean_runs_as_long_as_the_peers_that_ran_longer(clock):
+    view = ProgressView("x", _trials(budget=1000, variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=4)
+    for seed in (0, 1, 2, 3):
+        view.started(f"a-s{seed}")
+    clock.now += 10
+    for seed in (0, 1, 2):  # 10 s, 12 s, 14 s
+        view.episodes(f"a-s{seed}", [_row(100, 195.0)])
+        view.finished(f"a-s{seed}", solved=True)
+        clock.now += 2
+    clock.now += 6  # 22 s: a-s3 is past every peer; nothing says how long it runs
+    view.episodes("a-s3", [_row(10, 1.0), _row(20, 1.0)])
+    assert view.seconds_left() == pytest.approx(22 / 20 * 980)  # at its own pace for the rest of its budget
+    view.trials["a-s2"].ended_at = view.trials["a-s2"].started_at + 40  # had a-s2 taken 40 s instead:
+    # past the peers' mean (20.7 s) still, but one of them ran longer: as long as it took, not 980 episodes.
+    assert view.seconds_left() == pytest.approx(40 - 22)
+
+
 def test_recent_pace_counts_when_episodes_get_longer(clock):
     view = ProgressView("x", _trials(budget=1000, variants=("a",), seeds=(0,)), 0, enabled=False, slots=1)
     view.started("a-s0")

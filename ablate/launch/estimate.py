@@ -247,6 +247,12 @@ class TimeLeft:
             return expected - elapsed
         if trial.last_episode_reported:  # not the rest of its budget: a solved trial stops where it solved
             return 0.0
+        # Past its peers' mean but not past every peer: as long as the peers that ran longer than it has took,
+        # on average (a seed that has not solved by now is one of the slower ones, not one at its own pace for
+        # the rest of its budget).
+        longer = [c for c, _, b, _ in seen.peers.get(trial.settings, []) if b == trial.budget and c > elapsed]
+        if longer and trial.trial.key not in self.prior:
+            return statistics.fmean(longer) - elapsed
         # Past what its peers took (or none has ended): at its own recent pace, to where its earlier run (the
         # same seed) stopped, a slower machine's being no reason to run longer; past that, the rest of its budget;
         # sooner where its rolling mean climbs to the solve threshold first (a CartPole agent near it plays
