@@ -20,7 +20,7 @@ from unittest import mock
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench import _eta_figure  # noqa: E402
+from bench_estimate import _eta_figure  # noqa: E402
 
 from ablate.experiment import load_experiment  # noqa: E402
 from ablate.launch import progress  # noqa: E402
