@@ -3,6 +3,7 @@
 
 import pytest
 from stores import fresh_store
+from views import Clock
 
 
 @pytest.fixture(scope="session")
@@ -42,3 +43,13 @@ def run_quiet(ray_cluster):
         )
 
     return run
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    """``time.monotonic`` (the live view's and the estimate's clock) moved by hand: ``clock.now += 5``."""
+    import time
+
+    fake = Clock()
+    monkeypatch.setattr(time, "monotonic", fake)
+    return fake
