@@ -1,9 +1,11 @@
 """Replay a finished launch from its MLflow store through the time-left estimate, offline, in a second.
 
 Each trial run's start, its logged curve points (their timestamps) and its end become the live view's events
-at the times they happened, so the estimate is scored exactly as ``bench.py eta`` scores a live launch: every
-estimate once a quarter of the trials had ended, against the time that actually remained (bound: +-30% or
-+-20 s, whichever is larger). A launch measured once can then be replayed against any change to the estimate.
+at the times they happened, planned into populations as the runner planned them, and its rounds of seeds added
+as the runner added them, so the estimate is scored exactly as ``bench.py eta`` scores a live launch: every
+estimate once a quarter of its phase's trials had ended (the launch's stages, then each round), against the
+time that actually remained until they ended (bound: +-30% or +-20 s, whichever is larger). A launch measured
+once can then be replayed against any change to the estimate.
 
     python benchmarks/replay_eta.py EXPERIMENT_FILE --tracking-uri sqlite:///path/mlflow.db
 """
