@@ -31,10 +31,13 @@ from ablate.launch.plan import plan_populations  # noqa: E402
 from ablate.launch.tuning import StagePlan, unique  # noqa: E402
 
 
-def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, dict], dict[str, tuple[float, int]]]:
+def _events(
+    db: Path, experiment: str
+) -> tuple[float, list[tuple], dict[str, dict], dict[str, tuple[float, int]], dict[str, str]]:
     """The newest launch's start (s), its trials' events ``(t, kind, key, payload)`` by time, each trial's
-    summary metrics, and the seconds and episodes each trial key took in a run finished before that launch
-    (what the runner gives the estimate of earlier launches), read straight from an SQLite store (read-only)."""
+    summary metrics, the seconds and episodes each trial key took in a run finished before that launch
+    (what the runner gives the estimate of earlier launches), and each of its trials' population tag, read
+    straight from an SQLite store (read-only)."""
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     (exp_id,) = con.execute("select experiment_id from experiments where name = ?", (experiment,)).fetchone()
     tags = {}
@@ -49,7 +52,7 @@ def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, di
     ).fetchall()
     launch = max((r for r in runs if tags.get(r[0], {}).get("ablate.role") == "launch"), key=lambda r: r[1])
     generation = tags[launch[0]].get("ablate.generation")
-    events, summaries, earlier = [], {}, {}
+    events, summaries, earlier, population_tags = [], {}, {}, {}
     for run, start, end, status in sorted(runs, key=lambda r: r[1]):
         t = tags.get(run, {})
         if t.get("ablate.role") == "trial" and status == "FINISHED" and end and start < launch[1]:
@@ -63,6 +66,7 @@ def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, di
             con.execute("select key, value from latest_metrics where run_uuid = ? and key not like 'episode/%'", (run,))
         )
         summaries[key] = metrics
+        population_tags[key] = t.get("ablate.population", "")
         events.append((start / 1000, "started", key, None))
         points: dict[int, dict] = {}
         for name, step, stamp, value in con.execute(
@@ -79,7 +83,7 @@ def _events(db: Path, experiment: str) -> tuple[float, list[tuple], dict[str, di
         events.append((end / 1000, "finished", key, metrics))
     order = {"started": 0, "episodes": 1, "finished": 2}
     events.sort(key=lambda e: (e[0], order[e[1]]))
-    return launch[1] / 1000, events, summaries, earlier
+    return launch[1] / 1000, events, summaries, earlier, population_tags
 
 
 def _rounds(events: list[tuple], before: set[str], pool: dict) -> list[list[str]]:
@@ -107,15 +111,9 @@ def _every_seed(experiment, choices) -> dict:
     return trials
 
 
-def _population_cap(db: Path, experiment: str) -> int:
-    """The most members a population of the experiment's trials had (``ablate.population`` tags ``popN-...``)."""
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    rows = con.execute(
-        "select t.value from tags t join runs r on r.run_uuid = t.run_uuid join experiments e "
-        "on e.experiment_id = r.experiment_id where e.name = ? and t.key = 'ablate.population'",
-        (experiment,),
-    )
-    sizes = [int(value[3:].split("-")[0]) for (value,) in rows if value.startswith("pop")]
+def _population_cap(populations: dict[str, str]) -> int:
+    """The most members a population of the launch's trials had (their ``ablate.population`` tags, ``popN-...``)."""
+    sizes = [int(p[3:].split("-")[0]) for p in populations.values() if p.startswith("pop")]
     return max(sizes, default=1)
 
 
@@ -125,8 +123,8 @@ def replay(path: str, tracking_uri: str, slots: int = 2, population: int | None 
     store's tags show) on ``slots`` population slots."""
     experiment = load_experiment(path)
     db = Path(tracking_uri.removeprefix("sqlite:///"))
-    start, events, summaries, earlier = _events(db, experiment.name)
-    cap = _population_cap(db, experiment.name) if population is None else population
+    start, events, summaries, earlier, population_tags = _events(db, experiment.name)
+    cap = _population_cap(population_tags) if population is None else population
 
     def populations(trials):  # the runner's plan
         return [p.keys for p in plan_populations(trials, cap=cap, slots=slots)]
@@ -164,7 +162,9 @@ def replay(path: str, tracking_uri: str, slots: int = 2, population: int | None 
             clock.now = t
             if key not in view.trials and kind == "started" and stage_two_known:  # a round of seeds begins
                 keys = [k for k in rounds if key in k][0]
-                view.add_trials([pool[k].trial for k in keys])  # a phase of its own (``view.phases``)
+                costs = {k: earlier[k][0] for k in keys if k in earlier}  # as the runner gives them
+                episodes = {k: earlier[k][1] for k in costs if earlier[k][1]}
+                view.add_trials([pool[k].trial for k in keys], costs, episodes)  # its own phase (``view.phases``)
             if key not in view.trials:
                 continue
             if kind == "started":

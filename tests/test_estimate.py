@@ -72,9 +72,33 @@ def test_a_population_holds_its_slot_until_its_last_member_ends_and_costs_its_lo
     view.finished("a-s2", solved=False)  # the first population took 35 s; the second starts after its last
     view.started("a-s3")
     assert view.gaps == [0.0]  # one slot freed (at the last member's end) and taken
-    assert view.max_running == 1  # one population running, though it had three members
     # a-s3 runs (its cost: the finished members' mean, 25 s); a-s4 and a-s5 start with it, in its slot.
     assert view.seconds_left() == pytest.approx((10 + 30 + 35) / 3)
+    clock.now += 1
+    view.started("a-s4")
+    view.started("a-s5")
+    assert view.gaps == [0.0]  # its mates took no slot of their own
+    assert view.max_running == 1  # one population running, though it had three members
+
+
+def test_two_slots_freed_at_once_are_taken_by_the_first_member_of_each_population(clock):
+    trials = _trials(budget=100, variants=("a",), seeds=tuple(range(8)))
+
+    def plan(ts):  # four populations of two seeds, on two slots
+        keys = [t.key for t in ts]
+        return [keys[i : i + 2] for i in range(0, len(keys), 2)]
+
+    view = ProgressView("x", trials, 0, enabled=False, slots=2, populations=plan)
+    for seed in range(4):
+        view.started(f"a-s{seed}")
+    clock.now += 10
+    for seed in range(4):  # both populations end at 10 s: two slots free
+        view.finished(f"a-s{seed}", solved=True)
+    for wait, seeds in ((1, (4, 5)), (1, (6, 7))):  # the next two start 1 s and 2 s later, member by member
+        clock.now += wait
+        for seed in seeds:
+            view.started(f"a-s{seed}")
+    assert view.gaps == [1.0, 2.0] and view.dispatch_s() == pytest.approx(1.5)
     # Each trial alone, the same events say the three members of the second population take a slot each.
     alone = ProgressView("x", trials, 0, enabled=False, slots=1)
     assert alone.population_of == {t.key: (t.key,) for t in trials}
@@ -318,6 +342,31 @@ def test_a_later_stage_is_asked_again_as_tuning_trials_end(clock):
     assert view.seconds_left() == pytest.approx(5 + 2 * 10)  # its rest, then two 100-episode stand-ins
     view.finished("a-t", solved=False, summary={"auc": 1.0, "episodes_run": 100})
     assert asked == [{"a-t": {"auc": 1.0, "episodes_run": 100}}] and view.seconds_left() == 0.0
+
+
+def test_phases_a_stage_its_stand_ins_announced_joins_the_launchs_a_round_of_seeds_opens_its_own(clock):
+    stage_1 = [GridTrial(f"a-t{s}", "a", 10_000 + s, replace(TrialConfig(), max_episodes=100), "tune") for s in (0, 1)]
+    answers = [[]]  # the first tuning trial's end: the base value ahead, no stand-ins; then it fails
+
+    def provisional(summaries):
+        if not answers:
+            raise RuntimeError("no choice")
+        return answers.pop()
+
+    view = ProgressView("x", stage_1, 0, enabled=False, slots=1, provisional=provisional, log_estimates=True)
+    for key in ("a-t0", "a-t1"):
+        view.started(key)
+        clock.now += 1
+        view.finished(key, solved=False, summary={"auc": 1.0, "episodes_run": 100})
+    assert view.later == [] and view.provisional is None  # no stand-ins left, and no one to ask
+    stage_2 = _trials(variants=("a",), seeds=(0,))
+    view.add_trials(stage_2)  # still the stage that provisional stood for: the launch's phase
+    assert view.phases == [(0, ["a-t0", "a-t1", "a-s0"])]
+    view.started("a-s0")
+    view.finished("a-s0", solved=True)
+    logged = len(view.estimates)
+    view.add_trials(_trials(variants=("a",), seeds=(1,)))  # a round of seeds: its own phase, from now
+    assert view.phases[1] == (logged, ["a-s1"]) and logged > 0
 
 
 def test_a_later_stage_with_nothing_to_run_ends_the_trials(clock):

@@ -85,6 +85,8 @@ class ProgressView(TimeLeft):
         self.summaries: dict[str, Mapping[str, float]] = {}
         self.estimates: list[tuple[float, int, float | None]] = []
         """(seconds since ``start``, trials ended, the estimate in seconds) after every event."""
+        self._stage_coming = bool(later or provisional)
+        """A later stage stands in ``later`` (or ``provisional`` would say it): its trials join this phase."""
         self.phases: list[tuple[int, list[str]]] = [(0, [t.key for t in trials])]
         """(index of its first estimate, its trials' keys) for each set of trials the view knew of together: the
         launch's, with the later stage that replaces its stand-ins; then each round of seeds."""
@@ -100,8 +102,9 @@ class ProgressView(TimeLeft):
             trial.first_on_worker = not any(t.ended_at for t in self.trials.values())
             running = {self.population_of.get(k, (k,)) for k, t in self.trials.items() if t.state == "running"}
             self.max_running = max(self.max_running, len(running))
-            if self._freed:
-                self.gaps.append(now - self._freed.popleft())
+            mates = [k for k in self.population_of.get(key, (key,)) if k != key]
+            if self._freed and not any(self.trials[k].started_at for k in mates if k in self.trials):
+                self.gaps.append(now - self._freed.popleft())  # its population's first member takes the slot
             self._log_estimate(now)
         self.refresh()
 
@@ -154,7 +157,6 @@ class ProgressView(TimeLeft):
         trials: Sequence[GridTrial],
         prior_costs: Mapping[str, float] | None = None,
         prior_episodes: Mapping[str, int] | None = None,
-        populations: Callable[[Sequence[GridTrial]], Sequence[Sequence[str]]] | None = None,
     ) -> None:
         """The next stage's trials, now known, in the order they will start (none: it has nothing to run), with
         what earlier launches' runs of them took (as the constructor's). They replace the ``later`` guesses;
@@ -163,7 +165,7 @@ class ProgressView(TimeLeft):
             self.prior |= prior_costs or {}
             self.prior_episodes |= prior_episodes or {}
             self.population_of |= self.plan(trials)
-            if self.later or self.provisional:  # the stage its stand-ins stood for
+            if self._stage_coming:  # the stage its stand-ins stood for
                 self.phases[-1][1].extend(t.key for t in trials)
             elif trials:  # a round of seeds: the estimate could not see it coming
                 self.phases.append((len(self.estimates), [t.key for t in trials]))
@@ -171,7 +173,7 @@ class ProgressView(TimeLeft):
                 self.trials[t.key] = TrialProgress(t)
                 if t.variant not in self.variants:
                     self.variants.append(t.variant)
-            self.later, self.provisional = [], None
+            self.later, self.provisional, self._stage_coming = [], None, False
             self._freed.clear()  # the next stage starts on slots that are all free: no wait to count
             if trials:
                 self.trials_end = None
