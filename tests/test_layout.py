@@ -245,3 +245,19 @@ def test_a_difference_claimed_by_a_later_holm_step_says_why_its_interval_still_r
     assert "Holm's step-down made this claim at the 1.00% level" in crossing and "still reaches no change" in crossing
     clear = claim_line(Verdict(low=0.03, high=1.63, **fields), question, (1049.0, 564.0))
     assert "Holm" not in clear
+
+
+def test_the_question_without_a_solve_threshold_asks_how_fast_it_learns():
+    from types import SimpleNamespace
+
+    from ablate.reporting.layout import question
+
+    pong = SimpleNamespace(
+        variants=["cnn", "mlp"], baseline="cnn", any_solved=False, threshold=None, env_id="ALE/Pong-v5",
+        grid={"description": "CNN vs MLP."}, reference=lambda v: "cnn",
+    )  # fmt: skip
+    text = question(pong)
+    assert "how fast REINFORCE learns on `ALE/Pong-v5`?" in text and "learns to learn" not in text
+    assert "first on the area under the learning curve" in text
+    cartpole = SimpleNamespace(**{**vars(pong), "threshold": 475.0, "any_solved": True, "env_id": "CartPole-v1"})
+    assert "learns to reach a rolling mean return of 475 on `CartPole-v1`?" in question(cartpole)

@@ -57,14 +57,18 @@ def body_figures(figures: list[Figure]) -> list[Figure]:
 def question(ablation: Ablation) -> str:
     others = [v for v in ablation.variants if v != ablation.baseline]
     primary = "episodes to solve" if ablation.any_solved else "the area under the learning curve"
-    goal = f"reach a rolling mean return of {ablation.threshold:g}" if ablation.threshold is not None else "learn"
+    learns = (
+        f"learns to reach a rolling mean return of {ablation.threshold:g}"
+        if ablation.threshold is not None
+        else "learns"
+    )
     description = _esc(ablation.grid.get("description") or "").strip()
     lead = (description if description[-1] in ".?!" else f"{description}.") + " " if description else ""
     varied = any(ablation.reference(v) != ablation.baseline for v in others)
     against = "its reference (the baseline, or the variant it extends)" if varied else _esc(ablation.baseline)
     listed = ", ".join(_esc(v) for v in others) or "none"
     return (
-        f"{lead}Does each change to the baseline's settings change how fast REINFORCE learns to {goal} on "
+        f"{lead}Does each change to the baseline's settings change how fast REINFORCE {learns} on "
         f"`{_esc(ablation.env_id)}`? {len(others)} variant{'s' if len(others) != 1 else ''} ({listed}) "
         f"{'are each' if len(others) != 1 else 'is'} compared with {against}, first on {primary}."
     )
