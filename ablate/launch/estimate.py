@@ -267,35 +267,31 @@ class TimeLeft:
         climb = None if never_solved else trial.episodes_to_solve()
         return rate * max(left if climb is None else min(left, climb), 0)
 
+    def _unit_left(self, unit: Sequence[TrialProgress], now: float, seen: CostsSeen) -> float | None:
+        """Seconds until a population (or a trial alone) frees its slot: its longest member's, each running
+        member's time left and each member not started yet (its mates may have) costed whole from now."""
+        left = [
+            self._left_of_running(t, now, seen) if t.state == "running" else self._trial_cost(t, seen) for t in unit
+        ]
+        return None if None in left else max(left)  # type: ignore[type-var]
+
     def seconds_left(self, now: float | None = None) -> float | None:
         """Seconds until the last trial ends, or ``None`` while nothing is known of any trial's cost."""
         now = time.monotonic() if now is None else now
-        running = [t for t in self.trials.values() if t.state == "running"]
-        pending = [t for t in self.trials.values() if t.state == "pending"]
-        if not running and not pending and not self.later:
-            return 0.0
-        seen = self._costs_seen(now)
         # A population holds its slot until its last member ends: its members run at once, each at the pace
         # of a member of a population (what its finished peers took), so its cost is its longest member's.
-        # A member not started yet whose mates have is costed whole from now, as a pending trial.
+        units = self.units([t for t in self.trials.values() if t.state in ("running", "pending")], self.population_of)
+        if not units and not self.later:
+            return 0.0
+        seen = self._costs_seen(now)
         running_left, costs = [], []
-        for unit in self.units(
-            [t for t in self.trials.values() if t.state in ("running", "pending")], self.population_of
-        ):
-            if any(t.state == "running" for t in unit):
-                left = [
-                    self._left_of_running(t, now, seen) if t.state == "running" else self._trial_cost(t, seen)
-                    for t in unit
-                ]
-                running_left.append(None if None in left else max(left))  # type: ignore[type-var]
-            else:
-                cost = [self._trial_cost(t, seen) for t in unit]
-                costs.append(None if None in cost else max(cost))  # type: ignore[type-var]
-        later_plan = self.plan([t.trial for t in self.later]) if self.later else {}
-        later = []
-        for unit in self.units(self.later, later_plan):
-            cost = [self._trial_cost(t, seen) for t in unit]
-            later.append(None if None in cost else max(cost))  # type: ignore[type-var]
+        for unit in units:
+            (running_left if any(t.state == "running" for t in unit) else costs).append(
+                self._unit_left(unit, now, seen)
+            )
+        later = [
+            self._unit_left(u, now, seen) for u in self.units(self.later, self.plan([t.trial for t in self.later]))
+        ]
         if any(x is None for x in [*running_left, *costs, *later]):
             return None
         slots = self.slots or max(self.max_running, 1)
