@@ -71,11 +71,11 @@ def _events(
         points: dict[int, dict] = {}
         for name, step, stamp, value in con.execute(
             "select key, step, timestamp, value from metrics where run_uuid = ? and key in "
-            "('episode/rolling_mean', 'episode/wall_s')",
+            "('episode/rolling_mean', 'episode/wall_s', 'episode/env_steps')",
             (run,),
         ):
             point = points.setdefault(step, {"episode": step, "stamp": stamp / 1000})
-            point["rolling_mean" if name == "episode/rolling_mean" else "wall_s"] = value
+            point[name.removeprefix("episode/")] = value
         by_stamp: dict[float, list] = {}
         for point in sorted(points.values(), key=lambda p: p["episode"]):
             by_stamp.setdefault(point["stamp"], []).append(SimpleNamespace(**point))

@@ -8,6 +8,7 @@ import pytest
 from views import grid_trials as _trials
 from views import row as _row
 
+from ablate.agent.trial import EpisodeMetrics
 from ablate.config import TrialConfig
 from ablate.launch.estimate import makespan
 from ablate.launch.grid import GridTrial
@@ -420,3 +421,51 @@ def test_a_trial_that_solved_is_writing_its_artifacts_not_running_out_its_budget
     assert view.seconds_left() == pytest.approx(45 * 49 / 110 * 5 / 49)
     view.episodes("a-s1", [_row(100, 195.5)])  # solved: its last episode
     assert view.seconds_left() == 0.0
+
+
+def _timed(episode, wall_s, env_steps):
+    """An episode row with the trial's own clock and env steps (a rolling mean far from CartPole's threshold)."""
+    return EpisodeMetrics(episode, -20.0, 10, 0.0, 0.5, -20.0, env_steps, wall_s, episode)
+
+
+def test_a_running_trial_is_held_to_its_peers_per_env_step_and_the_launch_pace_scales_what_is_pending(clock):
+    from ablate.launch.estimate import PACE_WINDOW_S
+
+    trials = _trials(budget=400, variants=("a",), seeds=(0, 1, 2))
+    view = ProgressView("x", trials, 0, enabled=False, slots=1)
+    view.started("a-s0")
+    for episode in (100, 200, 300, 400):  # 0.5 s per episode, 10 steps per episode: 0.05 s per step
+        clock.now += 50
+        view.episodes("a-s0", [_timed(episode, episode / 2, episode * 10)])
+    clock.now += 5
+    view.finished("a-s0", solved=False)  # 205 s: 200 s of training, 5 s after its last report
+    view.started("a-s1")
+    clock.now += 50
+    view.episodes("a-s1", [_timed(50, 50.0, 500)])
+    # Under PACE_WINDOW_S of its own clock: no pace yet, its peer's 205 s less the 50 s it has run, then a-s2's.
+    assert PACE_WINDOW_S > 50 and view.seconds_left() == pytest.approx(155 + 205)
+    clock.now += 50
+    view.episodes("a-s1", [_timed(100, 100.0, 1000)])
+    # 0.1 s per step where its peer took 0.05 over the same episodes: twice as slow. It has its peer's 150 s of
+    # training left at that pace, then the 5 s tail; a-s2, not started, costs its peer's 205 s at the pace now.
+    assert view._costs_seen(clock.now).pace == pytest.approx(2.0)
+    assert view.seconds_left() == pytest.approx(2 * 150 + 5 + 2 * 205)
+    clock.now += 4
+    assert view.seconds_left() == pytest.approx(2 * 150 + 5 - 4 + 2 * 205)  # the time since its last report
+
+
+def test_a_seed_with_longer_episodes_is_not_taken_for_a_slower_machine(clock):
+    trials = _trials(budget=400, variants=("a",), seeds=(0, 1, 2))
+    view = ProgressView("x", trials, 0, enabled=False, slots=1)
+    view.started("a-s0")
+    for episode in (100, 200, 300, 400):
+        clock.now += 50
+        view.episodes("a-s0", [_timed(episode, episode / 2, episode * 10)])
+    clock.now += 5
+    view.finished("a-s0", solved=False)
+    view.started("a-s1")
+    clock.now += 100
+    # Twice as long per episode, but twice the steps: the machine runs as fast as it did for a-s0.
+    view.episodes("a-s1", [_timed(50, 50.0, 1000), _timed(100, 100.0, 2000)])
+    assert view._costs_seen(clock.now).pace == pytest.approx(1.0)
+    assert view.seconds_left() == pytest.approx(150 + 5 + 205)

@@ -5,6 +5,7 @@ trial slots in the order the trials start."""
 
 from __future__ import annotations
 
+import bisect
 import heapq
 import statistics
 import time
@@ -17,6 +18,11 @@ from ablate.launch.grid import GridTrial, config_hash
 
 RATE_REPORTS = 4
 """Reports (one per ~2 s per trial) that a running trial's recent pace is measured over."""
+
+PACE_WINDOW_S = 60.0
+"""Seconds of a running trial's own clock that its pace against its peers (``TimeLeft._pace``) is measured
+over, and the least it must have run to have one: a machine's load changes over minutes, while over seconds a
+pace measures the trial's own noise (a CartPole agent's episodes growing, its population's mates leaving)."""
 
 
 def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], slots: int) -> float:
@@ -67,6 +73,20 @@ class TrialProgress:
 
     episodes_run: int | None = None
     """Episodes it ran (its summary's), once finished: fewer than its budget when it stopped early (solved)."""
+    profile: list[tuple[int, float, int]] = field(default_factory=list)
+    """(episode, its own clock, its env steps) at every report: where its time went. A later trial with the same
+    settings is held to it (``TimeLeft._pace``), which sees a machine that got busier or freer since."""
+
+    def at(self, episode: float) -> tuple[float, float] | None:
+        """Its own clock and env steps at ``episode``, interpolated between its reports (0 at episode 0);
+        ``None`` past its last report."""
+        if not self.profile or episode > self.profile[-1][0]:
+            return None
+        i = bisect.bisect_left(self.profile, episode, key=lambda point: point[0])
+        e1, s1, n1 = self.profile[i]
+        e0, s0, n0 = self.profile[i - 1] if i else (0, 0.0, 0)
+        f = 1.0 if e1 == e0 else (episode - e0) / (e1 - e0)
+        return s0 + (s1 - s0) * f, n0 + (n1 - n0) * f
 
     @property
     def budget(self) -> int:
@@ -132,6 +152,16 @@ class CostsSeen:
     """This launch's seconds over the earlier runs' seconds, for the trials both finished; 1 before one has."""
     overhead_s: float
     """What a trial costs beside its training (median over the finished trials that paid no worker start)."""
+    profiled: dict[tuple[tuple[str, str], int], list[TrialProgress]] = field(default_factory=dict)
+    """The finished trials with a ``profile``, per (``settings``, budget)."""
+    paces: dict[str, float] = field(default_factory=dict)
+    """Each running trial's ``TimeLeft._pace``, by key, where it has one."""
+
+    @property
+    def pace(self) -> float:
+        """How fast the launch runs now against the finished trials it is held to: the running trials' median
+        pace (2: half as fast), 1 while none has one."""
+        return statistics.median(self.paces.values()) if self.paces else 1.0
 
 
 class TimeLeft:
@@ -190,6 +220,14 @@ class TimeLeft:
             if (rate := t.seconds_per_episode(now)) is not None:
                 rates.setdefault(t.trial.variant, []).append(rate)
                 rates.setdefault(None, []).append(rate)
+        profiled: dict[tuple[tuple[str, str], int], list[TrialProgress]] = {}
+        for t in done:
+            if t.profile and t.reports:
+                profiled.setdefault((t.settings, t.budget), []).append(t)
+        paces = {}
+        for t in self.trials.values():
+            if t.state == "running" and (pace := self._pace(t, profiled.get((t.settings, t.budget), []))):
+                paces[t.trial.key] = pace
         return CostsSeen(
             means={group: statistics.fmean(costs) for group, costs in by_group.items()},
             peers=peers,
@@ -197,7 +235,30 @@ class TimeLeft:
             # How this launch's trials compare with their earlier runs (a busier machine, another CPU).
             prior_scale=observed / earlier if earlier > 0 else 1.0,
             overhead_s=max(overhead, 0.0),
+            profiled=profiled,
+            paces=paces,
         )
+
+    @staticmethod
+    def _pace(trial: TrialProgress, peers: Sequence[TrialProgress]) -> float | None:
+        """How fast ``trial`` runs now against its finished ``peers``: its seconds per env step over the newest
+        ``PACE_WINDOW_S`` of its own clock, over theirs between the same episodes (1: as fast, 2: half as fast).
+        Per step, not per episode: a seed's episodes are its own (a Pong agent that returns the ball plays
+        longer ones), its seconds per step are the machine's. ``None`` before it has run ``PACE_WINDOW_S``, or
+        without a peer that ran that far."""
+        if not trial.profile or trial.profile[-1][1] < PACE_WINDOW_S:
+            return None
+        e1, s1, n1 = trial.profile[-1]
+        start = bisect.bisect_right(trial.profile, s1 - PACE_WINDOW_S, key=lambda point: point[1])
+        e0, s0, n0 = trial.profile[start - 1] if start else (0, 0.0, 0)
+        rates = []
+        for peer in peers:
+            a, b = peer.at(e0), peer.at(e1)
+            if a is not None and b is not None and b[0] > a[0] and b[1] > a[1]:
+                rates.append((b[0] - a[0]) / (b[1] - a[1]))
+        if not rates or s1 <= s0 or n1 <= n0:
+            return None
+        return (s1 - s0) / (n1 - n0) / statistics.fmean(rates)
 
     def _peer_cost(self, trial: TrialProgress, seen: CostsSeen) -> float | None:
         """What finished trials say a trial costs: its earlier run's (scaled to this launch's pace); else the
@@ -208,15 +269,16 @@ class TimeLeft:
         and the variant's evaluation seeds at the base value ran the whole budget; else that mean alone."""
         if trial.trial.key in self.prior:
             return self.prior[trial.trial.key] * seen.prior_scale
+        # At the launch's pace now: the finished trials ran on a machine that may have been busier or freer.
         peers = seen.peers.get(trial.settings, [])
         same = [cost for cost, _, budget, _ in peers if budget == trial.budget]
         if same:
-            return statistics.fmean(same)
+            return statistics.fmean(same) * seen.pace
         variant_mean = seen.means.get((trial.trial.variant, trial.budget))
         if peers:
             carried = statistics.fmean(at_budget(*peer, trial.budget) for peer in peers)
-            return carried if variant_mean is None else (carried + variant_mean) / 2
-        return variant_mean
+            return (carried if variant_mean is None else (carried + variant_mean) / 2) * seen.pace
+        return None if variant_mean is None else variant_mean * seen.pace
 
     def _trial_cost(self, trial: TrialProgress, seen: CostsSeen) -> float | None:
         """Expected seconds of a trial that has not started: what its finished peers say (``_peer_cost``), else
@@ -240,7 +302,24 @@ class TimeLeft:
         driver writing the ended trial's artifacts): with trials of a second or two, a third of the time."""
         return statistics.fmean(self.gaps) if self.gaps else 0.0
 
+    def _left_by_profile(self, trial: TrialProgress, now: float, seen: CostsSeen) -> float | None:
+        """What its finished peers that ran past its last episode took from there, at its pace against them
+        (``_pace``), and from their last report to their end; ``None`` without such a peer, or a pace."""
+        pace = seen.paces.get(trial.trial.key)
+        episode = trial.profile[-1][0] if trial.profile else None
+        if pace is None or episode is None or not trial.reports:
+            return None
+        peers = seen.profiled.get((trial.settings, trial.budget), [])
+        longer = [p for p in peers if p.profile[-1][0] > episode]
+        if not longer:
+            return None
+        rest = statistics.fmean(p.profile[-1][1] - p.at(episode)[0] for p in longer)  # type: ignore[index]
+        tail = statistics.fmean(max(p.ended_at - p.reports[-1][0], 0.0) for p in longer)  # type: ignore[operator]
+        return max(pace * rest + tail - (now - trial.reports[-1][0]), 0.0)
+
     def _left_of_running(self, trial: TrialProgress, now: float, seen: CostsSeen) -> float | None:
+        if trial.trial.key not in self.prior and (left := self._left_by_profile(trial, now, seen)) is not None:
+            return left
         elapsed = now - (trial.started_at or now)
         expected = self._peer_cost(trial, seen)
         if expected is not None and expected > elapsed:

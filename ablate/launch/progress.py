@@ -98,6 +98,7 @@ class ProgressView(TimeLeft):
             trial = self.trials[key]
             trial.state, trial.started_at, trial.episode, trial.rolling_mean = "running", now, 0, None
             trial.reports.clear()
+            trial.profile.clear()
             self.first_start = self.first_start or now
             trial.first_on_worker = not any(t.ended_at for t in self.trials.values())
             running = {self.population_of.get(k, (k,)) for k, t in self.trials.items() if t.state == "running"}
@@ -116,6 +117,9 @@ class ProgressView(TimeLeft):
             trial = self.trials[key]
             trial.episode, trial.rolling_mean = rows[-1].episode, rows[-1].rolling_mean
             trial.train_s = getattr(rows[-1], "wall_s", None)
+            steps = getattr(rows[-1], "env_steps", None)
+            if trial.train_s is not None and steps is not None:
+                trial.profile.append((trial.episode, trial.train_s, steps))
             trial.reports.append((time.monotonic(), trial.episode, trial.rolling_mean))
             self._log_estimate(time.monotonic())
         self.refresh()
