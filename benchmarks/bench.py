@@ -4,7 +4,8 @@ Sections: `core` (course-style loop vs our trial, time to solve CartPole-v1), `r
 default ablation: speed-up, tracking overhead, memory), `tracking` (the single writer with 256 synthetic
 trials), `cluster` (a tiny ablation on the local default vs a joined head and a tracking server), `pong`
 and `pong-memory` (Pong trials against the raw emulator; RSS over a long trial), `pong-population` (Pong
-populations of 8 per member against the raw emulator; RSS per member), `tuning` (tuned vs untuned
+populations of 8 per member against the raw emulator; RSS per member), `pong-seeds` (30 seeds of each Pong arm
+one at a time and in populations: the same runs and distribution), `tuning` (tuned vs untuned
 default ablation; each launch's time-left estimate scored), `eta` (the time-left estimate against the time that
 actually remained), `population` (CartPole populations against one trial; the same results), `seeds` (the
 tuned default ablation at 4x its seeds in populations against today's launch).
@@ -25,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the sections beside 
 
 from bench_estimate import bench_eta, bench_tuning  # noqa: E402
 from bench_launch import bench_ablation, bench_cluster, bench_runner, bench_tracking  # noqa: E402
-from bench_pong import bench_pong, bench_pong_memory, bench_pong_population  # noqa: E402
+from bench_pong import bench_pong, bench_pong_memory, bench_pong_population, bench_pong_seeds  # noqa: E402
 from bench_population import bench_population, bench_seeds  # noqa: E402
 from bench_results import RESULTS  # noqa: E402
 from bench_trial import bench_core  # noqa: E402
@@ -39,6 +40,7 @@ SECTIONS = {
     "pong": bench_pong,
     "pong-memory": bench_pong_memory,
     "pong-population": bench_pong_population,
+    "pong-seeds": bench_pong_seeds,
     "tuning": bench_tuning,
     "eta": bench_eta,
     "population": bench_population,

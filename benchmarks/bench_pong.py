@@ -1,5 +1,6 @@
 """`make bench` sections on Pong: `pong` and `pong-memory` (Pong trials against the raw emulator; RSS over a
-long trial), `pong-population` (Pong populations of 8 per member against the raw emulator; RSS per member)."""
+long trial), `pong-population` (Pong populations of 8 per member against the raw emulator; RSS per member),
+`pong-seeds` (30 seeds of each arm one at a time and in populations: the same runs, the same distribution)."""
 
 from __future__ import annotations
 
@@ -231,3 +232,80 @@ def bench_pong_population(members: int = 8) -> None:
     )
     print(f"pong-population: raw ALE/Pong-v5 {raw:,.0f} agent steps/s/core; per member against it: {summary}")
     RESULTS["pong-population"] = {"raw": raw, "runs": rows}
+
+
+def _pong_seeds_child(variant: str, seeds: int, episodes: int, members: int, queue) -> None:
+    """In a fresh process: ``seeds`` seeds of pong.toml's ``variant`` at ``episodes`` each, one at a time (the
+    single trial) and as populations of ``members``; puts each seed's (alone, together) episode rows
+    (return, length) and AUC on ``queue``."""
+    torch.set_num_threads(1)
+    from ablate.agent.population import run_population
+
+    configs = [_pong_config(variant, max_episodes=episodes, seed=seed) for seed in range(seeds)]
+    alone = [run_trial(c) for c in configs]
+    together = [o for i in range(0, seeds, members) for o in run_population(configs[i : i + members], device="cpu")]
+
+    def runs(outcomes):
+        return [([(m.episode_return, m.length) for m in o.episodes], o.summary()["auc"]) for o in outcomes]
+
+    queue.put((runs(alone), runs(together)))
+
+
+def _result_of(child, queue):
+    """What ``child`` puts on ``queue``, or an error that says it died first (a bare ``queue.get`` would wait
+    for ever)."""
+    from queue import Empty
+
+    while True:
+        try:
+            result = queue.get(timeout=5)
+            child.join()
+            return result
+        except Empty:
+            if not child.is_alive():
+                raise SystemExit(f"the benchmark's child process died (exit code {child.exitcode})") from None
+
+
+def bench_pong_seeds(seeds: int = 30, episodes: int = 25, members: int = 8) -> None:
+    """The same science in Pong populations (issue 26, item 3): ``seeds`` seeds of each pong.toml arm at
+    ``episodes`` episodes, one at a time and in populations of ``members``: how many members' whole runs
+    (returns and lengths) are their trials', and AUC's distributions compared by a two-sample test
+    (Mann-Whitney U). The two arms run side by side, one process each (a core each on 2 cores). The default
+    budget (400 episodes) would take ~10 core-hours: this is the same check at a budget a machine affords."""
+    import multiprocessing
+
+    from scipy.stats import mannwhitneyu
+
+    context = multiprocessing.get_context("spawn")
+    children = {}
+    for variant in ("mlp", "cnn"):
+        queue = context.Queue()
+        child = context.Process(target=_pong_seeds_child, args=(variant, seeds, episodes, members, queue))
+        child.start()
+        children[variant] = (child, queue)
+    figures = {}
+    for variant, (child, queue) in children.items():
+        alone, together = _result_of(child, queue)
+        identical = sum(a[0] == b[0] for a, b in zip(alone, together, strict=True))
+        first_flip = [
+            next((i for i, (x, y) in enumerate(zip(a[0], b[0], strict=True)) if x != y), None)
+            for a, b in zip(alone, together, strict=True)
+        ]
+        auc_alone, auc_together = [a[1] for a in alone], [b[1] for b in together]
+        p_value = float(mannwhitneyu(auc_together, auc_alone).pvalue)
+        figures[variant] = {
+            "identical_runs": identical,
+            "first_different_episode": first_flip,
+            "auc_alone_median": statistics.median(auc_alone),
+            "auc_population_median": statistics.median(auc_together),
+            "p": p_value,
+        }
+        print(
+            f"pong-seeds: {variant}, {seeds} seeds x {episodes} episodes: {identical}/{seeds} members' whole runs "
+            f"identical to their trials' (returns and lengths); AUC median {statistics.median(auc_together):.3f} "
+            f"in populations of {members}, {statistics.median(auc_alone):.3f} one at a time; Mann-Whitney "
+            f"p = {p_value:.2f}; first different episode per differing seed: "
+            f"{[f for f in first_flip if f is not None]}",
+            flush=True,
+        )
+    RESULTS["pong-seeds"] = figures
