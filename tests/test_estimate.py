@@ -469,3 +469,22 @@ def test_a_seed_with_longer_episodes_is_not_taken_for_a_slower_machine(clock):
     view.episodes("a-s1", [_timed(50, 50.0, 1000), _timed(100, 100.0, 2000)])
     assert view._costs_seen(clock.now).pace == pytest.approx(1.0)
     assert view.seconds_left() == pytest.approx(150 + 5 + 205)
+
+
+def test_a_trial_whose_last_report_solved_it_is_not_held_to_its_peers_rest(clock):
+    trials = _trials(budget=400, variants=("a",), seeds=(0, 1))
+    view = ProgressView("x", trials, 0, enabled=False, slots=1)
+    view.started("a-s0")
+    for episode in (100, 200, 300, 400):
+        clock.now += 50
+        view.episodes("a-s0", [_timed(episode, episode / 2, episode * 10)])
+    clock.now += 5
+    view.finished("a-s0", solved=False)
+    view.started("a-s1")
+    clock.now += 100
+    view.episodes("a-s1", [_timed(100, 100.0, 1000)])
+    clock.now += 100
+    solved = EpisodeMetrics(200, 500.0, 10, 0.0, 0.5, 480.0, 2000, 200.0, 200)  # CartPole-v1's threshold: 475
+    view.episodes("a-s1", [solved])
+    # It stops here and writes its artifacts: not its peer's 100 s of training from episode 200 at its pace.
+    assert view.seconds_left() == pytest.approx(205 - 200)

@@ -77,6 +77,10 @@ class TrialProgress:
     """(episode, its own clock, its env steps) at every report: where its time went. A later trial with the same
     settings is held to it (``TimeLeft._pace``), which sees a machine that got busier or freer since."""
 
+    pace_seen: tuple[tuple[int, int], float | None] | None = None
+    """Its last ``TimeLeft._pace`` and what it was computed from (its reports, its finished peers): a pace
+    changes only when one of them does, and the estimate runs after every event."""
+
     def at(self, episode: float) -> tuple[float, float] | None:
         """Its own clock and env steps at ``episode``, interpolated between its reports (0 at episode 0);
         ``None`` past its last report."""
@@ -156,12 +160,9 @@ class CostsSeen:
     """The finished trials with a ``profile``, per (``settings``, budget)."""
     paces: dict[str, float] = field(default_factory=dict)
     """Each running trial's ``TimeLeft._pace``, by key, where it has one."""
-
-    @property
-    def pace(self) -> float:
-        """How fast the launch runs now against the finished trials it is held to: the running trials' median
-        pace (2: half as fast), 1 while none has one."""
-        return statistics.median(self.paces.values()) if self.paces else 1.0
+    pace: float = 1.0
+    """How fast the launch runs now against the finished trials it is held to: the running trials' median
+    pace (2: half as fast), 1 while none has one."""
 
 
 class TimeLeft:
@@ -226,8 +227,14 @@ class TimeLeft:
                 profiled.setdefault((t.settings, t.budget), []).append(t)
         paces = {}
         for t in self.trials.values():
-            if t.state == "running" and (pace := self._pace(t, profiled.get((t.settings, t.budget), []))):
-                paces[t.trial.key] = pace
+            if t.state != "running":
+                continue
+            held_to = profiled.get((t.settings, t.budget), [])
+            seen_from = (len(t.profile), len(held_to))
+            if t.pace_seen is None or t.pace_seen[0] != seen_from:
+                t.pace_seen = (seen_from, self._pace(t, held_to))
+            if t.pace_seen[1] is not None:
+                paces[t.trial.key] = t.pace_seen[1]
         return CostsSeen(
             means={group: statistics.fmean(costs) for group, costs in by_group.items()},
             peers=peers,
@@ -237,6 +244,7 @@ class TimeLeft:
             overhead_s=max(overhead, 0.0),
             profiled=profiled,
             paces=paces,
+            pace=statistics.median(paces.values()) if paces else 1.0,
         )
 
     @staticmethod
@@ -304,12 +312,16 @@ class TimeLeft:
 
     def _left_by_profile(self, trial: TrialProgress, now: float, seen: CostsSeen) -> float | None:
         """What its finished peers that ran past its last episode took from there, at its pace against them
-        (``_pace``), and from their last report to their end; ``None`` without such a peer, or a pace."""
+        (``_pace``), and from their last report to their end; ``None`` without such a peer, or a pace, or once
+        it reported its last episode (solved, or its budget's: it stops there)."""
         pace = seen.paces.get(trial.trial.key)
         episode = trial.profile[-1][0] if trial.profile else None
         if pace is None or episode is None or not trial.reports:
             return None
         peers = seen.profiled.get((trial.settings, trial.budget), [])
+        if trial.last_episode_reported:  # it stops there: what is left is what its peers took after their last
+            tail = statistics.fmean(max(p.ended_at - p.reports[-1][0], 0.0) for p in peers)  # type: ignore[operator]
+            return max(tail - (now - trial.reports[-1][0]), 0.0)
         longer = [p for p in peers if p.profile[-1][0] > episode]
         if not longer:
             return None

@@ -99,6 +99,7 @@ class ProgressView(TimeLeft):
             trial.state, trial.started_at, trial.episode, trial.rolling_mean = "running", now, 0, None
             trial.reports.clear()
             trial.profile.clear()
+            trial.pace_seen = None
             self.first_start = self.first_start or now
             trial.first_on_worker = not any(t.ended_at for t in self.trials.values())
             running = {self.population_of.get(k, (k,)) for k, t in self.trials.items() if t.state == "running"}
