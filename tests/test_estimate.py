@@ -428,18 +428,25 @@ def _timed(episode, wall_s, env_steps):
     return EpisodeMetrics(episode, -20.0, 10, 0.0, 0.5, -20.0, env_steps, wall_s, episode)
 
 
-def test_a_running_trial_is_held_to_its_peers_per_env_step_and_the_launch_pace_scales_what_is_pending(clock):
-    from ablate.launch.estimate import PACE_WINDOW_S
-
-    trials = _trials(budget=400, variants=("a",), seeds=(0, 1, 2))
+def _a_peer_ran_400_episodes_in_205_s_then_a_second_trial_started(clock, seeds=(0, 1, 2)):
+    """``seeds`` of a budget of 400 on one slot: a-s0 ran all 400 episodes at 0.5 s and 10 steps each (0.05 s
+    per step), 200 s of training and 5 s after its last report; then a-s1 started (the rest pending)."""
+    trials = _trials(budget=400, variants=("a",), seeds=seeds)
     view = ProgressView("x", trials, 0, enabled=False, slots=1)
     view.started("a-s0")
-    for episode in (100, 200, 300, 400):  # 0.5 s per episode, 10 steps per episode: 0.05 s per step
+    for episode in (100, 200, 300, 400):
         clock.now += 50
         view.episodes("a-s0", [_timed(episode, episode / 2, episode * 10)])
     clock.now += 5
-    view.finished("a-s0", solved=False)  # 205 s: 200 s of training, 5 s after its last report
+    view.finished("a-s0", solved=False)
     view.started("a-s1")
+    return view
+
+
+def test_a_running_trial_is_held_to_its_peers_per_env_step_and_the_launch_pace_scales_what_is_pending(clock):
+    from ablate.launch.estimate import PACE_WINDOW_S
+
+    view = _a_peer_ran_400_episodes_in_205_s_then_a_second_trial_started(clock)
     clock.now += 50
     view.episodes("a-s1", [_timed(50, 50.0, 500)])
     # Under PACE_WINDOW_S of its own clock: no pace yet, its peer's 205 s less the 50 s it has run, then a-s2's.
@@ -455,15 +462,7 @@ def test_a_running_trial_is_held_to_its_peers_per_env_step_and_the_launch_pace_s
 
 
 def test_a_seed_with_longer_episodes_is_not_taken_for_a_slower_machine(clock):
-    trials = _trials(budget=400, variants=("a",), seeds=(0, 1, 2))
-    view = ProgressView("x", trials, 0, enabled=False, slots=1)
-    view.started("a-s0")
-    for episode in (100, 200, 300, 400):
-        clock.now += 50
-        view.episodes("a-s0", [_timed(episode, episode / 2, episode * 10)])
-    clock.now += 5
-    view.finished("a-s0", solved=False)
-    view.started("a-s1")
+    view = _a_peer_ran_400_episodes_in_205_s_then_a_second_trial_started(clock)
     clock.now += 100
     # Twice as long per episode, but twice the steps: the machine runs as fast as it did for a-s0.
     view.episodes("a-s1", [_timed(50, 50.0, 1000), _timed(100, 100.0, 2000)])
@@ -472,15 +471,7 @@ def test_a_seed_with_longer_episodes_is_not_taken_for_a_slower_machine(clock):
 
 
 def test_a_trial_whose_last_report_solved_it_is_not_held_to_its_peers_rest(clock):
-    trials = _trials(budget=400, variants=("a",), seeds=(0, 1))
-    view = ProgressView("x", trials, 0, enabled=False, slots=1)
-    view.started("a-s0")
-    for episode in (100, 200, 300, 400):
-        clock.now += 50
-        view.episodes("a-s0", [_timed(episode, episode / 2, episode * 10)])
-    clock.now += 5
-    view.finished("a-s0", solved=False)
-    view.started("a-s1")
+    view = _a_peer_ran_400_episodes_in_205_s_then_a_second_trial_started(clock, seeds=(0, 1))
     clock.now += 100
     view.episodes("a-s1", [_timed(100, 100.0, 1000)])
     clock.now += 100
