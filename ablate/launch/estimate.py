@@ -319,14 +319,13 @@ class TimeLeft:
         if pace is None or episode is None or not trial.reports:
             return None
         peers = seen.profiled.get((trial.settings, trial.budget), [])
-        if trial.last_episode_reported:  # it stops there: what is left is what its peers took after their last
-            tail = statistics.fmean(max(p.ended_at - p.reports[-1][0], 0.0) for p in peers)  # type: ignore[operator]
-            return max(tail - (now - trial.reports[-1][0]), 0.0)
-        longer = [p for p in peers if p.profile[-1][0] > episode]
-        if not longer:
+        # Once it reported its last episode it stops there: what is left is what its peers took after their last.
+        stops = trial.last_episode_reported
+        held_to = peers if stops else [p for p in peers if p.profile[-1][0] > episode]
+        if not held_to:
             return None
-        rest = statistics.fmean(p.profile[-1][1] - p.at(episode)[0] for p in longer)  # type: ignore[index]
-        tail = statistics.fmean(max(p.ended_at - p.reports[-1][0], 0.0) for p in longer)  # type: ignore[operator]
+        rest = 0.0 if stops else statistics.fmean(p.profile[-1][1] - p.at(episode)[0] for p in held_to)  # type: ignore[index]
+        tail = statistics.fmean(max(p.ended_at - p.reports[-1][0], 0.0) for p in held_to)  # type: ignore[operator]
         return max(pace * rest + tail - (now - trial.reports[-1][0]), 0.0)
 
     def _left_of_running(self, trial: TrialProgress, now: float, seen: CostsSeen) -> float | None:
