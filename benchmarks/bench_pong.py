@@ -209,8 +209,7 @@ def bench_pong_population(members: int = 8) -> None:
             queue = context.Queue()
             child = context.Process(target=_pong_population_child, args=(variant, size, per_member, queue))
             child.start()
-            steps, cpu_s, setup_s, peak_mb = queue.get()
-            child.join()
+            steps, cpu_s, setup_s, peak_mb = _result_of(child, queue)
             steady = steps / (cpu_s - setup_s)
             rows.append(
                 {"variant": variant, "members": size, "steps": steps, "cpu_s": cpu_s, "setup_s": setup_s}
