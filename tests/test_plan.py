@@ -57,7 +57,7 @@ def test_members_share_by_network_and_stage(tmp_path):
     # narrow and narrow_fast (one network; learning rates differ) share: 12 trials in 3 populations of 4.
     dense = [p for p in shared if p.members[0].variant != "cnn"]
     assert sorted(len(p.members) for p in dense) == [4, 4, 4]
-    assert all({t.variant for t in p.members} <= {"narrow", "narrow_fast"} for p in dense)
+    assert all({t.variant for t in p.members} == {"narrow", "narrow_fast"} for p in dense)
     # cnn (another network) shares only with cnn: its 6 trials in 2 populations of 3.
     cnn = [p for p in plan if any(t.variant == "cnn" for t in p.members)]
     assert [len(p.members) for p in cnn] == [3, 3] and all({t.variant for t in p.members} == {"cnn"} for p in cnn)
@@ -79,6 +79,54 @@ def test_groups_split_into_balanced_populations_in_start_order(tmp_path):
     plan = plan_populations(narrow, cap=4, slots=1)
     assert [len(p.members) for p in plan] == [3, 3]  # 6 as 3 + 3, not 4 + 2
     assert plan[0].members[0] == narrow[0]
+
+
+def _pong(tmp_path, stage="eval"):
+    experiment = load_experiment("experiments/pong.toml")
+    return [t for t in expand(experiment) if t.stage == stage]
+
+
+def test_a_group_that_costs_more_spreads_over_the_slots(tmp_path):
+    """pong.toml's evaluation trials: 5 CNN and 5 MLP seeds on 2 slots. With the CNN's members known to cost
+    twice the MLP's, the CNN's seeds spread over both slots (one population each would leave the MLP's slot
+    idle for a third of the stage); with equal costs, one population per arm keeps both slots busy."""
+    trials = _pong(tmp_path)
+    costs = {t.key: 2.0 if t.variant == "cnn" else 1.0 for t in trials}
+    sizes = {
+        v: sorted(len(p.members) for p in plan_populations(trials, 8, 2, costs) if p.members[0].variant == v)
+        for v in ("cnn", "mlp")
+    }
+    assert len(sizes["cnn"]) >= 2 and sum(sizes["cnn"]) == 5 and sum(sizes["mlp"]) == 5
+    equal = plan_populations(trials, 8, 2, {t.key: 1.0 for t in trials})
+    assert sorted(len(p.members) for p in equal) == [5, 5]
+
+
+def test_a_plan_holds_up_when_nothing_is_known_of_costs(tmp_path):
+    """The first stage of a launch knows no cost: each arm spreads so that either one costing twice the other
+    still leaves no slot idle for long (``HEDGE``); a CartPole launch, whose populations share most of a member's
+    cost, keeps its few large populations."""
+    from ablate.launch.estimate import makespan
+    from ablate.launch.plan import HEDGE
+
+    trials = _pong(tmp_path)
+    plan = plan_populations(trials, 8, 2)
+    for slow in ("cnn", "mlp"):
+        costs = [sum(HEDGE if t.variant == slow else 1.0 for t in p.members) for p in plan]
+        one_each = [5 * HEDGE, 5.0]
+        assert makespan([], costs, 2) < 0.9 * makespan([], one_each, 2)
+    _, cartpole = _trials(tmp_path)
+    narrow = [t for t in cartpole if t.variant == "narrow"]
+    assert [len(p.members) for p in plan_populations(narrow, cap=16, slots=2)] == [3, 3]
+
+
+def test_members_of_unequal_cost_balance_their_group(tmp_path):
+    """Two costly seeds of six go to different populations (round-robin by start order would put both in one)."""
+    _, trials = _trials(tmp_path)
+    narrow = [t for t in trials if t.variant == "narrow"]
+    costs = {t.key: 5.0 if i in (0, 2) else 1.0 for i, t in enumerate(narrow)}
+    plan = plan_populations(narrow, cap=4, slots=1, work=costs)
+    assert [sum(costs[t.key] for t in p.members) for p in plan] == [7.0, 7.0]
+    assert plan[0].members[0] == narrow[0]  # each population's members in their start order
 
 
 def test_a_population_key_is_stable_and_names_its_members():

@@ -51,6 +51,27 @@ def population_group(config: TrialConfig) -> tuple | None:
     return (config.env_id, config.model, config.episodes_per_update)
 
 
+SHARED_COST = {"mlp": 0.22, "cnn": 0.38, "pong": 0.89}
+"""The part of a member's cost alone that it still pays in a large population, per kind of population: a
+population of M members of equal cost c takes ``c * M * (share + (1 - share) / M)`` (``member_cost``). From
+``make bench``: 16 default CartPole members run 3.7x the steps/s of one trial (mlp), 16 ``cnn`` members 2.4x
+(docs/performance.md); 8 Pong members 1.10x (either arm, docs/pong.md)."""
+
+
+def population_share(config: TrialConfig) -> float:
+    """``SHARED_COST`` for ``config``'s kind of population (1.0: it trains alone, nothing is shared)."""
+    if population_group(config) is None:
+        return 1.0
+    if not stackable(config):
+        return SHARED_COST["pong"]
+    return SHARED_COST["cnn" if config.model.architecture == "cnn" else "mlp"]
+
+
+def member_cost(share: float, members: int) -> float:
+    """A member's cost in a population of ``members``, in units of its cost alone (``SHARED_COST``)."""
+    return share + (1.0 - share) / max(members, 1)
+
+
 class StackedPolicy:
     """M CartPole policies of one architecture (dense, or ``cnn``'s 1-D convolutions then dense), each layer's
     weights and biases stacked member-first, with the names, order and shapes of ``Policy`` parameters (a

@@ -346,9 +346,11 @@ def _run_locked(
         return [t for t in trials if t.variant in unchosen]
 
     stage_two = provisional if unchosen else None
-    # Populations: each holds a slot until its last member ends, which the estimate sees through the plan.
+    # Populations: each holds a slot until its last member ends, which the estimate sees through the plan. They
+    # are sized by what their members are expected to cost: earlier launches' runs, then what this one shows.
     cores = slots or max(int(biggest), 1)
     populations = partial(plan_populations, cap=population, slots=cores)
+    first = populations(todo, work=prior)
     args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
     view = ProgressView(
         *args,
@@ -356,6 +358,7 @@ def _run_locked(
         stage_two,
         prior_episodes,
         lambda trials: [p.keys for p in populations(trials)],
+        [p.keys for p in first],
     )
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
@@ -373,7 +376,7 @@ def _run_locked(
         if rounds and rounds.ran:  # a resumed launch starts in a later round
             view.name = rounds.announce(show_progress)
         with view:
-            run_trials(populations(todo), recorder, options, run_name=run_name, resume=resume)
+            run_trials(first, recorder, options, run_name=run_name, resume=resume)
 
         def run_later(later: list[GridTrial]) -> None:  # stage 2, a round of seeds: after what ran before
             todo_after = [t for t in later if t.key not in finished_before]
@@ -382,12 +385,13 @@ def _run_locked(
             # Seeds interleaved, as in stage 1; the same view, so what stage 1 taught of costs carries over.
             costs, episodes = tracker.earlier_runs(t.key for t in todo_after)  # earlier launches' runs of them
             todo_after = schedule_order(todo_after, costs)
-            view.add_trials(todo_after, costs, episodes)
+            plan = populations(todo_after, work=costs | view.alone_costs(todo_after))
+            view.add_trials(todo_after, costs, episodes, [p.keys for p in plan])
             if todo_after:
                 recorder.trials |= {t.key: t for t in todo_after}
                 with view:
                     resume = tracker.latest_checkpoints(generation, (t.key for t in todo_after))
-                    run_trials(populations(todo_after), recorder, options, run_name=run_name, resume=resume)
+                    run_trials(plan, recorder, options, run_name=run_name, resume=resume)
 
         if plan.tuning and not wanted <= set(choices):
             # Stage 2: every variant whose tuning trials all finished, at its chosen values.
