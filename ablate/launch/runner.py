@@ -351,14 +351,19 @@ def _run_locked(
     cores = slots or max(int(biggest), 1)
     populations = partial(plan_populations, cap=population, slots=cores)
     first = populations(todo, work=prior)
+    planned: dict[tuple[str, ...], list[list[str]]] = {}
+
+    def plan_keys(trials: Sequence[GridTrial]) -> list[list[str]]:
+        """The estimate's plan for stand-ins (stage 2 as chosen so far), asked at every estimate: the same
+        trials, the same plan (no costs are passed, so nothing else changes it)."""
+        keys = tuple(t.key for t in trials)
+        if keys not in planned:
+            planned[keys] = [p.keys for p in populations(trials)]
+        return planned[keys]
+
     args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
     view = ProgressView(
-        *args,
-        provisional({}) if unchosen else [],
-        stage_two,
-        prior_episodes,
-        lambda trials: [p.keys for p in populations(trials)],
-        [p.keys for p in first],
+        *args, provisional({}) if unchosen else [], stage_two, prior_episodes, plan_keys, [p.keys for p in first]
     )
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
