@@ -310,12 +310,15 @@ class TimeLeft:
         return None if rate is None else rate * trial.budget + seen.overhead_s
 
     def alone_costs(self, trials: Sequence[GridTrial], now: float | None = None) -> dict[str, float]:
-        """Seconds each of ``trials`` is expected to take alone, where this launch or an earlier one has shown
-        (``launch.plan``'s ``work``): what its peers took (``_peer_cost``), over the crowd they ran in."""
+        """Seconds each of ``trials`` is expected to take alone, where this launch has shown (``launch.plan``'s
+        ``work``): what its finished peers took (``_peer_cost``), over the crowd they ran in. A trial an earlier
+        launch ran is left to that run (``plan.alone_cost``, over the population it ran in)."""
         now = time.monotonic() if now is None else now
         seen = self._costs_seen(now)
         costs = {}
         for trial in trials:
+            if trial.key in self.prior:
+                continue
             progress = self.trials.get(trial.key) or TrialProgress(trial)
             cost = self._peer_cost(progress, seen)
             if cost is not None:

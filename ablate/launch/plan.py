@@ -84,8 +84,9 @@ def plan_populations(
     costs, unknown = _member_costs(groups, work or {})
     shares = {k: population_share(g[0].config) for k, g in groups.items()}
     fewest = {k: 1 if k[0] == "alone" else math.ceil(len(g) / size) for k, g in groups.items()}
-    # Each group whose cost is unknown, HEDGE times the rest: the plan must hold up in each of these.
-    scenarios = [{}] + ([{k: HEDGE} for k in unknown] if len(groups) > 1 else [])
+    # Each group (that could share) whose cost is unknown, HEDGE times the rest: the plan must hold up in each.
+    hedged = [k for k in unknown if k[0] != "alone"]
+    scenarios = [{}] + ([{k: HEDGE} for k in hedged] if len(groups) > 1 else [])
 
     def planned(counts: Mapping[tuple, int]) -> tuple[float, list[Population]]:
         populations = []
@@ -100,9 +101,12 @@ def plan_populations(
         )
         return longest, [population for *_, population in populations]
 
-    best_s, best = planned(fewest)
+    fewest_s, best = planned(fewest)
+    best_s = fewest_s * GAIN  # what a plan of more populations must beat
     # Candidate plans: every group split so that none of its populations costs more than a bound, for each
-    # bound at which some group's count changes (its cost over 1, 2, ... n).
+    # bound at which some group's count changes (its cost over 1, 2, ... n). Counts only grow as the bound
+    # falls, and with them what the populations cost in all (each split pays again for what its members
+    # shared): once that over the slots cannot beat the best, no later candidate can.
     seen = {tuple(fewest.values())}
     totals = {k: sum(costs[t.key] for t in g) for k, g in groups.items() if k[0] != "alone"}
     bounds = sorted({total / j for k, total in totals.items() for j in range(1, len(groups[k]) + 1)}, reverse=True)
@@ -113,10 +117,24 @@ def plan_populations(
         if tuple(counts.values()) in seen:
             continue
         seen.add(tuple(counts.values()))
+        # At least what they cost in all (populations of ceil(n / count) members, the larger ones), over the slots.
+        least = sum(
+            sum(costs[t.key] for t in g) * member_cost(shares[k], math.ceil(len(g) / counts[k]))
+            for k, g in groups.items()
+        )
+        if least / max(slots, 1) >= best_s:
+            break
         seconds, plan = planned(counts)
-        if seconds < best_s * GAIN:
+        if seconds < best_s:
             best_s, best = seconds, plan
     return best
+
+
+def alone_cost(seconds: float, trial: GridTrial, members: int) -> float:
+    """What ``trial`` costs alone, from ``seconds`` it took as one of ``members`` in a population: M members of
+    equal cost c take ``c * M * member_cost(share, M)`` (``agent.stacked.SHARED_COST``), each its population's
+    clock."""
+    return seconds / (members * member_cost(population_share(trial.config), members))
 
 
 def _member_costs(
@@ -124,7 +142,7 @@ def _member_costs(
 ) -> tuple[dict[str, float], list[tuple]]:
     """Each trial's expected cost alone (``work``; else its group's median, else the plan's, else 1), and the
     groups that had none (``HEDGE``)."""
-    known = {t.key: work[t.key] for g in groups.values() for t in g if work.get(t.key, 0) > 0}
+    known = {t.key: work[t.key] for g in groups.values() for t in g if 0 < work.get(t.key, 0) < math.inf}
     fill = statistics.median(known.values()) if known else 1.0
     costs, unknown = {}, []
     for k, members in groups.items():

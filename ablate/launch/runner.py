@@ -22,7 +22,7 @@ from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
-from ablate.launch.plan import plan_populations
+from ablate.launch.plan import alone_cost, plan_populations
 from ablate.launch.progress import ProgressView
 from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
 from ablate.launch.rounds import Judge, Rounds
@@ -334,7 +334,7 @@ def _run_locked(
     outcome.launch_run_id = launch
     slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
     # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
-    prior, prior_episodes = tracker.earlier_runs(t.key for t in todo)
+    prior, prior_episodes, prior_members = tracker.earlier_runs(t.key for t in todo)
     todo = schedule_order(todo, prior)
     # Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
     # choose now (each variant's best candidate so far), asked again as each one ends.
@@ -350,7 +350,12 @@ def _run_locked(
     # are sized by what their members are expected to cost: earlier launches' runs, then what this one shows.
     cores = slots or max(int(biggest), 1)
     populations = partial(plan_populations, cap=population, slots=cores)
-    first = populations(todo, work=prior)
+    by_key = {t.key: t for t in known}
+
+    def alone(seconds: Mapping[str, float], members: Mapping[str, int]) -> dict[str, float]:
+        return {key: alone_cost(s, by_key[key], members.get(key, 1)) for key, s in seconds.items() if key in by_key}
+
+    first = populations(todo, work=alone(prior, prior_members))
     planned: dict[tuple[str, ...], list[list[str]]] = {}
 
     def plan_keys(trials: Sequence[GridTrial]) -> list[list[str]]:
@@ -388,9 +393,10 @@ def _run_locked(
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)
             # Seeds interleaved, as in stage 1; the same view, so what stage 1 taught of costs carries over.
-            costs, episodes = tracker.earlier_runs(t.key for t in todo_after)  # earlier launches' runs of them
+            costs, episodes, members = tracker.earlier_runs(t.key for t in todo_after)  # earlier launches' runs
             todo_after = schedule_order(todo_after, costs)
-            plan = populations(todo_after, work=costs | view.alone_costs(todo_after))
+            by_key.update((t.key, t) for t in todo_after)
+            plan = populations(todo_after, work=view.alone_costs(todo_after) | alone(costs, members))
             view.add_trials(todo_after, costs, episodes, [p.keys for p in plan])
             if todo_after:
                 recorder.trials |= {t.key: t for t in todo_after}
