@@ -174,16 +174,18 @@ def test_a_population_key_is_stable_and_names_its_members():
 
 @pytest.mark.slow
 def test_a_launch_of_populations_records_every_member_as_its_own_trial(run_quiet, tmp_path):
-    """Through real Ray and MLflow: 12 CartPole trials in two populations of 6 (each with members that raise
-    after their first update, and members whose process dies at the start, once), 6 CNN trials in one. Each
-    member is a trial of its own key and one run, its curve and artifacts a trial's; its first update's episodes
-    are those of its trial run alone."""
+    """Through real Ray and MLflow: 12 CartPole trials in populations of several members (with members that
+    raise after their first update, and members whose process dies at the start, once), 6 CNN trials in others.
+    Each member is a trial of its own key and one run, its curve and artifacts a trial's; its first update's
+    episodes are those of its trial run alone."""
     marker = tmp_path / "crashed"
     text = SEEDS.replace('name = "narrow_fast"', 'name = "narrow_fast"\nfault = "raise"', 1).replace(
         'name = "narrow"\n', f'name = "narrow"\nfault = "crash_once"\nfault_marker = "{marker}"\n', 1
     )
     experiment, trials = _trials(tmp_path, text)
-    assert [len(p.members) for p in plan_populations(trials, cap=6, slots=2)] == [6] * 3
+    # On 2 slots, nothing known of costs: 3 populations of 6 would leave a slot idle for a third of the launch.
+    plan = plan_populations(trials, cap=6, slots=2)
+    assert all(1 < len(p.members) <= 6 for p in plan) and any(len({t.variant for t in p.members}) == 2 for p in plan)
     uri = fresh_store(tmp_path / "mlflow.db")
     outcome = run_quiet(experiment, tmp_path, uri, population=6)
     assert marker.exists()  # the populations holding a narrow trial died once at their start, and were retried
