@@ -72,6 +72,12 @@ def member_cost(share: float, members: int) -> float:
     return share + (1.0 - share) / max(members, 1)
 
 
+def crowd(config: TrialConfig, members: int) -> float:
+    """How many times one member's cost alone a population of ``members`` of ``config``'s kind takes (each
+    member's seconds are its population's clock): ``members * member_cost(share, members)``, 1 alone."""
+    return members * member_cost(population_share(config), members)
+
+
 class StackedPolicy:
     """M CartPole policies of one architecture (dense, or ``cnn``'s 1-D convolutions then dense), each layer's
     weights and biases stacked member-first, with the names, order and shapes of ``Policy`` parameters (a

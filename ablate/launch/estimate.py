@@ -229,12 +229,12 @@ class TimeLeft:
         for t in done:
             if t.profile and t.reports:
                 profiled.setdefault((t.settings, t.budget), []).append(t)
-        from ablate.agent.stacked import member_cost, population_share  # torch: only once there is a plan
+        from ablate.agent.stacked import crowd  # torch: only once there is a plan
 
         crowds: dict[tuple[str, str], list[float]] = {}
         for t in done:
             members = len(self.population_of.get(t.trial.key, (t.trial.key,)))
-            crowds.setdefault(t.settings, []).append(members * member_cost(population_share(t.trial.config), members))
+            crowds.setdefault(t.settings, []).append(crowd(t.trial.config, members))
         paces = {}
         for t in self.trials.values():
             if t.state != "running":

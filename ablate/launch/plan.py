@@ -14,7 +14,7 @@ import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from ablate.agent.stacked import member_cost, population_group, population_share
+from ablate.agent.stacked import crowd, member_cost, population_group, population_share
 from ablate.launch.estimate import makespan
 from ablate.launch.grid import GridTrial
 
@@ -93,10 +93,10 @@ def plan_populations(
         for k, members in groups.items():
             for part in _split(members, counts[k], costs):
                 base = sum(costs[t.key] for t in part) * member_cost(shares[k], len(part))
-                populations.append((-base, min(order[t.key] for t in part), k, Population(part)))
-        populations.sort(key=lambda item: item[1])
+                populations.append((min(order[t.key] for t in part), base, k, Population(part)))
+        populations.sort(key=lambda item: item[0])
         longest = max(
-            makespan([], [-base * scenario.get(k, 1.0) for base, _, k, _ in populations], slots)
+            makespan([], [base * scenario.get(k, 1.0) for _, base, k, _ in populations], slots)
             for scenario in scenarios
         )
         return longest, [population for *_, population in populations]
@@ -108,20 +108,17 @@ def plan_populations(
     # falls, and with them what the populations cost in all (each split pays again for what its members
     # shared): once that over the slots cannot beat the best, no later candidate can.
     seen = {tuple(fewest.values())}
-    totals = {k: sum(costs[t.key] for t in g) for k, g in groups.items() if k[0] != "alone"}
-    bounds = sorted({total / j for k, total in totals.items() for j in range(1, len(groups[k]) + 1)}, reverse=True)
+    totals = {k: sum(costs[t.key] for t in g) for k, g in groups.items()}
+    bounds = sorted(
+        {totals[k] / j for k, g in groups.items() if k[0] != "alone" for j in range(1, len(g) + 1)}, reverse=True
+    )
     for bound in bounds:
-        counts = {
-            k: min(len(g), max(fewest[k], math.ceil(totals.get(k, 0.0) / bound - 1e-9))) for k, g in groups.items()
-        }
+        counts = {k: min(len(g), max(fewest[k], math.ceil(totals[k] / bound - 1e-9))) for k, g in groups.items()}
         if tuple(counts.values()) in seen:
             continue
         seen.add(tuple(counts.values()))
         # At least what they cost in all (populations of ceil(n / count) members, the larger ones), over the slots.
-        least = sum(
-            sum(costs[t.key] for t in g) * member_cost(shares[k], math.ceil(len(g) / counts[k]))
-            for k, g in groups.items()
-        )
+        least = sum(totals[k] * member_cost(shares[k], math.ceil(len(g) / counts[k])) for k, g in groups.items())
         if least / max(slots, 1) >= best_s:
             break
         seconds, plan = planned(counts)
@@ -134,7 +131,7 @@ def alone_cost(seconds: float, trial: GridTrial, members: int) -> float:
     """What ``trial`` costs alone, from ``seconds`` it took as one of ``members`` in a population: M members of
     equal cost c take ``c * M * member_cost(share, M)`` (``agent.stacked.SHARED_COST``), each its population's
     clock."""
-    return seconds / (members * member_cost(population_share(trial.config), members))
+    return seconds / crowd(trial.config, members)
 
 
 def _member_costs(
