@@ -103,6 +103,9 @@ def run(
     from ablate.reporting.rounds import judge_for
 
     loaded = _experiment(experiment)
+    from ablate.agent.checks import check_experiment
+
+    check_experiment(loaded)
     if max_concurrent is not None and max_concurrent < 1:
         raise ConfigError(f"max_concurrent={max_concurrent} is invalid; valid: an integer >= 1")
     if population < 1:

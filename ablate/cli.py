@@ -104,7 +104,7 @@ def knob_defaults() -> dict[str, Any]:
     """Each knob of ``config.KNOBS`` at its typed default (``config.DEFAULT``): what an experiment file gets
     for a knob it does not set."""
     flat = {key.removeprefix("model."): value for key, value in config_module.flatten(config_module.DEFAULT).items()}
-    return {name: flat[name] for name in KNOBS}
+    return {name: flat[KNOBS[name].attr or name] for name in KNOBS}
 
 
 def format_value(value: Any) -> str:
@@ -145,7 +145,10 @@ def _field_types() -> dict[str, str]:
     return {f.name: str(f.type) for cls in (TrialConfig, ModelConfig) for f in dataclasses.fields(cls)}
 
 
-TRAIN_KNOBS = tuple(k for k in KNOBS if k not in TEST_ONLY_KNOBS) + tuple(SHORTHANDS)
+FILE_ONLY_KNOBS = ("model", "model_args", "env_args", "env_module")
+"""Knobs an experiment file sets (a factory's path is relative to it; tables): ``ablate train --from`` runs them."""
+
+TRAIN_KNOBS = tuple(k for k in KNOBS if k not in (*TEST_ONLY_KNOBS, *FILE_ONLY_KNOBS)) + tuple(SHORTHANDS)
 """The knobs ``ablate train`` has a flag for (each flag's dest is the knob's name)."""
 
 
@@ -154,7 +157,7 @@ def add_knob_flags(parser: argparse.ArgumentParser) -> None:
     with the field's docstring and the valid values as help."""
     docs, types = field_docs(), _field_types()
     for name, knob in KNOBS.items():
-        if name in TEST_ONLY_KNOBS:
+        if name in TEST_ONLY_KNOBS or name in FILE_ONLY_KNOBS:
             continue
         flags = [f"--{name.replace('_', '-')}"] + (["--env"] if name == "env_id" else [])
         kind = types[name]
@@ -354,6 +357,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise ConfigError("--variant: only with --from EXPERIMENT (a preset has no variants)")
     else:
         config = apply_knobs(PRESETS[args.preset], knobs)  # ConfigError before anything is written
+    from ablate.agent.checks import check_configs
+
+    check_configs(
+        [(trial.variant if trial else "--preset " + args.preset, config)], str(args.from_experiment or "ablate train")
+    )
     name = trial.key if trial else f"{config.env_id.replace('/', '_')}-s{config.seed}"
     out = args.out or Path("outputs/train") / name
     if trial:
@@ -361,7 +369,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             f"trial {trial.key}: variant {trial.variant}, seed {trial.seed} of {args.from_experiment}, {chosen.words}"
         )
 
-    from ablate.agent.trial import run_trial  # heavy imports only once the input is known to be good
+    from ablate.agent.trainer import run_trial  # heavy imports only once the input is known to be good
 
     progress = _ProgressLine()
     result = run_trial(config, on_episodes=progress.update, artifacts_dir=out)
@@ -458,6 +466,9 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
             from ablate.experiment import load_experiment
 
             experiment = load_experiment(args.experiment)  # bad input: one line, before Ray or MLflow is imported
+            from ablate.agent.checks import check_experiment
+
+            check_experiment(experiment)
             trials = select(expand(experiment), args.only, args.seeds)
             if args.dry_run:
                 code = dry_run(experiment, trials)

@@ -6,12 +6,18 @@ Standard library only. Every bad value raises ``ConfigError`` naming the key, th
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import importlib.util
 import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
 from typing import Any
 
-SUPPORTED_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
+BUILT_IN_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
+"""The course's envs; ``env_id`` may name any registered Gymnasium env with discrete actions and a Box observation
+(``agent.checks`` refuses the others before a launch)."""
 ARCHITECTURES = ("mlp", "cnn")
 ACTIVATIONS = ("relu", "tanh", "elu", "gelu")
 DEFAULT_POPULATION = 8
@@ -69,6 +75,16 @@ class ModelConfig:
     """``cnn`` on CartPole only: output channels of each 1-D convolution layer."""
     kernel_size: int = 2
     """``cnn`` on CartPole only: temporal kernel size of each convolution, <= ``history``."""
+    factory: str = ""
+    """The user's own network (the experiment's ``model`` key): ``FILE.py:FUNCTION`` (a path relative to the
+    experiment file) or ``package.module:FUNCTION``; "" for the built-in networks, whose knobs above then apply."""
+    factory_args: tuple[tuple[str, Any], ...] = ()
+    """``model_args``: keyword arguments of the factory, as sorted ``(name, value)`` pairs (lists as tuples)."""
+    factory_hash: str = ""
+    """SHA-1 (12 hex digits) of the factory's source file: in the trial key, so an edited network reruns."""
+    factory_source: str = field(default="", repr=False)
+    """The text of a ``FILE.py`` factory, shipped with the trial so a node without the file builds the same
+    network (checked against ``factory_hash``); not a tracked parameter."""
 
 
 @dataclass(frozen=True)
@@ -76,7 +92,12 @@ class TrialConfig:
     """Everything one training run depends on. Two equal configs give identical results."""
 
     env_id: str = "CartPole-v1"
-    """Gymnasium id: one of ``SUPPORTED_ENVS``."""
+    """Gymnasium id: any registered env with ``Discrete`` actions and a ``Box`` observation (``BUILT_IN_ENVS``
+    are the course's)."""
+    env_args: tuple[tuple[str, Any], ...] = ()
+    """Keyword arguments of ``gym.make`` (the experiment's ``env_args`` table), as sorted ``(name, value)`` pairs."""
+    env_module: str = ""
+    """A module imported before ``gym.make`` (where a user's own env registers itself); "" for none."""
     model: ModelConfig = field(default_factory=ModelConfig)
     learning_rate: float = 0.03
     """Adam step size, in (0, 1]."""
@@ -160,10 +181,48 @@ class Knob:
     check: Callable[[Any], bool]
     valid: str
     convert: Callable[[Any], Any] = lambda v: v
+    attr: str = ""
+    """The dataclass field it sets, where it is not the key's own name (``model`` sets ``factory``)."""
+
+
+def freeze(value: Any) -> Any:
+    """A TOML value made hashable: tables as sorted ``(name, value)`` tuples, lists as tuples."""
+    if isinstance(value, Mapping):
+        return tuple(sorted((str(k), freeze(v)) for k, v in value.items()))
+    if isinstance(value, list | tuple):
+        return tuple(freeze(v) for v in value)
+    return value
+
+
+_FACTORY = re.compile(r"^(?P<target>[^:]+):(?P<function>[A-Za-z_][A-Za-z0-9_]*)$")
+_ENV_ID = re.compile(r"^[A-Za-z0-9_./-]+$")
 
 
 KNOBS: dict[str, Knob] = {
-    "env_id": Knob("trial", lambda v: v in SUPPORTED_ENVS, f"one of {', '.join(SUPPORTED_ENVS)}"),
+    "env_id": Knob(
+        "trial",
+        lambda v: isinstance(v, str) and bool(_ENV_ID.match(v)),
+        f"a registered Gymnasium id such as {', '.join(BUILT_IN_ENVS)}, Acrobot-v1 or ALE/Breakout-v5",
+    ),
+    "env_args": Knob("trial", lambda v: isinstance(v, dict), "a table of gym.make's keyword arguments", freeze),
+    "env_module": Knob(
+        "trial",
+        lambda v: isinstance(v, str) and all(p.isidentifier() for p in v.split(".")),
+        "a module to import before gym.make, e.g. 'mypkg.envs'",
+    ),
+    "model": Knob(
+        "model",
+        lambda v: isinstance(v, str) and bool(_FACTORY.match(v)),
+        "'FILE.py:FUNCTION' (relative to the experiment file) or 'package.module:FUNCTION'",
+        attr="factory",
+    ),
+    "model_args": Knob(
+        "model",
+        lambda v: isinstance(v, dict),
+        "a table of the model factory's keyword arguments",
+        freeze,
+        attr="factory_args",
+    ),
     "learning_rate": Knob("trial", lambda v: is_number(v) and 0 < v <= 1, "a number in (0, 1]", float),
     "gamma": Knob("trial", lambda v: is_number(v) and 0 < v <= 1, "a number in (0, 1]", float),
     "l2": Knob("trial", lambda v: is_number(v) and 0 <= v <= 1, "a number in [0, 1]", float),
@@ -234,15 +293,55 @@ def check_knob(key: str, value: Any, where: str = "") -> Any:
     return knob.convert(value)
 
 
-def apply_knobs(base: TrialConfig, knobs: Mapping[str, Any], where: str = "") -> TrialConfig:
-    """A copy of ``base`` with the flat ``knobs`` applied (``depth``/``width`` expand to ``hidden_sizes``)."""
+BUILT_IN_MODEL_KNOBS = (
+    "architecture", "hidden_sizes", "depth", "width", "activation", "dropout", "history", "conv_channels",
+    "kernel_size",
+)  # fmt: skip
+"""Knobs of the built-in networks, which a user's own ``model`` does not read."""
+
+
+def resolve_factory(spec: str, base_dir: Path, where: str = "") -> tuple[str, str]:
+    """``model = spec``'s (source, hash): a ``FILE.py`` is read relative to ``base_dir`` and its text travels with
+    the trial; a ``package.module`` is found on the path (its source is only hashed: each node imports its own).
+    A file or module that does not exist is a ``ConfigError``."""
+    target = _FACTORY.match(spec)["target"]
+    if target.endswith(".py"):
+        path = (base_dir / target).resolve()
+        if not path.is_file():
+            raise ConfigError(f"{where}model = {spec!r} is invalid: no such file {path}")
+        text = path.read_text(encoding="utf-8")
+        return text, hashlib.sha1(text.encode()).hexdigest()[:12]
+    try:
+        found = importlib.util.find_spec(target)
+    except (ImportError, ValueError) as error:
+        raise ConfigError(f"{where}model = {spec!r} is invalid: cannot import {target} ({error})") from None
+    if found is None or not found.origin or not Path(found.origin).is_file():
+        raise ConfigError(f"{where}model = {spec!r} is invalid: no module {target} on the Python path")
+    return "", hashlib.sha1(Path(found.origin).read_bytes()).hexdigest()[:12]
+
+
+def apply_knobs(
+    base: TrialConfig, knobs: Mapping[str, Any], where: str = "", base_dir: Path | None = None
+) -> TrialConfig:
+    """A copy of ``base`` with the flat ``knobs`` applied (``depth``/``width`` expand to ``hidden_sizes``; a
+    ``model`` factory is resolved relative to ``base_dir``, the experiment file's folder)."""
     trial_updates: dict[str, Any] = {}
     model_updates: dict[str, Any] = {}
     for key, value in knobs.items():
         converted = check_knob(key, value, where)
         if key in SHORTHANDS:
             continue
-        (model_updates if KNOBS[key].owner == "model" else trial_updates)[key] = converted
+        knob = KNOBS[key]
+        (model_updates if knob.owner == "model" else trial_updates)[knob.attr or key] = converted
+    built_in = [k for k in knobs if k in BUILT_IN_MODEL_KNOBS]
+    if "model" in knobs and built_in:
+        raise ConfigError(
+            f"{where}{built_in[0]}: a built-in network knob beside model = {knobs['model']!r}; valid: one or the "
+            "other (your factory takes its own settings from model_args)"
+        )
+    if "model" in knobs:
+        source, digest = resolve_factory(knobs["model"], base_dir or Path.cwd(), where)
+        model_updates |= {"factory_source": source, "factory_hash": digest}
     if "depth" in knobs or "width" in knobs:
         if "hidden_sizes" in knobs:
             raise ConfigError(f"{where}hidden_sizes: give either hidden_sizes or depth/width, not both")
@@ -259,6 +358,10 @@ def apply_knobs(base: TrialConfig, knobs: Mapping[str, Any], where: str = "") ->
     return config
 
 
+NOT_FLAT = ("model.factory_source",)
+"""Fields that travel with a trial but are not knobs to track (a factory file's text: its hash is)."""
+
+
 def flatten(config: TrialConfig) -> dict[str, Any]:
     """Every knob as a flat ``{name: value}`` (model knobs prefixed ``model.``), for tracking and tables."""
     flat: dict[str, Any] = {}
@@ -266,7 +369,8 @@ def flatten(config: TrialConfig) -> dict[str, Any]:
         value = getattr(config, f.name)
         if dataclasses.is_dataclass(value):
             for g in fields(value):
-                flat[f"{f.name}.{g.name}"] = getattr(value, g.name)
+                if f"{f.name}.{g.name}" not in NOT_FLAT:
+                    flat[f"{f.name}.{g.name}"] = getattr(value, g.name)
         else:
             flat[f.name] = value
     return flat

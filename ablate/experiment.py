@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ablate.config import (
+    BUILT_IN_ENVS,
     DEFAULT,
     KNOBS,
     MAX_NAME_LENGTH,
@@ -157,8 +158,25 @@ THRESHOLD_ENVS = ("CartPole-v0", "CartPole-v1")
 
 
 def has_solve_threshold(config: TrialConfig) -> bool:
-    """Can a trial of ``config`` solve (its own ``solve_threshold``, or its env's)?"""
-    return config.solve_threshold is not None or config.env_id in THRESHOLD_ENVS
+    """Can a trial of ``config`` solve (its own ``solve_threshold``, or its env spec's ``reward_threshold``)?"""
+    if config.solve_threshold is not None or config.env_id in THRESHOLD_ENVS:
+        return True
+    if config.env_id in BUILT_IN_ENVS:
+        return False
+    import importlib
+
+    import gymnasium  # a user's env: its spec knows its threshold (``agent.checks`` refuses unknown ones)
+
+    try:
+        if config.env_module:
+            importlib.import_module(config.env_module)
+        if config.env_id.startswith("ALE/"):
+            import ale_py
+
+            gymnasium.register_envs(ale_py)
+        return gymnasium.spec(config.env_id).reward_threshold is not None
+    except (ImportError, gymnasium.error.Error):
+        return False
 
 
 EXPERIMENT_KEYS = (
@@ -227,7 +245,8 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     base_table = data.get("base", {})
     if not isinstance(base_table, dict):
         raise ConfigError(f"{source}: base must be a table of knobs, e.g. [base] learning_rate = 0.01")
-    base = apply_knobs(DEFAULT, _without_seed(base_table, f"{source}: base."), where=f"{source}: base.")
+    folder = Path(source).parent
+    base = apply_knobs(DEFAULT, _without_seed(base_table, f"{source}: base."), f"{source}: base.", folder)
 
     variants: list[Variant] = []
     explicit = data.get("variants", [])
@@ -245,7 +264,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             )
         own_seeds, own_rounds = parse_seeds(table.pop("seeds"), f"{where}seeds") if "seeds" in table else (None, None)
         knobs = _without_seed(table, where)
-        config = apply_knobs(base, knobs, where)
+        config = apply_knobs(base, knobs, where, folder)
         variants.append(Variant(vname, tuple(knobs.items()), config, own_seeds, own_rounds))
 
     grid = data.get("grid", {})
@@ -268,7 +287,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         for combo in itertools.product(*(grid[a] for a in axes)):
             knobs = _without_seed(dict(zip(axes, combo, strict=True)), f"{source}: grid.")
             vname = ",".join(f"{a}={_short(v)}" for a, v in knobs.items())
-            variants.append(Variant(vname, tuple(knobs.items()), apply_knobs(base, knobs, f"{source}: grid.")))
+            variants.append(Variant(vname, tuple(knobs.items()), apply_knobs(base, knobs, f"{source}: grid.", folder)))
 
     if not variants:
         raise ConfigError(f"{source}: the grid is empty; add [[variants]] tables or a [grid] with at least one axis")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from bench_results import RESULTS
 
-from ablate.agent.trial import run_trial
+from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT
 
 

@@ -11,7 +11,7 @@ from dataclasses import replace
 import torch
 from bench_results import RESULTS
 
-from ablate.agent.trial import run_trial
+from ablate.agent.trainer import run_trial
 
 # --- Pong (issue 9) ---
 PONG_EXPERIMENT = "experiments/pong.toml"
@@ -82,7 +82,13 @@ def _cnn_compute_ms_per_step(batch: int = 1024, acting_batch: int = 4) -> float:
         model(x).sum().backward()
 
     model.eval()
-    act_ms = median_ms(lambda: model.act_logits(acting), 200) / acting_batch
+    acting_t = torch.from_numpy(acting)
+
+    def act() -> None:
+        with torch.inference_mode():
+            model(acting_t)
+
+    act_ms = median_ms(act, 200) / acting_batch
     model.train()
     return act_ms + median_ms(train, 5) / batch
 
@@ -171,22 +177,20 @@ def _pong_population_child(variant: str, members: int, episodes: int, queue) -> 
     building the backend (4 ROM loads a member, ~0.15 s each idle), a one-off cost over a 400-episode trial."""
     import resource
 
-    from ablate.agent import population
+    from ablate.agent import trainer
 
     setup = [0.0]
-    for name in ("PongPopulationBackend", "SingleBackend"):
-        backend = getattr(population, name)
 
-        class Timed(backend):
-            def __init__(self, *args, **kwargs) -> None:
-                started = time.process_time()
-                super().__init__(*args, **kwargs)
-                setup[0] += time.process_time() - started
+    class Timed(trainer.Population):
+        def __init__(self, *args, **kwargs) -> None:
+            started = time.process_time()
+            super().__init__(*args, **kwargs)
+            setup[0] += time.process_time() - started
 
-        setattr(population, name, Timed)
+    trainer.Population = Timed
     configs = [_pong_config(variant, max_episodes=episodes, seed=seed) for seed in range(members)]
     started = time.process_time()
-    outcomes = population.run_population(configs, device="cpu")
+    outcomes = trainer.run_population(configs, device="cpu")
     spent = time.process_time() - started
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     queue.put((sum(o.env_steps for o in outcomes), spent, setup[0], peak_mb))
@@ -238,7 +242,7 @@ def _pong_seeds_child(variant: str, seeds: int, episodes: int, members: int, que
     single trial) and as populations of ``members``; puts each seed's (alone, together) episode rows
     (return, length) and AUC on ``queue``."""
     torch.set_num_threads(1)
-    from ablate.agent.population import run_population
+    from ablate.agent.trainer import run_population
 
     configs = [_pong_config(variant, max_episodes=episodes, seed=seed) for seed in range(seeds)]
     alone = [run_trial(c) for c in configs]

@@ -12,14 +12,14 @@ import torch
 from bench_estimate import _eta_figure
 from bench_results import RESULTS
 
-from ablate.agent.trial import run_trial
+from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT
 
 
 def _population_speed(configs: list) -> tuple[float, float, float, list]:
     """The same trials one at a time and as one population, on one core: (steps/s alone, steps/s together,
     s together, (alone, member) outcome pairs)."""
-    from ablate.agent.population import run_population
+    from ablate.agent.trainer import run_population
 
     started = time.perf_counter()
     alone = [run_trial(c) for c in configs]

@@ -67,6 +67,16 @@ hidden_sizes = [8]
 """
 
 
+NETWORK = """
+from torch import nn
+
+
+def create_model(observation_shape, n_actions, width=8):
+    layers = [nn.Linear(observation_shape[0], width), nn.LayerNorm(width), nn.Tanh(), nn.Linear(width, n_actions)]
+    return nn.Sequential(*layers)
+"""
+"""A user's own network, in a file beside the experiment on the driver's disk only."""
+
 USER = "ablate-ci"
 
 
@@ -212,6 +222,7 @@ def _ablate(cluster, name, episodes, extra="", env=None, uri=None, folder=None, 
     folder = cluster["tmp"] / (folder or name)
     folder.mkdir()
     (folder / "exp.toml").write_text(EXPERIMENT.format(name=name, episodes=episodes, extra=extra))
+    (folder / "net.py").write_text(NETWORK)  # the driver's file only: the worker node cannot see this folder
     command = [sys.executable, "-m", "ablate.cli", "run", "exp.toml", "--address", cluster["gcs"]]
     command += ["--tracking-uri", uri or cluster["uri"], "--no-report"]
     env = env or _env(cluster, **credentials)
@@ -262,7 +273,8 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     # Experiment names new to the store: a PostgreSQL store outlives the test and may hold an earlier run's.
     spread, lost_name = (f"{name}-{secrets.token_hex(4)}" for name in ("spread", "lost"))
     marker = cluster["control"] / "release"
-    launch = _ablate(cluster, spread, episodes=200, extra=f'fault = "block"\nfault_marker = "{marker}"')
+    custom = 'model = "net.py:create_model"\nmodel_args = { width = 6 }\n'  # trained on both nodes
+    launch = _ablate(cluster, spread, episodes=200, extra=f'{custom}fault = "block"\nfault_marker = "{marker}"')
     _wait_running(Tracker(cluster["uri"], spread), 2, launch)
     marker.write_text("go\n")
     code, output = _finish(cluster, launch)
@@ -274,7 +286,8 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     assert len(tracked) == 3 and _store_run_ids(cluster["store"], spread) == tracked  # in the server's database
     assert {r.tags["ablate.node"] for r in runs} == {cluster["head"], cluster["worker"]}  # one per node
     for run in runs:
-        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "video.mp4", "learning_curve.png"}
+        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "video.mp4", "learning_curve.png", "model.py"}
+        assert run.metrics["parameter_count"] == 4 * 6 + 6 + 2 * 6 + 6 * 2 + 2  # the user's LayerNorm net
         for metric in POINT_METRICS:
             steps = [s for s, _ in tracker.metric_history(run.run_id, metric)]
             assert steps == list(range(2, 201, 2)), metric  # 200 episodes -> 100 points

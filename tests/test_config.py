@@ -24,7 +24,12 @@ def test_depth_and_width_expand_to_hidden_sizes():
 @pytest.mark.parametrize(
     ("knobs", "message"),
     [
-        ({"env_id": "MountainCar-v0"}, "env_id = 'MountainCar-v0' is invalid; valid: one of CartPole-v0"),
+        ({"env_id": "Mountain Car"}, "env_id = 'Mountain Car' is invalid; valid: a registered Gymnasium id"),
+        ({"model": "net.py"}, "model = 'net.py' is invalid; valid: 'FILE.py:FUNCTION'"),
+        ({"model": "missing.py:create"}, "model = 'missing.py:create' is invalid: no such file"),
+        ({"model": "no_such_pkg_here.nets:create"}, "cannot import no_such_pkg_here.nets"),
+        ({"model": "tests.test_config:f", "hidden_sizes": [4]}, "hidden_sizes: a built-in network knob beside model"),
+        ({"model_args": 3}, "model_args = 3 is invalid; valid: a table"),
         ({"gamma": 0.0}, "gamma = 0.0 is invalid; valid: a number in (0, 1]"),
         ({"gamma": 1.5}, "gamma = 1.5 is invalid"),
         ({"dropout": 1.0}, "dropout = 1.0 is invalid; valid: a number in [0, 1)"),
@@ -96,8 +101,8 @@ BAD_FILES = [
     ("[[variants]]\nname='a'\nwidht = 3\n", "variants[0].widht: unknown key"),
     ("[[variants]]\nname='a'\nlearning_rate = 'high'\n", "variants[0].learning_rate = 'high' is invalid"),
     (
-        "[base]\nenv_id = 'Breakout'\n[[variants]]\nname='a'\n",
-        "base.env_id = 'Breakout' is invalid; valid: one of",
+        "[base]\nenv_id = 'Break out'\n[[variants]]\nname='a'\n",
+        "base.env_id = 'Break out' is invalid; valid: a registered Gymnasium id",
     ),
     ("seeds = 2\n", "the grid is empty"),
     ("[grid]\ndropout = []\n", "grid.dropout = [] is invalid; valid: a non-empty list"),

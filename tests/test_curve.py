@@ -2,7 +2,7 @@
 
 import pytest
 
-from ablate.agent.trial import EpisodeMetrics
+from ablate.agent.records import EpisodeMetrics
 from ablate.launch.curve import CURVE_POINTS, CurveReducer, bin_size
 
 

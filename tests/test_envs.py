@@ -1,18 +1,18 @@
-"""Environments: Pong pre-processing and frame difference, the observation window, vectorised CartPole."""
+"""Environments: Pong pre-processing and frame difference, any discrete env described, bad envs refused."""
 
 import numpy as np
+import pytest
 
 from ablate.agent.envs import (
-    FrameDifference,
-    ObservationWindow,
+    EnvError,
     PongEnv,
-    env_info,
+    describe,
     frame_difference,
-    make_env,
-    make_vec_env,
+    make_trial_env,
     pre_process,
     pre_process_int8,
 )
+from ablate.config import TrialConfig
 
 
 def test_pre_process_crops_downsamples_and_binarises():
@@ -27,40 +27,52 @@ def test_pre_process_crops_downsamples_and_binarises():
 
 
 def test_pong_env_gives_frame_differences():
-    env = make_env("ALE/Pong-v5")
-    assert isinstance(env, FrameDifference)
+    env = make_trial_env(TrialConfig(env_id="ALE/Pong-v5"))
     first, _ = env.reset(seed=0)
-    assert first.shape == (1, 80, 80) and not first.any()  # no motion at the first frame
+    assert first.shape == (1, 80, 80) and first.dtype == np.int8 and not first.any()  # no motion at first
     moved = False
     for _ in range(60):
         obs, *_ = env.step(0)
         moved |= bool(obs.any())
-        assert set(np.unique(obs)) <= {-1.0, 0.0, 1.0}
+        assert set(np.unique(obs)) <= {-1, 0, 1}
     env.close()
     assert moved
-    assert env_info("ALE/Pong-v5").n_actions == 6
+    assert describe(TrialConfig(env_id="ALE/Pong-v5")).n_actions == 6
+    assert describe(TrialConfig(env_id="ALE/Pong-v5", action_set="move")).n_actions == 2
 
 
-def test_observation_window_is_oldest_first_and_zero_padded():
-    window = ObservationWindow(3)
-    first = window.reset(np.array([[1.0, 1.0]]))
-    np.testing.assert_array_equal(first[0], [[0, 0], [0, 0], [1, 1]])
-    window.step(np.array([[2.0, 2.0]]))
-    third = window.step(np.array([[3.0, 3.0]]))
-    np.testing.assert_array_equal(third[0], [[1, 1], [2, 2], [3, 3]])
-
-
-def test_vectorised_cartpole_respects_each_versions_time_limit():
+def test_any_discrete_env_is_described_from_its_spaces_and_spec():
+    acrobot = describe(TrialConfig(env_id="Acrobot-v1"))
+    assert (acrobot.observation_shape, acrobot.n_actions, acrobot.reward_threshold) == ((6,), 3, -100.0)
+    assert acrobot.max_episode_steps == 500
     for env_id, limit in (("CartPole-v0", 200), ("CartPole-v1", 500)):
-        assert env_info(env_id).max_episode_steps == limit
-        numpy_vectorised = make_vec_env(env_id, 8)
-        assert numpy_vectorised.unwrapped.max_episode_steps == limit
-        one_by_one = make_vec_env(env_id, 1)
-        assert one_by_one.envs[0].spec.max_episode_steps == limit
-        for env in (numpy_vectorised, one_by_one):
-            observations, _ = env.reset(seed=0)
-            assert observations.shape == (env.num_envs, 4) and observations.dtype == np.float32
-            env.close()
+        assert describe(TrialConfig(env_id=env_id)).max_episode_steps == limit
+    assert describe(TrialConfig(env_id="CartPole-v1", max_episode_steps=50)).max_episode_steps == 50
+
+
+def test_another_atari_game_gets_grayscale_84x84_frame_differences():
+    config = TrialConfig(env_id="ALE/Breakout-v5")
+    assert describe(config).observation_shape == (1, 84, 84)
+    env = make_trial_env(config)
+    first, _ = env.reset(seed=0)
+    assert first.shape == (1, 84, 84) and first.dtype == np.float32 and not first.any()
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("config", "words"),
+    [
+        (TrialConfig(env_id="NoSuchEnv-v0"), "not a registered Gymnasium env"),
+        (TrialConfig(env_id="Pendulum-v1"), "Box actions; valid: Discrete"),
+        (TrialConfig(env_id="Blackjack-v1"), "Tuple observation; valid: a Box"),
+        (TrialConfig(env_id="Acrobot-v1", env_args=(("wind", 3),)), "env_args"),
+        (TrialConfig(env_module="no_such_module_here"), "env_module = 'no_such_module_here'"),
+    ],
+)
+def test_an_env_the_trainer_cannot_run_says_why_in_one_line(config, words):
+    with pytest.raises(EnvError, match=words.replace("(", r"\(")) as error:
+        describe(config)
+    assert "\n" not in str(error.value)
 
 
 def test_pre_process_known_output_and_raw_frame_untouched():

@@ -8,7 +8,7 @@ import pytest
 from views import grid_trials as _trials
 from views import row as _row
 
-from ablate.agent.trial import EpisodeMetrics
+from ablate.agent.records import EpisodeMetrics
 from ablate.config import TrialConfig
 from ablate.launch.estimate import makespan
 from ablate.launch.grid import GridTrial
@@ -485,7 +485,7 @@ def test_what_a_trial_costs_alone_is_its_peers_time_over_the_population_they_ran
     """``alone_costs`` (the plan's ``work`` for a later round): four seeds that ran as one population of a kind
     that shares 78% of a member's cost took 4 x (0.22 + 0.78 / 4) = 1.66 times one seed's time alone; a trial
     that ran alone took its own."""
-    from ablate.agent.stacked import SHARED_COST
+    from ablate.agent.sharing import SHARED_COST
 
     trials = _trials(budget=100, variants=("a", "b"), seeds=(0, 1, 2, 3, 4))
 

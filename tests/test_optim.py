@@ -52,65 +52,9 @@ def test_a_trial_never_imports_torch_dynamo():
     code = (
         "import sys\n"
         "from ablate.config import DEFAULT, apply_knobs\n"
-        "from ablate.agent.trial import run_trial\n"
+        "from ablate.agent.trainer import run_trial\n"
         "run_trial(apply_knobs(DEFAULT, {'max_episodes': 64, 'seed': 1}))\n"
         "print('torch._dynamo' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "False"
-
-
-def test_stacked_adam_updates_each_member_as_its_own_adam_bit_for_bit():
-    from ablate.agent.optim import StackedAdam
-
-    lrs = [1e-3, 3e-2, 0.1, 0.3]
-    generator = torch.Generator().manual_seed(0)
-    weight = torch.randn(4, 8, 4, generator=generator, requires_grad=True)
-    bias = torch.randn(4, 8, generator=generator, requires_grad=True)
-    singles = [
-        (weight[i].detach().clone().requires_grad_(), bias[i].detach().clone().requires_grad_()) for i in range(4)
-    ]
-    stacked, alone = StackedAdam([weight, bias], lrs), [Adam(list(p), lr) for p, lr in zip(singles, lrs, strict=True)]
-    for step in range(20):
-        grads = torch.randn(4, 8, 4, generator=generator), torch.randn(4, 8, generator=generator)
-        weight.grad, bias.grad = grads[0].clone(), grads[1].clone()
-        stacked.step()
-        for i, ((w, b), optimizer) in enumerate(zip(singles, alone, strict=True)):
-            w.grad, b.grad = grads[0][i].clone(), grads[1][i].clone()
-            optimizer.step()
-        if step == 9:  # a member restored from another's state goes on as that one
-            stacked.load_member_state(3, alone[2].state_dict())
-            alone[3].load_state_dict(alone[2].state_dict())
-    for i, (w, b) in enumerate(singles):
-        assert torch.equal(weight[i], w) and torch.equal(bias[i], b), i
-        assert stacked.member_state(i)["steps"] == 20
-
-
-def test_stacked_adam_steps_only_the_members_asked_bit_for_bit():
-    """An asynchronous population updates the members whose batch is in: each steps as its own Adam on its
-    own schedule, and the others' weights, moments and step counts stay put whatever gradient they hold."""
-    from ablate.agent.optim import StackedAdam
-
-    lrs = [1e-3, 3e-2, 0.1, 0.3]
-    generator = torch.Generator().manual_seed(1)
-    weight = torch.randn(4, 8, 4, generator=generator, requires_grad=True)
-    bias = torch.randn(4, 8, generator=generator, requires_grad=True)
-    singles = [
-        (weight[i].detach().clone().requires_grad_(), bias[i].detach().clone().requires_grad_()) for i in range(4)
-    ]
-    stacked, alone = StackedAdam([weight, bias], lrs), [Adam(list(p), lr) for p, lr in zip(singles, lrs, strict=True)]
-    schedule = [[0, 1, 2, 3], [2], [0, 3], [1], [1, 2], [0, 1, 2, 3], [3]] * 3
-    for members in schedule:
-        grads = torch.randn(4, 8, 4, generator=generator), torch.randn(4, 8, generator=generator)
-        weight.grad, bias.grad = grads[0].clone(), grads[1].clone()
-        stacked.step(members)
-        for i in members:
-            (w, b), optimizer = singles[i], alone[i]
-            w.grad, b.grad = grads[0][i].clone(), grads[1][i].clone()
-            optimizer.step()
-    for i, (w, b) in enumerate(singles):
-        assert torch.equal(weight[i], w) and torch.equal(bias[i], b), i
-        state = stacked.member_state(i)
-        assert state["steps"] == sum(i in members for members in schedule)
-        theirs = alone[i].exp_avg + alone[i].exp_avg_sq
-        assert all(torch.equal(a, b) for a, b in zip(state["exp_avg"] + state["exp_avg_sq"], theirs, strict=True))

@@ -6,7 +6,7 @@ from dataclasses import replace
 import pytest
 from stores import fresh_store
 
-from ablate.agent.trial import run_trial
+from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT, ModelConfig
 from ablate.experiment import load_experiment
 from ablate.launch.grid import GridTrial, expand, trial_key
@@ -119,7 +119,7 @@ def test_groups_that_share_more_of_a_members_cost_split_less(tmp_path, monkeypat
     """The same 18 trials (a dense group of 12, a ``cnn`` group of 6) on 2 slots, nothing known of their costs:
     with CartPole's sharing (16 dense members run 3.7x one trial) the plan splits less than it would were members
     to share as little as Pong's do, since each split pays again for what its members shared."""
-    from ablate.agent import stacked
+    from ablate.agent import sharing as stacked
 
     _, trials = _trials(tmp_path)
     cartpole = plan_populations(trials, cap=16, slots=2)
@@ -143,7 +143,7 @@ def test_a_split_must_be_predicted_to_end_10_percent_sooner(monkeypatch):
 
 
 def test_a_members_cost_alone_is_its_seconds_over_its_populations_crowd(tmp_path):
-    from ablate.agent.stacked import SHARED_COST
+    from ablate.agent.sharing import SHARED_COST
     from ablate.launch.plan import alone_cost
 
     _, trials = _trials(tmp_path)
@@ -211,7 +211,7 @@ def test_a_launch_of_populations_records_every_member_as_its_own_trial(run_quiet
 
 
 def test_cnn_configs_stack_apart_from_dense_ones():
-    from ablate.agent.stacked import population_group
+    from ablate.agent.sharing import population_group
 
     cnn = population_group(replace(DEFAULT, model=ModelConfig("cnn")))
     assert cnn is not None and cnn != population_group(DEFAULT)

@@ -39,49 +39,6 @@ def test_pong_models():
     assert parameter_count(mlp) == 6400 * 200 + 200 + 200 * 6 + 6
 
 
-def test_numpy_acting_path_matches_torch_and_follows_updates():
-    import numpy as np
-
-    torch.manual_seed(0)
-    cnn = {"architecture": "cnn", "history": 5, "conv_channels": (8, 6), "kernel_size": 2}
-    for activation, extra in [(a, {}) for a in ("relu", "tanh", "elu", "gelu")] + [("tanh", cnn), ("gelu", cnn)]:
-        model = create_cartpole_model(hidden_sizes=(16, 8), activation=activation, dropout=0.2, **extra).eval()
-        assert model._numpy_ok  # CartPole's 1-D convolutions act in numpy too
-        x = np.random.default_rng(0).normal(size=(7, *model.observation_shape)).astype(np.float32)
-        with torch.no_grad():
-            expected = model(torch.from_numpy(x)).numpy()
-        np.testing.assert_allclose(model.act_logits(x), expected, rtol=1e-5, atol=1e-6)
-        optimizer = torch.optim.SGD(model.parameters(), lr=0.5)
-        model(torch.from_numpy(x)).sum().backward()
-        optimizer.step()  # the cached weights must not be reused after a step
-        with torch.no_grad():
-            expected = model(torch.from_numpy(x)).numpy()
-        np.testing.assert_allclose(model.act_logits(x), expected, rtol=1e-5, atol=1e-6)
-
-
-def test_pong_mlp_acts_in_numpy_on_sparse_int8_frame_differences():
-    import numpy as np
-
-    torch.manual_seed(0)
-    mlp = create_pong_model(n_actions=2, architecture="mlp", hidden_sizes=(16,), dropout=0.1).eval()
-    assert mlp._numpy_ok  # its nn.Flatten no longer sends it down the torch path
-    rng = np.random.default_rng(0)
-    sparse = np.zeros((3, 1, 80, 80), np.int8)
-    sparse[0, 0, 10, 5:9] = 1
-    sparse[0, 0, 40, 70] = -1
-    sparse[2, 0, 79, 79] = 1  # row 1 stays empty
-    dense = rng.integers(-1, 2, (2, 1, 80, 80)).astype(np.int8)  # mostly non-zero: the dense product
-    for x in (sparse, dense):
-        with torch.no_grad():
-            expected = mlp(torch.from_numpy(x.astype(np.float32))).numpy()
-        np.testing.assert_allclose(mlp.act_logits(x), expected, rtol=1e-5, atol=1e-5)
-    cnn = create_pong_model(n_actions=2).eval()
-    with torch.no_grad():
-        expected = cnn(torch.from_numpy(sparse.astype(np.float32))).numpy()
-    np.testing.assert_allclose(cnn.act_logits(sparse), expected, rtol=1e-5, atol=1e-6)
-    assert expected.shape == (3, 2)
-
-
 def test_pong_mlp_sparse_forward_matches_dense_in_value_and_gradient():
     import numpy as np
 

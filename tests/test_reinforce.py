@@ -111,7 +111,7 @@ def test_choose_action_samples_with_softmax_frequencies():
         model.body[0].weight.zero_()
         model.body[0].bias.copy_(torch.tensor([0.0, np.log(3.0)]))  # softmax -> (0.25, 0.75)
     rng = np.random.default_rng(123)
-    actions = choose_action(model, np.zeros((20_000, 4), np.float32), rng)
+    actions = choose_action(model, np.zeros((20_000, 4), np.float32), rng, single=False)
     assert actions.shape == (20_000,)
     assert abs(actions.mean() - 0.75) < 0.01
     single = [choose_action(model, np.zeros(4, np.float32), rng) for _ in range(2000)]
@@ -124,8 +124,8 @@ def test_choose_action_is_reproducible_with_a_seeded_generator():
     torch.manual_seed(1)
     model = create_cartpole_model()
     obs = np.random.default_rng(0).normal(size=(50, 4)).astype(np.float32)
-    a = choose_action(model, obs, np.random.default_rng(7))
-    b = choose_action(model, obs, np.random.default_rng(7))
+    a = choose_action(model, obs, np.random.default_rng(7), single=False)
+    b = choose_action(model, obs, np.random.default_rng(7), single=False)
     np.testing.assert_array_equal(a, b)
 
 

@@ -1,6 +1,5 @@
 """The sparse first two convolutions of Pong's CNN are the dense network's function: forward and gradients."""
 
-import numpy as np
 import pytest
 import torch
 
@@ -74,27 +73,6 @@ def test_policy_falls_back_to_the_dense_body_for_a_dense_frame_and_takes_an_all_
     model = _model()
     frames = torch.cat([_frames(1, 0.9, seed=4), torch.zeros(1, 1, 80, 80, dtype=torch.int8)])
     torch.testing.assert_close(model(frames), _dense(model, frames), rtol=1e-5, atol=1e-5)
-
-
-def test_numpy_acting_path_equals_the_dense_network_and_follows_updates():
-    model = _model()
-    model.eval()
-    frames = _frames(8, 0.01, seed=5)
-    with torch.inference_mode():
-        expected = _dense(model, frames).numpy()
-    np.testing.assert_allclose(model.act_logits(frames.numpy()), expected, rtol=1e-5, atol=1e-5)
-    assert model._numpy_stem is not None  # the numpy path, not torch's, gave those logits
-    with torch.no_grad():
-        model.body[0].bias.add_(0.25)  # the background changes: the cached copy must follow
-        model.body[2].weight.mul_(1.5)
-    with torch.inference_mode():
-        expected = _dense(model, frames).numpy()
-    np.testing.assert_allclose(model.act_logits(frames.numpy()), expected, rtol=1e-5, atol=1e-5)
-    empty = np.zeros((2, 1, 80, 80), np.int8)
-    with torch.inference_mode():
-        np.testing.assert_allclose(
-            model.act_logits(empty), _dense(model, torch.from_numpy(empty)).numpy(), rtol=1e-5, atol=1e-5
-        )
 
 
 def test_taps_tables_match_the_convolution_arithmetic():

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from ablate.agent.envs import PongEnv
-from ablate.agent.trial import TrialFailed, run_trial
+from ablate.agent.records import TrialFailed
+from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT, ModelConfig
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=64, episodes_per_update=8, record_video=False)
@@ -149,13 +150,13 @@ def test_importing_ablate_puts_torch_tensors_on_huge_pages_unless_told_otherwise
     env = {k: v for k, v in os.environ.items() if k != "THP_MEM_ALLOC_ENABLE"}
     if given is not None:
         env["THP_MEM_ALLOC_ENABLE"] = given
-    code = "import sys, os, ablate.agent.trial; print(os.environ['THP_MEM_ALLOC_ENABLE'], 'torch' in sys.modules)"
+    code = "import sys, os, ablate.agent.trainer; print(os.environ['THP_MEM_ALLOC_ENABLE'], 'torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.split() == [expected, "True"]
 
 
 def test_summary_auc_is_the_rolling_mean_over_the_whole_budget_a_solved_trial_holding_its_last_value():
-    from ablate.agent.trial import EpisodeMetrics, TrialResult
+    from ablate.agent.records import EpisodeMetrics, TrialResult
 
     def episode(i, rolling):
         return EpisodeMetrics(i, 0.0, 1, 0.0, 0.0, rolling, i, 0.0, i)

@@ -3,7 +3,7 @@ episode rows (the ``clock`` fixture, a hand-moved ``time.monotonic``, is in ``co
 
 from dataclasses import replace
 
-from ablate.agent.trial import EpisodeMetrics
+from ablate.agent.records import EpisodeMetrics
 from ablate.config import TrialConfig
 from ablate.launch.grid import GridTrial
 

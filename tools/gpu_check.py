@@ -85,7 +85,7 @@ def _raw_steps_per_s(steps: int = 8000) -> float:
 
 def _population_steps_per_s(members: int, episodes: int, device: str) -> float:
     """Env steps per wall second of ``members`` default CartPole trials trained as one population on ``device``."""
-    from ablate.agent.population import run_population
+    from ablate.agent.trainer import run_population
     from ablate.config import DEFAULT
 
     configs = [replace(DEFAULT, seed=i, max_episodes=episodes, record_video=False) for i in range(members)]
@@ -106,7 +106,7 @@ def main() -> int:
 
     import torch
 
-    from ablate.agent.trial import run_trial
+    from ablate.agent.trainer import run_trial
     from ablate.experiment import load_experiment
 
     cuda = torch.cuda.is_available()

@@ -1,6 +1,5 @@
-"""Environments: CartPole and Pong factories, Pong's ``pre_process`` and frame difference, observation windows.
-
-Everything here turns a Gymnasium env into the observations a policy from ``policies`` expects.
+"""Environments: any Gymnasium env with discrete actions, as the trainer makes and describes it; Pong's course
+pipeline (``pre_process``, the frame difference) and other Atari games' standard one.
 """
 
 from __future__ import annotations
@@ -11,25 +10,9 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from ablate.config import ModelConfig
-
 # Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
 # display and prints "XDG_RUNTIME_DIR is invalid or not set" on a headless machine.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
-
-
-@dataclass(frozen=True)
-class EnvInfo:
-    observation_size: int
-    n_actions: int
-    reward_threshold: float | None
-    max_episode_steps: int | None
-    video_fps: int
-    """Frames per second of a recorded video (real time for CartPole, whose physics step is 20 ms)."""
-    video_stride: int = 1
-    """Record every n-th step: CartPole at 25 fps of its 50 steps a second looks the same and costs half."""
-    video_downscale: int = 1
-    """Keep every n-th pixel: CartPole renders 600x400; 300x200 encodes ~4x faster and plays the same."""
 
 
 def is_pong(env_id: str) -> bool:
@@ -42,40 +25,6 @@ def _register_ale() -> None:
     import ale_py  # imported lazily: CartPole-only users never pay for the emulator
 
     gym.register_envs(ale_py)
-
-
-def env_info(env_id: str) -> EnvInfo:
-    if is_pong(env_id):
-        _register_ale()
-    spec = gym.spec(env_id)
-    if is_pong(env_id):
-        return EnvInfo(80 * 80, 6, spec.reward_threshold, spec.max_episode_steps, 30)
-    return EnvInfo(4, 2, spec.reward_threshold, spec.max_episode_steps, 25, video_stride=2, video_downscale=2)
-
-
-def make_env(env_id: str, render: bool = False) -> gym.Env:
-    """One env whose observations are policy inputs (Pong: frame differences), optionally rendering RGB."""
-    if is_pong(env_id):
-        _register_ale()
-        return FrameDifference(gym.make(env_id, render_mode="rgb_array" if render else None))
-    return gym.make(env_id, render_mode="rgb_array" if render else None)
-
-
-def make_vec_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
-    """``num_envs`` copies stepped together. CartPole uses Gymnasium's numpy-vectorised implementation
-    (one call steps all of them, ~70 us whatever their number) from 3 copies up; below that, and for Pong,
-    copies step one after another in this process (~27 us per CartPole copy)."""
-    if is_pong(env_id):
-        return gym.vector.SyncVectorEnv([lambda: make_env(env_id) for _ in range(num_envs)])
-    if num_envs <= 2:
-        return gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="sync")
-    spec = gym.spec(env_id)
-    return gym.make_vec(
-        env_id,
-        num_envs=num_envs,
-        vectorization_mode="vector_entry_point",
-        max_episode_steps=spec.max_episode_steps,
-    )
 
 
 def pre_process(frame: np.ndarray) -> np.ndarray:
@@ -121,59 +70,6 @@ def frame_difference(frame: np.ndarray, previous: np.ndarray | None) -> np.ndarr
     """``pre_process(frame) - pre_process(previous)`` (zeros for the first frame), float32 (80, 80)."""
     current = pre_process(frame)
     return current - (current if previous is None else pre_process(previous))
-
-
-class FrameDifference(gym.ObservationWrapper):
-    """Pong observation = pre_process(frame) - pre_process(previous frame), shape (1, 80, 80): motion is
-    what the policy needs, and one difference image carries the ball's direction."""
-
-    def __init__(self, env: gym.Env) -> None:
-        super().__init__(env)
-        self.observation_space = gym.spaces.Box(-1.0, 1.0, (1, 80, 80), np.float32)
-        self._previous: np.ndarray | None = None
-
-    def reset(self, **kwargs):  # type: ignore[override]
-        self._previous = None
-        return super().reset(**kwargs)
-
-    def observation(self, observation: np.ndarray) -> np.ndarray:
-        current = pre_process(observation)
-        previous = current if self._previous is None else self._previous
-        self._previous = current
-        return (current - previous)[None]
-
-
-class ObservationWindow:
-    """The last ``history`` observations of each of a batch of envs, oldest first, zero-padded after reset.
-    CartPole's ``cnn`` policy reads this window instead of the single current observation."""
-
-    def __init__(self, history: int) -> None:
-        self.history = history
-        self._window: np.ndarray | None = None
-
-    def reset(self, observations: np.ndarray) -> np.ndarray:
-        self._window = np.zeros((len(observations), self.history, *observations.shape[1:]), np.float32)
-        return self.step(observations)
-
-    def step(self, observations: np.ndarray) -> np.ndarray:
-        assert self._window is not None, "reset() first"
-        self._window[:, :-1] = self._window[:, 1:]
-        self._window[:, -1] = observations
-        return self._window.copy()
-
-
-class _Identity:
-    def reset(self, observations: np.ndarray) -> np.ndarray:
-        return np.asarray(observations, dtype=np.float32)
-
-    step = reset
-
-
-def observation_adapter(env_id: str, model: ModelConfig) -> ObservationWindow | _Identity:
-    """What turns raw (batched) env observations into the policy's input for this env and model."""
-    if model.architecture == "cnn" and not is_pong(env_id):
-        return ObservationWindow(model.history)
-    return _Identity()
 
 
 # --- Pong for trials (issue 9): a lean env with the experiment's knobs, int8 frame differences ---
@@ -285,3 +181,165 @@ def sample_pong_frames(env_id: str = "ALE/Pong-v5", seed: int = 0, steps: int = 
         return previous, env.frame
     finally:
         env.close()
+
+
+# --- any Gymnasium env with discrete actions (the one trainer's envs) ---
+NATIVE_VECTOR = ("CartPole-v0", "CartPole-v1")
+"""Envs whose Gymnasium vector form (``CartPoleVectorEnv``) steps a whole population in one call."""
+
+
+class EnvError(ValueError):
+    """An env the trainer cannot run (not registered, continuous actions, a non-Box observation, bad env_args)."""
+
+
+def register(config) -> None:
+    """Make ``config.env_id`` known to Gymnasium: the user's ``env_module`` imported, ale-py's games registered."""
+    if config.env_module:
+        import importlib
+
+        try:
+            importlib.import_module(config.env_module)
+        except ImportError as error:
+            raise EnvError(f"env_module = {config.env_module!r}: cannot import it ({error})") from None
+    if config.env_id.startswith("ALE/"):
+        _register_ale()
+
+
+def is_native_vector(config) -> bool:
+    return config.env_id in NATIVE_VECTOR and not config.env_args
+
+
+def is_atari(env_id: str) -> bool:
+    return env_id.startswith("ALE/") and not is_pong(env_id)
+
+
+class PongGymEnv(PongEnv):
+    """``PongEnv`` with Gymnasium's API (``reset`` -> (obs, info), ``step`` -> 5-tuple, spaces, state cloning)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.observation_space = gym.spaces.Box(-1, 1, (1, 80, 80), np.int8)
+        self.action_space = gym.spaces.Discrete(len(self.actions))
+        self.metadata = {"render_fps": 30}
+        self.unwrapped = self
+
+    def reset(self, seed: int | None = None, options=None):  # type: ignore[override]
+        return super().reset(seed=seed)[None], {}
+
+    def step(self, action: int):  # type: ignore[override]
+        observation, reward, done = super().step(action)
+        return observation[None], reward, done, False, {}
+
+    def render(self) -> np.ndarray:
+        return self.frame
+
+    def clone_state(self, include_rng: bool = True) -> dict:
+        return self.state()
+
+    def restore_state(self, state: dict) -> None:
+        if not self._loaded:  # the emulator needs its ROM before a state (RNG included) can be put back
+            super().reset(seed=0)
+        self.set_state(state)
+
+
+class AtariFrameDifference(gym.ObservationWrapper):
+    """A grayscale 84x84 frame (``AtariPreprocessing``) minus the previous one, scaled to [-1, 1], (1, 84, 84):
+    the frame difference the course feeds its Pong CNN, for any other Atari game."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.observation_space = gym.spaces.Box(-1.0, 1.0, (1, *env.observation_space.shape), np.float32)
+        self._previous: np.ndarray | None = None
+
+    def reset(self, **kwargs):  # type: ignore[override]
+        self._previous = None
+        return super().reset(**kwargs)
+
+    def observation(self, observation: np.ndarray) -> np.ndarray:
+        current = observation.astype(np.float32) / 255.0
+        previous = current if self._previous is None else self._previous
+        self._previous = current
+        return (current - previous)[None]
+
+
+def make_trial_env(config, render: bool = False) -> gym.Env:
+    """One env of a trial, its observations what the policy takes: Pong's frame differences of ``pre_process``-ed
+    frames; another Atari game's grayscale 84x84 frame differences (``AtariPreprocessing``, ``frameskip`` frames a
+    step, sticky actions at ``repeat_action_probability``); any other env as ``gym.make(env_id, **env_args)``."""
+    register(config)
+    if is_pong(config.env_id) and not config.env_args:
+        return PongGymEnv(
+            config.env_id,
+            config.action_set,
+            config.frameskip,
+            config.repeat_action_probability,
+            config.max_episode_steps,
+        )
+    kwargs = dict(config.env_args)
+    if config.max_episode_steps:
+        kwargs["max_episode_steps"] = config.max_episode_steps
+    if render:
+        kwargs["render_mode"] = "rgb_array"
+    try:
+        if is_atari(config.env_id):
+            kwargs.setdefault("repeat_action_probability", config.repeat_action_probability)
+            env = gym.make(config.env_id, frameskip=1, **kwargs)
+            return AtariFrameDifference(gym.wrappers.AtariPreprocessing(env, frame_skip=config.frameskip))
+        return gym.make(config.env_id, **kwargs)
+    except gym.error.Error as error:
+        raise EnvError(f"env_id = {config.env_id!r}: {error}") from None
+    except TypeError as error:
+        raise EnvError(f"env_args = {dict(config.env_args)!r}: {config.env_id} refuses them ({error})") from None
+
+
+@dataclass(frozen=True)
+class Described:
+    """What the trainer needs to know of a trial's env."""
+
+    observation_shape: tuple[int, ...]
+    n_actions: int
+    reward_threshold: float | None
+    max_episode_steps: int
+    """Steps after which an episode is truncated (0: no limit)."""
+    video_fps: int
+    video_stride: int = 1
+    video_downscale: int = 1
+
+
+_DESCRIBED: dict[tuple, Described] = {}
+
+
+def describe(config) -> Described:
+    """``config``'s env, described once per process (an env is built to read its spaces); an env the trainer cannot
+    run is an ``EnvError`` saying why."""
+    key = (config.env_id, config.env_args, config.env_module, config.action_set, config.max_episode_steps)
+    if key in _DESCRIBED:
+        return _DESCRIBED[key]
+    register(config)
+    if config.env_id not in gym.registry:
+        raise EnvError(f"env_id = {config.env_id!r} is not a registered Gymnasium env (e.g. CartPole-v1, Acrobot-v1)")
+    spec = gym.spec(config.env_id)
+    env = make_trial_env(config)
+    try:
+        actions, observations = env.action_space, env.observation_space
+        if not isinstance(actions, gym.spaces.Discrete):
+            raise EnvError(f"env_id = {config.env_id!r} has {type(actions).__name__} actions; valid: Discrete ones")
+        if not isinstance(observations, gym.spaces.Box):
+            raise EnvError(f"env_id = {config.env_id!r} has a {type(observations).__name__} observation; valid: a Box")
+        limit = config.max_episode_steps or spec.max_episode_steps or 0
+        if is_pong(config.env_id):
+            limit = config.max_episode_steps
+        cartpole = config.env_id in NATIVE_VECTOR
+        described = Described(
+            tuple(observations.shape),
+            int(actions.n),
+            spec.reward_threshold,
+            int(limit),
+            int(env.metadata.get("render_fps", 30) or 30) if not cartpole else 25,
+            video_stride=2 if cartpole else 1,
+            video_downscale=2 if cartpole else 1,
+        )
+    finally:
+        env.close()
+    _DESCRIBED[key] = described
+    return described

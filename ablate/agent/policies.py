@@ -1,6 +1,7 @@
-"""Policy networks: observation in, action logits out (no softmax inside), built from a ``ModelConfig``.
+"""The built-in policy networks: observation in, action logits out (no softmax inside).
 
-``create_cartpole_model`` and ``create_pong_model`` are the course's names; ``create_model`` picks by env.
+``create_cartpole_model`` and ``create_pong_model`` are the course's names (``models.build_model`` picks one, or
+the user's own factory); the numpy forms of their layers serve ``acting.DenseStack``.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ import torch.nn.functional as F
 from torch import nn
 
 from ablate.agent import sparse_cnn
-from ablate.config import ModelConfig
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 
@@ -37,34 +37,21 @@ _NUMPY_ACTIVATIONS = {
 
 
 class Policy(nn.Module):
-    """A network mapping observations of ``observation_shape`` (plus a batch dimension) to logits."""
+    """A built-in network mapping observations of ``observation_shape`` (plus a batch dimension) to logits."""
 
     def __init__(self, body: nn.Module, observation_shape: tuple[int, ...]) -> None:
         super().__init__()
         self.body = body
         self.observation_shape = tuple(observation_shape)
-        self._numpy_layers: list | None = None
-        self._numpy_versions: tuple[int, ...] = ()
-        self._parameters_list: list[nn.Parameter] | None = None
         self._sparse_first = (
             isinstance(body, nn.Sequential)
             and len(body) >= 2
             and isinstance(body[0], nn.Flatten)
             and isinstance(body[1], nn.Linear)
         )
-        self._numpy_ok = isinstance(body, nn.Sequential) and all(
-            isinstance(m, nn.Linear) or _plain_conv1d(m) or type(m) in _NUMPY_ACTIVATIONS for m in body
-        )
         self._sparse_stem = (
             sparse_cnn.SparseStem(body, observation_shape[1]) if sparse_cnn.fits(body, self.observation_shape) else None
         )
-        # Acting in numpy through the whole CNN needs every later layer to have a numpy stand-in.
-        self._numpy_stem_ok = (
-            self._sparse_stem is not None
-            and isinstance(body[4], nn.Conv2d)
-            and all(isinstance(m, nn.Linear) or type(m) in _NUMPY_ACTIVATIONS for m in [body[1], body[3], *body[5:]])
-        )
-        self._numpy_stem: sparse_cnn.NumpyStem | None = None
         self._channels_last = any(isinstance(m, nn.Conv2d) for m in body.modules())
         if self._channels_last:
             # oneDNN's 2-D convolutions run ~20% faster forward and backward on NHWC than NCHW on one core
@@ -102,55 +89,9 @@ class Policy(nn.Module):
         )
         return self.body[2:](hidden + first.bias)
 
-    def _numpy_stem_logits(self, observations: np.ndarray, parameters: list[nn.Parameter]) -> np.ndarray:
-        """Pong's CNN acting in numpy (``sparse_cnn.NumpyStem``), rebuilt whenever a parameter changes."""
-        versions = tuple(p._version for p in parameters)
-        if self._numpy_stem is None or versions != self._numpy_versions:
-            self._numpy_stem = sparse_cnn.NumpyStem(self._sparse_stem, self.body, _numpy_layer)
-            self._numpy_versions = versions
-        x = observations.reshape(len(observations), -1)
-        rows, columns = _nonzero(x)
-        if len(rows) * 4 >= x.size:  # no sparsity to exploit: the dense network
-            with torch.inference_mode():
-                return self.body(self._input(torch.from_numpy(observations))).numpy()
-        return self._numpy_stem(x, rows, columns)
 
-    def act_logits(self, observations: np.ndarray) -> np.ndarray:
-        """Logits for acting: eval mode, no autograd. A dense body (CartPole's 1-D convolutions included) runs in
-        numpy on a copy of the weights, refreshed whenever a parameter changes (torch's per-call overhead is most
-        of the cost of a forward through a network this small, once per environment step); any other body runs
-        through torch."""
-        if self._parameters_list is None:
-            # Cached: walking the module tree for its parameters costs ~70 us, more than the forward itself.
-            self._parameters_list = list(self.parameters())
-        parameters = self._parameters_list
-        if self._numpy_stem_ok and parameters[0].device.type == "cpu" and observations.dtype == np.int8:
-            return self._numpy_stem_logits(observations, parameters)
-        if not self._numpy_ok or parameters[0].device.type != "cpu":  # a 2-D conv body, or a policy on a GPU
-            with torch.inference_mode():
-                inputs = torch.from_numpy(observations).to(parameters[0].device)
-                return self(inputs).float().cpu().numpy()
-        versions = tuple(p._version for p in parameters)
-        if self._numpy_layers is None or versions != self._numpy_versions:
-            self._numpy_layers = [_numpy_layer(m) for m in self.body]
-            self._numpy_versions = versions
-        x = observations
-        for layer in self._numpy_layers:
-            if isinstance(layer, tuple):
-                x = _sparse_matmul(x, layer[0]) if x.dtype == np.int8 else x.astype(np.float32, copy=False) @ layer[0]
-                x += layer[1]
-            else:
-                x = layer(x)
-        return x
-
-
-def _numpy_layer(module: nn.Module):
-    """A numpy stand-in for ``module`` when acting: (weight.T, bias) copies for a Linear, else a function."""
-    if isinstance(module, nn.Linear):
-        return module.weight.detach().numpy().T.copy(), module.bias.detach().numpy().copy()
-    if isinstance(module, nn.Conv1d):
-        return NumpyConv1d(conv1d_weight(module.weight.detach().numpy()), module.bias.detach().numpy().copy())
-    return _NUMPY_ACTIVATIONS[type(module)]
+NUMPY_LAYERS = _NUMPY_ACTIVATIONS
+"""Layers without weights, as numpy functions (acting: ``acting.DenseStack``)."""
 
 
 def _plain_conv1d(module: nn.Module) -> bool:
@@ -163,6 +104,9 @@ def _plain_conv1d(module: nn.Module) -> bool:
         and module.groups == 1
         and module.bias is not None
     )
+
+
+plain_conv1d = _plain_conv1d
 
 
 def conv1d_weight(weight: np.ndarray) -> np.ndarray:
@@ -188,28 +132,6 @@ def conv1d(x: np.ndarray, weight: np.ndarray, bias: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.swapaxes(out.reshape(*lead, n, length, -1), -1, -2))
 
 
-class NumpyConv1d:
-    """``conv1d`` with one ``Conv1d``'s weights (copies), a layer of ``Policy.act_logits``'s numpy path."""
-
-    def __init__(self, weight: np.ndarray, bias: np.ndarray) -> None:
-        self.weight, self.bias = weight, bias
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        return conv1d(x, self.weight, self.bias)
-
-
-def _nonzero(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.nonzero`` of a 2-D int8 array, ~10x faster when it is mostly zeros: scan it 8 bytes at a time,
-    then look inside the non-zero words only."""
-    width = x.shape[1]
-    if width % 8 or not x.flags.c_contiguous:
-        return np.nonzero(x)
-    words = np.flatnonzero(x.view(np.int64))
-    in_word_rows, in_word_columns = np.nonzero(x.reshape(-1, 8)[words])
-    positions = words[in_word_rows] * 8 + in_word_columns
-    return np.divmod(positions, width)
-
-
 def _nonzero_rows_columns(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``x.nonzero(as_tuple=True)`` of a 2-D int8 tensor, row-major, ~4x faster when it is mostly zeros (a
     Pong update's frames): the same 8-bytes-at-a-time scan as ``_nonzero``."""
@@ -219,20 +141,6 @@ def _nonzero_rows_columns(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     word_rows, word_columns = x.view(torch.int64).nonzero(as_tuple=True)
     in_word, byte = x.view(n, width // 8, 8)[word_rows, word_columns].nonzero(as_tuple=True)
     return word_rows[in_word], word_columns[in_word] * 8 + byte
-
-
-def _sparse_matmul(x: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """``x @ weight`` for an int8 batch that is mostly zeros (Pong's frame differences: a few dozen of 6,400
-    pixels change between frames): the sum of the weight rows of the non-zero pixels, ~10x faster than a
-    dense product for a batch of 8. Dense when a quarter or more of ``x`` is non-zero."""
-    rows, columns = _nonzero(x)
-    if len(rows) * 4 >= x.size:
-        return x.astype(np.float32) @ weight
-    # Row i of the product sums the weight rows of row i's non-zero pixels, scaled by their values (+-1):
-    # a (batch x non-zeros) mixing matrix times those weight rows.
-    mixing = np.zeros((len(x), len(rows)), np.float32)
-    mixing[rows, np.arange(len(rows))] = x[rows, columns]
-    return mixing @ weight[columns]
 
 
 def parameter_count(model: nn.Module) -> int:
@@ -297,39 +205,28 @@ def create_pong_model(
     activation: str = "relu",
     dropout: float = 0.0,
     architecture: str = "cnn",
+    observation_shape: Sequence[int] = (1, 80, 80),
 ) -> Policy:
-    """Pong policy over the (1, 80, 80) difference of pre-processed frames. ``cnn`` is the course's:
-    16 filters 7x7 stride 4, 32 filters 5x5 stride 2, 48 filters 3x3 stride 2, then dense layers.
-    ``mlp`` flattens the 6,400 pixels straight into the dense layers (Karpathy's Pong policy)."""
+    """Pong policy over the (1, 80, 80) difference of pre-processed frames (any (channels, H, W) image for other
+    Atari games). ``cnn`` is the course's: 16 filters 7x7 stride 4, 32 filters 5x5 stride 2, 48 filters 3x3
+    stride 2, then dense layers. ``mlp`` flattens the pixels straight into the dense layers (Karpathy's)."""
     act = _ACTIVATIONS[activation]
+    channels, height, width = observation_shape
     if architecture == "mlp":
-        body = nn.Sequential(nn.Flatten(), *_dense_layers(80 * 80, hidden_sizes, n_actions, activation, dropout))
-        return Policy(body, (1, 80, 80))
+        body = nn.Sequential(
+            nn.Flatten(), *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout)
+        )
+        return Policy(body, tuple(observation_shape))
+    for kernel, stride, padding in ((7, 4, 3), (5, 2, 2), (3, 2, 1)):
+        height, width = ((n + 2 * padding - kernel) // stride + 1 for n in (height, width))
     body = nn.Sequential(
-        nn.Conv2d(1, 16, 7, stride=4, padding=3),
+        nn.Conv2d(channels, 16, 7, stride=4, padding=3),
         act(),
         nn.Conv2d(16, 32, 5, stride=2, padding=2),
         act(),
         nn.Conv2d(32, 48, 3, stride=2, padding=1),
         act(),
         nn.Flatten(),
-        *_dense_layers(48 * 5 * 5, hidden_sizes, n_actions, activation, dropout),
+        *_dense_layers(48 * height * width, hidden_sizes, n_actions, activation, dropout),
     )
-    return Policy(body, (1, 80, 80))
-
-
-def create_model(env_id: str, model: ModelConfig, observation_size: int, n_actions: int) -> Policy:
-    """The policy for ``env_id`` with the knobs of ``model``."""
-    if env_id.startswith("ALE/Pong"):
-        return create_pong_model(n_actions, model.hidden_sizes, model.activation, model.dropout, model.architecture)
-    return create_cartpole_model(
-        observation_size,
-        n_actions,
-        model.hidden_sizes,
-        model.activation,
-        model.dropout,
-        model.architecture,
-        model.history,
-        model.conv_channels,
-        model.kernel_size,
-    )
+    return Policy(body, tuple(observation_shape))

@@ -5,6 +5,7 @@ No I/O, no Ray, no MLflow, no environment: arrays and a torch model in, arrays a
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -14,7 +15,7 @@ from torch import nn
 
 
 class Memory:
-    """One episode's (or several episodes') observations, actions and rewards, in the order they happened."""
+    """One episode's observations, actions and rewards, in the order they happened (one per env slot)."""
 
     def __init__(self) -> None:
         self.clear()
@@ -25,7 +26,7 @@ class Memory:
         self.rewards: list[float] = []
 
     def add_to_memory(self, observation: np.ndarray, action: int, reward: float) -> None:
-        self.observations.append(np.asarray(observation, dtype=np.float32))
+        self.observations.append(np.array(observation))  # a copy, in its own dtype (Pong's int8 frames stay int8)
         self.actions.append(int(action))
         self.rewards.append(float(reward))
 
@@ -34,50 +35,46 @@ class Memory:
 
 
 def choose_action(
-    model: nn.Module,
+    model: nn.Module | Callable[[np.ndarray], np.ndarray],
     observation: np.ndarray,
     rng: np.random.Generator | None = None,
+    *,
     greedy: bool = False,
+    single: bool = True,
+    uniforms: np.ndarray | None = None,
 ) -> int | np.ndarray:
-    """Sample an action from the softmax of the model's logits (or take the argmax when ``greedy``).
+    """Sample an action from the softmax of the model's logits (the argmax when ``greedy``).
 
-    ``observation`` is one observation (returns an ``int``) or a batch (returns an array of ints).
-    No autograd graph is built: the log-probabilities are recomputed in one batched forward at update
-    time, which is what makes collection cheap.
+    ``observation`` is one observation (``single``: returns an ``int``) or a batch (returns an array of ints).
+    ``model`` is a torch module, or a population's batched forward (``acting``: numpy in, (members, envs,
+    actions) logits out). The draws come from ``uniforms`` (one per row) or ``rng``. No autograd graph is
+    built: the log-probabilities are recomputed in one batched forward at update time (``train_step``).
     """
-    observation = np.asarray(observation)
-    if observation.dtype != np.int8:  # int8: Pong's frame differences, which the policies take as they are
-        observation = observation.astype(np.float32, copy=False)
-    single = observation.ndim == len(model.observation_shape)
-    batch = observation[None] if single else observation
-    if model.training:
+    batch = np.asarray(observation)[None] if single else np.asarray(observation)
+    if isinstance(model, nn.Module):
         model.eval()  # acting is deterministic apart from sampling: no dropout; train_step switches back
-    if hasattr(model, "act_logits"):
-        logits = model.act_logits(batch)
-    else:
+        device = next(model.parameters()).device
         with torch.inference_mode():
-            logits = model(torch.from_numpy(batch)).numpy()
-    if greedy:
-        actions = logits.argmax(axis=1)
+            logits = model(torch.from_numpy(np.ascontiguousarray(batch, np.float32)).to(device)).float().cpu().numpy()
     else:
-        actions = sample_actions(logits, rng if rng is not None else np.random.default_rng())
+        logits = model(batch)
+    if greedy:
+        actions = logits.argmax(axis=-1)
+    else:
+        if uniforms is None:
+            uniforms = (rng if rng is not None else np.random.default_rng()).random(logits.shape[:-1])
+        actions = sample_actions(logits, uniforms)
     return int(actions[0]) if single else actions.astype(np.int64)
 
 
-def sample_actions(logits: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One action per row of ``logits`` (batch, actions), sampled from their softmax with one uniform per row
-    drawn from ``rng``: ``choose_action``'s sampling."""
-    return actions_from_uniforms(logits, rng.random((len(logits), 1)))
-
-
-def actions_from_uniforms(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
-    """``sample_actions`` with its uniforms (batch, 1) given: a population draws each member's from the
-    member's own RNG, then samples every member's rows at once (row by row, the same numbers)."""
+def sample_actions(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+    """One action per row of ``logits`` (..., actions), sampled from their softmax with the row's uniform in
+    ``uniforms`` (...): a row's action depends on its logits and its uniform only, whoever shares the array."""
     # Inverse-CDF sampling on the unnormalised softmax (u scaled by the total instead of dividing every
     # probability by it); the clip guards against the last cumulative value rounding below u.
-    cumulative = np.cumsum(np.exp(logits - logits.max(axis=1, keepdims=True)), axis=1)
-    u = uniforms * cumulative[:, -1:]
-    return np.minimum((cumulative < u).sum(axis=1), logits.shape[1] - 1)
+    cumulative = np.cumsum(np.exp(logits - logits.max(axis=-1, keepdims=True)), axis=-1)
+    u = uniforms[..., None] * cumulative[..., -1:]
+    return np.minimum((cumulative < u).sum(axis=-1), logits.shape[-1] - 1)
 
 
 def discount_rewards(rewards: np.ndarray, gamma: float, reset_on_nonzero: bool = False) -> np.ndarray:

@@ -105,7 +105,7 @@ class TrialProgress:
     @cached_property
     def threshold(self) -> float | None:
         """The rolling mean at which it stops, solved (``run_trial``'s own rule)."""
-        from ablate.agent.trial import solve_threshold  # the driver has it loaded once trials run
+        from ablate.agent.trainer import solve_threshold  # the driver has it loaded once trials run
 
         return solve_threshold(self.trial.config)
 
@@ -165,7 +165,7 @@ class CostsSeen:
     pace (2: half as fast), 1 while none has one."""
     crowds: dict[tuple[str, str], float] = field(default_factory=dict)
     """Per ``settings``: how many times its cost alone its finished trials took, for the population each ran
-    in (``agent.stacked.member_cost``: M members of a kind that shares ``share`` take ``M * (share + (1 -
+    in (``agent.sharing.member_cost``: M members of a kind that shares ``share`` take ``M * (share + (1 -
     share) / M)`` times one's cost; 1 alone), their mean."""
 
 
@@ -229,7 +229,7 @@ class TimeLeft:
         for t in done:
             if t.profile and t.reports:
                 profiled.setdefault((t.settings, t.budget), []).append(t)
-        from ablate.agent.stacked import crowd  # torch: only once there is a plan
+        from ablate.agent.sharing import crowd  # torch: only once there is a plan
 
         crowds: dict[tuple[str, str], list[float]] = {}
         for t in done:

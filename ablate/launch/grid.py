@@ -17,6 +17,15 @@ from ablate.experiment import Experiment
 
 # Knobs that change what is recorded, not what is learned: they stay out of the key.
 _NOT_IN_KEY = ("record_video", "video_max_frames", "fault", "fault_marker")
+# Knobs added after trials were first keyed: at their default they stay out of the key, so every earlier
+# file's keys (users' resume state) are unchanged; set, they are in it (the factory by its source's hash).
+_KEYED_WHEN_SET = {
+    "env_args": (),
+    "env_module": "",
+    "model.factory": "",
+    "model.factory_args": (),
+    "model.factory_hash": "",
+}
 
 
 @dataclass(frozen=True)
@@ -31,7 +40,11 @@ class GridTrial:
 
 
 def config_hash(config: TrialConfig) -> str:
-    flat = {k: v for k, v in flatten(config).items() if k not in _NOT_IN_KEY}
+    flat = {
+        k: v
+        for k, v in flatten(config).items()
+        if k not in _NOT_IN_KEY and not (k in _KEYED_WHEN_SET and v == _KEYED_WHEN_SET[k])
+    }
     return hashlib.sha1(json.dumps(flat, sort_keys=True, default=list).encode()).hexdigest()[:10]
 
 

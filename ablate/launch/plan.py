@@ -1,4 +1,4 @@
-"""A launch's plan: its trials grouped into populations (``agent.population``), the unit the scheduler runs.
+"""A launch's plan: its trials grouped into populations (``agent.trainer``), the unit the scheduler runs.
 
 A population is one Ray task that trains its members together; each member is still a trial, with its own
 key, MLflow run, curve, checkpoints and result. Members share a population when their configs allow it
@@ -14,7 +14,7 @@ import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from ablate.agent.stacked import crowd, member_cost, population_group, population_share
+from ablate.agent.sharing import crowd, member_cost, population_group, population_share
 from ablate.launch.estimate import makespan
 from ablate.launch.grid import GridTrial
 
@@ -53,7 +53,7 @@ member, and a launch's first stage knows neither)."""
 
 GAIN = 0.90
 """More populations are planned than the fewest the cap allows only where the plan predicts they end at least
-10% sooner. Each split loses what a population shares (``agent.stacked.SHARED_COST``), and the prediction is a
+10% sooner. Each split loses what a population shares (``agent.sharing.SHARED_COST``), and the prediction is a
 model: on the default CartPole ablation, splits it put at 6% sooner (the last rounds' 7 populations of 5 on 2
 slots as 8) made those rounds no faster, measured over two launches each way (docs/performance.md)."""
 
@@ -129,7 +129,7 @@ def plan_populations(
 
 def alone_cost(seconds: float, trial: GridTrial, members: int) -> float:
     """What ``trial`` costs alone, from ``seconds`` it took as one of ``members`` in a population: M members of
-    equal cost c take ``c * M * member_cost(share, M)`` (``agent.stacked.SHARED_COST``), each its population's
+    equal cost c take ``c * M * member_cost(share, M)`` (``agent.sharing.SHARED_COST``), each its population's
     clock."""
     return seconds / crowd(trial.config, members)
 

@@ -38,7 +38,7 @@ import ray
 from ray import tune
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-from ablate.agent.population import run_population
+from ablate.agent.trainer import run_population
 from ablate.launch.curve import CurvePoint, CurveReducer
 from ablate.launch.plan import Population
 from ablate.launch.ray_logs import one_line, route_raylet_errors, tune_logs_to

@@ -1,16 +1,17 @@
-"""Population trials: a member is its single trial, bit for bit (episodes, losses, gradients, weights), a member
+"""The one trainer: a member is its single trial, bit for bit (episodes, losses, gradients, weights), a member
 that fails or solves early leaves the others untouched, a killed population resumes each member exactly."""
 
+import io
 from dataclasses import replace
+from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
-from ablate.agent.population import SingleBackend, can_share, run_population
-from ablate.agent.stacked import StackedBackend
-from ablate.agent.trial import TrialFailed, TrialResult, run_trial
-from ablate.config import DEFAULT, ModelConfig
+from ablate.agent.records import TrialFailed, TrialResult
+from ablate.agent.sharing import can_share
+from ablate.agent.trainer import Population, run_population, run_trial
+from ablate.config import DEFAULT, ModelConfig, apply_knobs
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=48, episodes_per_update=8, record_video=False)
 DEEP = replace(SHORT, model=ModelConfig(hidden_sizes=(16, 16), dropout=0.2), l2=0.001)
@@ -33,76 +34,54 @@ def _members(base):
     return [replace(base, seed=s, learning_rate=lr) for s, lr in ((0, 0.03), (1, 0.1), (2, 0.01), (3, 0.03))]
 
 
-def _first_batches(backend):
-    """Each member's first batch: collections end at different steps, a member's batch comes when its own
-    episodes are in (its next collection, begun by the next call, is left unused)."""
-    first = {}
-    while len(first) < len(backend.configs):
-        for slot, batch in backend.collect([8] * len(backend.configs), [48] * len(backend.configs)).items():
-            first.setdefault(slot, batch)
-    return first
+CUSTOM = Path(__file__).parent.parent / "examples" / "models" / "layernorm.py"
 
 
-def _first_update(backend):
-    """The first batch of each member and its update's stats, the Adam step skipped (the gradients stay)."""
-    backend.optimizer.step = lambda *members: None
-    batches = _first_batches(backend)
-    return batches, backend.update(batches)
+def _custom(**overrides):
+    """A user's network (a LayerNorm MLP from a file): no dense stack acts for it, a ``vmap`` does."""
+    config = apply_knobs(SHORT, {"model": f"{CUSTOM}:create_model", "model_args": {"width": 16}})
+    return replace(config, **overrides)
 
 
 @pytest.mark.parametrize("base", EXACT, ids=EXACT_IDS)
-def test_a_member_has_its_single_trials_first_episodes_loss_and_gradients(base):
-    configs = _members(base)
-    population = StackedBackend(configs, torch.device("cpu"))
-    batches, stats = _first_update(population)
-    for i, config in enumerate(configs):
-        single = SingleBackend(config, torch.device("cpu"), None)  # the pre-population path, nn.Linear and all
-        single.optimizer.step = lambda: None
-        [batch] = single.collect([8], [48]).values()
-        [stat] = single.update({0: batch}).values()
-        for mine, theirs in zip(batches[i], batch, strict=True):
-            np.testing.assert_array_equal(mine, theirs)  # the same episodes, bit for bit
-        assert stats[i] == stat  # the same loss and entropy
-        for p, q in zip(population.model.params, single.model.parameters(), strict=True):
-            assert torch.equal(p.grad[i], q.grad)
-
-
-@pytest.mark.parametrize("base", [SHORT, DEEP, DEEP_CNN], ids=["dense", "dropout+l2", "cnn-deep+dropout+l2"])
-def test_the_padded_batched_update_a_gpu_takes_gives_the_same_loss_and_gradients(base):
-    """The GPU's path (one padded batch through batched products), run here on the CPU: the members' losses
-    and gradients to float tolerance (the dropout masks are each member's own draws in both)."""
-    configs = _members(base)
-    exact, padded = StackedBackend(configs, torch.device("cpu")), StackedBackend(configs, torch.device("cpu"))
-    first, again = _first_batches(exact), _first_batches(padded)
-    batches = [first[slot] for slot in range(4)]
-    assert all((a == b).all() for slot in range(4) for a, b in zip(first[slot], again[slot], strict=True))
-    results = []
-    for backend, losses in ((exact, exact._member_losses), (padded, padded._padded_losses)):
-        total, member_losses, entropies = losses(list(range(4)), batches)
-        total.backward()
-        results.append(
-            ([float(x.detach()) for x in member_losses], [float(e) for e in entropies], backend.model.params)
-        )
-    (loss_a, entropy_a, params_a), (loss_b, entropy_b, params_b) = results
-    assert loss_a == pytest.approx(loss_b, rel=1e-5, abs=1e-7) and entropy_a == pytest.approx(entropy_b, rel=1e-5)
-    for p, q in zip(params_a, params_b, strict=True):
-        torch.testing.assert_close(p.grad, q.grad, rtol=1e-4, atol=1e-6)
-
-
-@pytest.mark.parametrize("base", [DEEP, DEEP_CNN], ids=["dropout+l2", "cnn-deep+dropout+l2"])
 def test_a_population_of_one_is_its_single_trial_bit_for_bit(base):
-    """run_trial is a population of one, and that is the pre-population path exactly (nn.Linear's kernels;
-    the cnn's Gymnasium envs, ``ObservationWindow`` and ``Policy.act_logits``)."""
+    """run_trial is run_population of one, bit for bit: episodes, losses, entropies, final weights."""
     config = replace(base, seed=5)
-    single = SingleBackend(config, torch.device("cpu"), None)
-    stacked = StackedBackend([config], torch.device("cpu"))
-    for _ in range(3):
-        [a], [b] = single.collect([8], [48]).values(), stacked.collect([8], [48]).values()
-        for mine, theirs in zip(a, b, strict=True):
-            np.testing.assert_array_equal(mine, theirs)
-        assert single.update({0: a}) == stacked.update({0: b})
-    for name, tensor in stacked.policy(0).state_dict().items():
-        assert torch.equal(tensor, single.model.state_dict()[name]), name
+    [member] = run_population([config])
+    alone = run_trial(config)
+    assert [m[:7] for m in member.episodes] == [m[:7] for m in alone.episodes]
+    for name, tensor in alone.state_dict.items():
+        assert torch.equal(member.state_dict[name], tensor), name
+
+
+def test_a_custom_member_equals_its_population_of_one_to_float_tolerance_in_its_first_update():
+    """A user's network acts through vmap in a population and through its own forward alone: the same episodes
+    (their actions differ only if a float difference flips a sampled action) and the same first update."""
+    configs = [_custom(seed=s, max_episodes=8) for s in range(4)]
+    together = run_population(configs)
+    for config, member in zip(configs, together, strict=True):
+        alone = run_trial(config)
+        first, theirs = member.episodes[0], alone.episodes[0]
+        assert first.episode_return == theirs.episode_return
+        assert first.loss == pytest.approx(theirs.loss, rel=1e-5, abs=1e-7)
+        for name, tensor in alone.state_dict.items():
+            torch.testing.assert_close(member.state_dict[name], tensor, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_a_custom_network_learns_alike_in_a_population_of_30_and_alone():
+    """30 seeds of a user's network, once as one population and once each alone: the same distribution of AUC
+    and of episodes to solve (two-sample Mann-Whitney tests at 1%)."""
+    from scipy.stats import mannwhitneyu
+
+    configs = [_custom(seed=s, max_episodes=160) for s in range(30)]
+    together = run_population(configs)
+    alone = [run_trial(c) for c in configs]
+    for key in ("auc", "episodes_run"):
+        a = [r.summary()[key] for r in together]
+        b = [r.summary()[key] for r in alone]
+        assert mannwhitneyu(a, b).pvalue > 0.01, key
+    assert len({r.summary()["auc"] for r in together}) > 20  # 30 different runs, not one repeated
 
 
 @pytest.mark.parametrize("base", [DEEP, CNN], ids=["dropout+l2", "cnn"])
@@ -123,14 +102,15 @@ def test_members_with_their_own_budgets_update_when_their_own_episodes_are_in(mo
     hands over only the members whose episodes are all in, and each member is still its single trial."""
     configs = [replace(c, max_episodes=b) for c, b in zip(_members(base), (48, 20, 36, 44), strict=True)]
     handed: list[list[int]] = []
-    collect = StackedBackend.collect
+    step = Population.step
 
-    def recorded(self, counts, budgets):
-        batches = collect(self, counts, budgets)
-        handed.append(sorted(batches))
-        return batches
+    def recorded(self):
+        ready = step(self)
+        if ready:
+            handed.append(ready)
+        return ready
 
-    monkeypatch.setattr(StackedBackend, "collect", recorded)
+    monkeypatch.setattr(Population, "step", recorded)
     outcomes = run_population(configs)
     monkeypatch.undo()
     assert any(0 < len(slots) < 4 for slots in handed)  # members updated apart
@@ -172,17 +152,18 @@ def test_a_failing_member_fails_alone_and_one_that_solves_leaves_early():
 
 
 def test_a_member_whose_weights_turn_nan_fails_alone(monkeypatch):
-    update = StackedBackend.update
+    update = Population.update
 
-    def poisoned(self, batches):
-        stats = update(self, batches)
-        if len(self.configs) == 3 and 1 in batches:  # member 1's weights become NaN after its first update
+    def poisoned(self, position, batch):
+        stats = update(self, position, batch)
+        member = self.members[position]
+        if len(self.members) == 3 and member.index == 1:  # member 1's weights become NaN after its first update
             with torch.no_grad():
-                self.model.params[0][1].fill_(float("nan"))
-            self.model.refresh()
+                next(member.model.parameters()).fill_(float("nan"))
+            self.acting.refresh(position)
         return stats
 
-    monkeypatch.setattr(StackedBackend, "update", poisoned)
+    monkeypatch.setattr(Population, "update", poisoned)
     configs = _members(SHORT)[:3]
     outcomes = run_population(configs)
     assert isinstance(outcomes[1], TrialFailed) and "loss became nan at episode 16" in str(outcomes[1])
@@ -227,20 +208,18 @@ def test_members_resume_from_different_points_beside_fresh_ones(base):
     assert [m[:7] for m in alone.episodes] == [m[:7] for m in whole[2].episodes]
 
 
-def test_a_cartpole_trial_resumes_exactly_and_reads_the_old_collectors_checkpoints():
+def test_a_cartpole_trial_resumes_exactly_and_an_earlier_trainers_checkpoint_starts_afresh():
     config = replace(SHORT, checkpoint_every=16, episodes_per_update=2)
     blobs = []
     whole = run_trial(config, on_checkpoint=blobs.append)
     resumed = run_trial(config, resume_from=blobs[0])
     assert resumed.returns == whole.returns
     assert [m.loss for m in resumed.episodes] == [m.loss for m in whole.episodes]
-    # A blob of the Gymnasium-env collector (no env streams): re-seeded from the episode count, as it resumed.
-    saved = torch.load(__import__("io").BytesIO(blobs[0]), weights_only=False)
-    saved["collector"] = {"reset_seed": None}
-    buffer = __import__("io").BytesIO()
+    saved = torch.load(io.BytesIO(blobs[0]), weights_only=False)
+    saved["version"] = 1  # the stacked trainer's checkpoints: no slots to restore from
+    buffer = io.BytesIO()
     torch.save(saved, buffer)
-    legacy = run_trial(config, resume_from=buffer.getvalue())
-    assert legacy.returns[:16] == whole.returns[:16] and len(legacy.episodes) == 48
+    assert [m[:7] for m in run_trial(config, resume_from=buffer.getvalue()).episodes] == [m[:7] for m in whole.episodes]
 
 
 def test_which_configs_share_a_population():

@@ -1,0 +1,164 @@
+"""A trial's network: the user's own factory (``model = "FILE.py:FUNCTION"`` or ``"package.module:FUNCTION"``) or a
+built-in one (``policies``: the course's CartPole MLP and 1-D CNN, its Pong CNN, an MLP over pixels).
+
+A factory is called with those of ``observation_shape``, ``n_actions`` and its ``model_args`` that its signature
+accepts, and must return an ``nn.Module`` mapping a float32 batch of observations to (batch, n_actions) logits.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import inspect
+import math
+import sys
+import types
+from collections.abc import Callable
+
+import torch
+from torch import nn
+
+from ablate.agent.envs import Described
+from ablate.agent.policies import create_cartpole_model, create_pong_model
+from ablate.config import ModelConfig, TrialConfig
+
+
+class ModelError(ValueError):
+    """A user's factory that cannot build a policy; the message names the factory and what is wrong."""
+
+
+def load_factory(model: ModelConfig) -> Callable[..., nn.Module]:
+    """The factory function of ``model``: a ``FILE.py``'s shipped source run as a module of its own (no file
+    needed on this node; checked against ``factory_hash``), or ``package.module`` imported from the path."""
+    target, function = model.factory.rsplit(":", 1)
+    if target.endswith(".py"):
+        digest = hashlib.sha1(model.factory_source.encode()).hexdigest()[:12]
+        if digest != model.factory_hash:
+            raise ModelError(
+                f"model = {model.factory!r}: its source does not match the trial's hash {model.factory_hash}"
+            )
+        name = f"ablate_model_{digest}"
+        module = sys.modules.get(name)
+        if module is None:
+            module = types.ModuleType(name)
+            module.__file__ = target
+            try:
+                exec(compile(model.factory_source, target, "exec"), module.__dict__)
+            except Exception as error:  # a user's file: any error is theirs to read, in one line
+                raise ModelError(
+                    f"model = {model.factory!r}: {target} raised {type(error).__name__}: {error}"
+                ) from None
+            sys.modules[name] = module
+    else:
+        try:
+            module = importlib.import_module(target)
+        except Exception as error:
+            raise ModelError(
+                f"model = {model.factory!r}: cannot import {target} ({type(error).__name__}: {error})"
+            ) from None
+    factory = getattr(module, function, None)
+    if not callable(factory):
+        raise ModelError(f"model = {model.factory!r}: {target} has no function {function}")
+    return factory
+
+
+def call_factory(model: ModelConfig, observation_shape: tuple[int, ...], n_actions: int) -> nn.Module:
+    """The user's network: its factory called with the arguments its signature takes."""
+    factory = load_factory(model)
+    offered = {"observation_shape": tuple(observation_shape), "n_actions": n_actions, **dict(model.factory_args)}
+    try:
+        parameters = inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        parameters = {}
+    takes_all = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
+    kwargs = offered if takes_all else {k: v for k, v in offered.items() if k in parameters}
+    unknown = [k for k in dict(model.factory_args) if k not in kwargs]
+    if unknown:
+        raise ModelError(f"model_args.{unknown[0]}: {model.factory} takes no argument {unknown[0]!r}")
+    try:
+        network = factory(**kwargs)
+    except Exception as error:
+        raise ModelError(f"model = {model.factory!r} raised {type(error).__name__}: {error}") from None
+    if not isinstance(network, nn.Module):
+        raise ModelError(f"model = {model.factory!r} returned {type(network).__name__}; valid: a torch.nn.Module")
+    return network
+
+
+def build_model(config: TrialConfig, env: Described) -> nn.Module:
+    """``config``'s network for ``env``, its initial weights drawn from torch's global RNG (the caller seeds it)."""
+    model = config.model
+    if model.factory:
+        return call_factory(model, env.observation_shape, env.n_actions)
+    if len(env.observation_shape) == 3:  # an image (Pong's frame difference, another Atari game's)
+        return create_pong_model(
+            env.n_actions,
+            model.hidden_sizes,
+            model.activation,
+            model.dropout,
+            model.architecture,
+            env.observation_shape,
+        )
+    return create_cartpole_model(
+        math.prod(env.observation_shape),
+        env.n_actions,
+        model.hidden_sizes,
+        model.activation,
+        model.dropout,
+        model.architecture,
+        model.history,
+        model.conv_channels,
+        model.kernel_size,
+    )
+
+
+def history(config: TrialConfig) -> int:
+    """Observations a step's input holds (a built-in ``cnn`` over a vector observation reads a window); 0: one."""
+    model = config.model
+    return model.history if not model.factory and model.architecture == "cnn" and not _image(config) else 0
+
+
+def _image(config: TrialConfig) -> bool:
+    from ablate.agent.envs import describe
+
+    return len(describe(config).observation_shape) == 3
+
+
+def check_model(config: TrialConfig, env: Described) -> nn.Module:
+    """Build ``config``'s network and run it on a sample observation: a ``ModelError`` unless it maps
+    (batch, *observation) to (batch, n_actions)."""
+    network = build_model(config, env)
+    steps = history(config)
+    shape = (2, steps, *env.observation_shape) if steps else (2, *env.observation_shape)
+    try:
+        with torch.no_grad():
+            network.eval()
+            logits = network(torch.zeros(shape))
+    except Exception as error:
+        raise ModelError(
+            f"model = {config.model.factory!r}: its forward fails on a batch of shape {tuple(shape)} "
+            f"({type(error).__name__}: {error})"
+        ) from None
+    if not isinstance(logits, torch.Tensor) or tuple(logits.shape) != (2, env.n_actions):
+        got = tuple(logits.shape) if isinstance(logits, torch.Tensor) else type(logits).__name__
+        raise ModelError(
+            f"model = {config.model.factory!r}: its forward returns {got} for a batch of 2; valid: (batch, n_actions) "
+            f"= (2, {env.n_actions}) logits"
+        )
+    return network
+
+
+def summary(network: nn.Module) -> str:
+    """One line: the network's layers by type, e.g. ``Linear(4->64) LayerNorm ReLU Linear(64->2)``."""
+    parts = []
+    for module in network.modules():
+        if list(module.children()):
+            continue
+        if isinstance(module, nn.Linear):
+            parts.append(f"Linear({module.in_features}->{module.out_features})")
+        elif isinstance(module, nn.Conv1d | nn.Conv2d):
+            parts.append(
+                f"{type(module).__name__}({module.in_channels}->{module.out_channels}, k{module.kernel_size[0]})"
+            )
+        else:
+            parts.append(type(module).__name__)
+    return " ".join(parts)

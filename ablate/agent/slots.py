@@ -1,0 +1,258 @@
+"""A population's environments: ``members x per_member`` slots, each slot one env of one member, stepped together.
+
+``CartPoleSlots`` runs every slot in one Gymnasium ``CartPoleVectorEnv`` (one numpy call steps them all);
+``EnvSlots`` holds one Gymnasium env per slot (any env: Acrobot, LunarLander, Atari, Pong, a user's own). Either
+way a member's resets draw only from its own streams, so a member's episodes never depend on who shares its
+process. Each slot records the episode it plays (``Memory``) until the trainer takes it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from ablate.agent.reinforce import Memory
+
+
+class Episode(NamedTuple):
+    observations: np.ndarray
+    """(T, *observation): what the policy saw at each step (its history window where it has one)."""
+    actions: np.ndarray
+    rewards: np.ndarray
+
+
+def windows(observations: np.ndarray, history: int) -> np.ndarray:
+    """(T, *obs) -> (T, history, *obs): each step's last ``history`` observations, oldest first, zeros before the
+    episode's first (what a ``cnn`` CartPole policy reads)."""
+    padded = np.concatenate([np.zeros((history - 1, *observations.shape[1:]), observations.dtype), observations])
+    return np.moveaxis(np.lib.stride_tricks.sliding_window_view(padded, history, axis=0), -1, 1)
+
+
+class _Windows:
+    """Each slot's last ``history`` observations (zeros before its episode's first): the policy's input."""
+
+    def __init__(self, slots: int, shape: tuple[int, ...], history: int) -> None:
+        self.values = np.zeros((slots, history, *shape), np.float32)
+
+    def start(self, slots: np.ndarray, observations: np.ndarray) -> None:
+        self.values[slots] = 0
+        self.values[slots, -1] = observations
+
+    def step(self, slots: np.ndarray | slice, observations: np.ndarray) -> None:
+        self.values[slots, :-1] = self.values[slots, 1:]
+        self.values[slots, -1] = observations
+
+
+class CartPoleSlots:
+    """Every slot in one ``CartPoleVectorEnv`` (Gymnasium's physics, next-step autoreset). Resets draw each
+    member's start states from that member's own stream, as its own vector env would: one stream seeded with
+    the member's seed (``CartPoleVectorEnv``, 3 envs or more a member), or one per env seeded ``seed + j``
+    (a ``SyncVectorEnv`` of ``CartPoleEnv``, below 3). The vector env's own draws are overwritten."""
+
+    low, high = -0.05, 0.05
+
+    def __init__(self, seeds: Sequence[int], per_member: int, max_episode_steps: int, history: int = 0) -> None:
+        from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
+
+        self.per_member = per_member
+        self.max_episode_steps = max_episode_steps
+        self.shared = per_member > 2
+        self.streams = [
+            [np.random.default_rng(s)] if self.shared else [np.random.default_rng(s + j) for j in range(per_member)]
+            for s in seeds
+        ]
+        self._make = lambda n: CartPoleVectorEnv(num_envs=n, max_episode_steps=max_episode_steps)
+        self.env = self._make(len(seeds) * per_member)
+        self.env.reset(seed=0)  # allocates its state; every slot's start state is drawn again by start()
+        self.raw = np.zeros((self.env.num_envs, 4), np.float32)
+        self.windows = _Windows(self.env.num_envs, (4,), history) if history else None
+        # A ring of steps (a collection lasts at most max_episode_steps): slot s's episode is rows started[s]...
+        self.capacity = max_episode_steps + 1
+        self.ring = np.zeros((self.capacity, self.env.num_envs, 4), np.float32)
+        self.actions = np.zeros((self.capacity, self.env.num_envs), np.int64)
+        self.started = np.zeros(self.env.num_envs, np.int64)
+        self.iteration = 0
+
+    @property
+    def size(self) -> int:
+        return self.env.num_envs
+
+    def observations(self) -> np.ndarray:
+        return self.raw if self.windows is None else self.windows.values
+
+    def _draw(self, slots: np.ndarray) -> None:
+        """Fresh start states for ``slots`` (ascending), each from its member's stream, written into the env."""
+        n = self.per_member
+        state = self.env.state
+        for member in np.unique(slots // n):
+            mine = slots[slots // n == member]
+            if self.shared:
+                state[:, mine] = self.streams[member][0].uniform(self.low, self.high, size=(4, len(mine)))
+            else:
+                for slot in mine:
+                    state[:, slot] = self.streams[member][slot % n].uniform(self.low, self.high, size=(4,))
+        self.raw[slots] = state[:, slots].T
+
+    def start(self, slots: np.ndarray) -> None:
+        """``slots`` begin an episode now, as their member's ``VectorEnv.reset()`` begins them."""
+        self._draw(slots)
+        self.env.steps[slots] = 0
+        self.env.prev_done[slots] = False
+        self.started[slots] = self.iteration
+        if self.windows is not None:
+            self.windows.start(slots, self.raw[slots])
+
+    def step(self, actions: np.ndarray, stepping: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every slot steps (the vector env steps all); returns (rewards, episode ended) per slot."""
+        at = self.iteration % self.capacity
+        self.ring[at] = self.raw
+        self.actions[at] = actions
+        resetting = np.flatnonzero(self.env.prev_done)
+        observations, rewards, terminated, truncated, _ = self.env.step(actions)
+        self.raw[:] = observations
+        if len(resetting):
+            self._draw(resetting)  # the autoreset's start states, from the members' own streams
+        if self.windows is not None:
+            self.windows.step(slice(None), self.raw)
+        self.iteration += 1
+        return rewards, terminated | truncated
+
+    def episode(self, slot: int, history: int = 0) -> Episode:
+        steps = self.iteration - int(self.started[slot])
+        rows = (self.started[slot] + np.arange(steps)) % self.capacity
+        observations = self.ring[rows, slot]
+        if self.windows is not None:
+            observations = windows(observations, self.windows.values.shape[1])
+        return Episode(observations, self.actions[rows, slot], np.ones(steps, np.float32))
+
+    def member_state(self, member: int) -> dict:
+        return {"env_streams": [g.bit_generator.state for g in self.streams[member]]}
+
+    def set_member_state(self, member: int, state: dict) -> None:
+        for generator, saved in zip(self.streams[member], state["env_streams"], strict=True):
+            generator.bit_generator.state = saved
+
+    def keep(self, members: list[int]) -> None:
+        """Only ``members`` go on (in this order): a smaller vector env holding their slots as they are."""
+        n = self.per_member
+        slots = (np.asarray(members)[:, None] * n + np.arange(n)).reshape(-1)
+        old = self.env
+        self.env = self._make(len(slots))
+        self.env.reset(seed=0)
+        self.env.state = np.ascontiguousarray(old.state[:, slots])
+        self.env.steps, self.env.prev_done = old.steps[slots].copy(), old.prev_done[slots].copy()
+        self.streams = [self.streams[m] for m in members]
+        self.raw = self.raw[slots].copy()
+        self.ring = np.ascontiguousarray(self.ring[:, slots])
+        self.actions = np.ascontiguousarray(self.actions[:, slots])
+        self.started = self.started[slots]
+        if self.windows is not None:
+            self.windows.values = self.windows.values[slots].copy()
+
+    def close(self) -> None:
+        self.env.close()
+
+
+class EnvSlots:
+    """One Gymnasium env per slot (``make(member, j)`` builds slot j of a member). A slot steps only while its
+    episode counts; slot j of the member with seed s is seeded ``s * 1000 + j`` at its first reset and draws its
+    later resets from its own stream. Episodes are recorded in a ``Memory`` per slot."""
+
+    def __init__(
+        self, seeds: Sequence[int], per_member: int, make: Callable[[int, int], object], history: int = 0
+    ) -> None:
+        self.per_member = per_member
+        self.envs = [make(m, j) for m in range(len(seeds)) for j in range(per_member)]
+        self.seeds: list[int | None] = [s * 1000 + j for s in seeds for j in range(per_member)]
+        space = self.envs[0].observation_space
+        self.raw = np.zeros((len(self.envs), *space.shape), space.dtype if space.dtype == np.int8 else np.float32)
+        self.windows = _Windows(len(self.envs), space.shape, history) if history else None
+        self.memories = [Memory() for _ in self.envs]
+        self.history = history
+        self.on_frame: Callable[[int, bool], None] | None = None
+        """Called with (slot, episode over) after each step and reset (the trainer's videos)."""
+
+    @property
+    def size(self) -> int:
+        return len(self.envs)
+
+    def observations(self) -> np.ndarray:
+        return self.raw if self.windows is None else self.windows.values
+
+    def start(self, slots: np.ndarray) -> None:
+        for slot in slots:
+            observation, _ = self.envs[slot].reset(seed=self.seeds[slot])
+            self.seeds[slot] = None
+            self.raw[slot] = observation
+            self.memories[slot].clear()
+            if self.on_frame is not None:
+                self.on_frame(int(slot), False)
+        if self.windows is not None:
+            self.windows.start(slots, self.raw[slots])
+
+    def step(self, actions: np.ndarray, stepping: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rewards = np.zeros(len(self.envs), np.float32)
+        ended = np.zeros(len(self.envs), bool)
+        moved = np.flatnonzero(stepping)
+        for slot in moved:
+            observation, reward, terminated, truncated, _ = self.envs[slot].step(int(actions[slot]))
+            memory = self.memories[slot]
+            memory.add_to_memory(self.raw[slot], actions[slot], reward)
+            self.raw[slot] = observation
+            rewards[slot], ended[slot] = reward, terminated or truncated
+            if self.on_frame is not None:
+                self.on_frame(int(slot), bool(ended[slot]))
+        if self.windows is not None and len(moved):
+            self.windows.step(moved, self.raw[moved])
+        return rewards, ended
+
+    def episode(self, slot: int) -> Episode:
+        memory = self.memories[slot]
+        observations = np.stack(memory.observations)
+        if self.history:
+            observations = windows(observations.astype(np.float32), self.history)
+        return Episode(observations, np.asarray(memory.actions, np.int64), np.asarray(memory.rewards, np.float32))
+
+    def member_state(self, member: int) -> dict:
+        n = self.per_member
+        return {"envs": [_env_state(self.envs[m]) for m in range(member * n, (member + 1) * n)]}
+
+    def set_member_state(self, member: int, state: dict) -> None:
+        n = self.per_member
+        for j, saved in enumerate(state["envs"]):
+            _set_env_state(self.envs[member * n + j], saved)
+            self.seeds[member * n + j] = None
+
+    def keep(self, members: list[int]) -> None:
+        n = self.per_member
+        slots = [m * n + j for m in members for j in range(n)]
+        for slot in set(range(len(self.envs))) - set(slots):
+            self.envs[slot].close()
+        self.envs = [self.envs[s] for s in slots]
+        self.seeds = [self.seeds[s] for s in slots]
+        self.memories = [self.memories[s] for s in slots]
+        self.raw = self.raw[slots].copy()
+        if self.windows is not None:
+            self.windows.values = self.windows.values[slots].copy()
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+def _env_state(env) -> dict:
+    """What a slot's next reset draws from: the emulator's state where it has one (ALE), else its np_random."""
+    base = env.unwrapped
+    if hasattr(base, "clone_state"):
+        return {"emulator": base.clone_state(include_rng=True)}
+    return {"np_random": base.np_random.bit_generator.state}
+
+
+def _set_env_state(env, saved: dict) -> None:
+    base = env.unwrapped
+    if "emulator" in saved:
+        base.restore_state(saved["emulator"])
+    else:
+        base.np_random.bit_generator.state = saved["np_random"]
