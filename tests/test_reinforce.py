@@ -162,3 +162,24 @@ def test_train_step_in_chunks_sums_the_same_gradient_as_one_pass():
     assert results[0][0].entropy == pytest.approx(results[1][0].entropy, rel=1e-5)
     for one, chunked in zip(results[0][1], results[1][1], strict=True):
         torch.testing.assert_close(one, chunked, rtol=1e-4, atol=1e-7)
+
+
+def test_discount_rewards_equals_the_float64_recursion_bit_for_bit():
+    rng = np.random.default_rng(0)
+    for gamma in (0.9, 0.95, 0.99):
+        for rewards in (rng.normal(size=300).astype(np.float32), np.ones(500, np.float32), np.ones(1)):
+            expected, running = np.zeros(len(rewards)), 0.0
+            for t in range(len(rewards) - 1, -1, -1):
+                running = float(rewards[t]) + gamma * running
+                expected[t] = running
+            np.testing.assert_array_equal(discount_rewards(rewards, gamma), expected)
+
+
+def test_two_action_sampling_is_the_general_rule_exactly():
+    from ablate.agent.reinforce import sample_actions
+
+    rng = np.random.default_rng(1)
+    logits = rng.normal(size=(4, 64, 2)).astype(np.float32) * 3
+    uniforms = rng.random((4, 64))
+    padded = np.concatenate([logits, np.full((4, 64, 1), -np.inf, np.float32)], axis=-1)  # a third, never taken
+    np.testing.assert_array_equal(sample_actions(logits, uniforms), sample_actions(padded, uniforms))

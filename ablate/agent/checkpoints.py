@@ -25,7 +25,7 @@ def checkpoint(population, position: int) -> bytes:
             "model": member.model.state_dict(),
             "optimizer": member.optimizer.state_dict(),
             "torch_rng": member.torch_rng,
-            "numpy_rng": member.actions_rng.bit_generator.state,
+            "numpy_rng": population.actions_state(position),
             "slots": population.slots.member_state(position),
             "collection": _collection_state(population, position),
             "history": [tuple(m) for m in member.history],

@@ -72,6 +72,12 @@ def sample_actions(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
     ``uniforms`` (...): a row's action depends on its logits and its uniform only, whoever shares the array."""
     # Inverse-CDF sampling on the unnormalised softmax (u scaled by the total instead of dividing every
     # probability by it); the clip guards against the last cumulative value rounding below u.
+    if logits.shape[-1] == 2:
+        # Two actions: the cumulative sums are [e0, e0 + e1] and u * (e0 + e1) < e0 + e1, so the action is whether
+        # e0 falls below it; the same float operations as the general case, five array operations instead of its
+        # reductions along a 2-wide axis.
+        exps = np.exp(logits - np.maximum(logits[..., 0], logits[..., 1])[..., None])
+        return (exps[..., 0] < uniforms * (exps[..., 0] + exps[..., 1])).astype(np.int64)
     cumulative = np.cumsum(np.exp(logits - logits.max(axis=-1, keepdims=True)), axis=-1)
     u = uniforms[..., None] * cumulative[..., -1:]
     return np.minimum((cumulative < u).sum(axis=-1), logits.shape[-1] - 1)
@@ -83,15 +89,17 @@ def discount_rewards(rewards: np.ndarray, gamma: float, reset_on_nonzero: bool =
     With ``reset_on_nonzero`` (Pong), the running return restarts at zero at every point scored
     (reward != 0): each rally is its own game, and a point must not be credited to earlier rallies.
     """
-    rewards = np.asarray(rewards, dtype=np.float64)
-    returns = np.zeros_like(rewards)
+    # Python floats are IEEE doubles: the same values as float64 arrays, at a fifth of the cost of indexing one.
+    values = np.asarray(rewards, dtype=np.float64).tolist()
+    returns = [0.0] * len(values)
     running = 0.0
-    for t in range(len(rewards) - 1, -1, -1):
-        if reset_on_nonzero and rewards[t] != 0:
+    for t in range(len(values) - 1, -1, -1):
+        reward = values[t]
+        if reset_on_nonzero and reward != 0:
             running = 0.0
-        running = rewards[t] + gamma * running
+        running = reward + gamma * running
         returns[t] = running
-    return returns
+    return np.array(returns)
 
 
 def normalize(values: np.ndarray) -> np.ndarray:

@@ -37,6 +37,9 @@ from ablate.config import TrialConfig
 MemberOutcome = TrialResult | TrialFailed
 """What a member ends with: its result, or the error that stopped it alone."""
 
+UNIFORM_BLOCK = 64
+"""Steps of action uniforms drawn from each member's stream at a time."""
+
 IMAGE_TRAIN_CHUNK = 1024
 """Observations per forward/backward in an update on images (Pong): bounds its activations (~130 MB for the CNN)."""
 
@@ -69,6 +72,8 @@ class Member:
     """Finished episodes in the order they ended (continuous)."""
     completed: int = 0
     videos: TrainingVideos | None = None
+    block_origin: dict | None = None
+    """Its action stream's state before the population's current block of uniforms was drawn."""
 
     @property
     def done(self) -> bool:
@@ -143,6 +148,8 @@ class Population:
             self.slots.on_frame = self._frame
         self.acting = stack([m.model for m in self.members], device, built_in=not first.model.factory)
         self.chunk = IMAGE_TRAIN_CHUNK if len(self.env.observation_shape) == 3 else None
+        self.block: np.ndarray | None = None
+        self.block_used = 0
 
     def slots_of(self, position: int) -> np.ndarray:
         return position * self.per_member + np.arange(self.per_member)
@@ -172,7 +179,7 @@ class Population:
         m, n = len(self.members), self.per_member
         observations = self.slots.observations()
         observations = observations.reshape(m, n, *observations.shape[1:])
-        uniforms = np.stack([member.actions_rng.random(n) for member in self.members])
+        uniforms = self._uniforms()
         actions = choose_action(self.acting, observations, single=False, uniforms=uniforms).reshape(-1)
         stepping = np.zeros(m * n, bool)
         for member in self.members:
@@ -190,6 +197,27 @@ class Population:
             if self.has_batch(member):
                 ready.append(position)
         return ready
+
+    def _uniforms(self) -> np.ndarray:
+        """(M, N): each member's next N uniforms from its own stream, drawn ``UNIFORM_BLOCK`` steps at a time (the
+        same doubles one draw a step would give: every member takes N at every step)."""
+        if self.block is None or self.block_used == UNIFORM_BLOCK:
+            for member in self.members:
+                member.block_origin = member.actions_rng.bit_generator.state
+            self.block = np.stack([m.actions_rng.random((UNIFORM_BLOCK, self.per_member)) for m in self.members])
+            self.block_used = 0
+        self.block_used += 1
+        return self.block[:, self.block_used - 1]
+
+    def actions_state(self, position: int) -> dict:
+        """Member ``position``'s action stream as if only the uniforms used so far had been drawn (a checkpoint's)."""
+        member = self.members[position]
+        if self.block is None:
+            return member.actions_rng.bit_generator.state
+        stream = np.random.PCG64()
+        stream.state = member.block_origin
+        stream.advance(self.block_used * self.per_member)  # one 64-bit draw per double
+        return stream.state
 
     def _ended(self, position: int, member: Member, slot: int) -> None:
         episode = self.slots.episode(slot)
@@ -251,6 +279,8 @@ class Population:
     def keep(self, positions: list[int]) -> None:
         """Only the members at ``positions`` go on (the others left)."""
         self.members = [self.members[p] for p in positions]
+        if self.block is not None:
+            self.block = self.block[positions]
         self.slots.keep(positions)
         self.acting.keep(positions)
         for new, member in enumerate(self.members):
