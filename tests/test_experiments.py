@@ -133,3 +133,23 @@ def test_primary_and_smallest_effect_change_no_trial_key(tmp_path):
 def test_pong_claims_rest_on_the_area_under_the_curve_by_default():
     pong = load_experiment(EXPERIMENTS / "pong.toml")
     assert pong.primary is None and pong.primary_metric == "auc"  # Pong has no solve threshold
+
+
+def test_your_model_runs_the_students_network_and_a_layernorm_one_beside_the_baseline():
+    """experiments/your-model.toml as docs/your-model.md gives it: the lab's zero-argument create_cartpole_model
+    (the built-in baseline's very layers, so the same run bit for bit) and a LayerNorm MLP with model_args."""
+    from dataclasses import replace
+
+    from ablate.agent.trainer import run_population, run_trial
+    from ablate.launch.grid import expand
+
+    experiment = load_experiment(EXPERIMENTS / "your-model.toml")
+    variants = {v.name: v.config for v in experiment.variants}
+    assert variants["student"].model.factory.endswith("student.py:create_cartpole_model")
+    assert dict(variants["layernorm"].model.factory_args) == {"width": 32}
+    assert len({t.key for t in expand(experiment)}) == 9
+    short = {name: replace(c, max_episodes=64, record_video=False) for name, c in variants.items()}
+    baseline, student = run_trial(short["baseline"]), run_trial(short["student"])
+    assert [m[:7] for m in baseline.episodes] == [m[:7] for m in student.episodes]
+    members = run_population([replace(short["layernorm"], seed=s) for s in range(3)])
+    assert all(len(m.episodes) == 64 and m.parameter_count == 4 * 32 + 32 + 2 * 32 + 32 * 2 + 2 for m in members)
