@@ -213,10 +213,15 @@ class ProgressView(TimeLeft):
     def headline(self) -> str:
         now = time.monotonic()
         counts = {s: self._count(s) for s in ("done", "running", "pending", "failed")}
+        first = self.phases[0][1]
         if self.first_start is None:
             state = "starting Ray (its workers import torch before the first trial starts)"
         elif self.trials_end is not None:
             state = "all trials ended"
+        elif (ended := sum(self.trials[k].ended_at is not None for k in first)) < len(first) / 4:
+            # Until a quarter of the launch's first trials have ended, their costs are guesses (a launch of 36 read
+            # ~0:55 where 2:08 remained): say so, not a figure. Later rounds draw on what these taught.
+            state = f"time left: estimating until a quarter of the trials have ended ({ended} of {len(first)})"
         else:
             left = self.seconds_left(now)
             state = f"~{clock(left)} left" if left is not None else "time left: once a trial reports its episodes"
