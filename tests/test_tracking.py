@@ -105,11 +105,3 @@ def test_only_the_writer_and_the_reader_import_mlflow_and_run_never_imports_repo
                 upward.add(relative)
     assert importers == {"launch/tracking.py", "launch/mlflow_store.py", "reporting/reader.py"}
     assert not upward  # the report after a launch is written by ablate/commands.py, above both layers
-
-
-def test_an_earlier_runs_population_size_is_read_off_its_population_tag():
-    from ablate.launch.tracking import _members
-
-    assert _members("a-s0-1234567890", "a-s0-1234567890") == 1  # alone: named by its own key
-    assert _members("a-s0-1234567890", "pop5-b-s3-0987654321-abcdef0123") == 5
-    assert _members("pop3-s0-1234567890", "pop3-s0-1234567890") == 1  # a variant called pop3, alone
