@@ -212,6 +212,8 @@ def test_a_population_is_tracked_as_its_members_exactly_as_each_trial_alone(run_
         assert run.status == "FINISHED" and run.metrics["episodes_run"] == 24
     # One Tune trial (one process) for the population; four for the trials alone.
     assert len(_populations(stores[4][0])) == 1 and _populations(stores[1][0]) == set(alone)
+    for population, (reader, _) in stores.items():  # its size, as a tag of its own
+        assert {r.tags["ablate.population_size"] for r in reader.trial_runs()} == {str(population)}
 
 
 @pytest.mark.e2e  # a Ray worker process that dies mid-population, and Tune's retry of the population

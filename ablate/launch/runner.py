@@ -22,11 +22,11 @@ from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
-from ablate.launch.plan import plan_populations
+from ablate.launch.plan import Population, plan_populations
 from ablate.launch.progress import ProgressView
 from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
 from ablate.launch.rounds import Judge, Rounds
-from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_POPULATION, TAG_ROLE, Tracker
+from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_POPULATION, TAG_POPULATION_SIZE, TAG_ROLE, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
 # ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
@@ -128,6 +128,13 @@ class _Recorder:
         """Set once the launch stops: a late event from the scheduler then opens no run."""
         self.summaries: dict[str, dict[str, float]] = {}
         """Summary metrics of the trials this launch finished (tuning selection reads them)."""
+        self.members: dict[str, int] = {}
+        """Each trial's population size, from the plans handed to the scheduler (``planned``)."""
+
+    def planned(self, populations: list[Population]) -> list[Population]:
+        """``populations``, as the scheduler will run them: each member's size is kept for its run's tag."""
+        self.members |= {key: len(p.members) for p in populations for key in p.keys}
+        return populations
 
     def _open(self, key: str) -> bool:
         """Open the trial's run if needed; ``False`` once the launch has stopped (the event is dropped)."""
@@ -165,7 +172,9 @@ class _Recorder:
     ) -> None:
         if not self._open(key):
             return
-        self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node, TAG_POPULATION: population or key})
+        size = str(self.members.get(key, 1))
+        tags = {TAG_NODE: node, TAG_POPULATION: population or key, TAG_POPULATION_SIZE: size}
+        self.tracker.finish_trial(key, summary, artifacts, tags=tags)
         self.outcome.finished.append(key)
         self.summaries[key] = dict(summary)
         self.view.finished(key, bool(summary.get("solved")), summary.get("wall_s"), summary)
@@ -373,7 +382,7 @@ def _run_locked(
         if rounds and rounds.ran:  # a resumed launch starts in a later round
             view.name = rounds.announce(show_progress)
         with view:
-            run_trials(populations(todo), recorder, options, run_name=run_name, resume=resume)
+            run_trials(recorder.planned(populations(todo)), recorder, options, run_name=run_name, resume=resume)
 
         def run_later(later: list[GridTrial]) -> None:  # stage 2, a round of seeds: after what ran before
             todo_after = [t for t in later if t.key not in finished_before]
@@ -387,7 +396,9 @@ def _run_locked(
                 recorder.trials |= {t.key: t for t in todo_after}
                 with view:
                     resume = tracker.latest_checkpoints(generation, (t.key for t in todo_after))
-                    run_trials(populations(todo_after), recorder, options, run_name=run_name, resume=resume)
+                    run_trials(
+                        recorder.planned(populations(todo_after)), recorder, options, run_name=run_name, resume=resume
+                    )
 
         if plan.tuning and not wanted <= set(choices):
             # Stage 2: every variant whose tuning trials all finished, at its chosen values.

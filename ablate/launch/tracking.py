@@ -27,12 +27,14 @@ from ablate.launch.mlflow_store import (  # noqa: F401 - the tags and the opener
     TAG_PARENT,
     TAG_PID,
     TAG_POPULATION,
+    TAG_POPULATION_SIZE,
     TAG_ROLE,
     TAG_SEED,
     TAG_STAGE,
     TAG_VARIANT,
     Store,
     TrialRun,
+    population_sizes,
     quiet_mlflow,
 )
 from ablate.launch.secrets import shown as redact
