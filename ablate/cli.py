@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import dataclasses
 import inspect
 import itertools
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -27,7 +29,7 @@ from ablate.launch.secrets import masked_output, remember_uri, shown
 from ablate.launch.store import insecure_http
 from ablate.launch.tracking import TrackingError
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_PIPE = 0, 1, 2, 130, 141  # 141: ended by SIGPIPE
 
 DESCRIPTION = """\
 ablate: architecture ablations of REINFORCE (vanilla policy gradient) agents on CartPole and Pong.
@@ -448,8 +450,15 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # Every line this command prints, through Python, passes the secrets' masks (ablate.launch.secrets).
     remember_uri(getattr(args, "tracking_uri", None))
-    with masked_output(), insecure_http(getattr(args, "allow_insecure_http", False)):
-        return _main(args, started_at)
+    try:
+        with masked_output(), insecure_http(getattr(args, "allow_insecure_http", False)):
+            code = _main(args, started_at)
+            sys.stdout.flush()  # here, not at exit: a closed pipe is met where it can be caught
+            return code
+    except BrokenPipeError:  # stdout's reader left (`ablate run --dry-run | head`): quietly, as Unix tools do
+        with contextlib.suppress(OSError, ValueError):  # Python's flush at exit would say it could not write
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_PIPE
 
 
 def _main(args: argparse.Namespace, started_at: float) -> int:

@@ -55,7 +55,7 @@ def bench_population(
     seeds: int = 32,
     variant: str | None = None,
 ) -> None:
-    """CartPole env steps/s per core of a population of M default trials (``agent.population``) against the same
+    """CartPole env steps/s per core of a population of M default trials (``agent.trainer``) against the same
     M trials run one at a time, in this run, medians of ``repeats`` (issue 26's goal at M = 16: >= 8x); then
     the science: over ``seeds`` seeds at the default budget, each member's whole run against its trial's, and
     episodes to solve and AUC compared by a two-sample test (Mann-Whitney U). ``variant``: that variant of

@@ -27,16 +27,17 @@ from bench_estimate import _eta_figure  # noqa: E402
 from ablate.experiment import load_experiment  # noqa: E402
 from ablate.launch import progress  # noqa: E402
 from ablate.launch.grid import GridTrial, expand, schedule_order, trial_key, tuning_trials  # noqa: E402
+from ablate.launch.mlflow_store import population_sizes  # noqa: E402
 from ablate.launch.plan import plan_populations  # noqa: E402
 from ablate.launch.tuning import StagePlan, unique  # noqa: E402
 
 
 def _events(
     db: Path, experiment: str
-) -> tuple[float, list[tuple], dict[str, dict], dict[str, tuple[float, int]], dict[str, str]]:
+) -> tuple[float, list[tuple], dict[str, dict], dict[str, tuple[float, int]], dict[str, dict[str, str]]]:
     """The newest launch's start (s), its trials' events ``(t, kind, key, payload)`` by time, each trial's
     summary metrics, the seconds and episodes each trial key took in a run finished before that launch
-    (what the runner gives the estimate of earlier launches), and each of its trials' population tag, read
+    (what the runner gives the estimate of earlier launches), and each of its trials' tags, read
     straight from an SQLite store (read-only)."""
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     (exp_id,) = con.execute("select experiment_id from experiments where name = ?", (experiment,)).fetchone()
@@ -52,7 +53,7 @@ def _events(
     ).fetchall()
     launch = max((r for r in runs if tags.get(r[0], {}).get("ablate.role") == "launch"), key=lambda r: r[1])
     generation = tags[launch[0]].get("ablate.generation")
-    events, summaries, earlier, population_tags = [], {}, {}, {}
+    events, summaries, earlier, trial_tags = [], {}, {}, {}
     for run, start, end, status in sorted(runs, key=lambda r: r[1]):
         t = tags.get(run, {})
         if t.get("ablate.role") == "trial" and status == "FINISHED" and end and start < launch[1]:
@@ -66,7 +67,7 @@ def _events(
             con.execute("select key, value from latest_metrics where run_uuid = ? and key not like 'episode/%'", (run,))
         )
         summaries[key] = metrics
-        population_tags[key] = t.get("ablate.population", "")
+        trial_tags[key] = t
         events.append((start / 1000, "started", key, None))
         points: dict[int, dict] = {}
         for name, step, stamp, value in con.execute(
@@ -83,7 +84,7 @@ def _events(
         events.append((end / 1000, "finished", key, metrics))
     order = {"started": 0, "episodes": 1, "finished": 2}
     events.sort(key=lambda e: (e[0], order[e[1]]))
-    return launch[1] / 1000, events, summaries, earlier, population_tags
+    return launch[1] / 1000, events, summaries, earlier, trial_tags
 
 
 def _rounds(events: list[tuple], before: set[str], pool: dict) -> list[list[str]]:
@@ -111,10 +112,9 @@ def _every_seed(experiment, choices) -> dict:
     return trials
 
 
-def _population_cap(populations: dict[str, str]) -> int:
-    """The most members a population of the launch's trials had (their ``ablate.population`` tags, ``popN-...``)."""
-    sizes = [int(p[3:].split("-")[0]) for p in populations.values() if p.startswith("pop")]
-    return max(sizes, default=1)
+def _population_cap(tags: dict[str, dict[str, str]]) -> int:
+    """The most members a population of the launch's trials had (their runs' tags, by key: ``population_sizes``)."""
+    return max(population_sizes(tags).values(), default=1)
 
 
 def replay(path: str, tracking_uri: str, slots: int = 2, population: int | None = None) -> dict:
@@ -123,8 +123,8 @@ def replay(path: str, tracking_uri: str, slots: int = 2, population: int | None 
     store's tags show) on ``slots`` population slots."""
     experiment = load_experiment(path)
     db = Path(tracking_uri.removeprefix("sqlite:///"))
-    start, events, summaries, earlier, population_tags = _events(db, experiment.name)
-    cap = _population_cap(population_tags) if population is None else population
+    start, events, summaries, earlier, trial_tags = _events(db, experiment.name)
+    cap = _population_cap(trial_tags) if population is None else population
 
     def populations(trials):  # the runner's plan
         return [p.keys for p in plan_populations(trials, cap=cap, slots=slots)]

@@ -6,6 +6,7 @@ import re
 import shlex
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -400,3 +401,25 @@ def test_dry_run_only_narrows_both_stages_to_the_variants_asked_for(tmp_path, ca
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("tuned: 4 tuning trials, then 2 at the base values and up to 2 at the chosen values")
     assert {line.split()[0] for line in lines[2:-2]} == {"b"}
+
+
+@pytest.mark.parametrize("seeds", [2, 1000])
+def test_dry_run_into_a_pipe_its_reader_closed_exits_quietly(tmp_path, seeds):
+    """``ablate run --dry-run | head -1``, with a real pipe: no ``BrokenPipeError`` traceback, and the status a shell
+    gives a Unix tool ended by SIGPIPE. 2 seeds: the listing fits in one write, met by a pipe closed before the
+    command starts (Python would otherwise fail at its exit's flush); 1000 seeds: ~120 kB, more than a pipe holds
+    (64 kB), so the command is still writing when the reader leaves after the first line."""
+    path = tmp_path / "listing.toml"
+    smoke = Path(__file__).parents[1] / "experiments" / "smoke.toml"
+    path.write_text(smoke.read_text().replace("seeds = 2\n", f"seeds = {seeds}\n"))
+    read, write = os.pipe()
+    if seeds == 2:
+        os.close(read)
+    argv = [sys.executable, "-m", "ablate.cli", "run", str(path), "--dry-run"]
+    proc = subprocess.Popen(argv, stdout=write, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    os.close(write)
+    if seeds != 2:
+        with os.fdopen(read) as reader:
+            assert reader.readline().startswith(f"smoke: {2 * seeds} of {2 * seeds} trials")
+    _, err = proc.communicate(timeout=120)
+    assert (proc.returncode, err) == (128 + 13, "")

@@ -5,10 +5,10 @@ order the trials start. Events go in through the live view, which holds the esti
 from dataclasses import replace
 
 import pytest
+from ablate.agent.trial import EpisodeMetrics
 from views import grid_trials as _trials
 from views import row as _row
 
-from ablate.agent.records import EpisodeMetrics
 from ablate.config import TrialConfig
 from ablate.launch.estimate import makespan
 from ablate.launch.grid import GridTrial
@@ -479,29 +479,3 @@ def test_a_trial_whose_last_report_solved_it_is_not_held_to_its_peers_rest(clock
     view.episodes("a-s1", [solved])
     # It stops here and writes its artifacts: not its peer's 100 s of training from episode 200 at its pace.
     assert view.seconds_left() == pytest.approx(205 - 200)
-
-
-def test_what_a_trial_costs_alone_is_its_peers_time_over_the_population_they_ran_in(clock):
-    """``alone_costs`` (the plan's ``work`` for a later round): four seeds that ran as one population of a kind
-    that shares 78% of a member's cost took 4 x (0.22 + 0.78 / 4) = 1.66 times one seed's time alone; a trial
-    that ran alone took its own."""
-    from ablate.agent.sharing import SHARED_COST
-
-    trials = _trials(budget=100, variants=("a", "b"), seeds=(0, 1, 2, 3, 4))
-
-    def plan(ts):  # a's first four seeds together, every other trial alone
-        keys = [t.key for t in ts]
-        together = [k for k in keys if k in ("a-s0", "a-s1", "a-s2", "a-s3")]
-        return ([together] if together else []) + [[k] for k in keys if k not in together]
-
-    view = ProgressView("x", trials, 0, enabled=False, slots=2, populations=plan)
-    for key in ("a-s0", "a-s1", "a-s2", "a-s3", "b-s0"):
-        view.started(key)
-    clock.now += 16.6
-    for key in ("a-s0", "a-s1", "a-s2", "a-s3", "b-s0"):
-        view.episodes(key, [_row(100, 50.0)])
-        view.finished(key, solved=False)
-    crowd = 4 * (SHARED_COST["mlp"] + (1 - SHARED_COST["mlp"]) / 4)
-    costs = view.alone_costs([t for t in trials if t.key in ("a-s4", "b-s1")])
-    assert costs == {"a-s4": pytest.approx(16.6 / crowd), "b-s1": pytest.approx(16.6)}
-    assert costs["a-s4"] == pytest.approx(10.0, rel=0.01)

@@ -4,9 +4,9 @@ member recorded as its own trial, one that fails failing alone, a population who
 from dataclasses import replace
 
 import pytest
+from ablate.agent.trial import run_trial
 from stores import fresh_store
 
-from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT, ModelConfig
 from ablate.experiment import load_experiment
 from ablate.launch.grid import GridTrial, expand, trial_key
@@ -81,90 +81,6 @@ def test_groups_split_into_balanced_populations_in_start_order(tmp_path):
     assert plan[0].members[0] == narrow[0]
 
 
-def _pong(tmp_path, stage="eval"):
-    experiment = load_experiment("experiments/pong.toml")
-    return [t for t in expand(experiment) if t.stage == stage]
-
-
-def test_a_group_that_costs_more_spreads_over_the_slots(tmp_path):
-    """pong.toml's evaluation trials: 5 CNN and 5 MLP seeds on 2 slots. With the CNN's members known to cost
-    twice the MLP's, the CNN's seeds spread over both slots (one population each would leave the MLP's slot
-    idle for a third of the stage); with equal costs, one population per arm keeps both slots busy."""
-    trials = _pong(tmp_path)
-    costs = {t.key: 2.0 if t.variant == "cnn" else 1.0 for t in trials}
-    sizes = {
-        v: sorted(len(p.members) for p in plan_populations(trials, 8, 2, costs) if p.members[0].variant == v)
-        for v in ("cnn", "mlp")
-    }
-    assert len(sizes["cnn"]) >= 2 and sum(sizes["cnn"]) == 5 and sum(sizes["mlp"]) == 5
-    equal = plan_populations(trials, 8, 2, {t.key: 1.0 for t in trials})
-    assert sorted(len(p.members) for p in equal) == [5, 5]
-
-
-def test_a_plan_holds_up_when_nothing_is_known_of_costs(tmp_path):
-    """The first stage of a launch knows no cost: each arm spreads so that either one costing twice the other
-    still leaves no slot idle for long (``HEDGE``)."""
-    from ablate.launch.estimate import makespan
-    from ablate.launch.plan import HEDGE
-
-    trials = _pong(tmp_path)
-    plan = plan_populations(trials, 8, 2)
-    for slow in ("cnn", "mlp"):
-        costs = [sum(HEDGE if t.variant == slow else 1.0 for t in p.members) for p in plan]
-        one_each = [5 * HEDGE, 5.0]
-        assert makespan([], costs, 2) < 0.9 * makespan([], one_each, 2)
-
-
-def test_groups_that_share_more_of_a_members_cost_split_less(tmp_path, monkeypatch):
-    """The same 18 trials (a dense group of 12, a ``cnn`` group of 6) on 2 slots, nothing known of their costs:
-    with CartPole's sharing (16 dense members run 3.7x one trial) the plan splits less than it would were members
-    to share as little as Pong's do, since each split pays again for what its members shared."""
-    from ablate.agent import sharing as stacked
-
-    _, trials = _trials(tmp_path)
-    cartpole = plan_populations(trials, cap=16, slots=2)
-    monkeypatch.setitem(stacked.SHARED_COST, "mlp", stacked.SHARED_COST["pong"])
-    monkeypatch.setitem(stacked.SHARED_COST, "cnn", stacked.SHARED_COST["pong"])
-    assert len(cartpole) < len(plan_populations(trials, cap=16, slots=2))
-
-
-def test_a_split_must_be_predicted_to_end_10_percent_sooner(monkeypatch):
-    """The default CartPole ablation's last rounds: 7 variants x 5 seeds of about equal cost on 2 slots.
-    Splitting the costliest (8 populations) is predicted ~6% sooner, which two launches did not bear out."""
-    from ablate.launch import plan as plan_module
-
-    experiment = load_experiment("experiments/cartpole.toml")
-    trials = [t for t in expand(experiment) if t.variant not in ("baseline", "l2", "course")]
-    variants = list(dict.fromkeys(t.variant for t in trials))
-    work = {t.key: 1.0 + 0.01 * variants.index(t.variant) for t in trials}
-    assert [len(p.members) for p in plan_populations(trials, 8, 2, work)] == [5] * 7
-    monkeypatch.setattr(plan_module, "GAIN", 0.99)
-    assert sorted(len(p.members) for p in plan_populations(trials, 8, 2, work)) == [2, 3, 5, 5, 5, 5, 5, 5]
-
-
-def test_a_members_cost_alone_is_its_seconds_over_its_populations_crowd(tmp_path):
-    from ablate.agent.sharing import SHARED_COST
-    from ablate.launch.plan import alone_cost
-
-    _, trials = _trials(tmp_path)
-    dense = trials[0]
-    assert alone_cost(10.0, dense, 1) == 10.0
-    assert alone_cost(10.0, dense, 4) == pytest.approx(10.0 / (4 * SHARED_COST["mlp"] + 1 - SHARED_COST["mlp"]))
-    # Costs that say nothing (zero, NaN, infinite) are unknown, not a crash.
-    work = {trials[0].key: float("inf"), trials[1].key: float("nan"), trials[2].key: 0.0}
-    assert sum(len(p.members) for p in plan_populations(trials, 8, 2, work)) == len(trials)
-
-
-def test_members_of_unequal_cost_balance_their_group(tmp_path):
-    """Two costly seeds of six go to different populations (round-robin by start order would put both in one)."""
-    _, trials = _trials(tmp_path)
-    narrow = [t for t in trials if t.variant == "narrow"]
-    costs = {t.key: 5.0 if i in (0, 2) else 1.0 for i, t in enumerate(narrow)}
-    plan = plan_populations(narrow, cap=4, slots=1, work=costs)
-    assert [sum(costs[t.key] for t in p.members) for p in plan] == [7.0, 7.0]
-    assert plan[0].members[0] == narrow[0]  # each population's members in their start order
-
-
 def test_a_population_key_is_stable_and_names_its_members():
     config = replace(DEFAULT, max_episodes=5)
     members = tuple(GridTrial(trial_key("v", replace(config, seed=s)), "v", s, replace(config, seed=s)) for s in (0, 1))
@@ -174,18 +90,16 @@ def test_a_population_key_is_stable_and_names_its_members():
 
 @pytest.mark.slow
 def test_a_launch_of_populations_records_every_member_as_its_own_trial(run_quiet, tmp_path):
-    """Through real Ray and MLflow: 12 CartPole trials in populations of several members (with members that
-    raise after their first update, and members whose process dies at the start, once), 6 CNN trials in others.
-    Each member is a trial of its own key and one run, its curve and artifacts a trial's; its first update's
-    episodes are those of its trial run alone."""
+    """Through real Ray and MLflow: 12 CartPole trials in two populations of 6 (each with members that raise
+    after their first update, and members whose process dies at the start, once), 6 CNN trials in one. Each
+    member is a trial of its own key and one run, its curve and artifacts a trial's; its first update's episodes
+    are those of its trial run alone."""
     marker = tmp_path / "crashed"
     text = SEEDS.replace('name = "narrow_fast"', 'name = "narrow_fast"\nfault = "raise"', 1).replace(
         'name = "narrow"\n', f'name = "narrow"\nfault = "crash_once"\nfault_marker = "{marker}"\n', 1
     )
     experiment, trials = _trials(tmp_path, text)
-    # On 2 slots, nothing known of costs: 3 populations of 6 would leave a slot idle for a third of the launch.
-    plan = plan_populations(trials, cap=6, slots=2)
-    assert all(1 < len(p.members) <= 6 for p in plan) and any(len({t.variant for t in p.members}) == 2 for p in plan)
+    assert [len(p.members) for p in plan_populations(trials, cap=6, slots=2)] == [6] * 3
     uri = fresh_store(tmp_path / "mlflow.db")
     outcome = run_quiet(experiment, tmp_path, uri, population=6)
     assert marker.exists()  # the populations holding a narrow trial died once at their start, and were retried
@@ -298,6 +212,8 @@ def test_a_population_is_tracked_as_its_members_exactly_as_each_trial_alone(run_
         assert run.status == "FINISHED" and run.metrics["episodes_run"] == 24
     # One Tune trial (one process) for the population; four for the trials alone.
     assert len(_populations(stores[4][0])) == 1 and _populations(stores[1][0]) == set(alone)
+    for population, (reader, _) in stores.items():  # its size, as a tag of its own
+        assert {r.tags["ablate.population_size"] for r in reader.trial_runs()} == {str(population)}
 
 
 @pytest.mark.e2e  # a Ray worker process that dies mid-population, and Tune's retry of the population

@@ -44,6 +44,21 @@ def test_running_rows_and_total_line(clock):
     assert view.total_line(report_s=7) == "total 0:21 (until the first trial started 0:09, trials 0:05, report 0:07)"
 
 
+def test_before_a_quarter_of_the_trials_end_the_time_left_is_not_a_figure(clock):
+    """The first trials' costs are guesses (a launch of 36 read ~0:55 where 2:08 remained): until a quarter of
+    them have ended the line says it is estimating, though the estimate (which ``make bench`` scores) exists."""
+    view = ProgressView("x", _trials(variants=("a", "b"), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=2)
+    for key in ("a-s0", "b-s0"):
+        view.started(key)
+    clock.now += 10
+    view.episodes("a-s0", [_row(50, 20.0), _row(100, 30.0)])
+    view.finished("a-s0", solved=False)
+    assert view.seconds_left() is not None
+    assert view.headline().endswith("elapsed, time left: estimating until a quarter of the trials have ended (1 of 8)")
+    view.failed("b-s0")  # 2 of 8 ended, failed or not: a figure from here
+    assert re.search(r"elapsed, ~\d+:\d\d left$", view.headline()), view.headline()
+
+
 def test_stage_without_a_terminal_prints_a_line_before_and_after(capsys):
     with stage("writing the report") as seconds:
         assert capsys.readouterr().out == "writing the report ...\n"

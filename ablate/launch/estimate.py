@@ -105,7 +105,7 @@ class TrialProgress:
     @cached_property
     def threshold(self) -> float | None:
         """The rolling mean at which it stops, solved (``run_trial``'s own rule)."""
-        from ablate.agent.trainer import solve_threshold  # the driver has it loaded once trials run
+        from ablate.agent.trial import solve_threshold  # the driver has it loaded once trials run
 
         return solve_threshold(self.trial.config)
 
@@ -163,10 +163,6 @@ class CostsSeen:
     pace: float = 1.0
     """How fast the launch runs now against the finished trials it is held to: the running trials' median
     pace (2: half as fast), 1 while none has one."""
-    crowds: dict[tuple[str, str], float] = field(default_factory=dict)
-    """Per ``settings``: how many times its cost alone its finished trials took, for the population each ran
-    in (``agent.sharing.member_cost``: M members of a kind that shares ``share`` take ``M * (share + (1 -
-    share) / M)`` times one's cost; 1 alone), their mean."""
 
 
 class TimeLeft:
@@ -229,12 +225,6 @@ class TimeLeft:
         for t in done:
             if t.profile and t.reports:
                 profiled.setdefault((t.settings, t.budget), []).append(t)
-        from ablate.agent.sharing import crowd  # torch: only once there is a plan
-
-        crowds: dict[tuple[str, str], list[float]] = {}
-        for t in done:
-            members = len(self.population_of.get(t.trial.key, (t.trial.key,)))
-            crowds.setdefault(t.settings, []).append(crowd(t.trial.config, members))
         paces = {}
         for t in self.trials.values():
             if t.state != "running":
@@ -255,7 +245,6 @@ class TimeLeft:
             profiled=profiled,
             paces=paces,
             pace=statistics.median(paces.values()) if paces else 1.0,
-            crowds={settings: statistics.fmean(c) for settings, c in crowds.items()},
         )
 
     @staticmethod
@@ -308,22 +297,6 @@ class TimeLeft:
             return cost
         rate = seen.rates.get(trial.trial.variant) or seen.rates.get(None)
         return None if rate is None else rate * trial.budget + seen.overhead_s
-
-    def alone_costs(self, trials: Sequence[GridTrial], now: float | None = None) -> dict[str, float]:
-        """Seconds each of ``trials`` is expected to take alone, where this launch has shown (``launch.plan``'s
-        ``work``): what its finished peers took (``_peer_cost``), over the crowd they ran in. A trial an earlier
-        launch ran is left to that run (``plan.alone_cost``, over the population it ran in)."""
-        now = time.monotonic() if now is None else now
-        seen = self._costs_seen(now)
-        costs = {}
-        for trial in trials:
-            if trial.key in self.prior:
-                continue
-            progress = self.trials.get(trial.key) or TrialProgress(trial)
-            cost = self._peer_cost(progress, seen)
-            if cost is not None:
-                costs[trial.key] = cost / seen.crowds.get(progress.settings, 1.0)
-        return costs
 
     def expected_cost(self, variant: str, now: float | None = None) -> float | None:
         """Expected seconds of a trial of ``variant`` that has not started (its first pending one)."""

@@ -9,6 +9,8 @@ import contextlib
 import logging
 import os
 import unicodedata
+from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,10 +41,25 @@ TAG_HOST, TAG_PID = "ablate.host", "ablate.pid"
 TAG_NODE = "ablate.node"
 TAG_POPULATION = "ablate.population"
 """The population (``launch.plan.Population.key``) a trial trained in: members of one share a process."""
+TAG_POPULATION_SIZE = "ablate.population_size"
+"""Its members, ``1`` for a trial alone (``population_sizes`` reads it, and stands in for it on older runs)."""
 TAG_NAME = "ablate.name"
 """On an MLflow experiment whose name is a storage name (``experiment.storage_name``): the name as written."""
 TAG_STAGE = "ablate.stage"
 """``tune`` (a tuning trial, stage 1 of a ``[tune]`` experiment) or ``eval``; runs without it are ``eval``."""
+
+
+def population_sizes(tags: Mapping[str, Mapping[str, str]]) -> dict[str, int]:
+    """Each trial's population size, from its run's tags (``tags``: by trial key, one run each): its
+    ``TAG_POPULATION_SIZE``; on a run written before that tag, the trials given whose ``TAG_POPULATION`` is
+    its own (1 without one), the population's key being a name, not a record to parse."""
+    population = {key: t.get(TAG_POPULATION) or key for key, t in tags.items()}
+    counted = Counter(population.values())
+    sizes = {}
+    for key, t in tags.items():
+        size = t.get(TAG_POPULATION_SIZE, "")
+        sizes[key] = int(size) if size.isdigit() else counted[population[key]]
+    return sizes
 
 
 def quiet_mlflow() -> None:

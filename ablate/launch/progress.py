@@ -44,7 +44,6 @@ class ProgressView(TimeLeft):
         provisional: Callable[[Mapping[str, Mapping[str, float]]], Sequence[GridTrial]] | None = None,
         prior_episodes: Mapping[str, int] | None = None,
         populations: Callable[[Sequence[GridTrial]], Sequence[Sequence[str]]] | None = None,
-        plan: Sequence[Sequence[str]] | None = None,
     ) -> None:
         """``trials`` in the order they will start. ``slots``: trials (populations) that can run at once
         (``None``: the most seen running at once). ``start``: the ``time.monotonic()`` the command started at,
@@ -56,15 +55,14 @@ class ProgressView(TimeLeft):
         be if stage 1 ended now (each variant at its best candidate so far), asked again as tuning trials end.
         ``prior_episodes``: episodes by trial key that earlier launches ran (``Tracker.earlier_runs``).
         ``populations``: the launch's plan (``launch.plan``) as member keys: a population holds one of ``slots``
-        until its last member ends (``None``: every trial alone). ``plan``: ``trials``' populations as the launch
-        formed them (else as ``populations`` forms them)."""
+        until its last member ends (``None``: every trial alone)."""
         self.name = name
         self.trials = {t.key: TrialProgress(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
         self.already_done = already_done
         self.slots = slots
         self.populations = populations
-        self.population_of = self._plan_of(trials, plan)
+        self.population_of = self.plan(trials)
         self.start = time.monotonic() if start is None else start
         self.first_start: float | None = None
         self.trials_end: float | None = None
@@ -159,29 +157,19 @@ class ProgressView(TimeLeft):
             self._log_estimate(trial.ended_at)
         self.refresh()
 
-    def alone_costs(self, trials: Sequence[GridTrial], now: float | None = None) -> dict[str, float]:
-        with self.lock:  # the refresh thread's estimate reads (and caches into) the same trials
-            return super().alone_costs(trials, now)
-
-    def _plan_of(self, trials: Sequence[GridTrial], plan: Sequence[Sequence[str]] | None) -> dict[str, tuple[str, ...]]:
-        if plan is None:
-            return self.plan(trials)
-        return {key: tuple(group) for group in plan for key in group}
-
     def add_trials(
         self,
         trials: Sequence[GridTrial],
         prior_costs: Mapping[str, float] | None = None,
         prior_episodes: Mapping[str, int] | None = None,
-        plan: Sequence[Sequence[str]] | None = None,
     ) -> None:
         """The next stage's trials, now known, in the order they will start (none: it has nothing to run), with
-        what earlier launches' runs of them took and their populations (as the constructor's). They replace the
-        ``later`` guesses; what this launch learned of costs carries over."""
+        what earlier launches' runs of them took (as the constructor's). They replace the ``later`` guesses;
+        what this launch learned of costs carries over."""
         with self.lock:
             self.prior |= prior_costs or {}
             self.prior_episodes |= prior_episodes or {}
-            self.population_of |= self._plan_of(trials, plan)
+            self.population_of |= self.plan(trials)
             if self._stage_coming:  # the stage its stand-ins stood for
                 self.phases[-1][1].extend(t.key for t in trials)
             elif trials:  # a round of seeds: the estimate could not see it coming
@@ -213,10 +201,15 @@ class ProgressView(TimeLeft):
     def headline(self) -> str:
         now = time.monotonic()
         counts = {s: self._count(s) for s in ("done", "running", "pending", "failed")}
+        first = self.phases[0][1]
         if self.first_start is None:
             state = "starting Ray (its workers import torch before the first trial starts)"
         elif self.trials_end is not None:
             state = "all trials ended"
+        elif (ended := sum(self.trials[k].ended_at is not None for k in first)) < len(first) / 4:
+            # Until a quarter of the launch's first trials have ended, their costs are guesses (a launch of 36 read
+            # ~0:55 where 2:08 remained): say so, not a figure. Later rounds draw on what these taught.
+            state = f"time left: estimating until a quarter of the trials have ended ({ended} of {len(first)})"
         else:
             left = self.seconds_left(now)
             state = f"~{clock(left)} left" if left is not None else "time left: once a trial reports its episodes"

@@ -22,11 +22,11 @@ from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
-from ablate.launch.plan import alone_cost, plan_populations
+from ablate.launch.plan import Population, plan_populations
 from ablate.launch.progress import ProgressView
 from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
 from ablate.launch.rounds import Judge, Rounds
-from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_POPULATION, TAG_ROLE, Tracker
+from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_POPULATION, TAG_POPULATION_SIZE, TAG_ROLE, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
 # ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
@@ -128,6 +128,13 @@ class _Recorder:
         """Set once the launch stops: a late event from the scheduler then opens no run."""
         self.summaries: dict[str, dict[str, float]] = {}
         """Summary metrics of the trials this launch finished (tuning selection reads them)."""
+        self.members: dict[str, int] = {}
+        """Each trial's population size, from the plans handed to the scheduler (``planned``)."""
+
+    def planned(self, populations: list[Population]) -> list[Population]:
+        """``populations``, as the scheduler will run them: each member's size is kept for its run's tag."""
+        self.members |= {key: len(p.members) for p in populations for key in p.keys}
+        return populations
 
     def _open(self, key: str) -> bool:
         """Open the trial's run if needed; ``False`` once the launch has stopped (the event is dropped)."""
@@ -165,7 +172,9 @@ class _Recorder:
     ) -> None:
         if not self._open(key):
             return
-        self.tracker.finish_trial(key, summary, artifacts, tags={TAG_NODE: node, TAG_POPULATION: population or key})
+        size = str(self.members.get(key, 1))
+        tags = {TAG_NODE: node, TAG_POPULATION: population or key, TAG_POPULATION_SIZE: size}
+        self.tracker.finish_trial(key, summary, artifacts, tags=tags)
         self.outcome.finished.append(key)
         self.summaries[key] = dict(summary)
         self.view.finished(key, bool(summary.get("solved")), summary.get("wall_s"), summary)
@@ -334,7 +343,7 @@ def _run_locked(
     outcome.launch_run_id = launch
     slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
     # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
-    prior, prior_episodes, prior_members = tracker.earlier_runs(t.key for t in todo)
+    prior, prior_episodes = tracker.earlier_runs(t.key for t in todo)
     todo = schedule_order(todo, prior)
     # Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
     # choose now (each variant's best candidate so far), asked again as each one ends.
@@ -346,29 +355,16 @@ def _run_locked(
         return [t for t in trials if t.variant in unchosen]
 
     stage_two = provisional if unchosen else None
-    # Populations: each holds a slot until its last member ends, which the estimate sees through the plan. They
-    # are sized by what their members are expected to cost: earlier launches' runs, then what this one shows.
+    # Populations: each holds a slot until its last member ends, which the estimate sees through the plan.
     cores = slots or max(int(biggest), 1)
     populations = partial(plan_populations, cap=population, slots=cores)
-    by_key = {t.key: t for t in known}
-
-    def alone(seconds: Mapping[str, float], members: Mapping[str, int]) -> dict[str, float]:
-        return {key: alone_cost(s, by_key[key], members.get(key, 1)) for key, s in seconds.items() if key in by_key}
-
-    first = populations(todo, work=alone(prior, prior_members))
-    planned: dict[tuple[str, ...], list[list[str]]] = {}
-
-    def plan_keys(trials: Sequence[GridTrial]) -> list[list[str]]:
-        """The estimate's plan for stand-ins (stage 2 as chosen so far), asked at every estimate: the same
-        trials, the same plan (no costs are passed, so nothing else changes it)."""
-        keys = tuple(t.key for t in trials)
-        if keys not in planned:
-            planned[keys] = [p.keys for p in populations(trials)]
-        return planned[keys]
-
     args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
     view = ProgressView(
-        *args, provisional({}) if unchosen else [], stage_two, prior_episodes, plan_keys, [p.keys for p in first]
+        *args,
+        provisional({}) if unchosen else [],
+        stage_two,
+        prior_episodes,
+        lambda trials: [p.keys for p in populations(trials)],
     )
     outcome.view = view
     recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
@@ -386,23 +382,23 @@ def _run_locked(
         if rounds and rounds.ran:  # a resumed launch starts in a later round
             view.name = rounds.announce(show_progress)
         with view:
-            run_trials(first, recorder, options, run_name=run_name, resume=resume)
+            run_trials(recorder.planned(populations(todo)), recorder, options, run_name=run_name, resume=resume)
 
         def run_later(later: list[GridTrial]) -> None:  # stage 2, a round of seeds: after what ran before
             todo_after = [t for t in later if t.key not in finished_before]
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)
             # Seeds interleaved, as in stage 1; the same view, so what stage 1 taught of costs carries over.
-            costs, episodes, members = tracker.earlier_runs(t.key for t in todo_after)  # earlier launches' runs
+            costs, episodes = tracker.earlier_runs(t.key for t in todo_after)  # earlier launches' runs of them
             todo_after = schedule_order(todo_after, costs)
-            by_key.update((t.key, t) for t in todo_after)
-            plan = populations(todo_after, work=view.alone_costs(todo_after) | alone(costs, members))
-            view.add_trials(todo_after, costs, episodes, [p.keys for p in plan])
+            view.add_trials(todo_after, costs, episodes)
             if todo_after:
                 recorder.trials |= {t.key: t for t in todo_after}
                 with view:
                     resume = tracker.latest_checkpoints(generation, (t.key for t in todo_after))
-                    run_trials(plan, recorder, options, run_name=run_name, resume=resume)
+                    run_trials(
+                        recorder.planned(populations(todo_after)), recorder, options, run_name=run_name, resume=resume
+                    )
 
         if plan.tuning and not wanted <= set(choices):
             # Stage 2: every variant whose tuning trials all finished, at its chosen values.

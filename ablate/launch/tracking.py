@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import re
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -28,12 +27,14 @@ from ablate.launch.mlflow_store import (  # noqa: F401 - the tags and the opener
     TAG_PARENT,
     TAG_PID,
     TAG_POPULATION,
+    TAG_POPULATION_SIZE,
     TAG_ROLE,
     TAG_SEED,
     TAG_STAGE,
     TAG_VARIANT,
     Store,
     TrialRun,
+    population_sizes,
     quiet_mlflow,
 )
 from ablate.launch.secrets import shown as redact
@@ -113,18 +114,16 @@ class Tracker(Store):
     def finished_keys(self, generation: str) -> set[str]:
         return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
 
-    def earlier_runs(self, keys: Iterable[str]) -> tuple[dict[str, float], dict[str, int], dict[str, int]]:
-        """Seconds each of ``keys`` took (its run's start to end), the episodes it ran and the members of the
-        population it trained in (1: alone), when an earlier launch, of any generation, finished it; the newest
-        such run counts. A trial key fixes everything that shapes the trial, its seed included, so an earlier run
-        of it is the best guess of its cost and of where it stops: the time-left estimate starts from these, and
-        the plan from its cost alone (``plan.alone_cost``: a member's seconds are its population's clock)."""
+    def earlier_runs(self, keys: Iterable[str]) -> tuple[dict[str, float], dict[str, int]]:
+        """Seconds each of ``keys`` took (its run's start to end) and the episodes it ran, when an earlier
+        launch, of any generation, finished it; the newest such run counts. A trial key fixes everything that
+        shapes the trial, its seed included, so an earlier run of it is the best guess of its cost and of where
+        it stops: the time-left estimate starts from these."""
         runs = self._newest_finished(keys)
         costs = {key: max(r.info.end_time - r.info.start_time, 0) / 1000 for key, r in runs.items()}
-        episodes = {
+        return costs, {
             key: int(r.data.metrics["episodes_run"]) for key, r in runs.items() if "episodes_run" in r.data.metrics
         }
-        return costs, episodes, {key: _members(key, r.data.tags.get(TAG_POPULATION, key)) for key, r in runs.items()}
 
     def _newest_finished(self, keys: Iterable[str]) -> dict[str, Any]:
         wanted = set(keys)
@@ -384,12 +383,3 @@ def _param_text(value: Any) -> str:
     if isinstance(value, tuple | list):
         return json.dumps(list(value))
     return str(value)
-
-
-def _members(key: str, population: str) -> int:
-    """Members of the population a run of ``key`` trained in, from its ``TAG_POPULATION`` (``plan.Population.key``:
-    ``pop{M}-...``, or the trial's own key for a trial alone, whatever its variant is called)."""
-    if population == key:
-        return 1
-    match = re.match(r"pop(\d+)-", population)
-    return int(match.group(1)) if match else 1
