@@ -5,10 +5,10 @@ order the trials start. Events go in through the live view, which holds the esti
 from dataclasses import replace
 
 import pytest
-from ablate.agent.trial import EpisodeMetrics
 from views import grid_trials as _trials
 from views import row as _row
 
+from ablate.agent.records import EpisodeMetrics
 from ablate.config import TrialConfig
 from ablate.launch.estimate import makespan
 from ablate.launch.grid import GridTrial

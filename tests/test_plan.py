@@ -4,9 +4,9 @@ member recorded as its own trial, one that fails failing alone, a population who
 from dataclasses import replace
 
 import pytest
-from ablate.agent.trial import run_trial
 from stores import fresh_store
 
+from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT, ModelConfig
 from ablate.experiment import load_experiment
 from ablate.launch.grid import GridTrial, expand, trial_key
