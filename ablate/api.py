@@ -163,6 +163,7 @@ def _write_report(
     baseline: str | None = None,
     generation: str | None = None,
 ) -> Path:
+    from ablate.launch.secrets import shown
     from ablate.reporting.document import build_report
 
     uri = _check_store(tracking_uri)
@@ -174,7 +175,7 @@ def _write_report(
         variants=list(variants) if variants else None,
         baseline=baseline,
         pdf=pdf,
-        command=f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})",
+        command=shown(f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})"),
     )
     if result.missing_note:  # written without some trials' files: say which, in one line
         print(result.missing_note, file=sys.stderr)

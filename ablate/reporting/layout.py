@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ablate.launch.secrets import Shown, shown_command
 from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
 from ablate.reporting.figures import esc as _esc
@@ -126,7 +127,7 @@ def build_markdown(
     videos: list[dict[str, str]],
     table: pd.DataFrame,
     compare: pd.DataFrame,
-    command: str = "",
+    command: Shown | None = None,
     untuned: pd.DataFrame | None = None,
     discussion: Discussion | None = None,
     discussion_path: str = "discussion.md",
@@ -244,7 +245,8 @@ def build_markdown(
         parts.append("")
     every = [text for _, text in limitations(ablation, table, compare)]
     parts += [f"### {letters['limitations']}. Every limitation {GENERATED}", "", *[f"- {t}" for t in every], ""]
-    parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", _reproducibility(ablation, command), ""]
+    record = _reproducibility(ablation, command or shown_command(["ablate", "report", ablation.name]))
+    parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", record, ""]
     parts += [f"### {letters['glossary']}. Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
     text = "\n".join(parts)
     for key, value in {
