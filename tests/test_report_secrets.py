@@ -52,7 +52,7 @@ def test_a_password_in_the_tracking_uri_reaches_no_report_file_artifact_or_outpu
     folder = tmp_path / "reports" / "secret"
     assert _files_holding(folder, PASSWORD) == []
     text = (folder / "report.md").read_text()
-    assert "ablate report secret --tracking-uri 'http://alice:***@127.0.0.1:5999' --no-pdf" in text  # the record
+    assert "ablate report secret --tracking-uri http://alice:***@127.0.0.1:5999 --no-pdf" in text  # the record
     attached = list((tmp_path / "store").rglob("report.md"))  # the report as the launch run's artifact
     assert attached and _files_holding(tmp_path / "store", PASSWORD) == []
 

@@ -159,8 +159,14 @@ def shown(text: Any) -> Shown:
 
 def shown_command(words: Sequence[str]) -> Shown:
     """A command line as ablate records it (a report's provenance, a launch's tag): its words masked one by one,
-    then shell-quoted (a quote cannot split a password out of the mask's reach) and the line masked again."""
-    return shown(" ".join(shlex.quote(shown(word)) for word in words))
+    then shell-quoted (so a quote cannot split a password out of the mask's reach), and the line masked again.
+    The mask alone does not quote a word: ``--tracking-uri http://alice:***@host`` reads as typed."""
+
+    def quoted(word: str) -> str:
+        plain = word.replace(MASK, "")
+        return word if shlex.quote(plain) == plain else shlex.quote(word)
+
+    return shown(" ".join(quoted(shown(word)) for word in words))
 
 
 class MaskedStream:
