@@ -24,7 +24,7 @@ from ablate.config import ConfigError
 from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
 from ablate.launch.secrets import Shown, shown_command
 from ablate.reporting import discussion
-from ablate.reporting.comparisons import comparisons
+from ablate.reporting.comparisons import claims_table, comparisons
 from ablate.reporting.figures import (
     figure_improvement,
     figure_observation,
@@ -228,15 +228,17 @@ def _build(
     for sub in ("figures", "tables", "videos"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     table = convergence_table(ablation)
-    compare = comparisons(ablation)
+    claimed = claims_table(ablation)  # computed once: claims.csv, comparisons' claim column and the report's words
+    compare = comparisons(ablation, claims=claimed)
     table.to_csv(folder / "tables" / "convergence.csv", index=False)
+    claimed.to_csv(folder / "tables" / "claims.csv", index=False)
     compare.to_csv(folder / "tables" / "comparisons.csv", index=False)
     trials_table(ablation.trials).to_csv(folder / "tables" / "trials.csv", index=False)
     untuned = None
     if ablation.tuning_trials is not None:
         ablation.tuning_trials.to_csv(folder / "tables" / "tuning.csv", index=False)
     if ablation.untuned is not None:
-        untuned = comparisons(ablation.untuned, power=False)
+        untuned = comparisons(ablation.untuned, power=False)  # the dependence section reads its exploratory words
     figures_folder = folder / "figures"
     candidates = [
         figure_overview(ablation, figures_folder),
@@ -258,7 +260,9 @@ def _build(
         figure.caption = figure.caption.replace("Figures 1-2", "Figures " + " and ".join(map(str, curves)))
     videos = _videos(ablation, tracker, folder / "videos")
     where = final / discussion.FILE
-    text, html_md = build_markdown(ablation, figures, videos, table, compare, command, untuned, written, str(where))
+    text, html_md = build_markdown(
+        ablation, figures, videos, table, compare, command, untuned, written, str(where), claimed
+    )
     text, html_md = number_tables(text), number_tables(html_md)
     (folder / "report.md").write_text(text)
     body = markdown.markdown(html_md, extensions=["tables"])

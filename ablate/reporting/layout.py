@@ -131,8 +131,10 @@ def build_markdown(
     untuned: pd.DataFrame | None = None,
     discussion: Discussion | None = None,
     discussion_path: str = "discussion.md",
+    claimed: pd.DataFrame | None = None,
 ) -> tuple[str, str]:
-    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks)."""
+    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks). ``claimed``: the
+    claims table (``comparisons.claims_table``) the Claims section is written from; computed when not given."""
     discussion = discussion or Discussion(None, None)
     failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
     numbers = {Path(f.path).stem: f.number for f in figures}
@@ -163,7 +165,7 @@ def build_markdown(
     parts += [lost, ""] if lost else []
     parts += [f"## Question {GENERATED}", "", question(ablation), ""]
     parts += [f"## Method {GENERATED}", "", method_paragraph(ablation, letters), ""]
-    parts += [f"## Claims {GENERATED}", "", summary(ablation, table, compare), ""]
+    parts += [f"## Claims {GENERATED}", "", summary(ablation, table, compare, claimed), ""]
     confounded = [line for line in comparison_intro(ablation) if line]
     if confounded:
         parts += [" ".join(confounded), ""]
