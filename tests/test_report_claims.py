@@ -97,3 +97,23 @@ def test_the_comparisons_repeat_the_claims_on_the_primary_rows_in_their_own_word
             seeds = f"more than {row.seeds_cap}" if math.isinf(row.seeds_needed) else f"about {int(row.seeds_needed)}"
             assert f"Seeds needed (the primary claim's): {seeds} seeds per variant" in line, line
         assert line.count("Seeds needed") <= 1, line
+
+
+def test_an_interval_open_at_one_end_is_worded_from_its_closed_end():
+    # "better: 43% fewer (interval: at least 51% fewer, no upper end)" read an interval [-51%, +inf) backwards
+    from ablate.claims import Question
+    from ablate.reporting.findings import claim_line
+
+    question = Question("episodes_to_solve", relative=True, lower_is_better=True, smallest_effect=0.1, budget=40)
+    row = dict(variant="v", reference="base", metric="episodes_to_solve", verdict="better", change=-43.0, bound="")
+    row |= dict(variant_value=18.0, reference_value=31.0, n_variant=6, n_reference=6, level=0.0167, seeds_cap=100)
+    row |= dict(seeds_needed=np.nan, reason="")
+    words = {
+        (-51.0, np.inf): "interval: from 51% fewer, no upper end",
+        (18.0, np.inf): "interval: at least 18% more, no upper end",
+        (-np.inf, -20.0): "interval: at least 20% fewer, no lower end",
+        (-np.inf, 30.0): "interval: at most 30% more, no lower end",
+    }
+    for (low, high), expected in words.items():
+        line = claim_line(pd.Series(row | {"change_low": low, "change_high": high}), question)
+        assert expected in line, line

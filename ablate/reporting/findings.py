@@ -251,10 +251,10 @@ def _effect_words(row: pd.Series, question: Question) -> str:
             interval = "no interval"
         elif not np.isfinite(low) and not np.isfinite(high):
             interval = "its interval at the family level is unbounded with so few seeds"
-        elif not np.isfinite(high):
-            interval = f"interval: at least {side(low)}, no upper end"
-        elif not np.isfinite(low):
-            interval = f"interval: at most {side(high)}, no lower end"
+        elif not np.isfinite(high):  # [low, +inf): at least low more, or anything from low fewer up
+            interval = f"interval: {'at least' if low >= 0 else 'from'} {side(low)}, no upper end"
+        elif not np.isfinite(low):  # (-inf, high]: at least high fewer, or anything up to high more
+            interval = f"interval: {'at least' if high <= 0 else 'at most'} {side(high)}, no lower end"
         elif high < 0:
             interval = f"interval {_pct(-high / 100)} to {_pct(-low / 100)} fewer"
         elif low > 0:
