@@ -166,6 +166,7 @@ def _write_report(
     baseline: str | None = None,
     generation: str | None = None,
 ) -> Path:
+    from ablate.launch.secrets import shown
     from ablate.reporting.document import build_report
 
     uri = _check_store(tracking_uri)
@@ -177,7 +178,7 @@ def _write_report(
         variants=list(variants) if variants else None,
         baseline=baseline,
         pdf=pdf,
-        command=f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})",
+        command=shown(f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})"),
     )
     if result.missing_note:  # written without some trials' files: say which, in one line
         print(result.missing_note, file=sys.stderr)
@@ -217,18 +218,24 @@ def load(
 class Results:
     """One ablation as read from its store, the tables the report writes as DataFrames.
 
+    ``claims``: the report's primary claims, one row per line of its Claims section, as ``tables/claims.csv``
+    (docs/python.md has a table of its columns): ``variant``, ``reference``, ``metric``, ``verdict`` (better,
+    worse, equivalent, undetermined), ``change``, ``change_low``, ``change_high`` (the simultaneous interval, in
+    ``change_unit``), ``bound``, ``n_variant``, ``n_reference``, ``level`` (Holm's), ``seeds_needed``, ...
     ``trials``: one row per trial (variant, seed, status, episodes to solve, AUC, ...), as ``tables/trials.csv``.
     ``curves``: long form, one row per trial and episode (variant, seed, episode, return, rolling_mean, wall_s).
     ``convergence``: one row per variant (solved seeds, episodes to solve with intervals, final return, ...),
-    as ``tables/convergence.csv``. ``comparisons``: each variant against its reference, per metric, with its
-    interval and verdict, as ``tables/comparisons.csv``; its columns (docs/python.md has a table of them):
-    ``variant``, ``reference``, ``metric``; ``point``, ``low``, ``high`` (positive is better: episodes
-    1 - IQM ratio, returns the IQM difference); ``change``, ``change_low``, ``change_high`` in ``change_unit``
-    (the report's sign and units: episodes the % change of the IQM, + is more episodes; returns the difference);
-    ``verdict`` (better, worse, not separated, no claim); ``bound`` ("", "at least", "censored");
-    ``variant_value``, ``reference_value`` (the IQMs); ``n_variant``, ``n_reference`` (seeds); ``loo_checked``,
-    ``fragile_seeds`` (the leave-one-seed-out check); ``seeds_needed``, ``seeds_needed_smallest`` (``inf``: more
-    than ``seeds_cap``); ``seeds_cap``; ``p_improvement``, ``p_improvement_ci_low``, ``p_improvement_ci_high``.
+    as ``tables/convergence.csv``. ``comparisons``: each variant against its reference, per metric, each judged
+    on its own (exploratory, not claims), as ``tables/comparisons.csv``; its columns: ``variant``, ``reference``,
+    ``metric``; ``point``, ``low``, ``high`` (positive is better: episodes 1 - IQM ratio, returns the IQM
+    difference); ``change``, ``change_low``, ``change_high`` in ``change_unit`` (the report's sign and units:
+    episodes the % change of the IQM, + is more episodes; returns the difference); ``verdict`` (exploratory:
+    better, exploratory: worse, exploratory: not separated, exploratory: too few seeds); ``primary`` (on the
+    primary metric) and ``claim`` (there, the family verdict of ``claims``; "" elsewhere); ``bound`` ("", "at
+    least", "censored"); ``variant_value``, ``reference_value`` (the IQMs); ``n_variant``, ``n_reference``
+    (seeds); ``loo_checked``, ``fragile_seeds`` (the leave-one-seed-out check); ``seeds_needed`` (primary rows:
+    the claim's), ``seeds_needed_smallest`` (``inf``: more than ``seeds_cap``); ``seeds_cap``;
+    ``p_improvement``, ``p_improvement_ci_low``, ``p_improvement_ci_high``.
     ``tuning``: a tuned launch's stage 1, one row per tuning trial (variant, seed, each tuned knob, the metric,
     status), as ``tables/tuning.csv``; empty for an untuned ablation. ``figure(name)``: one of the report's figures.
     """
@@ -271,10 +278,16 @@ class Results:
         return trials if self.ablation.tuning and trials is not None else pandas.DataFrame()
 
     @cached_property
+    def claims(self) -> pd.DataFrame:
+        from ablate.reporting.comparisons import claims_table
+
+        return claims_table(self.ablation)
+
+    @cached_property
     def comparisons(self) -> pd.DataFrame:
         from ablate.reporting.comparisons import comparisons
 
-        return comparisons(self.ablation)
+        return comparisons(self.ablation, claims=self.claims)
 
     def figure(self, name: str = "curves") -> MplFigure:
         """One of the report's figures as a matplotlib figure (a notebook shows it inline): ``curves``

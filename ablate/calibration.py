@@ -200,7 +200,12 @@ def aa_reports(
     import numpy as np
 
     from ablate.claims import BETTER, EQUIVALENT, WORSE, Design, Question, Sample, decide
-    from ablate.reporting.statistics import _episodes_comparison, _return_comparison
+    from ablate.reporting.statistics import (
+        EXPLORATORY_BETTER,
+        EXPLORATORY_WORSE,
+        _episodes_comparison,
+        _return_comparison,
+    )
 
     trials = trials.sort_values("seed").reset_index(drop=True)
     if len(trials) < variants * seeds:
@@ -246,7 +251,7 @@ def aa_reports(
                     verdict = _episodes_comparison(values[x], values[y], flags[x], flags[y])[3]
                 else:
                     verdict = _return_comparison(values[x], values[y])[3]
-                hit = verdict in ("better", "worse")
+                hit = verdict in (EXPLORATORY_BETTER, EXPLORATORY_WORSE)
                 per_metric[metric] += hit
                 claimed |= hit
         old += claimed

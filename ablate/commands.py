@@ -5,7 +5,6 @@ launch layer (``run.runner``) and the report layer, which the launch layer itsel
 from __future__ import annotations
 
 import argparse
-import shlex
 import signal
 import sys
 import time
@@ -16,7 +15,7 @@ from ablate.experiment import load_experiment
 from ablate.launch.clock import clock, stage
 from ablate.launch.grid import expand, select
 from ablate.launch.runner import raise_interrupted, run_experiment, signals_received
-from ablate.launch.secrets import shown
+from ablate.launch.secrets import shown_command
 from ablate.reporting.rounds import judge_for
 
 
@@ -40,7 +39,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
     if args.population < 1:
         raise ConfigError(f"--population = {args.population} is invalid; valid: an integer >= 1")
-    command = shown(" ".join(shlex.quote(a) for a in ["ablate", *sys.argv[1:]]))  # as it is recorded and shown
+    command = shown_command(["ablate", *sys.argv[1:]])  # as it is recorded and shown
     try:
         outcome = run_experiment(
             experiment,

@@ -105,6 +105,7 @@ def test_load_returns_the_tables_ablate_report_writes(notebook_run, tmp_path):
         (results.trials, "trials"),
         (results.convergence, "convergence"),
         (results.comparisons, "comparisons"),
+        (results.claims, "claims"),
     ):
         written = pd.read_csv(tmp_path / "quickstart" / "tables" / f"{name}.csv")
         through_csv = pd.read_csv(io.StringIO(frame.to_csv(index=False)))  # the same text round trip

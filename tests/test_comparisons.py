@@ -59,7 +59,7 @@ def test_an_unsolved_variant_gets_a_lower_bound_not_an_estimate_with_an_upper_en
 def test_both_sides_censored_claim_nothing_on_episodes():
     ablation = _frame({"baseline": [None, None, None, 900, 800], "narrow": [None, None, None, 1000, 1100]})
     comparison = compare_metric(ablation, "narrow", "episodes_to_solve")
-    assert comparison.bound == "censored" and comparison.verdict == "not separated"
+    assert comparison.bound == "censored" and comparison.verdict == "exploratory: not separated"
     assert "cannot separate" in _findings_text(ablation)
 
 
@@ -69,25 +69,25 @@ def test_when_episodes_cannot_separate_the_area_under_the_curve_can():
         {"baseline": BASELINE_4_OF_5, "narrow": [650, None, None, None, 720]},
         metric_values={"baseline": [290, 300, 310, 320, 200], "narrow": [150, 160, 170, 180, 240]},
     )
-    assert compare_metric(ablation, "narrow", "episodes_to_solve").verdict == "not separated"
+    assert compare_metric(ablation, "narrow", "episodes_to_solve").verdict == "exploratory: not separated"
     auc = compare_metric(ablation, "narrow", "auc")
-    assert auc.verdict == "worse" and auc.high < 0
-    assert re.search(r"area under the curve \(AUC\): \*\*lower\*\*", _findings_text(ablation))
+    assert auc.verdict == "exploratory: worse" and auc.high < 0
+    assert re.search(r"area under the curve \(AUC\): \*exploratory: worse\*, \*\*lower\*\*", _findings_text(ablation))
 
 
 def test_three_seeds_against_three_support_no_claim():
     assert smallest_p_value(3, 3) == pytest.approx(0.1) and smallest_p_value(5, 5) == pytest.approx(2 / 252)
     ablation = _frame({"a": [10, 11, 12], "b": [50, 60, 70]}, budget=100)
-    assert compare_metric(ablation, "b", "episodes_to_solve").verdict == "no claim"
+    assert compare_metric(ablation, "b", "episodes_to_solve").verdict == "exploratory: too few seeds"
     assert "no ordering of the seeds can reach 95%" in _findings_text(ablation)
     # ... one verdict a student can repeat, said once for all, and the estimate with no direction words
     # (issue 19 item 6: "no claim" beside "the seeds suggest higher"); 3 seeds: the "IQM" is the mean, so named
     text = _findings_text(ablation)
     assert text.count("no ordering of the seeds can reach 95%") == 1
     (line,) = [x for x in text.splitlines() if "episodes to solve:" in x]
-    assert "**too few seeds to tell**. mean 60 vs 11 episodes" in line and "suggest" not in text
+    assert "*exploratory: too few seeds*. mean 60 vs 11 episodes" in line and "suggest" not in text
     assert "IQM" not in line and "no claim" not in text
-    assert "Seeds needed: **too few seeds**: about 4 per variant" in line
+    assert "Seeds needed (the primary claim's): about 6 seeds per variant would decide it" in line
     from ablate.reporting.findings import summary
 
     claims = summary(ablation, convergence_table(ablation), comparisons(ablation))
@@ -95,7 +95,7 @@ def test_three_seeds_against_three_support_no_claim():
     assert "**b** vs a: **undetermined** (no ordering of 3 and 3 seeds reaches the family level" in claims
     never = _frame({"a": [None, None, None], "b": [None, None, 50]}, budget=100)  # both IQMs use the budget
     (episodes_line,) = [line for line in _findings_text(never).splitlines() if "episodes to solve" in line]
-    assert "episodes cannot separate them" in episodes_line and "vs" not in episodes_line.split("tell**.")[1]
+    assert "episodes cannot separate them" in episodes_line and "vs" not in episodes_line.split("seeds*.")[1]
 
 
 def test_leave_one_seed_out_marks_a_claim_that_rests_on_some_seeds():
@@ -105,10 +105,11 @@ def test_leave_one_seed_out_marks_a_claim_that_rests_on_some_seeds():
         metric_values={"a": [10, 10.5, 11, 11.5, 12], "b": [11, 12, 13, 14, 25]},
     )
     fragile = compare_metric(ablation, "b", "auc")
-    assert fragile.verdict == "better" and fragile.fragile_seeds == (1, 2, 3)
+    assert fragile.verdict == "exploratory: better" and fragile.fragile_seeds == (1, 2, 3)
     # by hand: without seed 1, b = [11, 13, 14, 25] against a = [10, 11, 11.5, 12]; the claim no longer holds
     without = ablation.trials[ablation.trials.seed != 1]
-    assert compare_metric(replace(ablation, trials=without), "b", "auc", stability=False).verdict != "better"
+    again = compare_metric(replace(ablation, trials=without), "b", "auc", stability=False)
+    assert again.verdict != "exploratory: better"
     robust = _frame(
         {"a": [10] * 5, "b": [10] * 5},
         budget=100,
@@ -121,7 +122,7 @@ def test_leave_one_seed_out_marks_a_claim_that_rests_on_some_seeds():
         {"a": [10] * 4, "b": [10] * 4}, budget=100, metric_values={"a": [10, 11, 12, 13], "b": [20, 21, 22, 23]}
     )
     comparison = compare_metric(four, "b", "auc")  # 3 and 3 seeds left: no claim could survive, none is checked
-    assert comparison.verdict == "better" and comparison.fragile_seeds == () and not comparison.loo_checked
+    assert comparison.verdict == "exploratory: better" and comparison.fragile_seeds == () and not comparison.loo_checked
     assert "Fragile" not in _findings_text(four) and "were not checked that way" in _findings_text(four)
 
 
@@ -129,7 +130,7 @@ def test_one_seed_gives_no_interval_and_no_crash():
     ablation = _frame({"a": [10], "b": [None]}, budget=100)
     table = convergence_table(ablation)
     assert np.isnan(table.loc[0, "episodes_iqm_ci_low"])
-    assert all(v == "no claim" for v in comparisons(ablation).verdict)
+    assert all(v == "exploratory: too few seeds" for v in comparisons(ablation).verdict)
     assert "1 seed gives no interval" in _findings_text(ablation)
 
 
@@ -139,10 +140,10 @@ def test_not_separated_reads_as_no_effect_this_large_or_too_few_seeds():
         {"a": [100] * 5, "b": [100] * 5}, metric_values={"a": [10, 30, 50, 20, 40], "b": [11, 31, 51, 21, 41]}
     )
     (line,) = [x for x in _findings_text(close).splitlines() if "area under the curve" in x]
-    assert "not separated" in line and "**no effect this large**: even 50 seeds" in line, line
+    assert "exploratory: not separated" in line and "**no effect this large**: even 50 seeds" in line, line
     far = _frame({"a": [100] * 5, "b": [100] * 5}, metric_values={"a": [10, 30, 50, 20, 40], "b": [25, 45, 65, 35, 55]})
     (line,) = [x for x in _findings_text(far).splitlines() if "area under the curve" in x]
-    assert "not separated" in line and "**too few seeds**: about" in line, line
+    assert "exploratory: not separated" in line and "**too few seeds**: about" in line, line
     row = comparisons(far).set_index("metric").loc["auc"]
     assert 5 < row.seeds_needed <= 50 and row.seeds_needed_smallest > row.seeds_needed  # 10% of 30 < 15
 
@@ -181,7 +182,11 @@ def test_the_table_carries_the_reports_sign_and_units_and_a_testable_seed_cap():
     assert f"change {row.change:+.0f}%" in text and f"95% CI {row.change_low:+.0f}% to {row.change_high:+.0f}%" in text
     auc = compare[compare.metric == "auc"].iloc[0]
     assert auc.change == auc.point and auc.change_unit.startswith("return")
-    assert (compare.seeds_cap == SEEDS_CAP).all()
+    from ablate.claims import SEEDS_CAP as CLAIMS_CAP
+
+    assert (compare[~compare.primary].seeds_cap == SEEDS_CAP).all() and (
+        compare[compare.primary].seeds_cap == CLAIMS_CAP
+    ).all()
     needed = compare.seeds_needed.dropna()
     assert not ((needed > SEEDS_CAP) & ~np.isinf(needed)).any()  # past the cap it is inf, never cap + 1
 
@@ -232,12 +237,37 @@ def test_an_undetermined_claim_says_why_and_the_seeds_it_would_take():
     assert all(re.search(r"(about \d+|more than 100) seeds per variant would", x) for x in lines)
 
 
-def test_the_claims_table_has_one_row_per_comparison_and_every_verdict_field():
-    from ablate.claims import Verdict
-    from ablate.reporting.comparisons import claims_table
+def test_the_claims_table_has_one_row_per_comparison_in_the_reports_units():
+    from ablate.reporting.comparisons import CLAIM_COLUMNS, claims_table
 
     ablation = _frame({"baseline": [500, 520, 480, 510, 530], "slower": [700, 650, 720, 690, 710]})
     table = claims_table(ablation)
-    assert list(table.columns) == list(Verdict.__dataclass_fields__) and len(table) == 1
+    assert list(table.columns) == list(CLAIM_COLUMNS) and len(table) == 1
     row = table.iloc[0]
-    assert row.verdict == "worse" and row.metric == "episodes_to_solve" and row.estimate > 0.3
+    assert row.verdict == "worse" and row.metric == "episodes_to_solve"
+    assert row.change == pytest.approx(100 * (700 / 510 - 1)) and row.change_low > 0  # IQMs 700 vs 510 episodes
+    assert (row.variant_value, row.reference_value) == pytest.approx((700, 510))
+    assert (row.n_variant, row.n_reference) == (5, 5) and row.level == pytest.approx(0.05)
+    # the exploratory table repeats the claim on its primary row, and its own words are not the claims'
+    compare = comparisons(ablation, claims=table)
+    primary = compare[compare.primary]
+    assert list(primary.metric) == ["episodes_to_solve"] and list(primary.claim) == ["worse"]
+    assert set(compare[~compare.primary].claim) == {""}
+    assert all(v.startswith("exploratory: ") for v in compare.verdict)
+    empty = claims_table(_frame({"baseline": [500, 520]}))  # nothing compared: the columns stay
+    assert list(empty.columns) == list(CLAIM_COLUMNS) and empty.empty
+
+
+def test_every_claims_column_is_documented_in_python_md_and_help():
+    from pathlib import Path
+
+    from ablate.api import Results
+    from ablate.reporting.comparisons import CLAIM_COLUMNS
+
+    page = (Path(__file__).parents[1] / "docs" / "python.md").read_text()
+    section = page.split("## The report's claims, in one line")[1].split("\n## ")[0]
+    assert 'ablate.load("cartpole").claims' in section
+    for column in CLAIM_COLUMNS:
+        assert f"`{column}`" in section, column
+    for column in ("variant", "verdict", "change_low", "level", "seeds_needed"):
+        assert f"``{column}``" in Results.__doc__.split("``trials``")[0], column

@@ -4,6 +4,8 @@ check, no tuning), and the student's discussion.md kept across regenerations and
 
 import re
 
+import numpy as np
+import pandas as pd
 import pytest
 from test_report import make_store, rising
 from test_report_tuning import make_tuned_store
@@ -38,7 +40,7 @@ def stores(tmp_path_factory):
 def test_too_few_seeds_for_any_claim_promises_no_leave_one_out(stores, tmp_path):
     _, uri = stores
     text = _report(tmp_path, "three", uri)
-    assert "too few seeds to tell" in text
+    assert "*exploratory: too few seeds*" in text
     assert "no comparison here reached a claim, so no claim was checked by leaving out a seed" in _body(text)
     assert "survives leaving out any one seed" not in text and "marked **fragile**" not in text
 
@@ -234,16 +236,17 @@ def test_seeds_that_differ_between_variants_are_said_as_a_range_not_the_grids_co
 
 
 def test_a_difference_claimed_by_a_later_holm_step_says_why_its_interval_still_reaches_no_change():
-    from ablate.claims import Question, Verdict
+    from ablate.claims import Question
     from ablate.reporting.findings import claim_line
 
     question = Question("episodes_to_solve", relative=True, lower_is_better=True, smallest_effect=0.1, budget=100)
-    fields = dict(variant="v", reference="base", metric="episodes_to_solve", verdict="worse", estimate=0.86)
-    fields |= dict(p_difference=0.004, p_equivalence=0.9, level=0.01, margin=0.1, n_variant=30, n_reference=30)
-    fields |= dict(look=5, bound="", seeds_needed=None, seeds_estimated=False, seeds_cap=100, reason="")
-    crossing = claim_line(Verdict(low=-0.07, high=1.63, **fields), question, (1049.0, 564.0))
+    fields = dict(variant="v", reference="base", metric="episodes_to_solve", verdict="worse", change=86.0)
+    fields |= dict(p_difference=0.004, p_equivalence=0.9, level=0.01, margin=10.0, n_variant=30, n_reference=30)
+    fields |= dict(look=5, bound="", seeds_needed=np.nan, seeds_cap=100, reason="")
+    fields |= dict(variant_value=1049.0, reference_value=564.0)
+    crossing = claim_line(pd.Series(dict(change_low=-7.0, change_high=163.0, **fields)), question)
     assert "Holm's step-down made this claim at the 1.00% level" in crossing and "still reaches no change" in crossing
-    clear = claim_line(Verdict(low=0.03, high=1.63, **fields), question, (1049.0, 564.0))
+    clear = claim_line(pd.Series(dict(change_low=3.0, change_high=163.0, **fields)), question)
     assert "Holm" not in clear
 
 

@@ -133,5 +133,6 @@ def test_the_tuned_report(tuned, tmp_path, monkeypatch):
     depends = text.split("Does the finding depend on the learning rate? (generated)")[1].split("\n### ")[0]
     assert "deep vs baseline on area under the curve (AUC) (flips)" in depends
     (line,) = [x for x in depends.splitlines() if x.startswith("- deep vs baseline, area under")]
-    assert "**better**" in line.split("; at the chosen")[0] and "**worse**" in line.split("; at the chosen")[1]
+    assert "**exploratory: better**" in line.split("; at the chosen")[0]
+    assert "**exploratory: worse**" in line.split("; at the chosen")[1]
     assert "One training setting for all architectures" not in text and "Tuned over 3 candidates" in text

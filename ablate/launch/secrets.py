@@ -13,8 +13,9 @@ import configparser
 import contextlib
 import os
 import re
+import shlex
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 from urllib.parse import quote, unquote
@@ -141,18 +142,31 @@ def secret_values() -> list[str]:
     return sorted((v for v in values if len(v) >= MIN_SECRET), key=len, reverse=True)
 
 
-def shown(text: Any) -> str:
+class Shown(str):
+    """Text that passed ``shown``: what a report's provenance and a launch's record take, so that no command line
+    or URI reaches them unmasked (they refuse a plain ``str``)."""
+
+
+def shown(text: Any) -> Shown:
     """``text`` (a message, a command line, a URI, an exception) as ablate may show or record it: every URI's
     password, credential-like parameter and secret this process holds masked."""
     text = mask_uri(str(text))
     for value in secret_values():
         if value in text:
             text = text.replace(value, MASK)
-    return text
+    return Shown(text)
 
 
-def shown_argv(argv: list[str]) -> list[str]:
-    return [shown(arg) for arg in argv]
+def shown_command(words: Sequence[str]) -> Shown:
+    """A command line as ablate records it (a report's provenance, a launch's tag): its words masked one by one,
+    then shell-quoted (so a quote cannot split a password out of the mask's reach), and the line masked again.
+    The mask alone does not quote a word: ``--tracking-uri http://alice:***@host`` reads as typed."""
+
+    def quoted(word: str) -> str:
+        plain = word.replace(MASK, "")
+        return word if shlex.quote(plain) == plain else shlex.quote(word)
+
+    return shown(" ".join(quoted(shown(word)) for word in words))
 
 
 class MaskedStream:

@@ -11,10 +11,9 @@ import pandas as pd
 from ablate.claims import Design, Question, Round, Sample, decide
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import (
-    BETTER,
     CONFIDENCE,
     SEEDS_CAP,
-    WORSE,
+    SEPARATED,
     _episodes_comparison,
     _return_comparison,
     iqm,
@@ -39,7 +38,8 @@ class Comparison:
     low: float
     high: float
     verdict: str
-    """``better``, ``worse``, ``not separated`` or ``no claim``."""
+    """The exploratory rule's word (``statistics.EXPLORATORY``): ``exploratory: better``, ``exploratory: worse``,
+    ``exploratory: not separated`` or ``exploratory: too few seeds``; never a claim (``claims_table`` has those)."""
     bound: str
     """``""`` (an estimate), ``"at least"`` (censoring makes the point a bound on the size of the
     difference) or ``"censored"`` (both sides censored: episodes cannot separate them)."""
@@ -94,13 +94,13 @@ def compare_metric(
     x, y, x_cens, y_cens = samples(done)
     point, low, high, verdict, bound = judge(done)
     needed = smallest = np.nan
-    if power and verdict not in (BETTER, WORSE) and bound != "censored" and min(len(x), len(y)) >= 2:
+    if power and verdict not in SEPARATED and bound != "censored" and min(len(x), len(y)) >= 2:
         relative = x_cens is not None
         needed = seeds_needed(x, y, relative, x_cens, y_cens)
         smallest = seeds_needed(x, y, relative, x_cens, y_cens, effect=ablation.smallest_effect)
     fragile: list[int] = []
     loo_checked = smallest_p_value(len(x) - 1, len(y) - 1) <= 1 - CONFIDENCE
-    if stability and verdict in (BETTER, WORSE) and loo_checked:
+    if stability and verdict in SEPARATED and loo_checked:
         for seed in sorted(set(done.seed)):
             if judge(done[done.seed != seed])[3] != verdict:
                 fragile.append(int(seed))
@@ -136,9 +136,17 @@ def comparison_metrics(ablation: Ablation) -> list[str]:
     return [m for m in metrics if m == "episodes_to_solve" or m in ablation.trials]
 
 
-def comparisons(ablation: Ablation, stability: bool = True, power: bool = True) -> pd.DataFrame:
+def comparisons(
+    ablation: Ablation, stability: bool = True, power: bool = True, claims: pd.DataFrame | None = None
+) -> pd.DataFrame:
     """Each variant against its reference (``Ablation.reference``) on each metric of ``comparison_metrics``,
-    plus the probability of improvement on episodes to solve (censored): one row per (variant, metric)."""
+    plus the probability of improvement on episodes to solve (censored): one row per (variant, metric). A row on
+    the primary metric is ``primary`` and carries its family verdict in ``claim`` (``""`` elsewhere) and the
+    claims' ``seeds_needed`` (one figure per comparison); ``claims``: the claims table, computed when not given
+    (``claims_table``)."""
+    if claims is None:
+        claims = claims_table(ablation, primary_claims(ablation, estimate_seeds=power))
+    claimed = {(r.variant, r.reference): r for r in claims.itertuples()}
     done = ablation.finished
     rows = []
     for variant in ablation.variants:
@@ -149,28 +157,29 @@ def comparisons(ablation: Ablation, stability: bool = True, power: bool = True) 
         if len(sample) == 0 or len(reference) == 0:
             continue
         for metric in comparison_metrics(ablation):
-            c = compare_metric(ablation, variant, metric, stability, power)
+            claim = claimed.get((variant, ablation.reference(variant))) if metric == ablation.primary_metric else None
+            c = compare_metric(ablation, variant, metric, stability, power and claim is None)
             row = {k: getattr(c, k) for k in Comparison.__dataclass_fields__}
             row["fragile_seeds"] = " ".join(map(str, c.fragile_seeds))
             row["reference"] = ablation.reference(variant)
+            row["primary"] = claim is not None
+            row["claim"] = claim.verdict if claim is not None else ""
+            if claim is not None:  # the claims' seeds, not a second estimate beside them
+                row["seeds_needed"], row["seeds_needed_smallest"] = claim.seeds_needed, np.nan
+                row["seeds_cap"] = claim.seeds_cap
             if metric == "episodes_to_solve":
                 row["p_improvement"] = probability_of_improvement(sample, reference)
                 row["p_improvement_ci_low"], row["p_improvement_ci_high"] = probability_of_improvement_interval(
                     sample, reference
                 )
             rows.append(row)
-    columns = [
-        *Comparison.__dataclass_fields__,
-        "reference",
-        "p_improvement",
-        "p_improvement_ci_low",
-        "p_improvement_ci_high",
-    ]
-    frame = pd.DataFrame(rows)
-    for column in columns:
-        if column not in frame:
-            frame[column] = np.nan if column.startswith("p_") else ""
+    columns = [*Comparison.__dataclass_fields__, "reference", "primary", "claim", *P_IMPROVEMENT, "seeds_cap"]
+    frame = pd.DataFrame(rows, columns=columns)
+    frame["primary"] = frame.primary.astype(bool)
     return in_report_units(frame)
+
+
+P_IMPROVEMENT = ("p_improvement", "p_improvement_ci_low", "p_improvement_ci_high")
 
 
 CHANGE_UNITS = {
@@ -192,10 +201,11 @@ def in_report_units(frame: pd.DataFrame) -> pd.DataFrame:
     frame["change_low"] = np.where(episodes, -100 * high, low)
     frame["change_high"] = np.where(episodes, -100 * low, high)
     frame["change_unit"] = [CHANGE_UNITS[bool(e)] for e in episodes]
-    frame["seeds_cap"] = SEEDS_CAP
+    cap = pd.to_numeric(frame.get("seeds_cap", pd.Series(np.nan, frame.index)), errors="coerce").fillna(SEEDS_CAP)
+    frame["seeds_cap"] = cap.astype(int)  # the exploratory rule's cap; a primary row's is the claims'
     for column in ("seeds_needed", "seeds_needed_smallest"):
         values = pd.to_numeric(frame[column], errors="coerce")
-        frame[column] = values.where(~(values > SEEDS_CAP), np.inf)
+        frame[column] = values.where(~(values > cap), np.inf)
     return frame
 
 
@@ -208,11 +218,8 @@ def primary_question(ablation: Ablation) -> Question:
     return Question(metric, episodes, episodes, ablation.smallest_effect, budget)
 
 
-def primary_claims(ablation: Ablation, intervals: bool = True, estimate_seeds: bool = True) -> Round:
-    """Every variant against its reference on the primary metric, as one family (``ablate.claims.decide``),
-    judged as a fixed design at the seeds that finished: each verdict with its interval and, where
-    undetermined, the seeds per variant it would take."""
-    question = primary_question(ablation)
+def _claim_samples(ablation: Ablation, question: Question) -> dict[str, Sample]:
+    """Each variant's values on the primary metric in seed order (what ``decide`` reads the looks from)."""
     done = ablation.finished.sort_values("seed")
     samples = {}
     for variant in ablation.variants:
@@ -221,6 +228,15 @@ def primary_claims(ablation: Ablation, intervals: bool = True, estimate_seeds: b
             samples[variant] = Sample(rows.censored_episodes.to_numpy(float), (rows.solved != 1).to_numpy())
         elif question.metric in rows:
             samples[variant] = Sample(rows[question.metric].to_numpy(float))
+    return samples
+
+
+def primary_claims(ablation: Ablation, intervals: bool = True, estimate_seeds: bool = True) -> Round:
+    """Every variant against its reference on the primary metric, as one family (``ablate.claims.decide``),
+    judged as a fixed design at the seeds that finished: each verdict with its interval and, where
+    undetermined, the seeds per variant it would take."""
+    question = primary_question(ablation)
+    samples = _claim_samples(ablation, question)
     references = {
         v: ablation.reference(v)
         for v in ablation.variants
@@ -241,13 +257,71 @@ def claims_design(ablation: Ablation) -> Design:
     return Design.fixed(max(seeds, 1))
 
 
+CLAIM_COLUMNS = (
+    "variant",
+    "reference",
+    "metric",
+    "verdict",
+    "change",
+    "change_low",
+    "change_high",
+    "change_unit",
+    "bound",
+    "variant_value",
+    "reference_value",
+    "n_variant",
+    "n_reference",
+    "level",
+    "margin",
+    "p_difference",
+    "p_equivalence",
+    "seeds_needed",
+    "seeds_cap",
+    "look",
+    "reason",
+)
+"""The columns of ``tables/claims.csv`` and ``Results.claims`` (docs/python.md describes each)."""
+
+
 def claims_table(ablation: Ablation, result: Round | None = None) -> pd.DataFrame:
-    """The primary claims as a frame: one row per comparison, one column per ``ablate.claims.Verdict`` field
-    (verdict, estimate, low, high, p_difference, p_equivalence, level, margin, seeds, seeds_needed, ...)."""
-    from dataclasses import asdict
-
-    from ablate.claims import Verdict
-
+    """The primary claims, computed once: one row per comparison on the primary metric, judged as one family
+    (``primary_claims``), in the report's sign and units (``change``: episodes the % change of the IQM, + is more
+    episodes; AUC and returns the difference); ``variant_value``/``reference_value``: the IQMs of the seeds the
+    verdict rests on; ``level``: the nominal level Holm's step-down judged it at; ``seeds_needed``: where
+    undetermined, seeds per variant that would decide it (``inf``: more than ``seeds_cap``; NaN: not estimated).
+    The report's claims are this table in words."""
     result = result if result is not None else primary_claims(ablation)
-    columns = list(Verdict.__dataclass_fields__)
-    return pd.DataFrame([asdict(v) for v in result.verdicts], columns=columns)
+    question = primary_question(ablation)
+    samples = _claim_samples(ablation, question)
+    scale = 100.0 if question.relative else 1.0
+    rows = []
+    for v in result.verdicts:
+        x = np.asarray(samples[v.variant].values, float)[: v.n_variant]
+        y = np.asarray(samples[v.reference].values, float)[: v.n_reference]
+        needed = np.nan if not v.seeds_estimated else np.inf if v.seeds_needed is None else float(v.seeds_needed)
+        rows.append(
+            {
+                "variant": v.variant,
+                "reference": v.reference,
+                "metric": v.metric,
+                "verdict": v.verdict,
+                "change": scale * v.estimate,
+                "change_low": scale * v.low,
+                "change_high": scale * v.high,
+                "change_unit": CHANGE_UNITS[question.relative],
+                "bound": v.bound,
+                "variant_value": float(iqm(x)) if len(x) else np.nan,
+                "reference_value": float(iqm(y)) if len(y) else np.nan,
+                "n_variant": v.n_variant,
+                "n_reference": v.n_reference,
+                "level": v.level,
+                "margin": scale * v.margin,
+                "p_difference": v.p_difference,
+                "p_equivalence": v.p_equivalence,
+                "seeds_needed": needed,
+                "seeds_cap": v.seeds_cap,
+                "look": v.look,
+                "reason": v.reason,
+            }
+        )
+    return pd.DataFrame(rows, columns=list(CLAIM_COLUMNS))

@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import html
 import re
-import shlex
 import shutil
 import sys
 import tempfile
@@ -23,8 +22,9 @@ import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
+from ablate.launch.secrets import Shown, shown_command
 from ablate.reporting import discussion
-from ablate.reporting.comparisons import comparisons
+from ablate.reporting.comparisons import claims_table, comparisons
 from ablate.reporting.figures import (
     figure_improvement,
     figure_observation,
@@ -142,7 +142,7 @@ def write_report(
     baseline: str | None = None,
     pdf: bool = True,
     attach: bool = True,
-    command: str = "",
+    command: Shown | None = None,
 ) -> Path:
     """Build the report of experiment ``name`` into ``out_root/name/`` and return that folder. Raises
     ``ConfigError`` (bad name, store, generation, variant) or ``NoResults`` before anything is written."""
@@ -158,8 +158,10 @@ def build_report(
     baseline: str | None = None,
     pdf: bool = True,
     attach: bool = True,
-    command: str = "",
+    command: Shown | None = None,
 ) -> ReportResult:
+    """As ``write_report``, with what the caller tells its user. ``command``: the report's own command line for
+    its reproducibility record, masked (``secrets.shown_command``): the record takes no text as typed."""
     folder = report_folder(name, Path(out_root))
     ablation = select(load_ablation(name, tracking_uri, generation), variants, baseline)
     if ablation.finished.empty:
@@ -174,7 +176,7 @@ def build_report(
             + (", ..." if len(ablation.trials) > 3 else "")
             + "); see the MLflow runs for their errors"
         )
-    command = command or f"ablate report {name}"
+    command = command or shown_command(["ablate", "report", name])
     Path(out_root).mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.new-", dir=out_root))
     staging.chmod(0o755)  # mkdtemp's 0700 would make the swapped-in report readable by its owner only
@@ -218,7 +220,7 @@ def _build(
     tracker: RunReader,
     folder: Path,
     pdf: bool,
-    command: str,
+    command: Shown,
     written: discussion.Discussion,
     final: Path,
 ) -> str | None:
@@ -226,15 +228,17 @@ def _build(
     for sub in ("figures", "tables", "videos"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     table = convergence_table(ablation)
-    compare = comparisons(ablation)
+    claimed = claims_table(ablation)  # computed once: claims.csv, comparisons' claim column and the report's words
+    compare = comparisons(ablation, claims=claimed)
     table.to_csv(folder / "tables" / "convergence.csv", index=False)
+    claimed.to_csv(folder / "tables" / "claims.csv", index=False)
     compare.to_csv(folder / "tables" / "comparisons.csv", index=False)
     trials_table(ablation.trials).to_csv(folder / "tables" / "trials.csv", index=False)
     untuned = None
     if ablation.tuning_trials is not None:
         ablation.tuning_trials.to_csv(folder / "tables" / "tuning.csv", index=False)
     if ablation.untuned is not None:
-        untuned = comparisons(ablation.untuned, power=False)
+        untuned = comparisons(ablation.untuned, power=False)  # the dependence section reads its exploratory words
     figures_folder = folder / "figures"
     candidates = [
         figure_overview(ablation, figures_folder),
@@ -256,7 +260,9 @@ def _build(
         figure.caption = figure.caption.replace("Figures 1-2", "Figures " + " and ".join(map(str, curves)))
     videos = _videos(ablation, tracker, folder / "videos")
     where = final / discussion.FILE
-    text, html_md = build_markdown(ablation, figures, videos, table, compare, command, untuned, written, str(where))
+    text, html_md = build_markdown(
+        ablation, figures, videos, table, compare, command, untuned, written, str(where), claimed
+    )
     text, html_md = number_tables(text), number_tables(html_md)
     (folder / "report.md").write_text(text)
     body = markdown.markdown(html_md, extensions=["tables"])
@@ -295,9 +301,10 @@ def _names(text: str | None) -> list[str] | None:
     return [v.strip() for v in text.split(",") if v.strip()] if text else None
 
 
-def report_command(args: argparse.Namespace) -> str:
+def report_command(args: argparse.Namespace) -> Shown:
     """``ablate report`` as the user typed it: the experiment as given (``experiments/activations.toml``, not
-    its name) and every option that was set, so the reproducibility record can be pasted back into a shell."""
+    its name) and every option that was set, so the reproducibility record can be pasted back into a shell;
+    masked (a password in ``--tracking-uri`` is ``***``)."""
     words = ["ablate", "report", args.experiment]
     for flag, value in (
         ("--generation", getattr(args, "generation", None)),
@@ -310,7 +317,7 @@ def report_command(args: argparse.Namespace) -> str:
             words += [flag, str(value)]
     if not getattr(args, "pdf", True):
         words.append("--no-pdf")
-    return " ".join(shlex.quote(w) for w in words)
+    return shown_command(words)
 
 
 def cmd_report(args: argparse.Namespace) -> int:

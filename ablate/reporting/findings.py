@@ -6,13 +6,21 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ablate.claims import EQUIVALENT, Question, Round, Verdict, family_sentence, iqm
-from ablate.reporting.comparisons import claims_design, primary_claims, primary_question
+from ablate.claims import BETTER, EQUIVALENT, WORSE, Question, family_sentence
+from ablate.reporting.comparisons import claims_design, claims_table, primary_question
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import Ablation
 from ablate.reporting.sections import _episodes_cell, _extends, _stat_cell
-from ablate.reporting.statistics import BETTER, NO_CLAIM, SEEDS_CAP, WORSE, smallest_p_value
+from ablate.reporting.statistics import (
+    EXPLORATORY_BETTER,
+    EXPLORATORY_WORSE,
+    NOT_SEPARATED,
+    SEEDS_CAP,
+    SEPARATED,
+    TOO_FEW_SEEDS,
+    smallest_p_value,
+)
 from ablate.reporting.text import _interval, _markdown_table, _metric_name, _pct, _signed, _signed_pct
 
 
@@ -66,10 +74,13 @@ def _estimate(row: pd.Series) -> str:
 
 def seeds_reading(row: pd.Series, effect: float) -> str:
     """What "not separated" means for this comparison: too few seeds for a difference this large, or no
-    effect this large; and the seeds a difference of the smallest effect of interest would need."""
+    effect this large; and the seeds a difference of the smallest effect of interest would need. On the primary
+    metric, the claims' one figure (the seeds that would decide the claim), not a second estimate."""
     needed, smallest = row.get("seeds_needed", np.nan), row.get("seeds_needed_smallest", np.nan)
     if pd.isna(needed):
         return ""
+    if row.get("primary", False):
+        return f" Seeds needed (the primary claim's): {_seeds_needed_words(needed, int(row.seeds_cap))}."
     if needed > SEEDS_CAP:
         observed = (
             f"**no effect this large**: even {SEEDS_CAP} seeds per variant would not separate a difference as small "
@@ -82,7 +93,7 @@ def seeds_reading(row: pd.Series, effect: float) -> str:
 
 
 def _stability(row: pd.Series) -> str:
-    if row.verdict not in (BETTER, WORSE):
+    if row.verdict not in SEPARATED:
         return ""
     if row.fragile_seeds:
         seeds = str(row.fragile_seeds).split()
@@ -100,8 +111,8 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     n, m = int(row.n_variant), int(row.n_reference)
     stat = stat_name(n, m)
     reading = seeds_reading(row, ablation.smallest_effect)
-    if row.verdict == NO_CLAIM:
-        return f"{name}: **too few seeds to tell**.{_estimate(row)}{reading}"
+    if row.verdict == TOO_FEW_SEEDS:
+        return f"{name}: *{TOO_FEW_SEEDS}*.{_estimate(row)}{reading}"
     if metric.startswith("episodes_to_"):
         x, y = _fmt(row.variant_value), _fmt(row.reference_value)
         unsolved = (
@@ -117,44 +128,49 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
             )
         if row.bound == "censored":
             return (
-                f"{name}: cannot separate them: both IQMs count unsolved seeds as the budget ({counts}), so both are "
+                f"{name}: *{NOT_SEPARATED}*: episodes cannot separate them: both IQMs count unsolved seeds as the "
+                f"budget ({counts}), so both are "
                 "lower bounds; see the returns below."
             )
-        change = f"{stat} {'≥ ' if row.bound and row.verdict == WORSE else ''}{x} vs {y}"
-        if row.verdict == BETTER and row.bound:
+        change = f"{stat} {'≥ ' if row.bound and row.verdict == EXPLORATORY_WORSE else ''}{x} vs {y}"
+        if row.verdict == EXPLORATORY_BETTER and row.bound:
             return (
-                f"{name}: **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: {base}'s IQM counts "
+                f"{name}: *{row.verdict}*, **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: "
+                f"{base}'s IQM counts "
                 f"unsolved seeds as the budget ({counts}), so the true gap is larger; 95% lower bound "
                 f"{_pct(row.low)} fewer).{_stability(row)}"
             )
-        if row.verdict == WORSE and row.bound:
+        if row.verdict == EXPLORATORY_WORSE and row.bound:
             return (
-                f"{name}: **at least {_pct(-row.point)} more** than {base} ({change}; a lower bound, since unsolved "
+                f"{name}: *{row.verdict}*, **at least {_pct(-row.point)} more** than {base} ({change}; a lower bound, "
+                "since unsolved "
                 f"seeds count as the budget: {counts}; 95% lower bound {_pct(-row.high)} more; no upper bound can be "
                 f"given).{_stability(row)}"
             )
-        if row.verdict == BETTER:
+        if row.verdict == EXPLORATORY_BETTER:
             return (
-                f"{name}: **{_pct(row.point)} fewer** than {base} ({change}; 95% CI {_pct(row.low)} to "
+                f"{name}: *{row.verdict}*, **{_pct(row.point)} fewer** than {base} ({change}; 95% CI "
+                f"{_pct(row.low)} to "
                 f"{_pct(row.high)} fewer).{_stability(row)}"
             )
-        if row.verdict == WORSE:
+        if row.verdict == EXPLORATORY_WORSE:
             return (
-                f"{name}: **{_pct(-row.point)} more** than {base} ({change}; 95% CI {_pct(-row.high)} to "
+                f"{name}: *{row.verdict}*, **{_pct(-row.point)} more** than {base} ({change}; 95% CI "
+                f"{_pct(-row.high)} to "
                 f"{_pct(-row.low)} more).{_stability(row)}"
             )
         bound = f", the variant's {stat} a lower bound" if row.bound else ""
         return (
-            f"{name}: not separated ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
+            f"{name}: *{NOT_SEPARATED}* ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
             f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''}).{reading}"
         )
     x, y = _fmt(row.variant_value, 1), _fmt(row.reference_value, 1)
     interval = f"95% CI {_signed(row.low)} to {_signed(row.high)}"
-    if row.verdict == BETTER:
-        return f"{name}: **higher**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
-    if row.verdict == WORSE:
-        return f"{name}: **lower**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
-    return f"{name}: not separated, {stat} {x} vs {y} ({_signed(row.point)}; {interval}).{reading}"
+    if row.verdict == EXPLORATORY_BETTER:
+        return f"{name}: *{row.verdict}*, **higher**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
+    if row.verdict == EXPLORATORY_WORSE:
+        return f"{name}: *{row.verdict}*, **lower**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
+    return f"{name}: *{NOT_SEPARATED}*, {stat} {x} vs {y} ({_signed(row.point)}; {interval}).{reading}"
 
 
 def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[str]:
@@ -166,17 +182,17 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
         "claims are the primary ones, above.",
         "",
     ]
-    undecidable = compare[compare.verdict == NO_CLAIM] if len(compare) else compare
+    undecidable = compare[compare.verdict == TOO_FEW_SEEDS] if len(compare) else compare
     if len(undecidable):
         pairs = sorted({(int(r.n_variant), int(r.n_reference)) for r in undecidable.itertuples()})
         reasons = "; ".join(_no_claim_reason(n, m) for n, m in pairs)
         lines += [
             f"**Too few seeds for a claim** ({reasons}): {len(undecidable)} of {len(compare)} comparisons below "
-            "read *too few seeds to tell*. Their estimates are pointers for a larger run, not results; *seeds "
+            f"read *{TOO_FEW_SEEDS}*. Their estimates are pointers for a larger run, not results; *seeds "
             "needed* says how many would do.",
             "",
         ]
-    claims = compare[compare.verdict.isin([BETTER, WORSE])] if len(compare) else compare
+    claims = compare[compare.verdict.isin(list(SEPARATED))] if len(compare) else compare
     if len(claims):
         checked = claims[claims.loo_checked.astype(bool)] if "loo_checked" in claims else claims
         notes = []
@@ -198,6 +214,8 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
         lines.append(f"- **{_esc(variant)}** vs {_esc(ablation.reference(variant))}:")
         for _, row in rows.iterrows():
             text = finding(row, ablation, table)
+            if row.get("primary", False) and row.claim:
+                text += f" The primary claim (above): **{row.claim}**."
             if row.metric == "episodes_to_solve" and not pd.isna(row.p_improvement):
                 text += (
                     f" P(fewer episodes) = {row.p_improvement:.2f} "
@@ -219,79 +237,80 @@ def _rank_key(ablation: Ablation, row: pd.Series) -> tuple:
     return (-row.auc_iqm if not pd.isna(row.auc_iqm) else np.inf,)
 
 
-def _effect_words(v: Verdict, question: Question) -> str:
+def _effect_words(row: pd.Series, question: Question) -> str:
     """The effect and its family-level interval in words: "35% fewer episodes to solve (interval 12% to 52%
     fewer)"; a difference of AUC or return signed in its units."""
-    name = _metric_name(v.metric)
-    if question.relative:
+    name = _metric_name(row.metric)
+    if question.relative:  # the table's change is in percent
 
         def side(x: float) -> str:
-            return f"{_pct(abs(x))} {'fewer' if x < 0 else 'more'}" if x else "no change"
+            return f"{_pct(abs(x) / 100)} {'fewer' if x < 0 else 'more'}" if x else "no change"
 
-        if np.isnan(v.low) or np.isnan(v.high):
+        low, high = row.change_low, row.change_high
+        if np.isnan(low) or np.isnan(high):
             interval = "no interval"
-        elif not np.isfinite(v.low) and not np.isfinite(v.high):
+        elif not np.isfinite(low) and not np.isfinite(high):
             interval = "its interval at the family level is unbounded with so few seeds"
-        elif not np.isfinite(v.high):
-            interval = f"interval: at least {side(v.low)}, no upper end"
-        elif not np.isfinite(v.low):
-            interval = f"interval: at most {side(v.high)}, no lower end"
-        elif v.high < 0:
-            interval = f"interval {_pct(-v.high)} to {_pct(-v.low)} fewer"
-        elif v.low > 0:
-            interval = f"interval {_pct(v.low)} to {_pct(v.high)} more"
+        elif not np.isfinite(high):  # [low, +inf): at least low more, or anything from low fewer up
+            interval = f"interval: {'at least' if low >= 0 else 'from'} {side(low)}, no upper end"
+        elif not np.isfinite(low):  # (-inf, high]: at least high fewer, or anything up to high more
+            interval = f"interval: {'at least' if high <= 0 else 'at most'} {side(high)}, no lower end"
+        elif high < 0:
+            interval = f"interval {_pct(-high / 100)} to {_pct(-low / 100)} fewer"
+        elif low > 0:
+            interval = f"interval {_pct(low / 100)} to {_pct(high / 100)} more"
         else:
-            interval = f"interval {side(v.low)} to {side(v.high)}"
-        return f"{side(v.estimate)} {name} ({interval})"
-    if np.isnan(v.low):
-        return f"{name} {_signed(v.estimate)} (no interval)"
-    low = "−∞" if not np.isfinite(v.low) else _signed(v.low)
-    high = "+∞" if not np.isfinite(v.high) else _signed(v.high)
-    return f"{name} {_signed(v.estimate)} (interval {low} to {high})"
+            interval = f"interval {side(low)} to {side(high)}"
+        return f"{side(row.change)} {name} ({interval})"
+    if np.isnan(row.change_low):
+        return f"{name} {_signed(row.change)} (no interval)"
+    low = "−∞" if not np.isfinite(row.change_low) else _signed(row.change_low)
+    high = "+∞" if not np.isfinite(row.change_high) else _signed(row.change_high)
+    return f"{name} {_signed(row.change)} (interval {low} to {high})"
 
 
-def _seeds_words(v: Verdict) -> str:
-    if not v.seeds_estimated:
-        return ""
-    if v.seeds_needed is None:
-        return f"; more than {v.seeds_cap} seeds per variant would be needed to decide it"
-    return f"; about {v.seeds_needed} seeds per variant would decide it (in 80% of runs like this one)"
+def _seeds_needed_words(needed: float, cap: int) -> str:
+    if np.isinf(needed):
+        return f"more than {cap} seeds per variant would be needed to decide it"
+    return f"about {int(needed)} seeds per variant would decide it (in 80% of runs like this one)"
 
 
-def claim_line(v: Verdict, question: Question, values: tuple[float, float]) -> str:
-    """One primary claim in words a student can hand in."""
-    variant, reference = _esc(v.variant), _esc(v.reference)
-    stat = stat_name(v.n_variant, v.n_reference)
+def claim_line(row: pd.Series, question: Question) -> str:
+    """One primary claim (a row of ``claims_table``) in words a student can hand in."""
+    variant, reference = _esc(row.variant), _esc(row.reference)
+    stat = stat_name(int(row.n_variant), int(row.n_reference))
     digits = 0 if question.relative else 1
-    at_least = "≥ " if v.bound and v.verdict == WORSE else ""
-    iqms = f"{stat} {at_least}{_fmt(values[0], digits)} vs {_fmt(values[1], digits)}"
-    seeds = f"{v.n_variant} and {v.n_reference} seeds"
-    effect = _effect_words(v, question)
-    if v.verdict in (BETTER, WORSE):
-        bound = " at least" if v.bound else ""
-        reaches = not (np.isnan(v.low) or np.isnan(v.high)) and v.low <= 0 <= v.high
+    at_least = "≥ " if row.bound and row.verdict == WORSE else ""
+    iqms = f"{stat} {at_least}{_fmt(row.variant_value, digits)} vs {_fmt(row.reference_value, digits)}"
+    seeds = f"{int(row.n_variant)} and {int(row.n_reference)} seeds"
+    effect = _effect_words(row, question)
+    if row.verdict in (BETTER, WORSE):
+        bound = " at least" if row.bound else ""
+        low, high = row.change_low, row.change_high
+        reaches = not (np.isnan(low) or np.isnan(high)) and low <= 0 <= high
         step = (
-            f" (Holm's step-down made this claim at the {v.level:.2%} level; the interval, at the stricter level "
+            f" (Holm's step-down made this claim at the {row.level:.2%} level; the interval, at the stricter level "
             "shared by all the family's intervals, still reaches no change)"
             if reaches
             else ""
         )
-        return f"- **{variant}** is **{v.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}{step}."
-    if v.verdict == EQUIVALENT:
+        return f"- **{variant}** is **{row.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}{step}."
+    if row.verdict == EQUIVALENT:
         margin = _pct(question.smallest_effect)
         return f"- **{variant}** is **equivalent** to {reference} within ±{margin}: {effect}; {iqms}; {seeds}."
-    return f"- **{variant}** vs {reference}: **undetermined** ({v.reason}): {effect}; {iqms}; {seeds}{_seeds_words(v)}."
+    needed = "" if pd.isna(row.seeds_needed) else f"; {_seeds_needed_words(row.seeds_needed, int(row.seeds_cap))}"
+    return f"- **{variant}** vs {reference}: **undetermined** ({row.reason}): {effect}; {iqms}; {seeds}{needed}."
 
 
-def claims(ablation: Ablation, result: Round | None = None) -> list[str]:
-    """The primary claims: one sentence naming the family, the correction and the level, then one line per
-    variant with its verdict, effect, interval and seeds."""
-    result = result if result is not None else primary_claims(ablation)
+def claims(ablation: Ablation, table: pd.DataFrame | None = None) -> list[str]:
+    """The primary claims (``table``: ``claims_table``, computed when not given): one sentence naming the family,
+    the correction and the level, then one line per row with its verdict, effect, interval and seeds."""
+    table = table if table is not None else claims_table(ablation)
     question = primary_question(ablation)
-    k = len(result.verdicts)
+    k = len(table)
     if not k:
         return ["No variant has finished seeds to compare with its reference."]
-    done, design = ablation.finished, claims_design(ablation)
+    design = claims_design(ablation)
     lines = [
         f"{family_sentence(k, sequential=design.max > design.start)} The claims are on "
         f"{_metric_name(question.metric)} (the experiment's primary question); each interval is simultaneous "
@@ -299,19 +318,14 @@ def claims(ablation: Ablation, result: Round | None = None) -> list[str]:
         f"*equivalent* means within ±{_pct(question.smallest_effect)} of the reference.",
         "",
     ]
-    column = "censored_episodes" if question.metric == "episodes_to_solve" else question.metric
-    for v in result.verdicts:
-        x = done.loc[done.variant == v.variant, column].to_numpy(float)
-        y = done.loc[done.variant == v.reference, column].to_numpy(float)
-        lines.append(claim_line(v, question, (float(iqm(x)), float(iqm(y)))))
-    return lines
+    return lines + [claim_line(row, question) for _, row in table.iterrows()]
 
 
-def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> str:
-    """The primary claims first; then the variants ranked on the primary metric with each one's own 95%
-    interval (exploratory: unadjusted)."""
-    result = primary_claims(ablation)
-    verdicts = {v.variant: v for v in result.verdicts}
+def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame, claimed: pd.DataFrame | None = None) -> str:
+    """The primary claims first (``claimed``: ``claims_table``, computed when not given); then the variants
+    ranked on the primary metric with each one's own 95% interval (exploratory: unadjusted)."""
+    claimed = claimed if claimed is not None else claims_table(ablation)
+    verdicts = {row.variant: row for row in claimed.itertuples()}
     ran = table[table.seeds_run > 0]
     ranked = sorted(ran.iterrows(), key=lambda item: _rank_key(ablation, item[1]))
     primary = ablation.primary_metric
@@ -338,7 +352,7 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> s
     )
     return "\n".join(
         [
-            *claims(ablation, result),
+            *claims(ablation, claimed),
             "",
             f"*Exploratory:* the variants ranked by {how}, each interval a 95% bootstrap interval of that variant "
             f"alone (unadjusted: not a claim). A rank orders point estimates only; the last column repeats the "

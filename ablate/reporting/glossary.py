@@ -59,17 +59,22 @@ GLOSSARY = [
         "pair; there the interval is the exact Clopper-Pearson bound for min(n, m) successes in min(n, m) trials.",
     ),
     (
-        "Too few seeds to tell",
-        "When a rank test could not reach 95% confidence even with the seeds perfectly ordered "
-        f"(smallest two-sided p = 2 / C(n+m, n) > {1 - CONFIDENCE:.2f}, e.g. 3 seeds against 3), or one side has one "
-        "seed, the report makes no claim either way: the estimate is shown, the verdict is this.",
+        "Exploratory: better, worse, not separated, too few seeds",
+        "The words of the appendix's comparisons (and of the `verdict` column of tables/comparisons.csv), each "
+        "comparison on its own 95% bootstrap interval, unadjusted for the others: never a claim (the claims are "
+        "*better*, *worse*, *equivalent* or *undetermined*, tables/claims.csv). *Exploratory: too few seeds*: a rank "
+        "test could not reach 95% confidence even with the seeds perfectly ordered (smallest two-sided p = "
+        f"2 / C(n+m, n) > {1 - CONFIDENCE:.2f}, e.g. 3 seeds against 3), or one side has one seed; the estimate is "
+        "shown, no direction is read from it.",
     ),
     (
         "Seeds needed",
-        f"For a comparison not separated: how many seeds per variant the report's own rule (the 95% interval "
-        "excludes no difference, censoring permitting) would need to separate the difference in 80% of experiments, "
-        "found by drawing that many seeds with replacement from the observed ones, 100 times. More than "
-        f"{SEEDS_CAP}: no effect this large is in sight; fewer: the experiment had too few seeds.",
+        "On the primary metric, the claims' figure: how many seeds per variant would decide an undetermined claim "
+        "in 80% of experiments resampled from the observed seeds. On the other metrics, for a comparison not "
+        "separated: how many seeds per variant the exploratory rule (the 95% interval excludes no difference, "
+        "censoring permitting) would need to separate the difference in 80% of experiments, found by drawing that "
+        f"many seeds with replacement from the observed ones, 100 times. More than {SEEDS_CAP}: no effect this "
+        "large is in sight; fewer: the experiment had too few seeds.",
     ),
     (
         "Smallest effect of interest",

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ablate.launch.secrets import Shown, shown_command
 from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
 from ablate.reporting.figures import esc as _esc
@@ -126,12 +127,14 @@ def build_markdown(
     videos: list[dict[str, str]],
     table: pd.DataFrame,
     compare: pd.DataFrame,
-    command: str = "",
+    command: Shown | None = None,
     untuned: pd.DataFrame | None = None,
     discussion: Discussion | None = None,
     discussion_path: str = "discussion.md",
+    claimed: pd.DataFrame | None = None,
 ) -> tuple[str, str]:
-    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks)."""
+    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks). ``claimed``: the
+    claims table (``comparisons.claims_table``) the Claims section is written from; computed when not given."""
     discussion = discussion or Discussion(None, None)
     failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
     numbers = {Path(f.path).stem: f.number for f in figures}
@@ -162,7 +165,7 @@ def build_markdown(
     parts += [lost, ""] if lost else []
     parts += [f"## Question {GENERATED}", "", question(ablation), ""]
     parts += [f"## Method {GENERATED}", "", method_paragraph(ablation, letters), ""]
-    parts += [f"## Claims {GENERATED}", "", summary(ablation, table, compare), ""]
+    parts += [f"## Claims {GENERATED}", "", summary(ablation, table, compare, claimed), ""]
     confounded = [line for line in comparison_intro(ablation) if line]
     if confounded:
         parts += [" ".join(confounded), ""]
@@ -244,7 +247,8 @@ def build_markdown(
         parts.append("")
     every = [text for _, text in limitations(ablation, table, compare)]
     parts += [f"### {letters['limitations']}. Every limitation {GENERATED}", "", *[f"- {t}" for t in every], ""]
-    parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", _reproducibility(ablation, command), ""]
+    record = _reproducibility(ablation, command or shown_command(["ablate", "report", ablation.name]))
+    parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", record, ""]
     parts += [f"### {letters['glossary']}. Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
     text = "\n".join(parts)
     for key, value in {

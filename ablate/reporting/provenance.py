@@ -7,6 +7,7 @@ import subprocess
 import time
 from pathlib import Path
 
+from ablate.launch.secrets import Shown, shown
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.results import Ablation
 
@@ -50,7 +51,11 @@ def experiment_file_state(commit: str, path: str, text: str | None, cwd: str | P
     return f"The experiment file {_esc(path)} is the one committed at {_esc(commit[:12])}."
 
 
-def _reproducibility(ablation: Ablation, command: str) -> str:
+def _reproducibility(ablation: Ablation, command: Shown) -> str:
+    """The reproducibility record. ``command`` (the report's) is taken masked (``secrets.shown_command``), never
+    as typed; the launch's, read from the store, is masked again here (a store written before the masks)."""
+    if not isinstance(command, Shown):
+        raise TypeError("the provenance takes a masked command (secrets.shown_command), not the command as typed")
     tags = ablation.launch["tags"]
     environment = ablation.launch["environment"]
     versions = environment.get("packages", {})
@@ -61,9 +66,9 @@ def _reproducibility(ablation: Ablation, command: str) -> str:
         tags.get("ablate.experiment_file", ""),
         ablation.launch.get("experiment_text"),
     )
+    launched = shown(tags.get("ablate.command") or "ablate run " + tags.get("ablate.experiment_file", ""))
     lines = [
-        f"- Command: <code>{_esc(tags.get('ablate.command') or 'ablate run ' + tags.get('ablate.experiment_file', ''))}"
-        "</code>",
+        f"- Command: <code>{_esc(launched)}</code>",
         f"- Code version (git commit): <code>{_esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>"
         + (f". {state}" if state else ""),
         f"- Machine: {_esc(environment.get('machine', 'unknown'))}; CPU model: {_esc(cpu)}; torch CPU capability "

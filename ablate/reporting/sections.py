@@ -10,7 +10,7 @@ from ablate.reporting.figures import ablation_window
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
-from ablate.reporting.statistics import BETTER, N_RESAMPLES, WORSE
+from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
 from ablate.reporting.text import _interval, _markdown_table
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
@@ -316,9 +316,9 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
         compare is not None
         and len(compare) > 0
         and "loo_checked" in compare
-        and bool(compare[compare.verdict.isin([BETTER, WORSE])].loo_checked.astype(bool).any())
+        and bool(compare[compare.verdict.isin(list(SEPARATED))].loo_checked.astype(bool).any())
     )
-    claims = compare is not None and len(compare) > 0 and bool(compare.verdict.isin([BETTER, WORSE]).any())
+    claims = compare is not None and len(compare) > 0 and bool(compare.verdict.isin(list(SEPARATED)).any())
     if checked:
         survive = (
             "the exploratory comparisons in the appendix say whether each survives leaving out any one seed; the "

@@ -139,17 +139,24 @@ def _median(values: np.ndarray, axis: int = -1) -> np.ndarray:
 
 
 # --- comparisons --------------------------------------------------------------------------------------------
-BETTER, WORSE, UNSEPARATED, NO_CLAIM = "better", "worse", "not separated", "no claim"
+# The exploratory rule's verdicts (each comparison on its own 95% bootstrap interval, unadjusted), worded so that
+# no one reads them as the primary claims' (``ablate.claims``: better, worse, equivalent, undetermined).
+EXPLORATORY_BETTER = "exploratory: better"
+EXPLORATORY_WORSE = "exploratory: worse"
+NOT_SEPARATED = "exploratory: not separated"
+TOO_FEW_SEEDS = "exploratory: too few seeds"
+EXPLORATORY = (EXPLORATORY_BETTER, EXPLORATORY_WORSE, NOT_SEPARATED, TOO_FEW_SEEDS)
+SEPARATED = (EXPLORATORY_BETTER, EXPLORATORY_WORSE)
 
 
 def _verdict(low: float, high: float) -> str:
     if np.isnan(low) or np.isnan(high):
-        return NO_CLAIM
+        return TOO_FEW_SEEDS
     if low > 0:
-        return BETTER
+        return EXPLORATORY_BETTER
     if high < 0:
-        return WORSE
-    return UNSEPARATED
+        return EXPLORATORY_WORSE
+    return NOT_SEPARATED
 
 
 def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cens: np.ndarray):
@@ -161,27 +168,27 @@ def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cen
     x_bound = is_censored_statistic(int(x_cens.sum()), len(x), "iqm")
     y_bound = is_censored_statistic(int(y_cens.sum()), len(y), "iqm")
     verdict = _verdict(low, high)
-    if verdict == NO_CLAIM or min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
+    if verdict == TOO_FEW_SEEDS or min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
         return (
             point,
             low,
             high,
-            NO_CLAIM,
+            TOO_FEW_SEEDS,
             "censored" if x_bound and y_bound else "at least" if x_bound or y_bound else "",
         )
     if x_bound and y_bound:
-        return point, low, high, UNSEPARATED, "censored"
+        return point, low, high, NOT_SEPARATED, "censored"
     if x_bound:  # the variant's true IQM is larger: "worse" can only grow; "better" is not supported
-        return point, low, high, (WORSE if verdict == WORSE else UNSEPARATED), "at least"
+        return point, low, high, (EXPLORATORY_WORSE if verdict == EXPLORATORY_WORSE else NOT_SEPARATED), "at least"
     if y_bound:
-        return point, low, high, (BETTER if verdict == BETTER else UNSEPARATED), "at least"
+        return point, low, high, (EXPLORATORY_BETTER if verdict == EXPLORATORY_BETTER else NOT_SEPARATED), "at least"
     return point, low, high, verdict, ""
 
 
 def _return_comparison(x: np.ndarray, y: np.ndarray):
     point, low, high = iqm_difference(x, y)
     if min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
-        return point, low, high, NO_CLAIM, ""
+        return point, low, high, TOO_FEW_SEEDS, ""
     return point, low, high, _verdict(low, high), ""
 
 

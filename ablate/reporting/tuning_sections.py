@@ -10,11 +10,9 @@ import pandas as pd
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import Ablation
-from ablate.reporting.statistics import BETTER, NO_CLAIM, WORSE
+from ablate.reporting.statistics import SEPARATED, TOO_FEW_SEEDS
 from ablate.reporting.text import _markdown_table, _metric_name, _signed, _signed_pct
 from ablate.reporting.tuning import METRICS, base_values, chosen_values, edge, knobs, same_value, sensitivity
-
-SEPARATED = (BETTER, WORSE)
 
 
 def _value(value) -> str:
@@ -121,7 +119,7 @@ def _verdict_words(row: pd.Series) -> str:
     if row is None:
         return "not compared"
     estimate = f"{_signed_pct(-row.point)} episodes" if row.metric.startswith("episodes_to_") else _signed(row.point)
-    word = {BETTER: "**better**", WORSE: "**worse**"}.get(row.verdict, row.verdict)
+    word = f"**{row.verdict}**" if row.verdict in SEPARATED else f"*{row.verdict}*"  # the table's own words
     return f"{word} ({estimate})"
 
 
@@ -189,7 +187,7 @@ def unchanged_words(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFra
         if len(match):
             pairs.append((match.iloc[0], row))
     words = knob_words(ablation)
-    if pairs and all(base.verdict == NO_CLAIM and row.verdict == NO_CLAIM for base, row in pairs):
+    if pairs and all(base.verdict == TOO_FEW_SEEDS and row.verdict == TOO_FEW_SEEDS for base, row in pairs):
         text = (
             f"No finding changes with {words}, but none could: with these seeds no comparison can reach a verdict "
             f"at either value, so this says nothing about whether {words} matters."
