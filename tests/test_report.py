@@ -570,3 +570,18 @@ def test_a_report_whose_trial_artifacts_were_removed_is_written_from_the_store_n
     assert (trials.status == "FINISHED").all() and len(trials) == 6  # the trial stays, from its tracked metrics
     assert trials.loc["b-s1", "episodes_run"] == 40 and pd.isna(trials.loc["b-s1", "auc"])
     assert not pd.isna(trials.loc["b-s0", "auc"])
+
+
+def test_a_users_network_is_described_by_its_factory_not_by_built_in_knobs():
+    from ablate.reporting.sections import architecture
+
+    params = {
+        "model.factory": "../examples/models/layernorm.py:create_model",
+        "model.factory_args": '[["width", 32]]',
+        "model.factory_hash": "10a11c309fa7",
+        "model.hidden_sizes": "(32,)",
+        "model.architecture": "mlp",
+    }
+    text = architecture(params, "CartPole-v1")
+    assert text == "the user's own network: create_model of layernorm.py (source 10a11c309fa7), width=32"
+    assert "MLP" not in architecture({**params, "model.factory_args": "()"}, "CartPole-v1")

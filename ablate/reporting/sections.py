@@ -22,8 +22,29 @@ def _sizes(params: dict[str, str], key: str = "model.hidden_sizes") -> list[int]
     return [int(x) for x in text.replace(",", " ").split()]
 
 
+def _factory_args(text: str) -> str:
+    """A tracked ``model_args`` (pairs, as MLflow holds them) as ``width=32, depth=2``."""
+    import ast
+    import json
+
+    for parse in (json.loads, ast.literal_eval):
+        try:
+            return ", ".join(f"{k}={v}" for k, v in parse(text))
+        except (ValueError, SyntaxError, TypeError):
+            continue
+    return text.strip("()[]")
+
+
 def architecture(params: dict[str, str], env_id: str) -> str:
-    """The policy in words, as ``policies.py`` builds it for ``env_id``."""
+    """The policy in words, as ``policies.py`` builds it for ``env_id``; a user's own network by its factory."""
+    factory = params.get("model.factory", "")
+    if factory:
+        target, function = factory.rsplit(":", 1)
+        text = f"the user's own network: {function} of {target.rsplit('/', 1)[-1]}"
+        text += f" (source {params.get('model.factory_hash', '?')})"
+        args = _factory_args(params.get("model.factory_args", ""))
+        text += f", {args}" if args else ""
+        return text + (f"; L2 {params['l2']}" if float(params.get("l2", 0) or 0) > 0 else "")
     arch = params.get("model.architecture", "mlp")
     activation = params.get("model.activation", "relu")
     hidden = _sizes(params)
