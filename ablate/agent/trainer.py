@@ -150,6 +150,8 @@ class Population:
         self.chunk = IMAGE_TRAIN_CHUNK if len(self.env.observation_shape) == 3 else None
         self.block: np.ndarray | None = None
         self.block_used = 0
+        self.leaving = True
+        """Some member may have ended (solved, out of budget, failed) since ``_finish`` last looked."""
 
     def slots_of(self, position: int) -> np.ndarray:
         return position * self.per_member + np.arange(self.per_member)
@@ -185,14 +187,13 @@ class Population:
         for member in self.members:
             stepping[member.counting] = True
         _, ended = self.slots.step(actions, stepping)
+        over = np.flatnonzero(ended & stepping)  # counting slots whose episode ended (most steps: none or a few)
         ready = []
-        for position, member in enumerate(self.members):
+        for position in np.unique(over // n).tolist() if len(over) else ():
+            member = self.members[position]
             counting = member.counting
-            over = counting[ended[counting]]
-            if not len(over):
-                continue
             member.counting = counting[~ended[counting]]
-            for slot in over:
+            for slot in counting[ended[counting]]:
                 self._ended(position, member, int(slot))
             if self.has_batch(member):
                 ready.append(position)
@@ -363,7 +364,9 @@ def run_population(
             if not member.done and member.counting is None:
                 population.start(position)
         while True:
-            _finish(population, outcomes, folders, on_outcome)
+            if population.leaving:
+                _finish(population, outcomes, folders, on_outcome)
+                population.leaving = False
             if not population.members:
                 break
             for position in population.step():
@@ -393,13 +396,16 @@ def _learn(population: Population, position: int, outcomes: dict, on_episodes, o
             if on_outcome is not None:
                 on_outcome(member.index, failure)
             member.counting = member.counting[:0]
+            population.leaving = True
             return
         member.updates += 1
         new = _record(member, batch, stats.loss, stats.entropy, time.perf_counter() - member.started)
         if on_episodes is not None:
             on_episodes(member.index, new)
         _maybe_checkpoint(population, position, on_checkpoint)
-    if not member.done and not population.continuous:
+    if member.done:
+        population.leaving = True
+    elif not population.continuous:
         population.start(position)
 
 
