@@ -23,9 +23,9 @@ There, in the repository's root::
 folder first and import them from there; nothing is installed into the Python itself.)
 
 The population part (``--members``, default 1,024 default CartPole trials at ``--cartpole-episodes`` each):
-``agent.population.run_population`` with the stacked updates on CUDA (one padded batched forward and backward
-for all members; envs and acting stay in numpy on the CPU), then on the CPU, both as env steps per second.
-Pong populations (32 CNN members) are not built yet: Pong trials run alone, so that part is not measured.
+``agent.trainer.run_population`` with the members' networks on CUDA (acting by one ``vmap`` over their stacked
+parameters, each member's update on its own module; the envs stay on the CPU), then on the CPU, both as env steps
+per second. Pong populations (32 CNN members) are the same trainer; this script does not measure them yet.
 Unmeasured so far: no GPU on the project's machines; it runs (slowly) on a CPU-only machine.
 """
 
