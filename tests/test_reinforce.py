@@ -183,3 +183,18 @@ def test_two_action_sampling_is_the_general_rule_exactly():
     uniforms = rng.random((4, 64))
     padded = np.concatenate([logits, np.full((4, 64, 1), -np.inf, np.float32)], axis=-1)  # a third, never taken
     np.testing.assert_array_equal(sample_actions(logits, uniforms), sample_actions(padded, uniforms))
+
+
+@pytest.mark.parametrize("reset_on_nonzero", [False, True])
+def test_discount_rewards_of_episodes_back_to_back_is_each_discounted_alone(reset_on_nonzero):
+    rng = np.random.default_rng(1)
+    cases = [
+        [np.ones(5), np.ones(1), np.ones(40)],  # CartPole's constant reward: the table's path
+        [rng.choice([-1.0, 0.0, 1.0], size=n) for n in (30, 3, 17)],  # Pong's points
+        [rng.normal(size=n) for n in (4, 9)],
+    ]
+    for episodes in cases:
+        lengths = np.array([len(e) for e in episodes])
+        together = discount_rewards(np.concatenate(episodes), 0.95, reset_on_nonzero, lengths=lengths)
+        alone = np.concatenate([discount_rewards(e, 0.95, reset_on_nonzero) for e in episodes])
+        np.testing.assert_array_equal(together, alone)

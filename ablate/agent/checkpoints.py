@@ -78,7 +78,7 @@ def restore(population, position: int, blob: bytes) -> None:
         return
     slots = population.slots_of(position)
     member.finished = deque(Episode(*e) for e in collection["finished"])
-    member.counting = slots[collection["playing"]]
+    population.set_counting(position, slots[collection["playing"]])
     for s, (observations, actions, rewards) in zip(slots, collection["memories"], strict=True):
         memory = population.slots.memories[s]
         memory.observations, memory.actions, memory.rewards = observations, actions, rewards

@@ -5,6 +5,7 @@ No I/O, no Ray, no MLflow, no environment: arrays and a torch model in, arrays a
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import NamedTuple, Protocol
 
@@ -83,23 +84,52 @@ def sample_actions(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
     return np.minimum((cumulative < u).sum(axis=-1), logits.shape[-1] - 1)
 
 
-def discount_rewards(rewards: np.ndarray, gamma: float, reset_on_nonzero: bool = False) -> np.ndarray:
-    """Discounted return G_t = r_t + gamma * G_{t+1} for one episode, not normalised.
+def discount_rewards(
+    rewards: np.ndarray, gamma: float, reset_on_nonzero: bool = False, lengths: np.ndarray | None = None
+) -> np.ndarray:
+    """Discounted return G_t = r_t + gamma * G_{t+1} for one episode, not normalised; with ``lengths``, for
+    several episodes back to back (each its own, as if discounted alone).
 
     With ``reset_on_nonzero`` (Pong), the running return restarts at zero at every point scored
     (reward != 0): each rally is its own game, and a point must not be credited to earlier rallies.
     """
+    array = np.asarray(rewards, dtype=np.float64)
+    lengths = np.asarray([len(array)] if lengths is None else lengths, np.int64)
+    ends = np.cumsum(lengths)
+    if len(array) and not reset_on_nonzero and (array == array[0]).all():
+        # A constant reward (CartPole's 1.0 a step): every return is one entry of one recursion, computed once.
+        steps_left = np.repeat(ends, lengths) - 1 - np.arange(len(array))
+        return _constant_returns(float(array[0]), gamma, _bucket(int(lengths.max())))[steps_left]
+    last = np.zeros(len(array), bool)
+    last[ends[lengths > 0] - 1] = True  # an episode's last step: the running return starts again at zero
     # Python floats are IEEE doubles: the same values as float64 arrays, at a fifth of the cost of indexing one.
-    values = np.asarray(rewards, dtype=np.float64).tolist()
+    values, lasts = array.tolist(), last.tolist()
     returns = [0.0] * len(values)
     running = 0.0
     for t in range(len(values) - 1, -1, -1):
         reward = values[t]
-        if reset_on_nonzero and reward != 0:
+        if lasts[t] or (reset_on_nonzero and reward != 0):
             running = 0.0
         running = reward + gamma * running
         returns[t] = running
     return np.array(returns)
+
+
+@functools.lru_cache(maxsize=32)
+def _constant_returns(reward: float, gamma: float, length: int) -> np.ndarray:
+    """``[d]``: the return of a step with ``d`` steps after it, every reward ``reward`` (the recursion's own
+    operations, so ``discount_rewards``'s values bit for bit)."""
+    table = np.zeros(length)
+    running = 0.0
+    for d in range(length):
+        running = reward + gamma * running
+        table[d] = running
+    return table
+
+
+def _bucket(length: int) -> int:
+    """The table length that serves an episode of ``length`` steps: the next power of two (few tables)."""
+    return 1 << (length - 1).bit_length()
 
 
 def normalize(values: np.ndarray) -> np.ndarray:

@@ -17,6 +17,8 @@ from ablate.agent.reinforce import Memory
 
 
 class Episode(NamedTuple):
+    """One episode, or several back to back (``take``)."""
+
     observations: np.ndarray
     """(T, *observation): what the policy saw at each step (its history window where it has one)."""
     actions: np.ndarray
@@ -63,7 +65,7 @@ class CartPoleSlots:
             [np.random.default_rng(s)] if self.shared else [np.random.default_rng(s + j) for j in range(per_member)]
             for s in seeds
         ]
-        self._make = lambda n: CartPoleVectorEnv(num_envs=n, max_episode_steps=max_episode_steps)
+        self._make = lambda n: _checked_by_shape(CartPoleVectorEnv(num_envs=n, max_episode_steps=max_episode_steps))
         self.env = self._make(len(seeds) * per_member)
         self.env.reset(seed=0)  # allocates its state; every slot's start state is drawn again by start()
         self.raw = np.zeros((self.env.num_envs, 4), np.float32)
@@ -124,13 +126,29 @@ class CartPoleSlots:
         self.iteration += 1
         return rewards, terminated | truncated
 
-    def episode(self, slot: int, history: int = 0) -> Episode:
-        steps = self.iteration - int(self.started[slot])
-        rows = (self.started[slot] + np.arange(steps)) % self.capacity
-        observations = self.ring[rows, slot]
-        if self.windows is not None:
-            observations = windows(observations, self.windows.values.shape[1])
-        return Episode(observations, self.actions[rows, slot], np.ones(steps, np.float32))
+    def steps(self, slot: int) -> int:
+        """Steps of slot ``slot``'s episode so far."""
+        return self.iteration - int(self.started[slot])
+
+    def take(self, slots: np.ndarray, lengths: np.ndarray) -> Episode:
+        """The episodes of ``slots``, the first ``lengths`` steps of each since its start, back to back in one
+        gather from the ring (a collection, at most ``max_episode_steps``, is taken before the ring comes round)."""
+        total = int(lengths.sum())
+        within = (
+            np.arange(total) - np.repeat(np.cumsum(lengths) - lengths, lengths) + 0 * 1
+        )  # each row's step in its episode
+        rows = np.repeat(self.started[slots], lengths) + within
+        columns = np.repeat(slots, lengths)
+        actions = self.actions[rows % self.capacity, columns]
+        if self.windows is None:
+            return Episode(self.ring[rows % self.capacity, columns], actions, np.ones(total, np.float32))
+        history = self.windows.values.shape[1]
+        observations = np.zeros((total, history, 4), np.float32)  # zeros before an episode's first step
+        for k in range(history):
+            back = history - 1 - k  # window position k holds the observation ``back`` steps earlier
+            seen = within >= back
+            observations[seen, k] = self.ring[(rows[seen] - back) % self.capacity, columns[seen]]
+        return Episode(observations, actions, np.ones(total, np.float32))
 
     def member_state(self, member: int) -> dict:
         return {"env_streams": [g.bit_generator.state for g in self.streams[member]]}
@@ -158,6 +176,26 @@ class CartPoleSlots:
 
     def close(self) -> None:
         self.env.close()
+
+
+class _SampledActions:
+    """A vector env's action space whose ``contains`` checks the shape only. ``CartPoleVectorEnv.step`` asserts
+    that its actions lie in its space, which cost a fifth of its step; the trainer's actions are sampled in
+    ``range(n_actions)`` by construction (``reinforce.sample_actions``), so only their shape can be wrong."""
+
+    def __init__(self, space) -> None:
+        self.space = space
+
+    def contains(self, actions) -> bool:
+        return isinstance(actions, np.ndarray) and actions.shape == self.space.shape
+
+    def __getattr__(self, name: str):
+        return getattr(self.space, name)
+
+
+def _checked_by_shape(env):
+    env.action_space = _SampledActions(env.action_space)
+    return env
 
 
 class EnvSlots:
@@ -212,6 +250,14 @@ class EnvSlots:
         if self.windows is not None and len(moved):
             self.windows.step(moved, self.raw[moved])
         return rewards, ended
+
+    def steps(self, slot: int) -> int:
+        return len(self.memories[slot])
+
+    def take(self, slots: np.ndarray, lengths: np.ndarray) -> Episode:
+        """The episodes of ``slots`` back to back (each slot's memory holds its whole episode)."""
+        episodes = [self.episode(int(slot)) for slot in slots]
+        return Episode(*(np.concatenate(parts) for parts in zip(*episodes, strict=True)))
 
     def episode(self, slot: int) -> Episode:
         memory = self.memories[slot]

@@ -66,8 +66,8 @@ class Member:
     next_checkpoint: int | None = None
     counting: np.ndarray | None = None
     """Its slots whose episodes go into its next update (from a reset), or that still play (continuous)."""
-    episodes: dict[int, Episode] = field(default_factory=dict)
-    """Episodes of the collection in flight, by slot (from a reset)."""
+    episodes: dict[int, int] = field(default_factory=dict)
+    """Lengths of the collection's ended episodes, by slot (from a reset): the slots hold them until ``batch``."""
     finished: deque = field(default_factory=deque)
     """Finished episodes in the order they ended (continuous)."""
     completed: int = 0
@@ -148,6 +148,8 @@ class Population:
             self.slots.on_frame = self._frame
         self.acting = stack([m.model for m in self.members], device, built_in=not first.model.factory)
         self.chunk = IMAGE_TRAIN_CHUNK if len(self.env.observation_shape) == 3 else None
+        self.stepping = np.zeros(len(self.members) * self.per_member, bool)
+        """Every member's counting slots, as one mask (what ``step`` steps)."""
         self.block: np.ndarray | None = None
         self.block_used = 0
         self.leaving = True
@@ -161,8 +163,14 @@ class Population:
         member, slots = self.members[position], self.slots_of(position)
         self.slots.start(slots)
         count = member.wanted if not self.continuous else min(self.per_member, member.config.max_episodes)
-        member.counting = slots[:count]
+        self.set_counting(position, slots[:count])
         member.episodes = {}
+
+    def set_counting(self, position: int, slots: np.ndarray) -> None:
+        """Member ``position``'s counting slots become ``slots`` (its others rest)."""
+        self.members[position].counting = slots
+        self.stepping[self.slots_of(position)] = False
+        self.stepping[slots] = True
 
     def _frame(self, slot: int, over: bool) -> None:
         """A slot stepped or reset: the member's first slot feeds its training videos."""
@@ -183,11 +191,9 @@ class Population:
         observations = observations.reshape(m, n, *observations.shape[1:])
         uniforms = self._uniforms()
         actions = choose_action(self.acting, observations, single=False, uniforms=uniforms).reshape(-1)
-        stepping = np.zeros(m * n, bool)
-        for member in self.members:
-            stepping[member.counting] = True
-        _, ended = self.slots.step(actions, stepping)
-        over = np.flatnonzero(ended & stepping)  # counting slots whose episode ended (most steps: none or a few)
+        _, ended = self.slots.step(actions, self.stepping)
+        over = np.flatnonzero(ended & self.stepping)  # counting slots whose episode ended (most steps: none or a few)
+        self.stepping[over] = False
         ready = []
         for position in np.unique(over // n).tolist() if len(over) else ():
             member = self.members[position]
@@ -221,35 +227,41 @@ class Population:
         return stream.state
 
     def _ended(self, position: int, member: Member, slot: int) -> None:
-        episode = self.slots.episode(slot)
         member.completed += 1
         if not self.continuous:
-            member.episodes[slot] = episode
+            member.episodes[slot] = self.slots.steps(slot)
             return
-        member.finished.append(episode)
+        member.finished.append(self.slots.episode(slot))
         budget = member.config.max_episodes - len(member.history)
         if len(member.finished) + len(member.counting) >= budget:
             return  # enough episodes finished or under way for the budget: this slot rests
         self.slots.start(np.array([slot]))
         member.counting = np.sort(np.append(member.counting, slot))
+        self.stepping[slot] = True
 
     def batch(self, member: Member) -> Batch:
         """The member's episodes of this update: returns discounted within each episode, normalised across all."""
         if self.continuous:
             episodes = [member.finished.popleft() for _ in range(member.wanted)]
+            lengths = np.array([len(e.actions) for e in episodes], np.int64)
+            taken = Episode(*(np.concatenate(parts) for parts in zip(*episodes, strict=True)))
         else:
-            episodes = [member.episodes[s] for s in sorted(member.episodes)]
+            slots = np.array(sorted(member.episodes), np.int64)
+            lengths = np.array([member.episodes[s] for s in slots.tolist()], np.int64)
+            taken = self.slots.take(slots, lengths)
             member.episodes = {}
         config = member.config
+        observations = taken.observations
         if config.model.factory:  # a user's network takes float32 (the built-ins read int8 frames as they are)
-            episodes = [e._replace(observations=e.observations.astype(np.float32, copy=False)) for e in episodes]
-        returns = [discount_rewards(e.rewards, config.gamma, config.reset_on_score) for e in episodes]
+            observations = observations.astype(np.float32, copy=False)
+        rewards = taken.rewards.astype(np.float64)
+        returns = discount_rewards(rewards, config.gamma, config.reset_on_score, lengths=lengths)
         return Batch(
-            np.array([len(e.actions) for e in episodes], np.int64),
-            np.array([float(e.rewards.sum()) for e in episodes]),
-            np.concatenate([e.observations for e in episodes]),
-            np.concatenate([e.actions for e in episodes]),
-            normalize(np.concatenate(returns)),
+            lengths,
+            np.add.reduceat(rewards, np.cumsum(lengths) - lengths),
+            observations,
+            taken.actions,
+            normalize(returns),
         )
 
     def has_batch(self, member: Member) -> bool:
@@ -284,6 +296,7 @@ class Population:
             self.block = self.block[positions]
         self.slots.keep(positions)
         self.acting.keep(positions)
+        self.stepping = self.stepping.reshape(-1, self.per_member)[positions].reshape(-1)
         for new, member in enumerate(self.members):
             mine = self.slots_of(new)
             old = member.counting % self.per_member
@@ -395,7 +408,7 @@ def _learn(population: Population, position: int, outcomes: dict, on_episodes, o
             outcomes[member.index] = failure
             if on_outcome is not None:
                 on_outcome(member.index, failure)
-            member.counting = member.counting[:0]
+            population.set_counting(position, member.counting[:0])
             population.leaving = True
             return
         member.updates += 1

@@ -1,0 +1,41 @@
+"""Slots: a collection's episodes taken back to back from the ring are the steps the slots played."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ablate.agent.slots import CartPoleSlots, windows
+
+
+@pytest.mark.parametrize("history", [0, 3])
+def test_cartpole_slots_take_every_episode_as_played_even_across_the_rings_end(history):
+    # A short episode limit makes the ring (max_episode_steps + 1 rows) come round within the test.
+    slots = CartPoleSlots([7, 8], per_member=3, max_episode_steps=20, history=history)
+    rng = np.random.default_rng(0)
+    for _ in range(3):  # three collections: the later ones start past the ring's end
+        playing = np.arange(slots.size)
+        slots.start(playing)
+        seen = {s: [] for s in playing.tolist()}
+        taken_actions = {s: [] for s in playing.tolist()}
+        lengths: dict[int, int] = {}
+        stepping = np.ones(slots.size, bool)
+        while stepping.any():
+            observations = slots.observations().copy()
+            actions = rng.integers(0, 2, slots.size)
+            for s in np.flatnonzero(stepping).tolist():
+                seen[s].append(observations[s])
+                taken_actions[s].append(actions[s])
+            _, ended = slots.step(actions, stepping)
+            for s in np.flatnonzero(ended & stepping).tolist():
+                lengths[s] = slots.steps(s)
+            stepping &= ~ended
+        order = np.array(sorted(lengths), np.int64)
+        taken = slots.take(order, np.array([lengths[s] for s in order.tolist()], np.int64))
+        expected = np.concatenate([np.stack(seen[s]) for s in order.tolist()])
+        np.testing.assert_array_equal(taken.observations, expected)
+        np.testing.assert_array_equal(taken.actions, np.concatenate([taken_actions[s] for s in order.tolist()]))
+        assert taken.rewards.shape == (sum(lengths.values()),)
+        if history:  # the windows are the raw observations' last `history`, zeros before the episode's first
+            raw = [np.stack(seen[s])[:, -1] for s in order.tolist()]
+            np.testing.assert_array_equal(taken.observations, np.concatenate([windows(r, history) for r in raw]))
