@@ -230,3 +230,24 @@ def test_which_configs_share_a_population():
     assert not can_share([CNN, SHORT]) and not can_share([CNN, replace(CNN, model=replace(CNN.model, history=3))])
     with pytest.raises(ValueError, match="cannot share"):
         run_population([CNN, SHORT])
+
+
+def test_continuous_slots_draw_one_uniform_per_playing_slot_and_a_resting_one_draws_none():
+    """Pong's rule (``num_envs`` set): each step a member draws a uniform for each slot still playing, in slot
+    order; a slot that rests near the end of the budget draws none (as a loop over the playing emulators)."""
+    import numpy as np
+
+    config = replace(SHORT, num_envs=4, seed=5)
+    population = Population([config, replace(config, seed=6)], torch.device("cpu"), [None, None])
+    for position in range(2):
+        population.start(position)
+    population.set_counting(0, population.slots_of(0)[[1, 3]])  # member 0: two slots rest
+    first, second = (np.random.default_rng(s) for s in (5, 6))
+    uniforms = population._uniforms()
+    np.testing.assert_array_equal(uniforms[0, [1, 3]], first.random(2))
+    assert uniforms[0, 0] == uniforms[0, 2] == 0
+    np.testing.assert_array_equal(uniforms[1], second.random(4))
+    # The streams moved by exactly what was drawn: the next draws continue them.
+    assert population.members[0].actions_rng.random() == first.random()
+    assert population.members[1].actions_rng.random() == second.random()
+    population.close()

@@ -1,10 +1,12 @@
 """Acting for a population: every member's logits on its own observations in one batched forward.
 
-``DenseStack``: networks of dense layers (and CartPole's 1-D convolutions): the members' weights stacked
-member-first, one numpy matrix product per layer for all of them; each member's slice is the product it computes
-alone, so a member acts bit for bit as its population of one. ``VmapStack``: any ``nn.Module``, through
-``torch.func.stack_module_state`` + ``vmap(functional_call)`` (equal to float tolerance). ``LoopStack``: each
-member's own forward in turn (a built-in CNN, exactly; a population of one). No gradients: acting is eval mode.
+``DenseStack``: networks of dense layers (and CartPole's 1-D convolutions; Pong's int8 frames as sparse products):
+the members' weights stacked member-first, one numpy matrix product per layer for all of them; each member's slice
+is the product it computes alone, so a member acts bit for bit as its population of one. ``StemStack``: Pong's
+built-in CNN, each member's whole network in numpy over the frame difference's few non-zero pixels.
+``VmapStack``: any ``nn.Module``, through ``torch.func.stack_module_state`` + ``vmap(functional_call)`` (equal to
+float tolerance). ``LoopStack``: each member's own forward in turn (a built-in network on a GPU, exactly; a
+population of one). No gradients: acting is eval mode.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ablate.agent.policies import NUMPY_LAYERS, Policy, conv1d, conv1d_weight, plain_conv1d
+from ablate.agent.policies import NUMPY_LAYERS, Policy, conv1d, conv1d_weight, nonzero, plain_conv1d, sparse_matmul
 
 
 class DenseStack:
@@ -54,12 +56,15 @@ class DenseStack:
             self.weights[k][1][member] = bias
 
     def __call__(self, observations: np.ndarray) -> np.ndarray:
-        x = observations.astype(np.float32, copy=False)  # Pong's int8 frame differences, as the forward takes them
+        x = observations if observations.dtype == np.int8 else observations.astype(np.float32, copy=False)
         for k, module in enumerate(self.layers):
             if k in self.weights:
                 weight, bias = self.weights[k]
                 if isinstance(module, nn.Conv1d):
                     x = conv1d(x, weight, bias)
+                elif x.dtype == np.int8:  # Pong's frame differences: each member's few non-zero pixels' rows
+                    x = np.stack([sparse_matmul(rows, w) for rows, w in zip(x, weight, strict=True)])
+                    x += bias
                 else:
                     x = np.matmul(x, weight)
                     x += bias
@@ -72,6 +77,39 @@ class DenseStack:
     def keep(self, members: list[int]) -> None:
         self.models = [self.models[m] for m in members]
         self.weights = {k: (w[members], b[members]) for k, (w, b) in self.weights.items()}
+
+
+class StemStack:
+    """Pong's built-in CNN: each member acts through its whole network in numpy (``sparse_cnn.NumpyStem``, built
+    from its weights after each update); a frame with no sparsity to exploit goes through its dense layers."""
+
+    def __init__(self, models: Sequence[nn.Module]) -> None:
+        self.models = list(models)
+        self.stems: list = [None] * len(self.models)
+
+    @staticmethod
+    def fits(model: nn.Module) -> bool:
+        return isinstance(model, Policy) and model.acts_in_numpy
+
+    def refresh(self, member: int) -> None:
+        self.stems[member] = None
+
+    def __call__(self, observations: np.ndarray) -> np.ndarray:
+        return np.stack([self._logits(m, x) for m, x in enumerate(observations)])
+
+    def _logits(self, member: int, observations: np.ndarray) -> np.ndarray:
+        model = self.models[member]
+        frames = observations.reshape(len(observations), -1)
+        rows, columns = nonzero(frames)
+        if len(rows) * 4 >= frames.size:  # no sparsity to exploit: the dense network
+            return model.dense_logits(observations)
+        if self.stems[member] is None:
+            self.stems[member] = model.numpy_stem()
+        return self.stems[member](frames, rows, columns)
+
+    def keep(self, members: list[int]) -> None:
+        self.models = [self.models[m] for m in members]
+        self.stems = [self.stems[m] for m in members]
 
 
 class LoopStack:
@@ -143,6 +181,8 @@ def stack(models: Sequence[nn.Module], device: torch.device, built_in: bool):
         model.eval()
     if device.type == "cpu" and DenseStack.fits(models[0]):
         return DenseStack(models)
+    if device.type == "cpu" and StemStack.fits(models[0]):
+        return StemStack(models)
     if built_in or len(models) == 1:
         return LoopStack(models, device)
     return VmapStack(models, device)

@@ -52,6 +52,12 @@ class Policy(nn.Module):
         self._sparse_stem = (
             sparse_cnn.SparseStem(body, observation_shape[1]) if sparse_cnn.fits(body, self.observation_shape) else None
         )
+        self.acts_in_numpy = (
+            self._sparse_stem is not None
+            and isinstance(body[4], nn.Conv2d)
+            and all(isinstance(m, nn.Linear) or type(m) in _NUMPY_ACTIVATIONS for m in [body[1], body[3], *body[5:]])
+        )
+        """Whether the whole CNN acts in numpy (``numpy_stem``): Pong's, whose later layers all have numpy forms."""
         self._channels_last = any(isinstance(m, nn.Conv2d) for m in body.modules())
         if self._channels_last:
             # oneDNN's 2-D convolutions run ~20% faster forward and backward on NHWC than NCHW on one core
@@ -79,6 +85,15 @@ class Policy(nn.Module):
                 return self.body[3:](self._sparse_stem(x, rows, columns))
         return self.body(self._input(observations))
 
+    def numpy_stem(self) -> sparse_cnn.NumpyStem:
+        """The CNN in numpy for acting, with copies of the current weights (``acts_in_numpy``)."""
+        return sparse_cnn.NumpyStem(self._sparse_stem, self.body, numpy_layer)
+
+    def dense_logits(self, observations: np.ndarray) -> np.ndarray:
+        """Logits by the dense layers in torch (acting on frames with no sparsity to exploit)."""
+        with torch.inference_mode():
+            return self.body(self._input(torch.from_numpy(observations))).numpy()
+
     def _sparse_forward(self, observations: torch.Tensor) -> torch.Tensor:
         x = observations.reshape(len(observations), -1)
         rows, columns = _nonzero_rows_columns(x)  # row-major: rows ascending
@@ -92,6 +107,39 @@ class Policy(nn.Module):
 
 NUMPY_LAYERS = _NUMPY_ACTIVATIONS
 """Layers without weights, as numpy functions (acting: ``acting.DenseStack``)."""
+
+
+def numpy_layer(module: nn.Module):
+    """A numpy stand-in for ``module`` when acting: (weight.T, bias) copies for a Linear, else a function."""
+    if isinstance(module, nn.Linear):
+        return module.weight.detach().numpy().T.copy(), module.bias.detach().numpy().copy()
+    return _NUMPY_ACTIVATIONS[type(module)]
+
+
+def nonzero(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.nonzero`` of a 2-D int8 array, ~10x faster when it is mostly zeros: scan it 8 bytes at a time,
+    then look inside the non-zero words only."""
+    width = x.shape[1]
+    if width % 8 or not x.flags.c_contiguous:
+        return np.nonzero(x)
+    words = np.flatnonzero(x.view(np.int64))
+    in_word_rows, in_word_columns = np.nonzero(x.reshape(-1, 8)[words])
+    positions = words[in_word_rows] * 8 + in_word_columns
+    return np.divmod(positions, width)
+
+
+def sparse_matmul(x: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """``x @ weight`` for an int8 batch that is mostly zeros (Pong's frame differences: a few dozen of 6,400
+    pixels change between frames): the sum of the weight rows of the non-zero pixels, ~10x faster than a
+    dense product for a batch of 8. Dense when a quarter or more of ``x`` is non-zero."""
+    rows, columns = nonzero(x)
+    if len(rows) * 4 >= x.size:
+        return x.astype(np.float32) @ weight
+    # Row i of the product sums the weight rows of row i's non-zero pixels, scaled by their values (+-1):
+    # a (batch x non-zeros) mixing matrix times those weight rows.
+    mixing = np.zeros((len(x), len(rows)), np.float32)
+    mixing[rows, np.arange(len(rows))] = x[rows, columns]
+    return mixing @ weight[columns]
 
 
 def _plain_conv1d(module: nn.Module) -> bool:

@@ -3,7 +3,7 @@
 A frame difference has a few dozen non-zero pixels of 6,400, so the first convolution's output is its bias almost
 everywhere, and the second's is the response to that constant almost everywhere: compute both as that background
 plus the contributions of the non-zero pixels only. The same function as the dense convolutions (to float
-rounding), forward and backward, a few times less arithmetic.
+rounding), forward and backward, a few times less arithmetic. ``NumpyStem``: the whole CNN in numpy for acting.
 """
 
 from __future__ import annotations
@@ -153,3 +153,95 @@ class SparseStem:
         pre2 = self.background().repeat(n, 1).index_add(0, target2, picked)
         # (batch * side * side, channels) is (batch, side, side, channels): NCHW shape in channels-last memory.
         return pre2.reshape(n, self.side2, self.side2, -1).permute(0, 3, 1, 2)
+
+
+class NumpyStem:
+    """The whole CNN for acting (a few frames, no autograd), in numpy: ``SparseStem``'s two sparse convolutions,
+    then the rest of the body (a convolution as one product over its patches, the dense layers). torch's
+    per-op overhead (~10 us) is most of a forward through this network at 4 frames; numpy's is ~1 us.
+    ``numpy_layer`` maps a module of the body to its numpy function ((weight.T, bias) for a Linear)."""
+
+    def __init__(self, stem: SparseStem, body: nn.Sequential, numpy_layer) -> None:
+        self.stem = stem
+        self.act1, self.act2 = numpy_layer(body[1]), numpy_layer(body[3])
+        third = body[4]
+        self.layers = [
+            (torch.from_numpy(layer[0]), layer[1]) if isinstance(layer, tuple) else layer
+            for layer in (numpy_layer(m) for m in body[5:])
+        ]
+        first, second = stem.first, stem.second
+        self.kernel1 = first.weight.detach().reshape(first.out_channels, -1).t().numpy().copy()
+        self.bias1 = first.bias.detach().numpy().copy()
+        with torch.inference_mode():
+            self.background2 = stem.background().numpy().copy()  # (side2 * side2, channels2)
+        self.background1 = self.act1(self.bias1)
+        self.channels1 = np.arange(first.out_channels)
+        self.channels2 = np.arange(second.out_channels)
+        self.out1_pos, self.k1_pos = stem.out1_pos.numpy(), stem.k1_pos.numpy()
+        out2_pos, k2_pos, _ = _taps(stem.side1, second.kernel_size[0], second.stride[0], second.padding[0])
+        self.out2_pos, self.k2_pos = out2_pos.numpy(), k2_pos.numpy()
+        self.out2_offsets = second.kernel_size[0] ** 2
+        # (in, offsets * out): row i, column k * out + o is weight[o, i, ky, kx] with k = ky * kernel + kx.
+        self.kernel2 = second.weight.detach().permute(1, 2, 3, 0).reshape(second.in_channels, -1).contiguous()
+        self.kernel3 = third.weight.detach().permute(2, 3, 1, 0).reshape(-1, third.out_channels).contiguous()
+        self.bias3 = third.bias.detach().numpy().copy()
+        # For each output of the third convolution and kernel offset (ky, kx): the input position it reads, or
+        # side2 * side2 (a zero row) where that falls in the padding.
+        k, s3, p3, side2 = third.kernel_size[0], third.stride[0], third.padding[0], stem.side2
+        self.side3 = (side2 + 2 * p3 - k) // s3 + 1
+        oy, ox, ky, kx = np.meshgrid(*[np.arange(self.side3)] * 2, *[np.arange(k)] * 2, indexing="ij")
+        y, x = oy * s3 - p3 + ky, ox * s3 - p3 + kx
+        inside = (y >= 0) & (y < side2) & (x >= 0) & (x < side2)
+        self.patch3 = np.where(inside, y * side2 + x, side2 * side2).ravel()
+
+    def __call__(self, frames: np.ndarray, rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        """Logits of int8 ``frames`` (batch, size * size) with non-zero entries at ``rows``, ``columns``."""
+        stem = self.stem
+        n, c1, c2 = len(frames), len(self.bias1), self.background2.shape[1]
+        side1, side2 = stem.side1, stem.side2
+        values = frames[rows, columns].astype(np.float32)
+        out1 = self.out1_pos[columns]
+        pixel, tap = np.nonzero(out1 >= 0)
+        target1 = rows[pixel] * side1 * side1 + out1[pixel, tap]
+        contributions = values[pixel, None] * self.kernel1[self.k1_pos[columns[pixel], tap]]
+        # Few ops rather than little arithmetic (at 4 frames numpy's per-call cost dominates): bincount as the
+        # scatter-add over every (position, channel) of the batch, then the touched positions picked out.
+        n1 = n * side1 * side1
+        summed = np.bincount((target1[:, None] * c1 + self.channels1).ravel(), contributions.ravel(), minlength=n1 * c1)
+        touched = np.flatnonzero(np.bincount(target1, minlength=n1))
+        pre1 = summed.reshape(n1, c1)[touched].astype(np.float32) + self.bias1
+        change1 = self.act1(pre1) - self.background1
+
+        # Every kernel offset of the second convolution in one product; the tables pick the offsets that
+        # reach an output (up to 3 x 3 of 5 x 5 for Pong's stride 2).
+        offsets = self.out2_offsets
+        through = _matmul(change1, self.kernel2).reshape(len(touched) * offsets, c2)
+        sample, position1 = touched // (side1 * side1), touched % (side1 * side1)
+        out2 = self.out2_pos[position1]
+        source, tap2 = np.nonzero(out2 >= 0)
+        picked = through[source * offsets + self.k2_pos[position1[source], tap2]]
+        target2 = sample[source] * side2 * side2 + out2[source, tap2]
+        pre2 = np.bincount(
+            (target2[:, None] * c2 + self.channels2).ravel(), picked.ravel(), minlength=n * side2 * side2 * c2
+        )
+        pre2 = pre2.reshape(n, side2 * side2, c2).astype(np.float32) + self.background2
+        hidden = self.act2(pre2.reshape(n, side2, side2, c2))
+
+        # Third convolution: every output's patch (k x k x channels, the kernel's layout) gathered in one index
+        # (padding reads an appended zero row), one product.
+        rows3 = np.concatenate([hidden.reshape(n, side2 * side2, c2), np.zeros((n, 1, c2), np.float32)], axis=1)
+        patches = rows3[:, self.patch3].reshape(n * self.side3 * self.side3, -1)
+        x = (_matmul(patches, self.kernel3) + self.bias3).reshape(n, self.side3, self.side3, -1).transpose(0, 3, 1, 2)
+        for layer in self.layers:
+            if isinstance(layer, tuple):
+                x = _matmul(x, layer[0])
+                x += layer[1]
+            else:
+                x = layer(x)
+        return x
+
+
+def _matmul(a: np.ndarray, b: torch.Tensor) -> np.ndarray:
+    """``a @ b`` through torch's oneDNN/MKL product: numpy's bundled OpenBLAS took ~10x as long for the third
+    convolution's (100 x 288) @ (288 x 48) on one thread."""
+    return (torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)) @ b).numpy()

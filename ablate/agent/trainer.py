@@ -198,16 +198,24 @@ class Population:
         for position in np.unique(over // n).tolist() if len(over) else ():
             member = self.members[position]
             counting = member.counting
-            member.counting = counting[~ended[counting]]
-            for slot in counting[ended[counting]]:
-                self._ended(position, member, int(slot))
+            if not self.continuous:
+                member.counting = counting[~ended[counting]]
+            for slot in counting[ended[counting]].tolist():  # in slot order, as if each env stepped in turn
+                self._ended(position, member, slot)
             if self.has_batch(member):
                 ready.append(position)
         return ready
 
     def _uniforms(self) -> np.ndarray:
         """(M, N): each member's next N uniforms from its own stream, drawn ``UNIFORM_BLOCK`` steps at a time (the
-        same doubles one draw a step would give: every member takes N at every step)."""
+        same doubles one draw a step would give: every member takes N at every step). Continuous: one per playing
+        slot, in slot order (a resting emulator draws none, as in a loop over the emulators that still play)."""
+        if self.continuous:
+            uniforms = np.zeros((len(self.members), self.per_member))
+            for position, member in enumerate(self.members):
+                playing = member.counting - position * self.per_member
+                uniforms[position, playing] = member.actions_rng.random(len(playing))
+            return uniforms
         if self.block is None or self.block_used == UNIFORM_BLOCK:
             for member in self.members:
                 member.block_origin = member.actions_rng.bit_generator.state
@@ -232,6 +240,7 @@ class Population:
             member.episodes[slot] = self.slots.steps(slot)
             return
         member.finished.append(self.slots.episode(slot))
+        member.counting = member.counting[member.counting != slot]  # the slots that ended after it still count
         budget = member.config.max_episodes - len(member.history)
         if len(member.finished) + len(member.counting) >= budget:
             return  # enough episodes finished or under way for the budget: this slot rests

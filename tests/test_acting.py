@@ -1,0 +1,62 @@
+"""Acting: each stack gives every member the logits its own network gives, and a member's logits never depend on
+who shares the stack."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ablate.agent.acting import DenseStack, StemStack, stack
+from ablate.agent.policies import create_pong_model
+
+
+def _frames(n: int, density: float, seed: int) -> np.ndarray:
+    """int8 frame differences (n, 1, 80, 80): each pixel -1 or +1 with probability ``density``, else 0."""
+    rng = np.random.default_rng(seed)
+    changed = rng.random((n, 1, 80, 80)) < density
+    return (changed * rng.choice([-1, 1], (n, 1, 80, 80))).astype(np.int8)
+
+
+def _pong(architecture: str, seed: int):
+    torch.manual_seed(seed)
+    model = create_pong_model(2, architecture=architecture)
+    with torch.no_grad():  # biases of both signs: a zero bias would hide a missing background term
+        for parameter in model.parameters():
+            if parameter.dim() == 1:
+                parameter.uniform_(-0.5, 0.5)
+    return model.eval()
+
+
+def _torch_logits(model, frames: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return model.body(model._input(torch.from_numpy(frames.astype(np.float32)))).numpy()
+
+
+def test_pongs_cnn_acts_in_numpy_as_its_network_and_follows_an_update():
+    models = [_pong("cnn", seed) for seed in range(3)]
+    acting = stack(models, torch.device("cpu"), built_in=True)
+    assert isinstance(acting, StemStack)
+    # Sparse frames (the numpy path), a dense one (the dense layers) and an empty one, for each member.
+    frames = np.stack([np.concatenate([_frames(3, 0.01, m), _frames(1, 0.9, 9), np.zeros((1, 1, 80, 80), np.int8)])
+                       for m in range(3)])  # fmt: skip
+    logits = acting(frames)
+    for m, model in enumerate(models):
+        np.testing.assert_allclose(logits[m], _torch_logits(model, frames[m]), rtol=1e-5, atol=1e-5)
+        alone = stack([model], torch.device("cpu"), built_in=True)
+        np.testing.assert_array_equal(alone(frames[m : m + 1])[0], logits[m])  # whoever shares the stack
+    with torch.no_grad():
+        models[1].body[0].bias.add_(0.25)  # the background changes: the member's numpy copy must follow
+        models[1].body[2].weight.mul_(1.5)
+    acting.refresh(1)
+    np.testing.assert_allclose(acting(frames)[1], _torch_logits(models[1], frames[1]), rtol=1e-5, atol=1e-5)
+
+
+def test_pongs_mlp_acts_on_int8_frames_as_sparse_products_equal_to_its_network():
+    models = [_pong("mlp", seed) for seed in range(2)]
+    acting = stack(models, torch.device("cpu"), built_in=True)
+    assert isinstance(acting, DenseStack)
+    frames = np.stack([np.concatenate([_frames(3, 0.01, m), _frames(1, 0.9, 5)]) for m in range(2)])
+    logits = acting(frames)
+    for m, model in enumerate(models):
+        np.testing.assert_allclose(logits[m], _torch_logits(model, frames[m]), rtol=1e-5, atol=1e-5)
+        np.testing.assert_array_equal(DenseStack([model])(frames[m : m + 1])[0], logits[m])
