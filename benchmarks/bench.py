@@ -8,7 +8,9 @@ populations of 8 per member against the raw emulator; RSS per member), `pong-see
 one at a time and in populations: the same runs and distribution), `tuning` (tuned vs untuned
 default ablation; each launch's time-left estimate scored), `eta` (the time-left estimate against the time that
 actually remained), `population` (CartPole populations against one trial; the same results), `seeds` (the
-tuned default ablation at 4x its seeds in populations against today's launch).
+tuned default ablation at 4x its seeds in populations against today's launch), `trainer` (this checkout's
+trainer against an earlier commit's, alternating in one run: CartPole and a user's network in populations of 16,
+one Pong trial per arm; the same runs or not).
 `python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
 """
 
@@ -29,6 +31,7 @@ from bench_launch import bench_ablation, bench_cluster, bench_runner, bench_trac
 from bench_pong import bench_pong, bench_pong_memory, bench_pong_population, bench_pong_seeds  # noqa: E402
 from bench_population import bench_population, bench_seeds  # noqa: E402
 from bench_results import RESULTS  # noqa: E402
+from bench_trainer import BEFORE_ONE_TRAINER, bench_trainer  # noqa: E402
 from bench_trial import bench_core  # noqa: E402
 
 SECTIONS = {
@@ -45,6 +48,7 @@ SECTIONS = {
     "eta": bench_eta,
     "population": bench_population,
     "seeds": bench_seeds,
+    "trainer": bench_trainer,
 }
 
 
@@ -86,6 +90,10 @@ def main() -> int:
     parser.add_argument(
         "--population-seeds", type=int, default=32, help="population: seeds of the same-science check (0: none)"
     )
+    parser.add_argument(
+        "--trainer-against", default=BEFORE_ONE_TRAINER, help="trainer: the commit to measure against (a git ref)"
+    )
+    parser.add_argument("--trainer-pairs", type=int, default=5, help="trainer: alternating pairs of runs per case")
     args = parser.parse_args()
     print(f"python {sys.version.split()[0]}, torch {torch.__version__}, {time.strftime('%Y-%m-%d %H:%M')}")
     unknown = [name for name in args.sections if name not in SECTIONS]
@@ -98,6 +106,8 @@ def main() -> int:
         parser.error(f"--ablation-repeats must be at least 1, got {args.ablation_repeats}")
     if args.pong_memory_episodes < 0:
         parser.error(f"--pong-memory-episodes must be at least 0, got {args.pong_memory_episodes}")
+    if args.trainer_pairs < 1:
+        parser.error(f"--trainer-pairs must be at least 1, got {args.trainer_pairs}")
     if args.tuning_repeats < 1:
         parser.error(f"--tuning-repeats must be at least 1, got {args.tuning_repeats}")
     for name in args.sections or SECTIONS:
@@ -112,6 +122,7 @@ def main() -> int:
                 "repeats": args.population_repeats,
                 "seeds": args.population_seeds,
             },
+            "trainer": {"against": args.trainer_against, "pairs": args.trainer_pairs},
             "eta": {
                 "launches": tuple(args.eta_launches.split(",")),
                 **({"experiments": tuple(args.eta_experiments)} if args.eta_experiments else {}),

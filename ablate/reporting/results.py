@@ -18,6 +18,7 @@ import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment
+from ablate.reporting.networks import layers
 from ablate.reporting.reader import RunReader, TrackingError
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.reporting.tuning import knobs as tuning_knobs
@@ -337,7 +338,9 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
                 window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
                 row |= trial_measures(curve, budget, levels, window)
             if row.get("stage") != TUNE:
-                params.setdefault(trial["variant"], run.params)
+                if trial["variant"] not in params:  # a user's network is described from its recorded source
+                    described = layers(tracker, run.run_id, run.params)
+                    params[trial["variant"]] = run.params | ({"model.layers": described} if described else {})
                 if curve is not None:
                     curves[trial["key"]] = curve
             else:

@@ -9,6 +9,7 @@ import pandas as pd
 from ablate.reporting.figures import ablation_window
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
+from ablate.reporting.networks import factory_args
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
 from ablate.reporting.text import _interval, _markdown_table
@@ -24,24 +25,18 @@ def _sizes(params: dict[str, str], key: str = "model.hidden_sizes") -> list[int]
 
 def _factory_args(text: str) -> str:
     """A tracked ``model_args`` (pairs, as MLflow holds them) as ``width=32, depth=2``."""
-    import ast
-    import json
-
-    for parse in (json.loads, ast.literal_eval):
-        try:
-            return ", ".join(f"{k}={v}" for k, v in parse(text))
-        except (ValueError, SyntaxError, TypeError):
-            continue
-    return text.strip("()[]")
+    return ", ".join(f"{k}={v}" for k, v in factory_args(text)) or text.strip("()[]")
 
 
 def architecture(params: dict[str, str], env_id: str) -> str:
-    """The policy in words, as ``policies.py`` builds it for ``env_id``; a user's own network by its factory."""
+    """The policy in words, as ``policies.py`` builds it for ``env_id``; a user's own network by its factory and,
+    where its run recorded the source, its layers (``networks.layers``)."""
     factory = params.get("model.factory", "")
     if factory:
         target, function = factory.rsplit(":", 1)
         text = f"the user's own network: {function} of {target.rsplit('/', 1)[-1]}"
         text += f" (source {params.get('model.factory_hash', '?')})"
+        text += f": {params['model.layers']}" if params.get("model.layers") else ""
         args = _factory_args(params.get("model.factory_args", ""))
         text += f", {args}" if args else ""
         return text + (f"; L2 {params['l2']}" if float(params.get("l2", 0) or 0) > 0 else "")
