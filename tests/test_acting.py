@@ -60,3 +60,34 @@ def test_pongs_mlp_acts_on_int8_frames_as_sparse_products_equal_to_its_network()
     for m, model in enumerate(models):
         np.testing.assert_allclose(logits[m], _torch_logits(model, frames[m]), rtol=1e-5, atol=1e-5)
         np.testing.assert_array_equal(DenseStack([model])(frames[m : m + 1])[0], logits[m])
+
+
+def test_a_users_layernorm_mlp_acts_in_numpy_to_float_tolerance_and_a_member_as_alone():
+    from pathlib import Path
+
+    from ablate.agent.acting import VmapStack
+
+    source = Path(__file__).parent.parent / "examples" / "models"
+    namespace: dict = {}
+    exec((source / "layernorm.py").read_text(), namespace)
+    models = []
+    for seed in range(3):
+        torch.manual_seed(seed)
+        model = namespace["create_model"]((4,), 2, width=16).eval()
+        with torch.no_grad():  # a scale and shift of its own: the affine part must be each member's
+            model[2].weight.uniform_(0.5, 1.5)
+            model[2].bias.uniform_(-0.5, 0.5)
+        models.append(model)
+    acting = stack(models, torch.device("cpu"), built_in=False)
+    assert isinstance(acting, DenseStack)
+    observations = np.random.default_rng(0).normal(size=(3, 5, 4)).astype(np.float32)
+    logits = acting(observations)
+    for m, model in enumerate(models):
+        with torch.no_grad():
+            expected = model(torch.from_numpy(observations[m])).numpy()
+        np.testing.assert_allclose(logits[m], expected, rtol=1e-5, atol=1e-5)
+        np.testing.assert_array_equal(DenseStack([model])(observations[m : m + 1])[0], logits[m])
+    namespace = {}
+    exec((source / "residual.py").read_text(), namespace)
+    residual = [namespace["create_model"]((4,), 2) for _ in range(2)]
+    assert isinstance(stack(residual, torch.device("cpu"), built_in=False), VmapStack)  # not a plain stack

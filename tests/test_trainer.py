@@ -34,11 +34,11 @@ def _members(base):
     return [replace(base, seed=s, learning_rate=lr) for s, lr in ((0, 0.03), (1, 0.1), (2, 0.01), (3, 0.03))]
 
 
-CUSTOM = Path(__file__).parent.parent / "examples" / "models" / "layernorm.py"
+CUSTOM = Path(__file__).parent.parent / "examples" / "models" / "residual.py"
 
 
 def _custom(**overrides):
-    """A user's network (a LayerNorm MLP from a file): no dense stack acts for it, a ``vmap`` does."""
+    """A user's network (an MLP with a residual block, from a file): no dense stack acts for it, a ``vmap`` does."""
     config = apply_knobs(SHORT, {"model": f"{CUSTOM}:create_model", "model_args": {"width": 16}})
     return replace(config, **overrides)
 

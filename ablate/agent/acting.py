@@ -1,7 +1,7 @@
 """Acting for a population: every member's logits on its own observations in one batched forward.
 
-``DenseStack``: networks of dense layers (and CartPole's 1-D convolutions; Pong's int8 frames as sparse products):
-the members' weights stacked member-first, one numpy matrix product per layer for all of them; each member's slice
+``DenseStack``: networks of dense layers (CartPole's 1-D convolutions, a user's LayerNorm, Pong's int8 frames as
+sparse products): the members' weights stacked member-first, one numpy matrix product per layer for all of them; each member's slice
 is the product it computes alone, so a member acts bit for bit as its population of one. ``StemStack``: Pong's
 built-in CNN, each member's whole network in numpy over the frame difference's few non-zero pixels.
 ``VmapStack``: any ``nn.Module``, through ``torch.func.stack_module_state`` + ``vmap(functional_call)`` (equal to
@@ -34,18 +34,25 @@ class DenseStack:
     def fits(model: nn.Module) -> bool:
         body = _body(model)
         return body is not None and all(
-            isinstance(m, nn.Linear) or plain_conv1d(m) or type(m) in NUMPY_LAYERS for m in body
+            isinstance(m, nn.Linear) or plain_conv1d(m) or _plain_layer_norm(m) or type(m) in NUMPY_LAYERS for m in body
         )
 
     def refresh(self, member: int) -> None:
         """Member ``member``'s weights copied into the stacks (after its update or a restore)."""
         body = _body(self.models[member])
         for k, module in enumerate(body):
-            if not isinstance(module, nn.Linear | nn.Conv1d):
+            if isinstance(module, nn.LayerNorm):  # its affine scale and shift (ones and zeros without them)
+                shape = module.normalized_shape
+                weight = (
+                    module.weight.detach().cpu().numpy()[None] if module.weight is not None else np.ones((1, *shape))
+                )
+                bias = module.bias.detach().cpu().numpy()[None] if module.bias is not None else np.zeros((1, *shape))
+            elif isinstance(module, nn.Linear | nn.Conv1d):
+                weight = module.weight.detach().cpu().numpy()
+                weight = conv1d_weight(weight) if isinstance(module, nn.Conv1d) else weight.T
+                bias = module.bias.detach().cpu().numpy()[None, :]
+            else:
                 continue
-            weight = module.weight.detach().cpu().numpy()
-            weight = conv1d_weight(weight) if isinstance(module, nn.Conv1d) else weight.T
-            bias = module.bias.detach().cpu().numpy()[None, :]
             if k not in self.weights:
                 count = len(self.models)
                 self.weights[k] = (
@@ -60,7 +67,11 @@ class DenseStack:
         for k, module in enumerate(self.layers):
             if k in self.weights:
                 weight, bias = self.weights[k]
-                if isinstance(module, nn.Conv1d):
+                if isinstance(module, nn.LayerNorm):
+                    centred = x - x.mean(axis=-1, keepdims=True)
+                    x = centred / np.sqrt((centred * centred).mean(axis=-1, keepdims=True) + module.eps)
+                    x = x * weight + bias
+                elif isinstance(module, nn.Conv1d):
                     x = conv1d(x, weight, bias)
                 elif x.dtype == np.int8:  # Pong's frame differences: each member's few non-zero pixels' rows
                     x = np.stack([sparse_matmul(rows, w) for rows, w in zip(x, weight, strict=True)])
@@ -186,6 +197,11 @@ def stack(models: Sequence[nn.Module], device: torch.device, built_in: bool):
     if built_in or len(models) == 1:
         return LoopStack(models, device)
     return VmapStack(models, device)
+
+
+def _plain_layer_norm(module: nn.Module) -> bool:
+    """A ``LayerNorm`` over the last axis (a user's LayerNorm MLP), which numpy computes to float tolerance."""
+    return isinstance(module, nn.LayerNorm) and len(module.normalized_shape) == 1
 
 
 def _body(model: nn.Module) -> nn.Sequential | None:

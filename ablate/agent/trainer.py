@@ -162,7 +162,9 @@ class Population:
         """Member ``position`` begins its next collection (from a reset; continuous: its slots begin playing)."""
         member, slots = self.members[position], self.slots_of(position)
         self.slots.start(slots)
-        count = member.wanted if not self.continuous else min(self.per_member, member.config.max_episodes)
+        # Continuous: every slot plays from the start, a budget smaller than the slots included (its rest rule, in
+        # _ended, stops the slots that would play for nothing as their episodes end).
+        count = member.wanted if not self.continuous else self.per_member
         self.set_counting(position, slots[:count])
         member.episodes = {}
 
