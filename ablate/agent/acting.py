@@ -3,9 +3,9 @@
 ``DenseStack``: networks of dense layers (CartPole's 1-D convolutions, a user's LayerNorm, Pong's int8 frames as
 sparse products): the members' weights stacked member-first, one numpy matrix product per layer for all of them;
 each member's slice is the product it computes alone, so a member acts bit for bit as its population of one.
-``StemStack``: Pong's built-in CNN, each member's whole network in numpy over the frame difference's few non-zero pixels.
-``VmapStack``: any ``nn.Module``, through ``torch.func.stack_module_state`` + ``vmap(functional_call)`` (equal to
-float tolerance). ``LoopStack``: each member's own forward in turn (a built-in network on a GPU, exactly; a
+``StemStack``: Pong's built-in CNN, each member's whole network in numpy over the frame difference's non-zero
+pixels. ``VmapStack``: any ``nn.Module``, through ``torch.func.stack_module_state`` + ``vmap(functional_call)``
+(equal to float tolerance). ``LoopStack``: each member's own forward in turn (a built-in network on a GPU, exactly; a
 population of one). No gradients: acting is eval mode.
 """
 
