@@ -65,7 +65,7 @@ def choose_action(
         if uniforms is None:
             uniforms = (rng if rng is not None else np.random.default_rng()).random(logits.shape[:-1])
         actions = sample_actions(logits, uniforms)
-    return int(actions[0]) if single else actions.astype(np.int64)
+    return int(actions[0]) if single else actions.astype(np.int64, copy=False)
 
 
 def sample_actions(logits: np.ndarray, uniforms: np.ndarray) -> np.ndarray:

@@ -68,11 +68,12 @@ class CartPoleSlots:
         self._make = lambda n: _checked_by_shape(CartPoleVectorEnv(num_envs=n, max_episode_steps=max_episode_steps))
         self.env = self._make(len(seeds) * per_member)
         self.env.reset(seed=0)  # allocates its state; every slot's start state is drawn again by start()
-        self.raw = np.zeros((self.env.num_envs, 4), np.float32)
         self.windows = _Windows(self.env.num_envs, (4,), history) if history else None
         # A ring of steps (a collection lasts at most max_episode_steps): slot s's episode is rows started[s]...
         self.capacity = max_episode_steps + 1
         self.ring = np.zeros((self.capacity, self.env.num_envs, 4), np.float32)
+        self.raw = self.ring[0]
+        """The current step's observations: the ring's row for this step, where they stay."""
         self.actions = np.zeros((self.capacity, self.env.num_envs), np.int64)
         self.started = np.zeros(self.env.num_envs, np.int64)
         self.iteration = 0
@@ -113,17 +114,16 @@ class CartPoleSlots:
 
     def step(self, actions: np.ndarray, stepping: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every slot steps (the vector env steps all); returns (rewards, episode ended) per slot."""
-        at = self.iteration % self.capacity
-        self.ring[at] = self.raw
-        self.actions[at] = actions
-        resetting = np.flatnonzero(self.env.prev_done)
+        self.actions[self.iteration % self.capacity] = actions
+        resetting = np.flatnonzero(self.env.prev_done) if self.env.prev_done.any() else None
         observations, rewards, terminated, truncated, _ = self.env.step(actions)
+        self.iteration += 1
+        self.raw = self.ring[self.iteration % self.capacity]  # the next step's row: its observations are kept there
         self.raw[:] = observations
-        if len(resetting):
+        if resetting is not None:
             self._draw(resetting)  # the autoreset's start states, from the members' own streams
         if self.windows is not None:
             self.windows.step(slice(None), self.raw)
-        self.iteration += 1
         return rewards, terminated | truncated
 
     def steps(self, slot: int) -> int:
@@ -167,8 +167,8 @@ class CartPoleSlots:
         self.env.state = np.ascontiguousarray(old.state[:, slots])
         self.env.steps, self.env.prev_done = old.steps[slots].copy(), old.prev_done[slots].copy()
         self.streams = [self.streams[m] for m in members]
-        self.raw = self.raw[slots].copy()
         self.ring = np.ascontiguousarray(self.ring[:, slots])
+        self.raw = self.ring[self.iteration % self.capacity]
         self.actions = np.ascontiguousarray(self.actions[:, slots])
         self.started = self.started[slots]
         if self.windows is not None:
