@@ -233,6 +233,8 @@ def test_seeds_that_differ_between_variants_are_said_as_a_range_not_the_grids_co
     assert "from 3 to 6 seeds on" in body and "from 6 seeds" not in body
     assert "**3 to 6 seeds per variant**" in body
     assert "(added in rounds" not in body  # no rounds.json: the range is not said to come from rounds
+    # The method says the seeds that ran, not the file's 6 (it said "6 per variant (0, 1, 2, 3, 4, 5)").
+    assert "**Seeds.** 3 to 6 per variant (0-5): each seeds torch" in _report(tmp_path, "uneven", uri)
 
 
 def test_a_difference_claimed_by_a_later_holm_step_says_why_its_interval_still_reaches_no_change():

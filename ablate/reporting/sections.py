@@ -101,6 +101,32 @@ def _episodes(count) -> str:
     return f"{count} episode{'' if str(count) == '1' else 's'}"
 
 
+def _seed_ranges(seeds: list[int]) -> str:
+    """``0-4, 10``: consecutive seeds as ranges."""
+    ranges: list[list[int]] = []
+    for seed in sorted(seeds):
+        if ranges and seed == ranges[-1][1] + 1:
+            ranges[-1][1] = seed
+        else:
+            ranges.append([seed, seed])
+    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in ranges)
+
+
+def _seeds_ran(ablation: Ablation, planned: list[int]) -> str:
+    """The evaluation seeds that ran, per variant: ``5 per variant (0-4)``, or with rounds ``15 to 30 per variant
+    (0-29: 5 at first, more in rounds while one was open)``; the file's seeds where none finished."""
+    done = ablation.finished
+    if not len(done):
+        return f"{len(planned)} per variant ({_seed_ranges(planned)})"
+    fewest, most = ablation.seed_span
+    seeds = _seed_ranges([int(s) for s in done.seed.unique()])
+    if fewest == most:
+        return f"{most} per variant ({seeds})"
+    if not ablation.launch.get("rounds"):
+        return f"{fewest} to {most} per variant ({seeds})"
+    return f"{fewest} to {most} per variant ({seeds}: {len(planned)} at first, more in rounds while one was open)"
+
+
 def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     base = ablation.grid["base"]
     threshold = ablation.threshold
@@ -131,8 +157,7 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
         f"update of {_episodes(base.get('episodes_per_update', '?'))}. L2 is a loss term over weight matrices; "
         f"dropout is active in updates and off while acting.{reset}",
         "",
-        f"**Seeds.** {len(seeds)} per variant ({', '.join(map(str, seeds))}): each seeds torch, the action sampler "
-        "and the environment.",
+        f"**Seeds.** {_seeds_ran(ablation, seeds)}: each seeds torch, the action sampler and the environment.",
         "",
         "**Variants.** Each changes the listed knobs over the base; every other knob is the base's.",
         "",
