@@ -91,3 +91,20 @@ def test_a_users_layernorm_mlp_acts_in_numpy_to_float_tolerance_and_a_member_as_
     exec((source / "residual.py").read_text(), namespace)
     residual = [namespace["create_model"]((4,), 2) for _ in range(2)]
     assert isinstance(stack(residual, torch.device("cpu"), built_in=False), VmapStack)  # not a plain stack
+
+
+def test_another_atari_games_frames_act_through_the_cnns_own_forward():
+    """An 84 x 84 frame difference that is not int8 (Gymnasium's AtariPreprocessing): the numpy stem reads only
+    Pong's int8 frames, any other image goes through the network's forward (it failed with an IndexError)."""
+    from ablate.agent.policies import nonzero
+
+    torch.manual_seed(0)
+    models = [create_pong_model(4, observation_shape=(1, 84, 84)).eval() for _ in range(2)]
+    acting = stack(models, torch.device("cpu"), built_in=True)
+    frames = np.random.default_rng(0).normal(size=(2, 3, 1, 84, 84)).astype(np.float32)
+    logits = acting(frames)
+    for m, model in enumerate(models):
+        np.testing.assert_allclose(logits[m], _torch_logits(model, frames[m]), rtol=1e-5, atol=1e-5)
+    wide = np.zeros((2, 16), np.int16)
+    wide[1, 3] = 300
+    assert [list(a) for a in nonzero(wide)] == [[1], [3]]

@@ -32,10 +32,10 @@ def _params(width: int, env_id: str = "CartPole-v1") -> dict[str, str]:
 
 def test_a_users_network_is_summarised_from_its_recorded_source_with_its_args_and_env():
     store = _Store({"model.py": SOURCE})
-    assert layers(store, "run", _params(16)) == "Flatten Linear(4->16) LayerNorm ReLU Linear(16->2)"
-    assert layers(store, "run", _params(8, "Acrobot-v1")) == "Flatten Linear(6->8) LayerNorm ReLU Linear(8->3)"
+    assert layers(store, "run", _params(16)) == "Flatten Linear(4→16) LayerNorm ReLU Linear(16→2)"
+    assert layers(store, "run", _params(8, "Acrobot-v1")) == "Flatten Linear(6→8) LayerNorm ReLU Linear(8→3)"
     text = architecture({**_params(16), "model.layers": layers(store, "run", _params(16))}, "CartPole-v1")
-    assert text.endswith(": Flatten Linear(4->16) LayerNorm ReLU Linear(16->2), width=16")
+    assert text.endswith(": Flatten Linear(4→16) LayerNorm ReLU Linear(16→2), width=16")
 
 
 def test_no_recorded_source_or_a_source_that_is_not_the_tracked_one_leaves_the_factory_alone():

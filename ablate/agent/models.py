@@ -148,16 +148,16 @@ def check_model(config: TrialConfig, env: Described) -> nn.Module:
 
 
 def summary(network: nn.Module) -> str:
-    """One line: the network's layers by type, e.g. ``Linear(4->64) LayerNorm ReLU Linear(64->2)``."""
+    """One line: the network's layers by type, e.g. ``Linear(4→64) LayerNorm ReLU Linear(64→2)``."""
     parts = []
     for module in network.modules():
         if list(module.children()):
             continue
         if isinstance(module, nn.Linear):
-            parts.append(f"Linear({module.in_features}->{module.out_features})")
+            parts.append(f"Linear({module.in_features}→{module.out_features})")
         elif isinstance(module, nn.Conv1d | nn.Conv2d):
             parts.append(
-                f"{type(module).__name__}({module.in_channels}->{module.out_channels}, k{module.kernel_size[0]})"
+                f"{type(module).__name__}({module.in_channels}→{module.out_channels}, k{module.kernel_size[0]})"
             )
         else:
             parts.append(type(module).__name__)

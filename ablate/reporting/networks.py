@@ -22,7 +22,7 @@ def factory_args(text: str) -> tuple[tuple[str, Any], ...]:
 
 
 def layers(tracker: RunReader, run_id: str, params: dict[str, str]) -> str | None:
-    """The run's network as ``Linear(4->32) LayerNorm ReLU Linear(32->2)``, built as its trial built it (the
+    """The run's network as ``Linear(4→32) LayerNorm ReLU Linear(32→2)``, built as its trial built it (the
     recorded source, its ``model_args``, its env's shapes); None where the run recorded no source or the
     network cannot be built here."""
     from ablate.agent.envs import describe
