@@ -272,10 +272,13 @@ class Results:
 
     @property
     def tuning(self) -> pd.DataFrame:
-        import pandas
+        """``tables/tuning.csv``: one row per tuning trial; an untuned experiment's is empty, with its columns."""
+        from ablate.reporting.tuning import tuning_table
 
         trials = self.ablation.tuning_trials
-        return trials if self.ablation.tuning and trials is not None else pandas.DataFrame()
+        if self.ablation.tuning and trials is not None:
+            return trials
+        return tuning_table([], self.ablation.tuning or {}, self.variants)
 
     @cached_property
     def claims(self) -> pd.DataFrame:

@@ -585,3 +585,13 @@ def test_a_users_network_is_described_by_its_factory_not_by_built_in_knobs():
     text = architecture(params, "CartPole-v1")
     assert text == "the user's own network: create_model of layernorm.py (source 10a11c309fa7), width=32"
     assert "MLP" not in architecture({**params, "model.factory_args": "()"}, "CartPole-v1")
+
+
+def test_an_untuned_experiments_tuning_table_is_empty_with_its_columns(tmp_path):
+    """``ablate.load(...).tuning`` of an experiment without ``[tune]``: no rows, and the columns a tuned one has
+    (it was a 0 x 0 frame, which a notebook cannot filter or concatenate)."""
+    import ablate
+
+    uri = make_store(tmp_path, "plain", {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 10)}})
+    tuning = ablate.load("plain", tracking_uri=uri).tuning
+    assert len(tuning) == 0 and list(tuning.columns) == ["variant", "seed", "auc", "status"]
