@@ -8,9 +8,10 @@ from pathlib import Path
 import pytest
 import torch
 
+from ablate.agent.population import Population
 from ablate.agent.records import TrialFailed, TrialResult
 from ablate.agent.sharing import can_share
-from ablate.agent.trainer import Population, run_population, run_trial
+from ablate.agent.trainer import run_population, run_trial
 from ablate.config import DEFAULT, ModelConfig, apply_knobs
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=48, episodes_per_update=8, record_video=False)

@@ -105,7 +105,7 @@ class TrialProgress:
     @cached_property
     def threshold(self) -> float | None:
         """The rolling mean at which it stops, solved (``run_trial``'s own rule)."""
-        from ablate.agent.trainer import solve_threshold  # the driver has it loaded once trials run
+        from ablate.agent.population import solve_threshold  # the driver has it loaded once trials run
 
         return solve_threshold(self.trial.config)
 

@@ -1,0 +1,297 @@
+"""A population's state: its members (each a learner with its own streams), their env slots and their batched
+acting; what ``trainer``'s loop steps, updates and lets leave. No Ray and no MLflow here.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ablate.agent.acting import stack
+from ablate.agent.artifacts import TrainingVideos
+from ablate.agent.envs import Described, describe, is_native_vector, make_trial_env
+from ablate.agent.models import build_model, history
+from ablate.agent.optim import Adam
+from ablate.agent.records import Batch, EpisodeMetrics
+from ablate.agent.reinforce import choose_action, discount_rewards, normalize, train_step
+from ablate.agent.slots import CartPoleSlots, EnvSlots, Episode
+from ablate.config import TrialConfig
+
+UNIFORM_BLOCK = 64
+"""Steps of action uniforms drawn from each member's stream at a time."""
+
+IMAGE_TRAIN_CHUNK = 1024
+"""Observations per forward/backward in an update on images (Pong): bounds its activations (~130 MB for the CNN)."""
+
+
+@dataclass
+class Member:
+    """One member's learner and its place in the loop."""
+
+    index: int
+    """Position in ``run_population``'s ``configs``."""
+    config: TrialConfig
+    threshold: float | None
+    started: float
+    model: torch.nn.Module
+    optimizer: Adam
+    actions_rng: np.random.Generator
+    torch_rng: torch.Tensor
+    """Its torch RNG state (after its initial weights): its dropout draws."""
+    history: list[EpisodeMetrics] = field(default_factory=list)
+    window: deque = field(default_factory=deque)
+    env_steps: int = 0
+    updates: int = 0
+    episodes_to_solve: int | None = None
+    next_checkpoint: int | None = None
+    counting: np.ndarray | None = None
+    """Its slots whose episodes go into its next update (from a reset), or that still play (continuous)."""
+    episodes: dict[int, int] = field(default_factory=dict)
+    """Lengths of the collection's ended episodes, by slot (from a reset): the slots hold them until ``batch``."""
+    finished: deque = field(default_factory=deque)
+    """Finished episodes in the order they ended (continuous)."""
+    completed: int = 0
+    videos: TrainingVideos | None = None
+    block_origin: dict | None = None
+    """Its action stream's state before the population's current block of uniforms was drawn."""
+
+    @property
+    def done(self) -> bool:
+        return len(self.history) >= self.config.max_episodes or self.episodes_to_solve is not None
+
+    @property
+    def wanted(self) -> int:
+        return min(self.config.episodes_per_update, self.config.max_episodes - len(self.history))
+
+
+def solve_threshold(config: TrialConfig) -> float | None:
+    """The rolling mean over ``solve_window`` episodes at which a trial counts as solved and stops: its own
+    ``solve_threshold``, else its env's ``reward_threshold`` (``None``: Pong has none)."""
+    if config.solve_threshold is not None:
+        return config.solve_threshold
+    return describe(config).reward_threshold
+
+
+class Population:
+    """The members, their slots and their batched acting: ``run_population``'s state."""
+
+    def __init__(self, configs: Sequence[TrialConfig], device: torch.device, folders: Sequence[Path | None]) -> None:
+        first = configs[0]
+        self.env: Described = describe(first)
+        self.continuous = first.num_envs > 0
+        """Slots play on into the next update (``num_envs`` set: Pong's emulators never idle); else each update's
+        episodes start together from a reset, one per slot, so every one is sampled from the current policy."""
+        self.per_member = first.num_envs or first.episodes_per_update
+        self.history = history(first)
+        self.device = device
+        started = time.perf_counter()
+        self.members = []
+        for i, config in enumerate(configs):
+            torch.manual_seed(config.seed)  # initial weights, then dropout's stream
+            model = build_model(config, self.env).to(device)
+            fps, folder = self.env.video_fps, folders[i]
+            self.members.append(
+                Member(
+                    i,
+                    config,
+                    solve_threshold(config),
+                    started,
+                    model,
+                    Adam(model.parameters(), lr=config.learning_rate),
+                    np.random.default_rng(config.seed),
+                    torch.get_rng_state(),
+                    window=deque(maxlen=config.solve_window),
+                    videos=TrainingVideos(folder, config.video_every, config.video_max_frames, fps),
+                )
+            )
+        seeds = [c.seed for c in configs]
+        if is_native_vector(first) and not self.continuous:
+            self.slots = CartPoleSlots(seeds, self.per_member, self.env.max_episode_steps, self.history)
+        else:
+
+            def make(m: int, j: int):  # a member's first env renders where it records training videos
+                return make_trial_env(
+                    configs[m], render=j == 0 and configs[m].video_every > 0 and folders[m] is not None
+                )
+
+            self.slots = EnvSlots(seeds, self.per_member, make, self.history)
+            self.slots.on_frame = self._frame
+        self.acting = stack([m.model for m in self.members], device, built_in=not first.model.factory)
+        self.chunk = IMAGE_TRAIN_CHUNK if len(self.env.observation_shape) == 3 else None
+        self.stepping = np.zeros(len(self.members) * self.per_member, bool)
+        """Every member's counting slots, as one mask (what ``step`` steps)."""
+        self.block: np.ndarray | None = None
+        self.block_used = 0
+        self.leaving = True
+        """Some member may have ended (solved, out of budget, failed) since ``_finish`` last looked."""
+
+    def slots_of(self, position: int) -> np.ndarray:
+        return position * self.per_member + np.arange(self.per_member)
+
+    def start(self, position: int) -> None:
+        """Member ``position`` begins its next collection (from a reset; continuous: its slots begin playing)."""
+        member, slots = self.members[position], self.slots_of(position)
+        self.slots.start(slots)
+        # Continuous: every slot plays from the start, a budget smaller than the slots included (its rest rule, in
+        # _ended, stops the slots that would play for nothing as their episodes end).
+        count = member.wanted if not self.continuous else self.per_member
+        self.set_counting(position, slots[:count])
+        member.episodes = {}
+
+    def set_counting(self, position: int, slots: np.ndarray) -> None:
+        """Member ``position``'s counting slots become ``slots`` (its others rest)."""
+        self.members[position].counting = slots
+        self.stepping[self.slots_of(position)] = False
+        self.stepping[slots] = True
+
+    def _frame(self, slot: int, over: bool) -> None:
+        """A slot stepped or reset: the member's first slot feeds its training videos."""
+        position, j = divmod(slot, self.per_member)
+        member = self.members[position]
+        if j != 0 or member.videos is None or not member.videos.every:
+            return
+        frame = self.slots.envs[slot].render
+        if len(self.slots.memories[slot]) == 0 and not over:
+            member.videos.episode_started(member.completed, frame)
+        else:
+            member.videos.frame(frame, over)
+
+    def step(self) -> list[int]:
+        """One step of every member; the positions of the members whose next batch is complete."""
+        m, n = len(self.members), self.per_member
+        observations = self.slots.observations()
+        observations = observations.reshape(m, n, *observations.shape[1:])
+        uniforms = self._uniforms()
+        actions = choose_action(self.acting, observations, single=False, uniforms=uniforms).reshape(-1)
+        _, ended = self.slots.step(actions, self.stepping)
+        over = np.flatnonzero(ended & self.stepping)  # counting slots whose episode ended (most steps: none or a few)
+        self.stepping[over] = False
+        ready = []
+        for position in np.unique(over // n).tolist() if len(over) else ():
+            member = self.members[position]
+            counting = member.counting
+            if not self.continuous:
+                member.counting = counting[~ended[counting]]
+            for slot in counting[ended[counting]].tolist():  # in slot order, as if each env stepped in turn
+                self._ended(position, member, slot)
+            if self.has_batch(member):
+                ready.append(position)
+        return ready
+
+    def _uniforms(self) -> np.ndarray:
+        """(M, N): each member's next N uniforms from its own stream, drawn ``UNIFORM_BLOCK`` steps at a time (the
+        same doubles one draw a step would give: every member takes N at every step). Continuous: one per playing
+        slot, in slot order (a resting emulator draws none, as in a loop over the emulators that still play)."""
+        if self.continuous:
+            uniforms = np.zeros((len(self.members), self.per_member))
+            for position, member in enumerate(self.members):
+                playing = member.counting - position * self.per_member
+                uniforms[position, playing] = member.actions_rng.random(len(playing))
+            return uniforms
+        if self.block is None or self.block_used == UNIFORM_BLOCK:
+            for member in self.members:
+                member.block_origin = member.actions_rng.bit_generator.state
+            self.block = np.stack([m.actions_rng.random((UNIFORM_BLOCK, self.per_member)) for m in self.members])
+            self.block_used = 0
+        self.block_used += 1
+        return self.block[:, self.block_used - 1]
+
+    def actions_state(self, position: int) -> dict:
+        """Member ``position``'s action stream as if only the uniforms used so far had been drawn (a checkpoint's)."""
+        member = self.members[position]
+        if self.block is None:
+            return member.actions_rng.bit_generator.state
+        stream = np.random.PCG64()
+        stream.state = member.block_origin
+        stream.advance(self.block_used * self.per_member)  # one 64-bit draw per double
+        return stream.state
+
+    def _ended(self, position: int, member: Member, slot: int) -> None:
+        member.completed += 1
+        if not self.continuous:
+            member.episodes[slot] = self.slots.steps(slot)
+            return
+        member.finished.append(self.slots.episode(slot))
+        member.counting = member.counting[member.counting != slot]  # the slots that ended after it still count
+        budget = member.config.max_episodes - len(member.history)
+        if len(member.finished) + len(member.counting) >= budget:
+            return  # enough episodes finished or under way for the budget: this slot rests
+        self.slots.start(np.array([slot]))
+        member.counting = np.sort(np.append(member.counting, slot))
+        self.stepping[slot] = True
+
+    def batch(self, member: Member) -> Batch:
+        """The member's episodes of this update: returns discounted within each episode, normalised across all."""
+        if self.continuous:
+            episodes = [member.finished.popleft() for _ in range(member.wanted)]
+            lengths = np.array([len(e.actions) for e in episodes], np.int64)
+            taken = Episode(*(np.concatenate(parts) for parts in zip(*episodes, strict=True)))
+        else:
+            slots = np.array(sorted(member.episodes), np.int64)
+            lengths = np.array([member.episodes[s] for s in slots.tolist()], np.int64)
+            taken = self.slots.take(slots, lengths)
+            member.episodes = {}
+        config = member.config
+        observations = taken.observations
+        if config.model.factory:  # a user's network takes float32 (the built-ins read int8 frames as they are)
+            observations = observations.astype(np.float32, copy=False)
+        rewards = taken.rewards.astype(np.float64)
+        returns = discount_rewards(rewards, config.gamma, config.reset_on_score, lengths=lengths)
+        return Batch(
+            lengths,
+            np.add.reduceat(rewards, np.cumsum(lengths) - lengths),
+            observations,
+            taken.actions,
+            normalize(returns),
+        )
+
+    def has_batch(self, member: Member) -> bool:
+        """Whether the member's next update's episodes are all in."""
+        if member.done:
+            return False
+        if self.continuous:
+            return len(member.finished) >= member.wanted
+        return bool(member.episodes) and not len(member.counting)
+
+    def update(self, position: int, batch: Batch):
+        """The member's own Adam step on its own module, its dropout from its own stream."""
+        member = self.members[position]
+        torch.set_rng_state(member.torch_rng)
+        stats = train_step(
+            member.model,
+            member.optimizer,
+            batch.observations,
+            batch.actions,
+            batch.weights,
+            l2=member.config.l2,
+            chunk_size=self.chunk,
+        )
+        member.torch_rng = torch.get_rng_state()
+        self.acting.refresh(position)
+        return stats
+
+    def keep(self, positions: list[int]) -> None:
+        """Only the members at ``positions`` go on (the others left)."""
+        self.members = [self.members[p] for p in positions]
+        if self.block is not None:
+            self.block = self.block[positions]
+        self.slots.keep(positions)
+        self.acting.keep(positions)
+        self.stepping = self.stepping.reshape(-1, self.per_member)[positions].reshape(-1)
+        for new, member in enumerate(self.members):
+            mine = self.slots_of(new)
+            old = member.counting % self.per_member
+            member.counting = mine[old]
+            member.episodes = {int(mine[s % self.per_member]): e for s, e in member.episodes.items()}
+
+    def close(self) -> None:
+        for member in self.members:
+            if member.videos is not None:
+                member.videos.close()
+        self.slots.close()
