@@ -134,9 +134,7 @@ class CartPoleSlots:
         """The episodes of ``slots``, the first ``lengths`` steps of each since its start, back to back in one
         gather from the ring (a collection, at most ``max_episode_steps``, is taken before the ring comes round)."""
         total = int(lengths.sum())
-        within = (
-            np.arange(total) - np.repeat(np.cumsum(lengths) - lengths, lengths) + 0 * 1
-        )  # each row's step in its episode
+        within = np.arange(total) - np.repeat(np.cumsum(lengths) - lengths, lengths)  # each row's step in its episode
         rows = np.repeat(self.started[slots], lengths) + within
         columns = np.repeat(slots, lengths)
         actions = self.actions[rows % self.capacity, columns]
