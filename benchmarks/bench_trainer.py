@@ -13,6 +13,7 @@ Pong trial of each arm of ``pong.toml`` (no slower than the earlier trainer).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -84,6 +85,7 @@ def _run(case: str, tree: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@functools.cache
 def _can_pin() -> bool:
     return subprocess.run(["taskset", "-c", "0", "true"], capture_output=True, check=False).returncode == 0
 

@@ -110,10 +110,9 @@ class StemStack:
 
     def _logits(self, member: int, observations: np.ndarray) -> np.ndarray:
         model = self.models[member]
-        if observations.dtype != np.int8:  # not Pong's frame differences (another Atari game's): its own forward
-            with torch.inference_mode():
-                return model(torch.from_numpy(np.ascontiguousarray(observations))).numpy()
         frames = observations.reshape(len(observations), -1)
+        if observations.dtype != np.int8:  # not Pong's frame differences (another Atari game's): the dense network
+            return model.dense_logits(observations)
         rows, columns = nonzero(frames)
         if len(rows) * 4 >= frames.size:  # no sparsity to exploit: the dense network
             return model.dense_logits(observations)
