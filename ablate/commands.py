@@ -103,4 +103,6 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         report_s = []
     report_seconds = report_s[0] if report_s else None
     print(outcome.view.total_line(report_seconds) if outcome.view else f"total {clock(time.monotonic() - started_at)}")
+    if outcome.view and (bounds := outcome.view.bounds_line()):
+        print(bounds)  # which of the two figures the launch ended near
     return outcome.exit_code

@@ -1,17 +1,83 @@
 """``ablate run --dry-run``: the trials a run would start, listed with their keys; nothing started or written.
-Moved out of ``cli.py`` as it was, to keep the CLI under 500 lines.
+With the two figures the progress line gives: round 1's time and the most the launch can take.
 """
 
 from __future__ import annotations
 
 import json
+import os
 
+from ablate.config import DEFAULT_POPULATION
 from ablate.experiment import Experiment
+from ablate.launch.clock import clock
 from ablate.launch.grid import GridTrial, expand, tuning_trials
-from ablate.launch.rounds import dry_run_lines
+from ablate.launch.rounds import Rounds, dry_run_lines
 
 
-def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
+def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None) -> str:
+    """The two figures a launch's progress line gives, before anything runs: the time of round 1 (with its
+    tuning) and the most the launch can take (every comparison to ``max`` seeds, round after round), from the
+    store's earlier runs of these trials (and of their variants); without any, a guess in trial counts."""
+    from ablate.launch.estimate import forecast
+    from ablate.launch.plan import plan_populations
+    from ablate.launch.state import LaunchState
+    from ablate.launch.tuning import StagePlan, unique
+
+    wanted = {t.variant for t in trials}
+    plan = StagePlan(experiment, trials, [t for t in tuning_trials(experiment) if t.variant in wanted])
+    todo = unique([*plan.tuning, *trials], set())
+    known = {t.key for t in todo}
+    tuned = {t.variant for t in plan.tuning}
+    later = [t for t in trials if t.variant in tuned]  # stage 2's stand-ins: as many, at the base values
+    slots = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
+
+    def groups(ts: list[GridTrial]) -> list[list[str]]:
+        return [p.keys for p in plan_populations(ts, cap=DEFAULT_POPULATION, slots=slots)]
+
+    possible: list[list[GridTrial]] = []
+    if experiment.rounds is not None:
+        possible = Rounds(experiment, wanted, judge=lambda samples: None).possible({}, known)  # type: ignore[arg-type, return-value]
+    every = [*todo, *later, *(t for r in possible for t in r)]
+    prior = earlier_costs(experiment, tracking_uri, [t.key for t in every])
+    state = LaunchState(experiment.name, todo, 0, slots, 0.0, prior, groups=groups(todo), later=later,
+                        later_groups=groups(later))  # fmt: skip
+    state.set_possible(possible, groups([t for r in possible for t in r]))
+    left, most = forecast(state)
+    more = sum(len(r) for r in possible)
+    rounds = f" and at most {more} more in later rounds" if more else ""
+    if left is None or most is None:
+        return (
+            f"time: no earlier run of these trials in the store to cost them from; a guess in trials: round 1 runs "
+            f"{len(todo) + len(later)} trials{rounds} on {slots} slot(s)"
+            + (
+                f", so at most ~{(len(todo) + len(later) + more) / (len(todo) + len(later)):.1f}x round 1's time"
+                if more
+                else ""
+            )
+        )
+    words = f"~{clock(left)} for round 1" if more else f"~{clock(left)}"
+    upper = f", at most ~{clock(most)} in all" if more else ""
+    source = f"from the store's earlier runs, on {slots} slot(s)"
+    return f"time: {words}{upper} ({len(todo) + len(later)} trials{rounds}; {source})"
+
+
+def earlier_costs(experiment: Experiment, tracking_uri: str | None, keys: list[str]) -> dict[str, float]:
+    """Seconds each of ``keys`` took when an earlier launch finished it, read from the store without writing
+    to it (none where the store does not exist yet or cannot be read)."""
+    from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
+
+    path = sqlite_path(resolve_uri(tracking_uri))
+    if path is not None and not path.exists():
+        return {}  # no store yet (and MLflow not imported for nothing)
+    from ablate.launch.tracking import Tracker
+
+    try:
+        return Tracker(tracking_uri, experiment.name, write=False).earlier_runs(keys)[0]
+    except TrackingError:
+        return {}
+
+
+def dry_run(experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None = None) -> int:
     """``ablate run --dry-run``: the trials a run would consider, and nothing started or written. With
     ``[tune]``: stage 1 (every candidate on the tuning seeds), then stage 2, whose chosen values are known only
     after tuning (listed "after tuning"; the base-value trials are the untuned ones, with their keys)."""
@@ -55,5 +121,6 @@ def dry_run(experiment: Experiment, trials: list[GridTrial]) -> int:
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3])
+    print(time_line(experiment, trials, tracking_uri))
     print("a real run skips the trials already finished in the newest generation (see: ablate status)")
     return 0  # EXIT_OK

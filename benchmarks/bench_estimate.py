@@ -90,31 +90,29 @@ def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> N
 
 def _eta_errors(view) -> dict:
     """Each estimate logged once a quarter of its phase's trials had ended, against the time that actually
-    remained until the last of them ended (a phase: the trials the view knew of together, ``view.phases``: a
+    remained until the last of them ended (a phase: the trials the view knew of together, ``state.phases``: a
     launch's stages, then each round of seeds, which no estimate before it can know of); the bound is the
-    issue's: +-30% or +-20 s, whichever is larger."""
+    issue's: +-30% or +-20 s, whichever is larger. Then the launch's bound (``bound``)."""
+    state = view.state
     points, phases, quarter_at = [], [], None
-    firsts = [first for first, _ in view.phases[1:]] + [len(view.estimates)]
-    for (first, keys), last in zip(view.phases, firsts, strict=True):
-        ended_at = [view.trials[k].ended_at for k in keys if view.trials[k].ended_at is not None]
-        if not ended_at or first >= len(view.estimates):
+    for number, keys in enumerate(state.phases):
+        ended_at = [state.trials[k].ended_at for k in keys if state.trials[k].ended_at is not None]
+        logged = [e for e in view.estimates if e[4] == number]
+        if not ended_at or not logged:
             continue
-        end, before = max(ended_at) - view.start, view.estimates[first][1]
+        end, before = max(ended_at) - state.start, logged[0][1]
         mine = [
             (t, est, end - t)
-            for t, ended, est in view.estimates[first:last]
+            for t, ended, est, _, _ in logged
             if est is not None and t < end and ended - before >= len(keys) / 4
         ]
-        quarter_at = (
-            quarter_at
-            if quarter_at is not None
-            else next((t for t, ended, _ in view.estimates[first:last] if ended - before >= len(keys) / 4), None)
-        )
+        if quarter_at is None:
+            quarter_at = next((t for t, ended, *_ in logged if ended - before >= len(keys) / 4), None)
         within = sum(abs(est - truth) <= max(0.3 * truth, 20.0) for _, est, truth in mine)
         phases.append({"trials": len(keys), "points": len(mine), "within_bound": within})
         points += mine
     if not points:
-        return {"points": 0, "phases": phases}
+        return {"points": 0, "phases": phases, **bound(view)}
     over = [(abs(est - truth) / max(0.3 * truth, 20.0), t, est, truth) for t, est, truth in points]
     worst = max(over)
     relative = max(points, key=lambda p: abs(p[1] - p[2]) / p[2] if p[2] > 0 else 0)
@@ -127,24 +125,59 @@ def _eta_errors(view) -> dict:
         "worst_truth_s": worst[3],
         "worst_relative_error": (relative[1] - relative[2]) / relative[2] if relative[2] > 0 else 0.0,
         "quarter_at_s": quarter_at,
-        "trials_end_s": view.trials_end - view.start,
+        "trials_end_s": state.trials_end - state.start,
         "phases": phases,
+        **bound(view),
+    }
+
+
+def bound(view) -> dict:
+    """The launch's promise (issue 37): from a quarter of its first trials on, the true end lies between the
+    current round's estimate (-30%) and the most the launch can still take (+30%), or within 20 s of them."""
+    state = view.state
+    first = len(state.phases[0])
+    end = state.trials_end - state.start
+    scored = [
+        (t, left, most, end - t)
+        for t, ended, left, most, _ in view.estimates
+        if left is not None and most is not None and ended >= first / 4 and t < end
+    ]
+    inside = [min(0.7 * left, left - 20.0) <= truth <= max(1.3 * most, most + 20.0) for _, left, most, truth in scored]
+    out = [s for s, ok in zip(scored, inside, strict=True) if not ok]
+    return {
+        "bound_points": len(scored),
+        "bound_within": sum(inside),
+        "bound_worst": [round(x, 1) for x in out[0]] if out else None,
     }
 
 
 def _eta_figure(label: str, view) -> dict:
     """The time-left estimates of one launch against the truth: its trace and its errors, printed."""
     errors = _eta_errors(view)
-    trace = [(round(t, 2), ended, None if est is None else round(est, 2)) for t, ended, est in view.estimates]
-    print(f"  trace (s since start, trials ended, estimate s): {json.dumps(trace)}", flush=True)
+    trace = [
+        (round(t, 2), ended, None if est is None else round(est, 2), None if most is None else round(most, 2))
+        for t, ended, est, most, _ in view.estimates
+    ]
+    print(f"  trace (s since start, trials ended, round estimate s, at most s): {json.dumps(trace)}", flush=True)
+    if errors["bound_points"]:
+        print(
+            f"  {label}: the true end between the round's estimate (-30%) and the upper figure (+30%), or within "
+            f"20 s: {errors['bound_within']}/{errors['bound_points']} estimates after a quarter"
+            + (
+                f"; first outside (s, said, at most, remained): {errors['bound_worst']}"
+                if errors["bound_worst"]
+                else ""
+            ),
+            flush=True,
+        )
     if not errors["points"]:
         print(f"  {label}: no estimate after a quarter of the trials", flush=True)
         return {**errors, "trace": trace}
     e = errors
     print(
-        f"  {label}: {len(view.trials)} trials ended at {e['trials_end_s']:.0f} s (a quarter "
+        f"  {label}: {len(view.state.trials)} trials ended at {e['trials_end_s']:.0f} s (a quarter "
         f"at {e['quarter_at_s']:.0f} s); {e['within_bound']}/{e['points']} estimates after a quarter "
-        f"within +-30% or +-20 s; worst {e['worst_over_bound']:.2f} of the bound (said "
+        f"within +-30% or +-20 s of their round's end; worst {e['worst_over_bound']:.2f} of the bound (said "
         f"{e['worst_estimate_s']:.0f} s at {e['worst_at_s']:.0f} s, {e['worst_truth_s']:.0f} s remained); "
         f"worst relative error {100 * e['worst_relative_error']:+.0f}%",
         flush=True,

@@ -297,6 +297,7 @@ def _writer_run(trials: int, seconds: float, trial_wall: float, reports: list, a
     from ablate.launch.progress import ProgressView
     from ablate.launch.runner import RunOutcome, _Recorder
     from ablate.launch.scheduler import REPORT_EVERY_S
+    from ablate.launch.state import LaunchState
     from ablate.launch.tracking import Tracker
 
     tracker = Tracker(f"sqlite:///{folder / 'mlflow.db'}", "bench-tracking")
@@ -316,9 +317,8 @@ def _writer_run(trials: int, seconds: float, trial_wall: float, reports: list, a
             begin += trial_wall
     schedule = sorted((e for e in schedule if e[0] < seconds), key=lambda e: e[0])
     outcome = RunOutcome("bench-tracking", "g", launch, 0, 0, "")
-    recorder = _Recorder(
-        tracker, launch, "g", grid, "commit", ProgressView("b", list(grid.values()), 0, False), outcome
-    )
+    state = LaunchState("b", list(grid.values()), 0)
+    recorder = _Recorder(tracker, launch, "g", grid, "commit", state, ProgressView(state, False), outcome)
     events: queue.Queue = queue.Queue()
     lags: list[float] = []
     cpu = [0.0]

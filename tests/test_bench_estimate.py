@@ -4,9 +4,8 @@ trials the view knew of when it made it (its phase), not against the end of a ro
 from pathlib import Path
 
 import pytest
+from views import Watched
 from views import grid_trials, row
-
-from ablate.launch.progress import ProgressView
 
 
 @pytest.fixture
@@ -28,15 +27,15 @@ def _run(view, clock, keys, seconds=100.0):
 
 
 def test_each_estimate_is_held_to_the_end_of_its_phase_not_of_a_later_round(bench_estimate, clock):
-    view = ProgressView("x", grid_trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1,
+    view = Watched("x", grid_trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1,
                         start=clock.now, log_estimates=True)  # fmt: skip
     _run(view, clock, ["a-s0", "a-s1", "a-s2", "a-s3"])  # 400 s; every estimate after the first end is exact
     view.add_trials(grid_trials(variants=("a",), seeds=(4, 5)))  # a round of seeds, 200 s more
     _run(view, clock, ["a-s4", "a-s5"])
-    view.trials_end = clock.now
+    view.state.trials_end = clock.now
     errors = bench_estimate._eta_errors(view)
     assert [(p["trials"], p["within_bound"] == p["points"]) for p in errors["phases"]] == [(4, True), (2, True)]
     assert errors["within_bound"] == errors["points"] > 0 and errors["worst_over_bound"] == pytest.approx(0.0)
     # Held to the launch's end instead, round 1's last estimates (100 s said, 300 s left) would be far outside.
-    first_phase = [e for e in view.estimates[: view.phases[1][0]] if e[2] is not None and e[1] >= 1]
-    assert any(abs(est - (600 - t)) > max(0.3 * (600 - t), 20) for t, _, est in first_phase)
+    first_phase = [e for e in view.estimates if e[4] == 0 and e[2] is not None and e[1] >= 1]
+    assert any(abs(est - (600 - t)) > max(0.3 * (600 - t), 20) for t, _, est, *_ in first_phase)

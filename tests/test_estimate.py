@@ -6,13 +6,13 @@ from dataclasses import replace
 
 import pytest
 from views import grid_trials as _trials
+from views import Watched
 from views import row as _row
 
 from ablate.agent.records import EpisodeMetrics
 from ablate.config import TrialConfig
 from ablate.launch.estimate import makespan
 from ablate.launch.grid import GridTrial
-from ablate.launch.progress import ProgressView
 
 
 def test_makespan_sees_a_long_trial_that_starts_last():
@@ -23,7 +23,7 @@ def test_makespan_sees_a_long_trial_that_starts_last():
 
 
 def test_cost_is_learned_per_variant_from_finished_trials_else_from_the_budget(clock):
-    view = ProgressView("x", _trials(budget=100), already_done=0, enabled=False, slots=2, start=clock.now - 7)
+    view = Watched("x", _trials(budget=100), already_done=0, enabled=False, slots=2, start=clock.now - 7)
     assert view.seconds_left() is None  # nothing is known of any trial's cost yet
     assert "0:07 elapsed" in view.headline()  # the clock counts from the command's start
     view.started("fast-s0")
@@ -55,7 +55,7 @@ def test_a_population_holds_its_slot_until_its_last_member_ends_and_costs_its_lo
         keys = [t.key for t in ts]
         return [keys[:3], keys[3:]]
 
-    view = ProgressView("x", trials, 0, enabled=False, slots=1, populations=plan)
+    view = Watched("x", trials, 0, enabled=False, slots=1, groups=plan(trials))
     for seed in (0, 1, 2):
         view.started(f"a-s{seed}")
     clock.now += 10
@@ -89,7 +89,7 @@ def test_two_slots_freed_at_once_are_taken_by_the_first_member_of_each_populatio
         keys = [t.key for t in ts]
         return [keys[i : i + 2] for i in range(0, len(keys), 2)]
 
-    view = ProgressView("x", trials, 0, enabled=False, slots=2, populations=plan)
+    view = Watched("x", trials, 0, enabled=False, slots=2, groups=plan(trials))
     for seed in range(4):
         view.started(f"a-s{seed}")
     clock.now += 10
@@ -101,12 +101,12 @@ def test_two_slots_freed_at_once_are_taken_by_the_first_member_of_each_populatio
             view.started(f"a-s{seed}")
     assert view.gaps == [1.0, 2.0] and view.dispatch_s() == pytest.approx(1.5)
     # Each trial alone, the same events say the three members of the second population take a slot each.
-    alone = ProgressView("x", trials, 0, enabled=False, slots=1)
+    alone = Watched("x", trials, 0, enabled=False, slots=1)
     assert alone.population_of == {t.key: (t.key,) for t in trials}
 
 
 def test_a_trial_past_its_peers_mean_runs_as_long_as_the_peers_that_ran_longer(clock):
-    view = ProgressView("x", _trials(budget=1000, variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=4)
+    view = Watched("x", _trials(budget=1000, variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=4)
     for seed in (0, 1, 2, 3):
         view.started(f"a-s{seed}")
     clock.now += 10
@@ -123,7 +123,7 @@ def test_a_trial_past_its_peers_mean_runs_as_long_as_the_peers_that_ran_longer(c
 
 
 def test_recent_pace_counts_when_episodes_get_longer(clock):
-    view = ProgressView("x", _trials(budget=1000, variants=("a",), seeds=(0,)), 0, enabled=False, slots=1)
+    view = Watched("x", _trials(budget=1000, variants=("a",), seeds=(0,)), 0, enabled=False, slots=1)
     view.started("a-s0")
     for episode, seconds in ((100, 1), (200, 2), (300, 4), (400, 8)):  # the pace halves at every report
         clock.now += seconds
@@ -134,7 +134,7 @@ def test_recent_pace_counts_when_episodes_get_longer(clock):
 
 def test_costs_from_an_earlier_launch_are_scaled_to_this_launchs_pace(clock):
     prior = {"fast-s0": 2.0, "fast-s1": 4.0, "slow-s0": 20.0, "slow-s1": 40.0}
-    view = ProgressView("x", _trials(), 0, enabled=False, slots=1, prior_costs=prior)
+    view = Watched("x", _trials(), 0, enabled=False, slots=1, prior_costs=prior)
     # Before anything reported: the earlier launch's seconds, one slot, one after another.
     assert view.seconds_left() == pytest.approx(2 + 4 + 20 + 40)
     view.started("fast-s0")
@@ -150,7 +150,7 @@ def test_a_trial_past_its_earlier_runs_time_runs_on_to_where_that_run_stopped_no
     # The earlier run of the same key (the same seed) solved after 40 of its 100 episodes in 4 s; this launch
     # runs slower, so the trial is past its expected time with its solving episode still ahead.
     trials = _trials(budget=100, variants=("a",), seeds=(0,))
-    view = ProgressView("x", trials, 0, enabled=False, slots=1, prior_costs={"a-s0": 4.0}, prior_episodes={"a-s0": 40})
+    view = Watched("x", trials, 0, enabled=False, slots=1, prior_costs={"a-s0": 4.0}, prior_episodes={"a-s0": 40})
     view.started("a-s0")
     for episode in (10, 20, 30):
         clock.now += 2.0  # 0.2 s per episode: twice the earlier run's pace
@@ -163,14 +163,14 @@ def test_a_trial_past_its_earlier_runs_time_runs_on_to_where_that_run_stopped_no
 
 
 def test_a_later_stages_trials_are_costed_from_their_earlier_runs_when_they_have_some(clock):
-    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, prior_costs={"a-s0": 2.0})
+    view = Watched("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, prior_costs={"a-s0": 2.0})
     view.started("a-s0")
     clock.now += 4  # this launch runs twice as slow as the earlier one
     view.finished("a-s0", solved=True)
     view.add_trials(_trials(variants=("b",), seeds=(0,)), {"b-s0": 10.0}, {"b-s0": 40})
     assert view.seconds_left() == pytest.approx(2 * 10.0)  # its earlier run's 10 s at this launch's pace
     # No stand-ins stood for b-s0 (a round of seeds): what the view knew of before did not include it.
-    assert view.phases == [(0, ["a-s0"]), (0, ["b-s0"])]  # (no estimates logged: index 0)
+    assert view.phases == [["a-s0"], ["b-s0"]]
     view.started("b-s0")
     for episode in (10, 20, 30):
         clock.now += 8.0  # 0.8 s per episode: past its expected 20 s with its solving episode ahead
@@ -183,7 +183,7 @@ def _a_peer_solved_in_10_s_then_a_second_trial_started(clock):
     then a-s1 started."""
     config = replace(TrialConfig(), env_id="CartPole-v0", max_episodes=1000, solve_window=100)
     trials = [GridTrial(f"a-s{s}", "a", s, replace(config, seed=s)) for s in (0, 1)]
-    view = ProgressView("x", trials, already_done=0, enabled=False, slots=1, start=clock.now)
+    view = Watched("x", trials, already_done=0, enabled=False, slots=1, start=clock.now)
     view.started("a-s0")
     clock.now += 10
     view.episodes("a-s0", [_row(100, 196.0)])
@@ -204,7 +204,7 @@ def test_a_climb_does_not_cut_a_trial_whose_earlier_run_never_solved(clock):
     config = replace(TrialConfig(), env_id="CartPole-v0", max_episodes=1000, solve_window=100)
     trials = [GridTrial("a-s0", "a", 0, config)]
     earlier = {"prior_costs": {"a-s0": 5.0}, "prior_episodes": {"a-s0": 1000}}
-    view = ProgressView("x", trials, 0, enabled=False, slots=1, **earlier)
+    view = Watched("x", trials, 0, enabled=False, slots=1, **earlier)
     view.started("a-s0")
     for episode, rolling_mean in ((50, 100.0), (100, 150.0)):  # climbing, past its earlier run's 5 s
         clock.now += 5
@@ -213,7 +213,7 @@ def test_a_climb_does_not_cut_a_trial_whose_earlier_run_never_solved(clock):
 
 
 def test_the_idle_time_between_one_trial_and_the_next_counts_per_pending_trial(clock):
-    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1)
+    view = Watched("x", _trials(variants=("a",), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=1)
     view.started("a-s0")
     clock.now += 4
     view.finished("a-s0", solved=True)
@@ -228,7 +228,7 @@ def test_peers_share_a_budget_a_trial_with_another_budget_is_costed_apart(clock)
     short = replace(TrialConfig(), max_episodes=10)
     trials = [GridTrial("a-s0", "a", 0, short), GridTrial("a-s1", "a", 1, replace(short, seed=1))]
     trials.append(GridTrial("a-s2-long", "a", 2, replace(short, seed=2, max_episodes=1000)))
-    view = ProgressView("x", trials, 0, enabled=False, slots=1)
+    view = Watched("x", trials, 0, enabled=False, slots=1)
     view.started("a-s0")
     clock.now += 1
     view.episodes("a-s0", [_row(10, 1.0)])  # 0.1 s per episode
@@ -242,19 +242,23 @@ def test_peers_share_a_budget_a_trial_with_another_budget_is_costed_apart(clock)
 
 
 def test_every_estimate_is_logged_against_the_clock_when_asked(clock):
-    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, start=clock.now)
-    view.log_estimates = True
+    view = Watched("x", _trials(variants=("a",), seeds=(0,)), 0, slots=1, start=clock.now, log_estimates=True)
     view.started("a-s0")
     clock.now += 2
     view.episodes("a-s0", [_row(50, 1.0)])
     view.finished("a-s0", solved=False)
-    assert view.estimates == [(0.0, 0, None), (2.0, 0, pytest.approx(2.0)), (2.0, 1, 0.0)]
+    # (seconds since the start, trials ended, the round's estimate, the most in all, the phase)
+    assert view.estimates == [
+        (0.0, 0, None, None, 0),
+        (2.0, 0, pytest.approx(2.0), pytest.approx(2.0), 0),
+        (2.0, 1, 0.0, 0.0, 0),
+    ]
 
 
 def test_a_later_stage_counts_after_this_one_and_keeps_what_was_learned(clock):
     # Stage 1: two tuning trials of "a"; stage 2 (not known yet): two trials of "a" at the same budget.
     later = _trials(variants=("a",), seeds=(0, 1))  # stand-ins of the same size
-    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=2, later=later)
+    view = Watched("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=2, later=later)
     view.started("a-s0")
     view.started("a-s1")
     clock.now += 4
@@ -269,7 +273,7 @@ def test_a_later_stage_counts_after_this_one_and_keeps_what_was_learned(clock):
     stage_2 = [GridTrial(f"a-lr-s{s}", "a", s, replace(TrialConfig(), max_episodes=100, seed=s)) for s in (0, 1)]
     view.add_trials(stage_2)
     assert view.seconds_left() == pytest.approx(6)  # the finished trials' cost carries over
-    assert view.phases == [(0, ["a-s0", "a-s1", "a-lr-s0", "a-lr-s1"])]  # the stand-ins said it was coming
+    assert view.phases == [["a-s0", "a-s1", "a-lr-s0", "a-lr-s1"]]  # the stand-ins said it was coming
     view.started("a-lr-s0")
     view.started("a-lr-s1")
     view.finished("a-lr-s0", solved=True)
@@ -285,7 +289,7 @@ def test_a_trial_costs_what_its_finished_peers_at_the_same_values_took_at_anothe
 
     tuning = [trial("fast-t", 0.1, 50, "tune"), trial("slow-t", 0.01, 50, "tune")]
     evaluation = [trial("fast-e", 0.1, 150, "eval"), trial("slow-e", 0.01, 150, "eval")]
-    view = ProgressView("x", tuning + evaluation, 0, enabled=False, slots=1)
+    view = Watched("x", tuning + evaluation, 0, enabled=False, slots=1)
     view.started("fast-t")
     clock.now += 3
     view.finished("fast-t", solved=True, summary={"episodes_run": 30})  # solved after 30 episodes: stopped
@@ -309,7 +313,7 @@ def test_an_evaluation_trial_at_a_tuned_value_is_costed_between_its_tuning_trial
         return GridTrial(name, "a", seed, config, stage)
 
     trials = [trial("tuned-t", 0.1, 50, "tune"), trial("base-e", 0.03, 150, "eval"), trial("tuned-e", 0.1, 150, "eval")]
-    view = ProgressView("x", trials, 0, enabled=False, slots=1)
+    view = Watched("x", trials, 0, enabled=False, slots=1)
     view.started("tuned-t")
     clock.now += 3
     view.finished("tuned-t", solved=True, summary={"episodes_run": 30})  # solved after 30 episodes: 3 s
@@ -327,52 +331,41 @@ def test_an_evaluation_trial_at_a_tuned_value_is_costed_between_its_tuning_trial
     assert view._peer_cost(view.trials["tuned-e"], seen) == pytest.approx(4.0)  # its own settings' trial, once seen
 
 
-def test_a_later_stage_is_asked_again_as_tuning_trials_end(clock):
+def test_stand_ins_replaced_as_tuning_trials_end_count_as_the_runner_sets_them(clock):
     stage_1 = [GridTrial("a-t", "a", 10_000, replace(TrialConfig(), max_episodes=100), "tune")]
     stand_ins = _trials(variants=("a",), seeds=(0, 1))
-    asked = []
-
-    def provisional(summaries):  # the base value ahead: stage 2 adds nothing
-        asked.append(dict(summaries))
-        return []
-
-    view = ProgressView("x", stage_1, 0, enabled=False, slots=1, later=stand_ins, provisional=provisional)
+    view = Watched("x", stage_1, 0, enabled=False, slots=1, later=stand_ins)
     view.started("a-t")
     clock.now += 5
     view.episodes("a-t", [_row(50, 1.0)])
     assert view.seconds_left() == pytest.approx(5 + 2 * 10)  # its rest, then two 100-episode stand-ins
+    assert "(of 3;" in view.headline()  # the stand-ins are counted from the start
     view.finished("a-t", solved=False, summary={"auc": 1.0, "episodes_run": 100})
-    assert asked == [{"a-t": {"auc": 1.0, "episodes_run": 100}}] and view.seconds_left() == 0.0
+    view.state.set_later([])  # the runner asked again: the base value ahead, stage 2 adds nothing
+    assert view.seconds_left() == 0.0 and view.trials_end is None  # the stage is still announced
+    view.add_trials([])
+    assert view.trials_end == clock.now and "all trials ended" in view.headline()
 
 
 def test_phases_a_stage_its_stand_ins_announced_joins_the_launchs_a_round_of_seeds_opens_its_own(clock):
     stage_1 = [GridTrial(f"a-t{s}", "a", 10_000 + s, replace(TrialConfig(), max_episodes=100), "tune") for s in (0, 1)]
-    answers = [[]]  # the first tuning trial's end: the base value ahead, no stand-ins; then it fails
-
-    def provisional(summaries):
-        if not answers:
-            raise RuntimeError("no choice")
-        return answers.pop()
-
-    view = ProgressView("x", stage_1, 0, enabled=False, slots=1, provisional=provisional, log_estimates=True)
+    view = Watched("x", stage_1, 0, slots=1, stage_coming=True, log_estimates=True)  # no stand-in yet
     for key in ("a-t0", "a-t1"):
         view.started(key)
         clock.now += 1
         view.finished(key, solved=False, summary={"auc": 1.0, "episodes_run": 100})
-    assert view.later == [] and view.provisional is None  # no stand-ins left, and no one to ask
     stage_2 = _trials(variants=("a",), seeds=(0,))
-    view.add_trials(stage_2)  # still the stage that provisional stood for: the launch's phase
-    assert view.phases == [(0, ["a-t0", "a-t1", "a-s0"])]
+    view.add_trials(stage_2)  # still the stage announced: the launch's phase
+    assert view.phases == [["a-t0", "a-t1", "a-s0"]]
     view.started("a-s0")
     view.finished("a-s0", solved=True)
-    logged = len(view.estimates)
     view.add_trials(_trials(variants=("a",), seeds=(1,)))  # a round of seeds: its own phase, from now
-    assert view.phases[1] == (logged, ["a-s1"]) and logged > 0
+    assert view.phases[1] == ["a-s1"] and view.estimates[-1][4] == 1 and view.estimates[-2][4] == 0
 
 
 def test_a_later_stage_with_nothing_to_run_ends_the_trials(clock):
     later = _trials(variants=("a",), seeds=(0,))
-    view = ProgressView("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, later=later)
+    view = Watched("x", _trials(variants=("a",), seeds=(0,)), 0, enabled=False, slots=1, later=later)
     view.started("a-s0")
     clock.now += 3
     view.finished("a-s0", solved=True)
@@ -382,7 +375,7 @@ def test_a_later_stage_with_nothing_to_run_ends_the_trials(clock):
 
 
 def test_a_workers_start_paid_by_its_first_trial_is_not_charged_to_the_trials_after_it(clock):
-    view = ProgressView("x", _trials(variants=("a", "b"), seeds=(0, 1, 2)), 0, enabled=False, slots=2)
+    view = Watched("x", _trials(variants=("a", "b"), seeds=(0, 1, 2)), 0, enabled=False, slots=2)
     view.started("a-s0")  # both first on their workers: each pays a 20 s worker start
     view.started("b-s0")
     clock.now += 25
@@ -400,7 +393,7 @@ def test_a_workers_start_paid_by_its_first_trial_is_not_charged_to_the_trials_af
 
 
 def test_the_pace_of_a_trial_with_one_report_is_read_off_its_own_clock(clock):
-    view = ProgressView("x", _trials(budget=40, variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=1)
+    view = Watched("x", _trials(budget=40, variants=("a",), seeds=(0, 1)), 0, enabled=False, slots=1)
     view.started("a-s0")
     clock.now += 21  # 20 s of its worker's start, then 10 episodes in 1 s by the trial's own clock
     view.episodes("a-s0", [_row(10, 1.0)._replace(wall_s=1.0)])
@@ -432,7 +425,7 @@ def _a_peer_ran_400_episodes_in_205_s_then_a_second_trial_started(clock, seeds=(
     """``seeds`` of a budget of 400 on one slot: a-s0 ran all 400 episodes at 0.5 s and 10 steps each (0.05 s
     per step), 200 s of training and 5 s after its last report; then a-s1 started (the rest pending)."""
     trials = _trials(budget=400, variants=("a",), seeds=seeds)
-    view = ProgressView("x", trials, 0, enabled=False, slots=1)
+    view = Watched("x", trials, 0, enabled=False, slots=1)
     view.started("a-s0")
     for episode in (100, 200, 300, 400):
         clock.now += 50
@@ -479,3 +472,39 @@ def test_a_trial_whose_last_report_solved_it_is_not_held_to_its_peers_rest(clock
     view.episodes("a-s1", [solved])
     # It stops here and writes its artifacts: not its peer's 100 s of training from episode 200 at its pace.
     assert view.seconds_left() == pytest.approx(205 - 200)
+
+
+def test_the_upper_figure_adds_each_round_that_may_follow_after_the_one_running(clock):
+    view = Watched("x", _trials(budget=100, variants=("a",), seeds=(0, 1)), 0, slots=2, start=clock.now)
+    view.state.set_possible(
+        [_trials(budget=100, variants=("a",), seeds=(2, 3, 4)), _trials(variants=("a",), seeds=(5,))]
+    )
+    view.started("a-s0")
+    view.started("a-s1")
+    clock.now += 10
+    view.finished("a-s0", solved=False, summary={"episodes_run": 100})  # a trial costs 10 s
+    view.episodes("a-s1", [_row(50, 1.0)])  # 0.2 s per episode: 10 s left
+    left, most = view.figures()
+    # Round 2's three trials on two slots take 20 s after this round's 10 s; round 3's one 10 s after that.
+    assert left == pytest.approx(10) and most == pytest.approx(10 + 20 + 10)
+    assert "~0:10 left in round 1, at most ~0:40 in all" in view.headline()
+    assert "(of 2, at most 4 more in later rounds;" in view.headline()
+    view.state.set_possible([])  # every comparison decided: the launch ends with this round
+    assert view.figures() == (pytest.approx(10), pytest.approx(10)) and "at most" not in view.headline()
+
+
+def test_the_summary_says_which_bound_the_trials_ended_near(clock):
+    view = Watched("x", _trials(budget=100, variants=("a",), seeds=(0, 1, 2, 3)), 0, slots=1, start=clock.now)
+    view.state.set_possible([_trials(budget=100, variants=("a",), seeds=(4, 5, 6, 7))])
+    view.started("a-s0")
+    clock.now += 10
+    view.finished("a-s0", solved=False, summary={"episodes_run": 100})  # a quarter: 30 s left, at most 70 s
+    assert view.quarter == (10.0, pytest.approx(30), pytest.approx(70))
+    for seed in (1, 2, 3):
+        view.started(f"a-s{seed}")
+        clock.now += 10
+        view.finished(f"a-s{seed}", solved=False, summary={"episodes_run": 100})
+    view.state.set_possible([])  # the comparison was decided: no round followed
+    line = view.bounds_line()
+    assert "at 0:10 the estimate said ~0:30 left in round 1, at most ~1:10 in all" in line
+    assert line.endswith("the trials ended 0:30 later, nearer the round's estimate")

@@ -12,14 +12,14 @@ from pathlib import Path
 import pytest
 from stores import fresh_store
 from views import grid_trials as _trials
+from views import Watched
 from views import row as _row
 
 from ablate.launch.clock import stage
-from ablate.launch.progress import ProgressView
 
 
 def test_variant_figure_is_the_median_of_seeds_not_the_best_seed(clock):
-    view = ProgressView("x", _trials(variants=("dropout",), seeds=(0, 1, 2)), 0, enabled=False)
+    view = Watched("x", _trials(variants=("dropout",), seeds=(0, 1, 2)), 0, enabled=False)
     for seed, mean in ((0, 466.0), (1, 150.0), (2, 215.6)):
         view.started(f"dropout-s{seed}")
         view.episodes(f"dropout-s{seed}", [_row(5, 500.0), _row(10, mean)])  # the newest, not the highest
@@ -31,7 +31,7 @@ def test_variant_figure_is_the_median_of_seeds_not_the_best_seed(clock):
 
 
 def test_running_rows_and_total_line(clock):
-    view = ProgressView("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, start=clock.now)
+    view = Watched("x", _trials(variants=("a",), seeds=(0, 1)), 0, enabled=False, start=clock.now)
     clock.now += 9
     view.started("a-s1")
     clock.now += 5
@@ -47,7 +47,7 @@ def test_running_rows_and_total_line(clock):
 def test_before_a_quarter_of_the_trials_end_the_time_left_is_not_a_figure(clock):
     """The first trials' costs are guesses (a launch of 36 read ~0:55 where 2:08 remained): until a quarter of
     them have ended the line says it is estimating, though the estimate (which ``make bench`` scores) exists."""
-    view = ProgressView("x", _trials(variants=("a", "b"), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=2)
+    view = Watched("x", _trials(variants=("a", "b"), seeds=(0, 1, 2, 3)), 0, enabled=False, slots=2)
     for key in ("a-s0", "b-s0"):
         view.started(key)
     clock.now += 10

@@ -112,6 +112,9 @@ def test_the_dry_run_prints_the_first_round_and_the_most(tmp_path, capsys):
     assert "at most 3 rounds and 45 evaluation trials; no new round after 20 minutes" in out
     assert all(f"-s{seed}-" in out for seed in range(5)) and "-s5-" not in out
     assert not (tmp_path / "mlflow.db").exists()
+    # No store: the two figures as a guess in trials (round 1's 15, at most 30 more: ~3x round 1's time).
+    assert "a guess in trials: round 1 runs 15 trials and at most 30 more in later rounds" in out
+    assert "so at most ~3.0x round 1's time" in out
 
 
 # --- launches: a fake scheduler, planted results, the report's own sequential rule ----------------------------
@@ -125,6 +128,9 @@ def _planted(trial) -> dict:
     return {"solved": 1.0, "episodes_to_solve": episodes, "episodes_run": episodes, "auc": 400.0}
 
 
+at_most: list = []
+
+
 def _fake_scheduler(monkeypatch, ran, interrupt_at=None):
     """Ray replaced by a loop that finishes every trial with its planted result; ``ran``: each call's trials.
     ``interrupt_at``: the call (0 = the first) that raises Ctrl-C after finishing half its trials."""
@@ -133,6 +139,7 @@ def _fake_scheduler(monkeypatch, ran, interrupt_at=None):
     def run_trials(plan, events, options, run_name, **_):
         trials = [t for p in plan for t in p.members]
         ran.append(trials)
+        at_most.append((events.state.round, events.state.at_most_more))  # the progress line's "at most N more"
         for i, trial in enumerate(trials):
             if interrupt_at == len(ran) - 1 and i == len(trials) // 2:
                 raise KeyboardInterrupt
@@ -163,11 +170,15 @@ def _seeds(ran) -> dict[str, list[int]]:
 
 def test_a_planted_difference_is_decided_early_and_a_null_runs_to_max(tmp_path, tracking_uri, monkeypatch, capsys):
     ran: list = []
+    at_most.clear()
     _fake_scheduler(monkeypatch, ran)
     experiment = _experiment(tmp_path)
     outcome = _run(experiment, tracking_uri)
     assert outcome.exit_code == 0
     document = outcome.rounds
+    # The most the later rounds may add falls as rounds decide: 30 (3 variants to 15), 15 (round 3 of all three),
+    # then none once round 3 (only null and its reference) runs; at the end, nothing may follow.
+    assert at_most == [(1, 30), (2, 15), (3, 0)] and outcome.view.state.possible == []
     assert document["variants"]["fast"] == {"seeds": 10, "verdict": "better", "why": "decided at round 2"}
     assert document["variants"]["null"] == {"seeds": 15, "verdict": "undetermined", "why": "reached max"}
     assert document["variants"]["baseline"]["seeds"] == 15 and document["round"] == 3
@@ -312,3 +323,39 @@ def test_train_from_a_tuned_experiment_reruns_a_later_rounds_seed_at_the_chosen_
     variant = next(v for v in load_experiment(path).variants if v.name == "b")
     expected = replace(variant.config, seed=5, learning_rate=0.1)
     assert (chosen.stage, chosen.trial.seed, chosen.trial.key) == ("eval", 5, trial_key("b", expected))
+
+
+class _Judgment:
+    """A judge's answer, as ``reporting.claims.Round`` gives it: a look made, who needs seeds, who is open."""
+
+    def __init__(self, look, seeds, needs, done=False):
+        self.look, self.seeds, self.done, self.needs_seeds, self.verdicts = look, seeds, done, tuple(needs), ()
+
+    @property
+    def open(self):
+        return self.needs_seeds
+
+
+def test_the_trials_later_rounds_may_add_are_every_open_variant_to_max_round_by_round(tmp_path):
+    from ablate.launch.rounds import Rounds
+
+    experiment = _experiment(tmp_path)  # looks 5, 10, 15; three variants
+    answers = []
+    rounds = Rounds(experiment, ["baseline", "fast", "null"], lambda samples: answers.pop())
+    known = {t.key for t in expand(experiment)}  # round 1's trials: seeds 0-4
+    before = rounds.possible({}, known)  # no look yet: every variant may run to max
+    assert [sorted({(t.variant, t.seed) for t in r}) for r in before] == [
+        [(v, s) for v in ("baseline", "fast", "null") for s in range(5, 10)],
+        [(v, s) for v in ("baseline", "fast", "null") for s in range(10, 15)],
+    ]
+    answers.append(_Judgment(0, 5, ["baseline", "null"]))  # fast decided at the first look; null still open
+    finished = {t.key: {"auc": 1.0} for t in expand(experiment)}
+    round_2 = rounds.next_round({}, finished)
+    assert {t.variant for t in round_2} == {"baseline", "null"} and len(round_2) == 10
+    after = rounds.possible({}, known | {t.key for t in round_2})  # round 2 planned: round 3 alone may follow
+    assert [sorted({(t.variant, t.seed) for t in r}) for r in after] == [
+        [(v, s) for v in ("baseline", "null") for s in range(10, 15)]
+    ]
+    answers.append(_Judgment(1, 10, [], done=True))
+    assert rounds.next_round({}, finished | {t.key: {"auc": 1.0} for t in round_2}) == []
+    assert rounds.possible({}, known) == []  # decided: nothing more can come

@@ -1,7 +1,9 @@
-"""The time-left estimate: each trial's progress (``TrialProgress``), what the finished trials say of the
-costs of those still to run (``TimeLeft``, which the live view ``progress.ProgressView`` holds the state
-of), finished trials' seconds carried over to another episode budget, and the expected costs placed on the
-trial slots in the order the trials start."""
+"""The time-left estimate of a launch's state (``launch.state``): what the finished trials say of the costs of
+those still to run, finished trials' seconds carried over to another episode budget, and the expected costs
+placed on the trial slots in the order the trials start: the time left in the current round, and the most the
+launch can still take (every open comparison running to its ``max`` seeds, round after round).
+
+Pure: it reads the state (holding its lock is the caller's part) and draws nothing."""
 
 from __future__ import annotations
 
@@ -9,15 +11,10 @@ import bisect
 import heapq
 import statistics
 import time
-from collections import deque
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
-from functools import cached_property
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
-from ablate.launch.grid import GridTrial, config_hash
-
-RATE_REPORTS = 4
-"""Reports (one per ~2 s per trial) that a running trial's recent pace is measured over."""
+from ablate.launch.state import LaunchState, TrialProgress
 
 PACE_WINDOW_S = 60.0
 """Seconds of a running trial's own clock that its pace against its peers (``TimeLeft._pace``) is measured
@@ -48,102 +45,6 @@ def at_budget(cost: float, ran: int, budget: int, rate: float | None, wanted: in
     return cost + (wanted - budget) * (rate if rate is not None else cost / max(budget, 1))
 
 
-@dataclass
-class TrialProgress:
-    trial: GridTrial
-    started_at: float | None = None
-    ended_at: float | None = None
-    episode: int = 0
-    """Last episode reported."""
-    rolling_mean: float | None = None
-    """Rolling mean at the last episode reported (the final one once finished)."""
-    state: str = "pending"
-    """pending, running, done, failed."""
-    solved: bool = False
-    first_on_worker: bool = False
-    """Started before any trial had ended: its time holds its worker's start (imports, the emulator's ROMs),
-    which the trials after it on that worker do not pay."""
-    wall_s: float | None = None
-    """The trial's own training time (its summary's ``wall_s``), once finished."""
-    train_s: float | None = None
-    """The trial's own clock at the last episode reported (seconds since its training began)."""
-    reports: deque[tuple[float, int, float | None]] = field(default_factory=lambda: deque(maxlen=RATE_REPORTS))
-    """(time, episode, rolling mean) of the newest reports: the recent pace, which slows as a CartPole agent's
-    episodes grow, and the recent climb towards the solve threshold."""
-
-    episodes_run: int | None = None
-    """Episodes it ran (its summary's), once finished: fewer than its budget when it stopped early (solved)."""
-    profile: list[tuple[int, float, int]] = field(default_factory=list)
-    """(episode, its own clock, its env steps) at every report: where its time went. A later trial with the same
-    settings is held to it (``TimeLeft._pace``), which sees a machine that got busier or freer since."""
-
-    pace_seen: tuple[tuple[int, int], float | None] | None = None
-    """Its last ``TimeLeft._pace`` and what it was computed from (its reports, its finished peers): a pace
-    changes only when one of them does, and the estimate runs after every event."""
-
-    def at(self, episode: float) -> tuple[float, float] | None:
-        """Its own clock and env steps at ``episode``, interpolated between its reports (0 at episode 0);
-        ``None`` past its last report."""
-        if not self.profile or episode > self.profile[-1][0]:
-            return None
-        i = bisect.bisect_left(self.profile, episode, key=lambda point: point[0])
-        e1, s1, n1 = self.profile[i]
-        e0, s0, n0 = self.profile[i - 1] if i else (0, 0.0, 0)
-        f = 1.0 if e1 == e0 else (episode - e0) / (e1 - e0)
-        return s0 + (s1 - s0) * f, n0 + (n1 - n0) * f
-
-    @property
-    def budget(self) -> int:
-        return self.trial.config.max_episodes
-
-    @cached_property
-    def settings(self) -> tuple[str, str]:
-        """Its variant and everything it trains with but the seed and the episode budget: a tuning trial and
-        the evaluation trial at the same values share it."""
-        return self.trial.variant, config_hash(replace(self.trial.config, seed=0, max_episodes=0))
-
-    @cached_property
-    def threshold(self) -> float | None:
-        """The rolling mean at which it stops, solved (``run_trial``'s own rule)."""
-        from ablate.agent.population import solve_threshold  # the driver has it loaded once trials run
-
-        return solve_threshold(self.trial.config)
-
-    @property
-    def last_episode_reported(self) -> bool:
-        """It reported the last episode it will run: its budget's, or the one that solved it (a trial stops
-        there); what is left is writing its artifacts."""
-        if self.episode >= self.budget:
-            return True
-        window = self.trial.config.solve_window
-        if self.rolling_mean is None or self.episode < window:
-            return False
-        return self.threshold is not None and self.rolling_mean >= self.threshold
-
-    def episodes_to_solve(self) -> float | None:
-        """Episodes until its rolling mean reaches the solve threshold at its climb over the newest reports;
-        ``None`` while it is not climbing (or has no threshold)."""
-        if self.threshold is None or len(self.reports) < 2:
-            return None
-        (_, e0, m0), (_, e1, m1) = self.reports[0], self.reports[-1]
-        if m0 is None or m1 is None or e1 <= e0 or m1 <= m0:
-            return None
-        return max((self.threshold - m1) * (e1 - e0) / (m1 - m0), self.trial.config.solve_window - e1, 0.0)
-
-    def seconds_per_episode(self, now: float) -> float | None:
-        """Over the newest reports when there are two, else by the trial's own clock (a worker's start and
-        Tune's scheduling are not episodes: in a 4-episode Pong trial they are most of its time), else since
-        the trial started."""
-        if len(self.reports) >= 2 and self.reports[-1][1] > self.reports[0][1]:
-            (t0, e0, _), (t1, e1, _) = self.reports[0], self.reports[-1]
-            return (t1 - t0) / (e1 - e0)
-        if self.started_at is None or not self.episode:
-            return None
-        if self.train_s:
-            return self.train_s / self.episode
-        return ((self.ended_at or now) - self.started_at) / self.episode
-
-
 @dataclass(frozen=True)
 class CostsSeen:
     means: dict[tuple[str, int], float]
@@ -166,27 +67,10 @@ class CostsSeen:
 
 
 class TimeLeft:
-    """The estimate's arithmetic over a live view's state: the view (``progress.ProgressView``) holds the
-    trials and what earlier launches took, and tells the events; this reads them."""
+    """The estimate's arithmetic over a launch's state."""
 
-    trials: dict[str, TrialProgress]
-    later: list[TrialProgress]
-    prior: dict[str, float]
-    prior_episodes: dict[str, int]
-    gaps: list[float]
-    slots: int | None
-    """Populations (``launch.plan``) that run at once; without ``populations``, trials."""
-    max_running: int
-    populations: Callable[[Sequence[GridTrial]], Sequence[Sequence[str]]] | None
-    """The launch's plan: trials (in the order they start) as the member keys of each population, in the order
-    the populations start; ``None``: each trial alone."""
-    population_of: dict[str, tuple[str, ...]]
-    """Each trial's population: its members' keys (every trial of a launch without ``populations``: itself)."""
-
-    def plan(self, trials: Sequence[GridTrial]) -> dict[str, tuple[str, ...]]:
-        """``trials``' populations, by member key, as the launch forms them (each alone without ``populations``)."""
-        groups = self.populations(trials) if self.populations else [[t.key] for t in trials]
-        return {key: tuple(group) for group in groups for key in group}
+    def __init__(self, state: LaunchState) -> None:
+        self.state = state
 
     def units(self, trials: Sequence[TrialProgress], plan: Mapping[str, tuple[str, ...]]) -> list[list[TrialProgress]]:
         """``trials`` (in the order they start) gathered into what holds a slot: each population's members, in
@@ -202,7 +86,7 @@ class TimeLeft:
         peers: dict[tuple[str, str], list[tuple[float, int, int, float | None]]] = {}
         rates: dict[str | None, list[float]] = {}
         observed = earlier = 0.0
-        done = [t for t in self.trials.values() if t.state == "done" and t.started_at and t.ended_at]
+        done = [t for t in self.state.trials.values() if t.state == "done" and t.started_at and t.ended_at]
         # What a trial costs beside its training (Tune, the driver's writes), from the trials that paid no
         # worker start; a trial that did pay one counts as its training time plus that.
         beside = [t.ended_at - t.started_at - t.wall_s for t in done if not t.first_on_worker and t.wall_s is not None]
@@ -215,9 +99,9 @@ class TimeLeft:
             ran = t.episodes_run if t.episodes_run is not None else t.episode
             if ran:  # a trial that reported no episode says nothing of a budget's cost
                 peers.setdefault(t.settings, []).append((cost, ran, t.budget, t.seconds_per_episode(now)))
-            if t.trial.key in self.prior:  # as the earlier launch measured it: start to end, a worker start too
-                observed, earlier = observed + t.ended_at - t.started_at, earlier + self.prior[t.trial.key]  # type: ignore[operator]
-        for t in self.trials.values():
+            if t.trial.key in self.state.prior:  # as the earlier launch measured it: start to end, a worker start too
+                observed, earlier = observed + t.ended_at - t.started_at, earlier + self.state.prior[t.trial.key]  # type: ignore[operator]
+        for t in self.state.trials.values():
             if (rate := t.seconds_per_episode(now)) is not None:
                 rates.setdefault(t.trial.variant, []).append(rate)
                 rates.setdefault(None, []).append(rate)
@@ -226,7 +110,7 @@ class TimeLeft:
             if t.profile and t.reports:
                 profiled.setdefault((t.settings, t.budget), []).append(t)
         paces = {}
-        for t in self.trials.values():
+        for t in self.state.trials.values():
             if t.state != "running":
                 continue
             held_to = profiled.get((t.settings, t.budget), [])
@@ -275,8 +159,8 @@ class TimeLeft:
         mean of its variant's finished trials at its budget once there are some: the value won on the tuning
         seeds, so its tuning trials are an optimistic guide (an evaluation seed may solve later, or never),
         and the variant's evaluation seeds at the base value ran the whole budget; else that mean alone."""
-        if trial.trial.key in self.prior:
-            return self.prior[trial.trial.key] * seen.prior_scale
+        if trial.trial.key in self.state.prior:
+            return self.state.prior[trial.trial.key] * seen.prior_scale
         # At the launch's pace now: the finished trials ran on a machine that may have been busier or freer.
         peers = seen.peers.get(trial.settings, [])
         same = [cost for cost, _, budget, _ in peers if budget == trial.budget]
@@ -301,14 +185,14 @@ class TimeLeft:
     def expected_cost(self, variant: str, now: float | None = None) -> float | None:
         """Expected seconds of a trial of ``variant`` that has not started (its first pending one)."""
         now = time.monotonic() if now is None else now
-        trials = [t for t in self.trials.values() if t.trial.variant == variant]
+        trials = [t for t in self.state.trials.values() if t.trial.variant == variant]
         trial = next((t for t in trials if t.state == "pending"), trials[0])
         return self._trial_cost(trial, self._costs_seen(now))
 
     def dispatch_s(self) -> float:
         """Mean seconds a slot stays idle between one trial's end and the next trial's start (Tune's loop, the
         driver writing the ended trial's artifacts): with trials of a second or two, a third of the time."""
-        return statistics.fmean(self.gaps) if self.gaps else 0.0
+        return statistics.fmean(self.state.gaps) if self.state.gaps else 0.0
 
     def _left_by_profile(self, trial: TrialProgress, now: float, seen: CostsSeen) -> float | None:
         """What its finished peers that ran past its last episode took from there, at its pace against them
@@ -329,7 +213,7 @@ class TimeLeft:
         return max(pace * rest + tail - (now - trial.reports[-1][0]), 0.0)
 
     def _left_of_running(self, trial: TrialProgress, now: float, seen: CostsSeen) -> float | None:
-        if trial.trial.key not in self.prior and (left := self._left_by_profile(trial, now, seen)) is not None:
+        if trial.trial.key not in self.state.prior and (left := self._left_by_profile(trial, now, seen)) is not None:
             return left
         elapsed = now - (trial.started_at or now)
         expected = self._peer_cost(trial, seen)
@@ -341,7 +225,7 @@ class TimeLeft:
         # on average (a seed that has not solved by now is one of the slower ones, not one at its own pace for
         # the rest of its budget).
         longer = [c for c, _, b, _ in seen.peers.get(trial.settings, []) if b == trial.budget and c > elapsed]
-        if longer and trial.trial.key not in self.prior:
+        if longer and trial.trial.key not in self.state.prior:
             return statistics.fmean(longer) - elapsed
         # Past what its peers took (or none has ended): at its own recent pace, to where its earlier run (the
         # same seed) stopped, a slower machine's being no reason to run longer; past that, the rest of its budget;
@@ -350,10 +234,10 @@ class TimeLeft:
         rate = trial.seconds_per_episode(now) or seen.rates.get(None)
         if rate is None:
             return None
-        stop = self.prior_episodes.get(trial.trial.key, trial.budget)
+        stop = self.state.prior_episodes.get(trial.trial.key, trial.budget)
         left = (stop if trial.episode < stop else trial.budget) - trial.episode
         # An earlier run of the same seed that ran its whole budget says no climb now reaches the threshold.
-        never_solved = trial.trial.key in self.prior_episodes and stop >= trial.budget
+        never_solved = trial.trial.key in self.state.prior_episodes and stop >= trial.budget
         climb = None if never_solved else trial.episodes_to_solve()
         return rate * max(left if climb is None else min(left, climb), 0)
 
@@ -365,28 +249,76 @@ class TimeLeft:
         ]
         return None if None in left else max(left)  # type: ignore[type-var]
 
-    def seconds_left(self, now: float | None = None) -> float | None:
+    def seconds_left(self, now: float | None = None, seen: CostsSeen | None = None) -> float | None:
         """Seconds until the last trial ends, or ``None`` while nothing is known of any trial's cost."""
         now = time.monotonic() if now is None else now
         # A population holds its slot until its last member ends: its members run at once, each at the pace
         # of a member of a population (what its finished peers took), so its cost is its longest member's.
-        units = self.units([t for t in self.trials.values() if t.state in ("running", "pending")], self.population_of)
-        if not units and not self.later:
+        units = self.units(
+            [t for t in self.state.trials.values() if t.state in ("running", "pending")], self.state.population_of
+        )
+        if not units and not self.state.later:
             return 0.0
-        seen = self._costs_seen(now)
+        seen = seen or self._costs_seen(now)
         running_left, costs = [], []
         for unit in units:
             (running_left if any(t.state == "running" for t in unit) else costs).append(
                 self._unit_left(unit, now, seen)
             )
-        later = [
-            self._unit_left(u, now, seen) for u in self.units(self.later, self.plan([t.trial for t in self.later]))
-        ]
+        later = [self._unit_left(u, now, seen) for u in self.units(self.state.later, self.state.later_population_of)]
         if any(x is None for x in [*running_left, *costs, *later]):
             return None
-        slots = self.slots or max(self.max_running, 1)
+        slots = self.state.slots or max(self.state.max_running, 1)
         gap = self.dispatch_s()
         # Pending trials start in the order the scheduler was given them (``grid.schedule_order``); the later
         # stage once every one of them has ended.
         now_stage = makespan(running_left, [c + gap for c in costs], slots)  # type: ignore[misc, operator]
         return now_stage + (makespan([], [c + gap for c in later], slots) if later else 0.0)  # type: ignore[misc, operator]
+
+    def most_left(self, now: float | None = None) -> float | None:
+        """Seconds until the launch's end if every comparison still open runs to its ``max`` seeds."""
+        return self.figures(now)[1]
+
+    def figures(self, now: float | None = None) -> tuple[float | None, float | None]:
+        """(``seconds_left``, the most the launch can still take): the time left now, then each round later
+        rounds may still add (``LaunchState.possible``), one after another (a round starts once the one before
+        it has ended); ``None`` while nothing is known of a trial's cost."""
+        now = time.monotonic() if now is None else now
+        seen = self._costs_seen(now)
+        left = self.seconds_left(now, seen)
+        if left is None or not self.state.possible:
+            return left, left
+        most = left
+        slots = self.state.slots or max(self.state.max_running, 1)
+        gap = self.dispatch_s()
+        for trials in self.state.possible:
+            costs = [self._unit_left(u, now, seen) for u in self.units(trials, self.state.possible_population_of)]
+            if any(c is None for c in costs):
+                return left, None
+            most += makespan([], [c + gap for c in costs], slots)  # type: ignore[operator]
+        return left, most
+
+
+def estimate(state: LaunchState, now: float | None = None) -> tuple[float | None, float | None]:
+    """(seconds left in the current round, the most the launch can still take), read under the state's lock."""
+    with state.lock:
+        return TimeLeft(state).figures(now)
+
+
+def forecast(state: LaunchState) -> tuple[float | None, float | None]:
+    """``estimate`` before anything runs (``ablate run --dry-run``): each trial, stand-in and trial later rounds
+    may add costed at its earlier run's seconds (``state.prior``) where the store has one, else at the mean of its
+    variant's earlier runs, else of every earlier run; ``(None, None)`` without any earlier run."""
+    if not state.prior:
+        return None, None
+    everything = [*state.trials.values(), *state.later, *(t for r in state.possible for t in r)]
+    by_variant: dict[str, list[float]] = {}
+    for t in everything:
+        if t.trial.key in state.prior:
+            by_variant.setdefault(t.trial.variant, []).append(state.prior[t.trial.key])
+    overall = statistics.fmean(state.prior.values())
+    for t in everything:
+        if t.trial.key not in state.prior:
+            seconds = by_variant.get(t.trial.variant)
+            state.prior[t.trial.key] = statistics.fmean(seconds) if seconds else overall
+    return estimate(state, state.start)

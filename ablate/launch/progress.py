@@ -1,226 +1,95 @@
-"""The live terminal view of an ablation: a running clock from the command's start, the time left from the
-expected cost of every trial still to run, a row per running trial, per-variant figures over seeds.
+"""The live terminal view of an ablation: it draws a launch's state (``launch.state``) and its estimate
+(``launch.estimate``): a running clock from the command's start, the time left in the current round and the
+most the launch can still take, a row per running trial, per-variant figures over seeds.
 
 A panel redrawn four times a second on a terminal (the clock runs while Ray starts); a line every 10 s otherwise.
+It renders only: the runner hands events to the state, then tells the view (``update``).
 """
 
 from __future__ import annotations
 
 import statistics
 import sys
-import threading
 import time
-from collections import deque
-from collections.abc import Callable, Mapping, Sequence
-from typing import Any
 
 from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 
 from ablate.launch.clock import clock
-from ablate.launch.estimate import TimeLeft, TrialProgress
-from ablate.launch.grid import GridTrial
+from ablate.launch.estimate import TimeLeft, estimate
+from ablate.launch.state import LaunchState
 
 MAX_RUNNING_ROWS = 16
 """Rows of running trials shown; more are summarised in one line."""
 
 
-class ProgressView(TimeLeft):
-    """Events in (``started``, ``episodes``, ``finished``, ``failed``), a panel out. Events come on the driver's
-    main thread, the panel is drawn on rich's refresh thread: a lock keeps them apart."""
+class ProgressView:
+    """Draws ``state``: the panel on a terminal, a line every 10 s otherwise."""
 
-    def __init__(
-        self,
-        name: str,
-        trials: Sequence[GridTrial],
-        already_done: int,
-        enabled: bool = True,
-        slots: int | None = None,
-        start: float | None = None,
-        prior_costs: Mapping[str, float] | None = None,
-        log_estimates: bool = False,
-        later: Sequence[GridTrial] = (),
-        provisional: Callable[[Mapping[str, Mapping[str, float]]], Sequence[GridTrial]] | None = None,
-        prior_episodes: Mapping[str, int] | None = None,
-        populations: Callable[[Sequence[GridTrial]], Sequence[Sequence[str]]] | None = None,
-    ) -> None:
-        """``trials`` in the order they will start. ``slots``: trials (populations) that can run at once
-        (``None``: the most seen running at once). ``start``: the ``time.monotonic()`` the command started at,
-        so the clock includes imports and Ray's start. ``prior_costs``: seconds by trial key that earlier launches took
-        (``Tracker.earlier_runs``). ``log_estimates``: keep every estimate in ``estimates`` (``make bench``).
-        ``later``: stand-ins for the trials not known yet that start once every trial here has ended (a tuned
-        ablation's trials at the chosen values); ``add_trials`` puts the real ones in when they are known.
-        ``provisional``: the later trials as the finished trials' summaries (key -> metrics) say they would
-        be if stage 1 ended now (each variant at its best candidate so far), asked again as tuning trials end.
-        ``prior_episodes``: episodes by trial key that earlier launches ran (``Tracker.earlier_runs``).
-        ``populations``: the launch's plan (``launch.plan``) as member keys: a population holds one of ``slots``
-        until its last member ends (``None``: every trial alone)."""
-        self.name = name
-        self.trials = {t.key: TrialProgress(t) for t in trials}
-        self.variants = list(dict.fromkeys(t.variant for t in trials))
-        self.already_done = already_done
-        self.slots = slots
-        self.populations = populations
-        self.population_of = self.plan(trials)
-        self.start = time.monotonic() if start is None else start
-        self.first_start: float | None = None
-        self.trials_end: float | None = None
-        self.max_running = 0
+    def __init__(self, state: LaunchState, enabled: bool = True, log_estimates: bool = False) -> None:
+        """``log_estimates``: keep every estimate in ``estimates`` (``make bench``)."""
+        self.state = state
         self.enabled = enabled
         self.tty = sys.stdout.isatty()
         self.console = Console()
         self.live: Live | None = None
         self.last_line = 0.0
-        self.lock = threading.Lock()
-        self.prior = dict(prior_costs or {})
-        self.prior_episodes = dict(prior_episodes or {})
-        self.gaps: list[float] = []
-        """Seconds between a slot freeing and the next trial starting, one per start after an end."""
-        self._freed: deque[float] = deque()
-        """When slots freed that no trial has taken yet."""
         self.log_estimates = log_estimates
-        self.later = [TrialProgress(t) for t in later]
-        self.provisional = provisional
-        self.summaries: dict[str, Mapping[str, float]] = {}
-        self.estimates: list[tuple[float, int, float | None]] = []
-        """(seconds since ``start``, trials ended, the estimate in seconds) after every event."""
-        self._stage_coming = bool(later or provisional)
-        """A later stage stands in ``later`` (or ``provisional`` would say it): its trials join this phase."""
-        self.phases: list[tuple[int, list[str]]] = [(0, [t.key for t in trials])]
-        """(index of its first estimate, its trials' keys) for each set of trials the view knew of together: the
-        launch's, with the later stage that replaces its stand-ins; then each round of seeds."""
+        self.estimates: list[tuple[float, int, float | None, float | None, int]] = []
+        """(seconds since the start, trials ended, the round's estimate, the most in all, the phase: an index
+        of ``state.phases``) after every event, for ``make bench`` to hold against the time that remained."""
+        self.quarter: tuple[float, float | None, float | None] | None = None
+        """(seconds since the start, the round's estimate, the most in all) when a quarter of the launch's
+        first trials had ended: the figures the summary holds against the end (``bounds_line``)."""
 
-    # --- events -----------------------------------------------------------------------------------
-    def started(self, key: str) -> None:
-        with self.lock:
+    def update(self) -> None:
+        """After an event: the estimate logged (``log_estimates``) or kept at a quarter, the line printed when due."""
+        state = self.state
+        quarter_due = self.quarter is None and state.first_start is not None and self._quartered()
+        if self.log_estimates or quarter_due:
             now = time.monotonic()
-            trial = self.trials[key]
-            trial.state, trial.started_at, trial.episode, trial.rolling_mean = "running", now, 0, None
-            trial.reports.clear()
-            trial.profile.clear()
-            trial.pace_seen = None
-            self.first_start = self.first_start or now
-            trial.first_on_worker = not any(t.ended_at for t in self.trials.values())
-            running = {self.population_of.get(k, (k,)) for k, t in self.trials.items() if t.state == "running"}
-            self.max_running = max(self.max_running, len(running))
-            mates = [k for k in self.population_of.get(key, (key,)) if k != key]
-            if self._freed and not any(self.trials[k].started_at for k in mates if k in self.trials):
-                self.gaps.append(now - self._freed.popleft())  # its population's first member takes the slot
-            self._log_estimate(now)
+            left, most = estimate(state, now)
+            if self.log_estimates:
+                self.estimates.append((now - state.start, state.ended, left, most, len(state.phases) - 1))
+            if quarter_due:
+                self.quarter = (now - state.start, left, most)
         self.refresh()
 
-    def episodes(self, key: str, rows: Sequence[Any]) -> None:
-        """``rows``: the trial's newest episodes (``EpisodeMetrics``), oldest first."""
-        if not rows:
-            return
-        with self.lock:
-            trial = self.trials[key]
-            trial.episode, trial.rolling_mean = rows[-1].episode, rows[-1].rolling_mean
-            trial.train_s = getattr(rows[-1], "wall_s", None)
-            steps = getattr(rows[-1], "env_steps", None)
-            if trial.train_s is not None and steps is not None:
-                trial.profile.append((trial.episode, trial.train_s, steps))
-            trial.reports.append((time.monotonic(), trial.episode, trial.rolling_mean))
-            self._log_estimate(time.monotonic())
-        self.refresh()
-
-    def finished(
-        self, key: str, solved: bool, wall_s: float | None = None, summary: Mapping[str, float] | None = None
-    ) -> None:
-        """``wall_s``: the trial's own training time (its summary's), which tells its worker's start apart.
-        ``summary``: its summary metrics (episodes run; a tuning trial's metric for ``provisional``)."""
-        trial = self.trials[key]
-        trial.wall_s = wall_s
-        if summary:
-            self.summaries[key] = summary
-            if summary.get("episodes_run") is not None:
-                trial.episodes_run = int(summary["episodes_run"])
-        self._end(key, "done", solved)
-
-    def failed(self, key: str) -> None:
-        self._end(key, "failed", False)
-
-    def _end(self, key: str, state: str, solved: bool) -> None:
-        with self.lock:
-            trial = self.trials[key]
-            trial.state, trial.solved, trial.ended_at = state, solved, time.monotonic()
-            if not self._count("pending") and not self._count("running") and not self.later:
-                self.trials_end = trial.ended_at
-            if self._count("pending") and all(self.trials[k].ended_at for k in self.population_of.get(key, (key,))):
-                self._freed.append(trial.ended_at)  # its population's slot
-            if self.provisional and trial.trial.stage == "tune":
-                try:
-                    self.later = [TrialProgress(t) for t in self.provisional(dict(self.summaries))]
-                except Exception:  # noqa: BLE001 - an estimate never stops a launch: keep the stand-ins
-                    self.provisional = None
-            self._log_estimate(trial.ended_at)
-        self.refresh()
-
-    def add_trials(
-        self,
-        trials: Sequence[GridTrial],
-        prior_costs: Mapping[str, float] | None = None,
-        prior_episodes: Mapping[str, int] | None = None,
-    ) -> None:
-        """The next stage's trials, now known, in the order they will start (none: it has nothing to run), with
-        what earlier launches' runs of them took (as the constructor's). They replace the ``later`` guesses;
-        what this launch learned of costs carries over."""
-        with self.lock:
-            self.prior |= prior_costs or {}
-            self.prior_episodes |= prior_episodes or {}
-            self.population_of |= self.plan(trials)
-            if self._stage_coming:  # the stage its stand-ins stood for
-                self.phases[-1][1].extend(t.key for t in trials)
-            elif trials:  # a round of seeds: the estimate could not see it coming
-                self.phases.append((len(self.estimates), [t.key for t in trials]))
-            for t in trials:
-                self.trials[t.key] = TrialProgress(t)
-                if t.variant not in self.variants:
-                    self.variants.append(t.variant)
-            self.later, self.provisional, self._stage_coming = [], None, False
-            self._freed.clear()  # the next stage starts on slots that are all free: no wait to count
-            if trials:
-                self.trials_end = None
-            elif not self._count("pending") and not self._count("running"):
-                self.trials_end = max((t.ended_at for t in self.trials.values() if t.ended_at), default=None)
-            self._log_estimate(time.monotonic())
-        self.refresh()
-
-    def _count(self, state: str) -> int:
-        return sum(t.state == state for t in self.trials.values())
-
-    def _log_estimate(self, now: float) -> None:
-        """Called with the lock held after every event: (seconds since the command started, trials ended,
-        the estimate) for ``make bench`` to hold against the time that actually remained."""
-        if self.log_estimates:
-            ended = self._count("done") + self._count("failed")
-            self.estimates.append((now - self.start, ended, self.seconds_left(now)))
+    def _quartered(self) -> bool:
+        first = self.state.phases[0]
+        return sum(self.state.trials[k].ended_at is not None for k in first) >= len(first) / 4
 
     # --- rendering --------------------------------------------------------------------------------
     def headline(self) -> str:
+        """The one line: counts, the clock, the time left. Called with the state's lock held."""
+        state = self.state
         now = time.monotonic()
-        counts = {s: self._count(s) for s in ("done", "running", "pending", "failed")}
-        first = self.phases[0][1]
-        if self.first_start is None:
-            state = "starting Ray (its workers import torch before the first trial starts)"
-        elif self.trials_end is not None:
-            state = "all trials ended"
-        elif (ended := sum(self.trials[k].ended_at is not None for k in first)) < len(first) / 4:
+        counts = {s: state.count(s) for s in ("done", "running", "pending", "failed")}
+        first = state.phases[0]
+        if state.first_start is None:
+            status = "starting Ray (its workers import torch before the first trial starts)"
+        elif state.trials_end is not None and not state.possible:
+            status = "all trials ended"
+        elif (ended := sum(state.trials[k].ended_at is not None for k in first)) < len(first) / 4:
             # Until a quarter of the launch's first trials have ended, their costs are guesses (a launch of 36 read
             # ~0:55 where 2:08 remained): say so, not a figure. Later rounds draw on what these taught.
-            state = f"time left: estimating until a quarter of the trials have ended ({ended} of {len(first)})"
+            status = f"time left: estimating until a quarter of the trials have ended ({ended} of {len(first)})"
         else:
-            left = self.seconds_left(now)
-            state = f"~{clock(left)} left" if left is not None else "time left: once a trial reports its episodes"
+            left, most = TimeLeft(state).figures(now)
+            status = time_left_words(left, most, state.round if state.possible or state.round > 1 else None)
+        total = len(state.trials) + len(state.later)
+        more = f", at most {state.at_most_more} more in later rounds" if state.at_most_more else ""
         return (
-            f"{self.name}: {counts['done']} done, {counts['running']} running, {counts['pending']} pending, "
-            f"{counts['failed']} failed (of {len(self.trials)}; {self.already_done} finished before) | "
-            f"{clock(now - self.start)} elapsed, {state}"
+            f"{state.name}: {counts['done']} done, {counts['running']} running, {counts['pending']} pending, "
+            f"{counts['failed']} failed (of {total}{more}; {state.already_done} finished before) | "
+            f"{clock(now - state.start)} elapsed, {status}"
         )
 
     def _running_table(self, now: float) -> Table | str:
-        running = sorted((t for t in self.trials.values() if t.state == "running"), key=lambda t: t.started_at or 0)
+        running = sorted(
+            (t for t in self.state.trials.values() if t.state == "running"), key=lambda t: t.started_at or 0
+        )
         if not running:
             return ""
         table = Table(box=None, pad_edge=False, title="running", title_justify="left")
@@ -243,8 +112,8 @@ class ProgressView(TimeLeft):
         columns = ("variant", "done", "running", "solved", "seeds reporting", "rolling mean: median of seeds", "range")
         for column in columns:
             table.add_column(column, justify="left" if column == "variant" else "right")
-        for variant in self.variants:
-            trials = [t for t in self.trials.values() if t.trial.variant == variant]
+        for variant in self.state.variants:
+            trials = [t for t in self.state.trials.values() if t.trial.variant == variant]
             means = sorted(t.rolling_mean for t in trials if t.rolling_mean is not None and t.state != "failed")
             table.add_row(
                 variant,
@@ -258,7 +127,7 @@ class ProgressView(TimeLeft):
         return table
 
     def render(self) -> Group:
-        with self.lock:
+        with self.state.lock:
             now = time.monotonic()
             return Group(self.headline(), self._running_table(now), self._variant_table())
 
@@ -267,20 +136,36 @@ class ProgressView(TimeLeft):
             return  # the live panel redraws itself four times a second
         if time.monotonic() - self.last_line >= 10:
             self.last_line = time.monotonic()
-            with self.lock:
+            with self.state.lock:
                 line = self.headline()
             print(line, flush=True)
 
     def total_line(self, report_s: float | None = None) -> str:
         """The whole command's time, split into its stages."""
+        state = self.state
         now = time.monotonic()
         parts = []
-        if self.first_start is not None:
-            parts.append(f"until the first trial started {clock(self.first_start - self.start)}")
-            parts.append(f"trials {clock((self.trials_end or now) - self.first_start)}")
+        if state.first_start is not None:
+            parts.append(f"until the first trial started {clock(state.first_start - state.start)}")
+            parts.append(f"trials {clock((state.trials_end or now) - state.first_start)}")
         if report_s is not None:
             parts.append(f"report {clock(report_s)}")
-        return f"total {clock(now - self.start)}" + (f" ({', '.join(parts)})" if parts else "")
+        return f"total {clock(now - state.start)}" + (f" ({', '.join(parts)})" if parts else "")
+
+    def bounds_line(self) -> str:
+        """Which bound the trials ended near: the figures at a quarter of the launch's first trials against the
+        time that then remained ("" before a quarter, or where no round could follow)."""
+        if self.quarter is None or self.state.trials_end is None:
+            return ""
+        at, left, most = self.quarter
+        if left is None or most is None or most <= left:
+            return ""
+        remained = self.state.trials_end - self.state.start - at
+        nearer = "the round's estimate" if abs(remained - left) <= abs(remained - most) else "the upper bound"
+        return (
+            f"time: at {clock(at)} the estimate said ~{clock(left)} left in round 1, at most ~{clock(most)} in all; "
+            f"the trials ended {clock(remained)} later, nearer {nearer}"
+        )
 
     def __enter__(self) -> ProgressView:
         if self.enabled and self.tty:
@@ -298,6 +183,18 @@ class ProgressView(TimeLeft):
             self.live.__exit__(None, None, None)
             self.live = None
         elif self.enabled:
-            with self.lock:
+            with self.state.lock:
                 line = self.headline()
             print(line, flush=True)
+
+
+def time_left_words(left: float | None, most: float | None, round_number: int | None) -> str:
+    """``~0:07 left`` alone; with rounds that may follow, ``~0:07 left in round 1, at most ~2:50 in all``."""
+    if left is None:
+        return "time left: once a trial reports its episodes"
+    if round_number is None:
+        return f"~{clock(left)} left"
+    words = f"~{clock(left)} left in round {round_number}"
+    if most is not None and most > left:
+        return f"{words}, at most ~{clock(most)} in all"
+    return words

@@ -9,7 +9,7 @@ rule), so this layer never imports the report's. Pure: no Ray, no MLflow, no fil
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
@@ -156,6 +156,29 @@ class Rounds:
             }
         )
         return todo
+
+    def possible(self, choices: Mapping[str, Choice], known: Collection[str]) -> list[list[GridTrial]]:
+        """The trials later rounds may still add, round by round: those of every variant this launch may run
+        whose comparison is still open (every variant before the first look; after one, those that need seeds:
+        the open ones and their references), up to its ``max`` seeds, beyond the trials ``known`` (finished,
+        running or planned). Every open comparison running to ``max``: the most the launch can still run. A
+        variant not chosen yet stands in at its own values (``choices``: the chosen ones)."""
+        judgment = self.judgment
+        if self.stopped or (judgment is not None and judgment.done):
+            return []
+        asked = self.wanted if judgment is None else set(judgment.needs_seeds) & self.wanted
+        looks = self.design.looks
+        variants = {v.name: v for v in self.experiment.variants}
+        by_round: dict[int, list[GridTrial]] = {}
+        for name, trials in self.primary_trials(choices).items():
+            if name not in asked:
+                continue
+            rounds = self.experiment.rounds_of(variants[name])
+            for index, trial in enumerate(trials[: rounds.max if rounds else len(trials)]):
+                if trial.key not in known:
+                    look = next((k for k, n in enumerate(looks) if index < n), len(looks) - 1)
+                    by_round.setdefault(look, []).append(trial)
+        return [by_round[look] for look in sorted(by_round)]
 
     def finished_trials(
         self, choices: Mapping[str, Choice], finished: Mapping[str, Mapping[str, float]]

@@ -13,7 +13,7 @@ import signal
 import socket
 import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -26,6 +26,7 @@ from ablate.launch.plan import Population, plan_populations
 from ablate.launch.progress import ProgressView
 from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
 from ablate.launch.rounds import Judge, Rounds
+from ablate.launch.state import LaunchState
 from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_POPULATION, TAG_POPULATION_SIZE, TAG_ROLE, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
@@ -110,7 +111,8 @@ class RunOutcome:
 
 
 class _Recorder:
-    """Scheduler events -> tracker writes and the progress view (all on the driver: one MLflow writer)."""
+    """Scheduler events -> tracker writes and the launch's state, then the view redrawn (all on the driver: one
+    MLflow writer)."""
 
     def __init__(
         self,
@@ -119,17 +121,20 @@ class _Recorder:
         generation: str,
         trials: dict[str, GridTrial],
         commit: str,
+        state: LaunchState,
         view: ProgressView,
         outcome: RunOutcome,
     ) -> None:
         self.tracker, self.launch, self.generation = tracker, launch, generation
-        self.trials, self.commit, self.view, self.outcome = trials, commit, view, outcome
+        self.trials, self.commit, self.state, self.view, self.outcome = trials, commit, state, view, outcome
         self.closed = False
         """Set once the launch stops: a late event from the scheduler then opens no run."""
         self.summaries: dict[str, dict[str, float]] = {}
         """Summary metrics of the trials this launch finished (tuning selection reads them)."""
         self.members: dict[str, int] = {}
         """Each trial's population size, from the plans handed to the scheduler (``planned``)."""
+        self.tuned: Callable[[], None] | None = None
+        """Asked after each tuning trial ends: the runner's stand-ins for stage 2, as the choice would be now."""
 
     def planned(self, populations: list[Population]) -> list[Population]:
         """``populations``, as the scheduler will run them: each member's size is kept for its run's tag."""
@@ -150,13 +155,15 @@ class _Recorder:
 
     def started(self, key: str) -> None:
         if self._open(key):
-            self.view.started(key)
+            self.state.started(key)
+            self.view.update()
 
     def episodes(self, key: str, points: list[CurvePoint]) -> None:
         if not self._open(key):
             return
         self.tracker.log_points(key, points)
-        self.view.episodes(key, points)
+        self.state.episodes(key, points)
+        self.view.update()
 
     def checkpoint(self, key: str, blob: bytes) -> None:
         if not self._open(key):
@@ -177,14 +184,18 @@ class _Recorder:
         self.tracker.finish_trial(key, summary, artifacts, tags=tags)
         self.outcome.finished.append(key)
         self.summaries[key] = dict(summary)
-        self.view.finished(key, bool(summary.get("solved")), summary.get("wall_s"), summary)
+        self.state.finished(key, bool(summary.get("solved")), summary.get("wall_s"), summary)
+        if self.tuned is not None and self.trials[key].stage == "tune":
+            self.tuned()
+        self.view.update()
 
     def failed(self, key: str, message: str) -> None:
         if not self._open(key):
             return
         self.tracker.fail_trial(key, message)
         self.outcome.failed[key] = message
-        self.view.failed(key)
+        self.state.failed(key)
+        self.view.update()
 
 
 def tune_run_name(experiment: str, launch_id: str) -> str:
@@ -345,6 +356,13 @@ def _run_locked(
     # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
     prior, prior_episodes = tracker.earlier_runs(t.key for t in todo)
     todo = schedule_order(todo, prior)
+    # Populations: each holds a slot until its last member ends, which the estimate sees through their groups.
+    cores = slots or max(int(biggest), 1)
+    populations = partial(plan_populations, cap=population, slots=cores)
+
+    def groups(trials: Sequence[GridTrial]) -> list[list[str]]:
+        return [p.keys for p in populations(trials)]
+
     # Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
     # choose now (each variant's best candidate so far), asked again as each one ends.
     unchosen = {t.variant for t in plan.tuning} - set(choices)
@@ -354,20 +372,29 @@ def _run_locked(
         trials = plan.provisional({**finished_runs, **summaries}, known_keys)
         return [t for t in trials if t.variant in unchosen]
 
-    stage_two = provisional if unchosen else None
-    # Populations: each holds a slot until its last member ends, which the estimate sees through the plan.
-    cores = slots or max(int(biggest), 1)
-    populations = partial(plan_populations, cap=population, slots=cores)
-    args = (experiment.name, todo, len(finished_before), show_progress, slots, started_at, prior, log_estimates)
-    view = ProgressView(
-        *args,
-        provisional({}) if unchosen else [],
-        stage_two,
-        prior_episodes,
-        lambda trials: [p.keys for p in populations(trials)],
-    )
+    stand_ins = provisional({}) if unchosen else []
+    state = LaunchState(
+        experiment.name, todo, len(finished_before), slots, started_at, prior, prior_episodes, groups(todo),
+        stand_ins, groups(stand_ins), stage_coming=bool(unchosen),
+    )  # fmt: skip
+    view = ProgressView(state, show_progress, log_estimates)
     outcome.view = view
-    recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, view, outcome)
+    recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, state, view, outcome)
+
+    def may_follow() -> None:  # the rounds that may still follow: the most the launch can still run
+        if rounds is not None:
+            possible = rounds.possible(choices, set(state.trials) | finished_before)
+            state.set_possible(possible, groups([t for ts in possible for t in ts]))
+
+    def restage() -> None:  # a tuning trial ended: stage 2's stand-ins as the choice would be now
+        try:
+            later = provisional(recorder.summaries) if state.stage_coming else []
+        except Exception:  # noqa: BLE001 - an estimate never stops a launch: keep the stand-ins
+            return
+        state.set_later(later, groups(later))
+
+    recorder.tuned = restage if unchosen else None
+    may_follow()
     options = ClusterOptions(
         address,
         max_concurrent,
@@ -380,7 +407,7 @@ def _run_locked(
         if plan.tuning and wanted <= set(choices):
             tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
         if rounds and rounds.ran:  # a resumed launch starts in a later round
-            view.name = rounds.announce(show_progress)
+            state.name, state.round = rounds.announce(show_progress), rounds.ran[-1]["round"]
         with view:
             run_trials(recorder.planned(populations(todo)), recorder, options, run_name=run_name, resume=resume)
 
@@ -388,10 +415,12 @@ def _run_locked(
             todo_after = [t for t in later if t.key not in finished_before]
             outcome.total += len(later)
             outcome.skipped += len(later) - len(todo_after)
-            # Seeds interleaved, as in stage 1; the same view, so what stage 1 taught of costs carries over.
+            # Seeds interleaved, as in stage 1; the same state, so what stage 1 taught of costs carries over.
             costs, episodes = tracker.earlier_runs(t.key for t in todo_after)  # earlier launches' runs of them
             todo_after = schedule_order(todo_after, costs)
-            view.add_trials(todo_after, costs, episodes)
+            state.add_trials(todo_after, costs, episodes, groups(todo_after))
+            may_follow()
+            view.update()
             if todo_after:
                 recorder.trials |= {t.key: t for t in todo_after}
                 with view:
@@ -409,10 +438,11 @@ def _run_locked(
             later = rounds.next_round(choices, finished_runs | recorder.summaries)
             tracker.log_file(launch, "rounds.json", json.dumps(rounds.document(), indent=1))
             if not later:
+                may_follow()  # none: the upper figure is the launch's end
                 break
             grid["trials"] += [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in later]
             tracker.log_file(launch, "grid.json", json.dumps(grid, indent=1))
-            view.name = rounds.announce(show_progress)
+            state.name, state.round = rounds.announce(show_progress), rounds.ran[-1]["round"]
             run_later(later)
         outcome.rounds = rounds.document() if rounds else None
     except KeyboardInterrupt as interrupt:
