@@ -4,8 +4,7 @@ trials the view knew of when it made it (its phase), not against the end of a ro
 from pathlib import Path
 
 import pytest
-from views import Watched
-from views import grid_trials, row
+from views import Watched, grid_trials, row
 
 
 @pytest.fixture

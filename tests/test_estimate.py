@@ -5,8 +5,8 @@ order the trials start. Events go in through the live view, which holds the esti
 from dataclasses import replace
 
 import pytest
-from views import grid_trials as _trials
 from views import Watched
+from views import grid_trials as _trials
 from views import row as _row
 
 from ablate.agent.records import EpisodeMetrics

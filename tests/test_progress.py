@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 from stores import fresh_store
-from views import grid_trials as _trials
 from views import Watched
+from views import grid_trials as _trials
 from views import row as _row
 
 from ablate.launch.clock import stage
