@@ -79,7 +79,7 @@ def route_raylet_errors(worker_module: Any) -> None:
     line of ~1,000 characters per dead worker) to the launch's log file, and one short line naming it to the
     terminal. Ray's driver prints them to stdout from a thread of its own (``listen_error_messages``), past
     logging and ``log_to_driver=False``, through ``print_to_stdstream`` of ``worker_module``
-    (``ray._private.worker``, handed in by the scheduler); that function is replaced once per process. Other
+    (``patches.ray_error_printer``, handed in by the scheduler); that function is replaced once per process. Other
     messages, and raylet errors before any launch, print as Ray prints them."""
     original = getattr(worker_module, "print_to_stdstream", None)
     if original is None or getattr(original, "ablate_routed", False):

@@ -40,6 +40,7 @@ from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from ablate.agent.trainer import run_population
 from ablate.launch.curve import CurvePoint, CurveReducer
+from ablate.launch.patches import ray_entrypoint_shown, ray_error_printer, ray_loopback_only
 from ablate.launch.plan import Population
 from ablate.launch.ray_logs import one_line, route_raylet_errors, tune_logs_to
 from ablate.launch.secrets import shown
@@ -186,7 +187,7 @@ def run_trials(
     os.environ["TUNE_DISABLE_SIGINT_HANDLER"] = "1"
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     started_here = ensure_ray(options.address)
-    route_raylet_errors(getattr(getattr(ray, "_private", None), "worker", None))  # a dead worker: one line
+    route_raylet_errors(ray_error_printer())  # a dead worker: one line
     by_key = {p.key: p for p in plan}
     checkpoints = None
     if resume or any(t.config.checkpoint_interval for p in plan for t in p.members):
@@ -258,14 +259,14 @@ def ensure_ray(address: str | None) -> bool:
         _check_reachable(address)
     # A head on this machine's loopback (``make cluster-up``): Ray would otherwise swap 127.0.0.1 for the
     # machine's address, where that head does not listen.
-    _loopback_only(not address or _host(address) in ("127.0.0.1", "localhost"))
+    ray_loopback_only(not address or _host(address) in ("127.0.0.1", "localhost"))
     # ray.init installs a SIGTERM handler that calls sys.exit() wherever the driver is, which skips the
     # caller's cleanup and ends in a C++ abort (exit 134); the caller's own handler stays.
     sigterm = signal.getsignal(signal.SIGTERM)
     problem = None
     try:
         # Only a join is refused for a token; a local start's daemons would inherit the kept descriptor.
-        with _stderr_kept() if address else contextlib.nullcontext(_Kept()) as kept, _entrypoint_shown():
+        with _stderr_kept() if address else contextlib.nullcontext(_Kept()) as kept, ray_entrypoint_shown(shown):
             ray.init(
                 address=address or "local",
                 num_cpus=None if address else os.cpu_count(),
@@ -298,19 +299,6 @@ def ensure_ray(address: str | None) -> bool:
 
 class _Kept:
     text = ""
-
-
-@contextlib.contextmanager
-def _entrypoint_shown() -> Iterator[None]:
-    """Ray records the driver's command line (``ps``'s, not ``sys.argv``) as its job's entrypoint, which the
-    job table shows anyone on the cluster: the shown form instead, a password in ``--tracking-uri`` masked."""
-    utils = ray._private.utils
-    original = utils.get_entrypoint_name
-    utils.get_entrypoint_name = lambda: shown(original())
-    try:
-        yield
-    finally:
-        utils.get_entrypoint_name = original
 
 
 @contextlib.contextmanager
@@ -370,22 +358,6 @@ def _check_reachable(address: str) -> None:
 
 def _host(address: str) -> str:
     return address.removeprefix("ray://").rpartition(":")[0]
-
-
-def _loopback_only(enabled: bool) -> None:
-    """A local Ray takes this machine's network address, and its gcs_server, raylet and workers listen on
-    every interface without authentication. Ray (2.60) has no bind option, but with clusters disabled (its
-    macOS/Windows default) a new node's address is 127.0.0.1 and every server binds to it alone. Only read
-    when this process starts a node: joined clusters and ``ray start`` are unaffected; restored for a join."""
-    import ray._private.ray_constants as ray_constants
-
-    global _CLUSTERS_DEFAULT
-    if _CLUSTERS_DEFAULT is None:
-        _CLUSTERS_DEFAULT = ray_constants.ENABLE_RAY_CLUSTER
-    ray_constants.ENABLE_RAY_CLUSTER = False if enabled else _CLUSTERS_DEFAULT
-
-
-_CLUSTERS_DEFAULT: bool | None = None
 
 
 class _Bridge(tune.Callback):

@@ -37,6 +37,7 @@ from ablate.launch.mlflow_store import (  # noqa: F401 - the tags and the opener
     population_sizes,
     quiet_mlflow,
 )
+from ablate.launch.patches import mlflow_answers_kept
 from ablate.launch.secrets import shown as redact
 from ablate.launch.store import (  # noqa: F401 - the reader's, through this module
     TrackingError,
@@ -82,7 +83,7 @@ class Tracker(Store):
         super().__init__(tracking_uri, experiment_name, write)
         self.client = RetryingClient(self.client, self.shown_uri)
         fail_fast_writes()
-        _answers_kept()
+        mlflow_answers_kept()
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
         self._points: dict[str, tuple[list[Any], float, int]] = {}
@@ -362,21 +363,6 @@ class Tracker(Store):
                 batch = []
         if batch:
             self.client.log_batch(run_id, metrics=batch)
-
-
-def _answers_kept() -> None:
-    """MLflow's client retries a server error (500, 503) and then raises "too many 500 error responses",
-    dropping the server's answer; with no retries left (``store_writes.fail_fast_writes``) it is told to return the
-    answer instead, which its callers raise with the answer's text, so ``RetryingClient`` can say which error
-    (a permission, a full disk) the store gave. Only the writer's process (the driver) is changed."""
-    from mlflow.utils import rest_utils
-
-    code = rest_utils.http_request.__code__
-    names = code.co_varnames[: code.co_argcount]
-    defaults = list(rest_utils.http_request.__defaults__ or ())
-    if "raise_on_status" in names and defaults:
-        defaults[names.index("raise_on_status") - (len(names) - len(defaults))] = False
-        rest_utils.http_request.__defaults__ = tuple(defaults)
 
 
 def _param_text(value: Any) -> str:

@@ -1,0 +1,81 @@
+"""Every change ablate makes to a library's private internals, in one place: none of these has a public API or
+setting (checked against Ray 2.60 and MLflow 3.17, the versions ``pyproject.toml`` allows and the README
+names). ``tests/test_patches.py`` fails loudly when a library changes under one of them, before a user meets
+the change as a silent loss (a password on Ray's job table, a server's answer dropped).
+
+Each function here touches one private name and says why; the modules that need them (``scheduler``,
+``ray_logs``, ``tracking``) call these, never the private names. Ray is imported only inside the Ray patches,
+so the tracker's process pays nothing for them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from typing import Any
+
+RAY_TARGETS = (
+    ("ray._private.utils", "get_entrypoint_name"),
+    ("ray._private.ray_constants", "ENABLE_RAY_CLUSTER"),
+    ("ray._private.worker", "print_to_stdstream"),
+)
+"""(module, name) of each private Ray name a patch below replaces or sets."""
+
+MLFLOW_TARGETS = (("mlflow.utils.rest_utils", "http_request"),)
+"""(module, name) of each private MLflow name a patch below changes."""
+
+
+@contextlib.contextmanager
+def ray_entrypoint_shown(shown: Callable[[str], str]) -> Iterator[None]:
+    """Ray records the driver's command line (``ps``'s, not ``sys.argv``) as its job's entrypoint, which the
+    job table shows anyone on the cluster; ``ray.init`` takes no entrypoint. While ``ray.init`` runs, the
+    recorded line is ``shown``'s form (a password in ``--tracking-uri`` masked)."""
+    import ray._private.utils as utils
+
+    original = utils.get_entrypoint_name
+    utils.get_entrypoint_name = lambda: shown(original())
+    try:
+        yield
+    finally:
+        utils.get_entrypoint_name = original
+
+
+_CLUSTERS_DEFAULT: bool | None = None
+
+
+def ray_loopback_only(enabled: bool) -> None:
+    """A local Ray takes this machine's network address, and its gcs_server, raylet and workers listen on
+    every interface without authentication. Ray has no bind option, but with clusters disabled (its
+    macOS/Windows default) a new node's address is 127.0.0.1 and every server binds to it alone. Its setting
+    (``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER``) is read once, when Ray is imported, so the constant is set; only
+    read when this process starts a node: joined clusters and ``ray start`` are unaffected; restored for a join."""
+    import ray._private.ray_constants as ray_constants
+
+    global _CLUSTERS_DEFAULT
+    if _CLUSTERS_DEFAULT is None:
+        _CLUSTERS_DEFAULT = ray_constants.ENABLE_RAY_CLUSTER
+    ray_constants.ENABLE_RAY_CLUSTER = False if enabled else _CLUSTERS_DEFAULT
+
+
+def ray_error_printer() -> Any:
+    """The module whose ``print_to_stdstream`` Ray's driver prints raylet errors through, from a thread of its
+    own past logging and ``log_to_driver=False`` (``ray_logs.route_raylet_errors`` replaces that function)."""
+    import ray._private.worker as worker
+
+    return worker
+
+
+def mlflow_answers_kept() -> None:
+    """MLflow's client retries a server error (500, 503) and then raises "too many 500 error responses",
+    dropping the server's answer; with no retries left (``store_writes.fail_fast_writes``) it is told to return
+    the answer instead, which its callers raise with the answer's text, so ``RetryingClient`` can say which
+    error (a permission, a full disk) the store gave. ``raise_on_status`` is a parameter of MLflow's private
+    ``http_request`` that no public setting reaches: its default is changed, in the writer's process only."""
+    from mlflow.utils import rest_utils
+
+    code = rest_utils.http_request.__code__
+    names = code.co_varnames[: code.co_argcount]
+    defaults = list(rest_utils.http_request.__defaults__ or ())
+    if "raise_on_status" in names and defaults:
+        defaults[names.index("raise_on_status") - (len(names) - len(defaults))] = False
+        rest_utils.http_request.__defaults__ = tuple(defaults)

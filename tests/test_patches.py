@@ -1,0 +1,70 @@
+"""``launch.patches``: each private name of Ray and MLflow that ablate changes still exists in the installed
+library and still has the shape the patch relies on. A library upgrade that moves one fails here, by name,
+instead of silently (a password back on Ray's job table, a server's answer dropped, servers on every interface).
+"""
+
+import importlib
+import inspect
+import subprocess
+import sys
+
+import pytest
+
+from ablate.launch import patches
+
+
+@pytest.mark.parametrize(("module", "name"), [*patches.RAY_TARGETS, *patches.MLFLOW_TARGETS])
+def test_every_private_name_a_patch_touches_exists(module, name):
+    assert hasattr(importlib.import_module(module), name), (
+        f"{module}.{name} is gone from the installed library: ablate.launch.patches must be rewritten "
+        "(see its docstring) before this version is allowed in pyproject.toml"
+    )
+
+
+def test_ray_names_have_the_shapes_the_patches_use():
+    import ray._private.ray_constants as constants
+    import ray._private.utils as utils
+    import ray._private.worker as worker
+
+    assert isinstance(constants.ENABLE_RAY_CLUSTER, bool)
+    assert callable(utils.get_entrypoint_name) and isinstance(utils.get_entrypoint_name(), str)
+    assert list(inspect.signature(worker.print_to_stdstream).parameters)[0] == "data"
+    # services reads the constant when it starts a node: the loopback patch has its effect there.
+    import ray._private.services as services
+
+    assert "ENABLE_RAY_CLUSTER" in inspect.getsource(services)
+
+
+def test_the_entrypoint_patch_masks_and_restores():
+    import ray._private.utils as utils
+
+    original = utils.get_entrypoint_name
+    with patches.ray_entrypoint_shown(lambda line: "MASKED"):
+        assert utils.get_entrypoint_name() == "MASKED"
+    assert utils.get_entrypoint_name is original
+
+
+def test_the_mlflow_patch_turns_off_raise_on_status_in_its_process_only():
+    code = (
+        "import inspect; from mlflow.utils import rest_utils; from ablate.launch import patches; "
+        "before = inspect.signature(rest_utils.http_request).parameters['raise_on_status'].default; "
+        "patches.mlflow_answers_kept(); "
+        "after = inspect.signature(rest_utils.http_request).parameters['raise_on_status'].default; "
+        "print(before, after)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["True", "False"], out
+
+
+def test_no_other_module_names_a_private_library_internal():
+    from pathlib import Path
+
+    root = Path(patches.__file__).parents[1]
+    offenders = [
+        str(path.relative_to(root))
+        for path in root.rglob("*.py")
+        if path.name != "patches.py"
+        for line in path.read_text().splitlines()
+        if ("ray._private" in line or "__defaults__ =" in line) and not line.strip().startswith(("#", "(", '"'))
+    ]
+    assert offenders == []
