@@ -200,6 +200,12 @@ def test_a_planted_difference_is_decided_early_and_a_null_runs_to_max(tmp_path, 
     from ablate.reporting.results import _json_artifact
 
     assert _json_artifact(tracker, launch.info.run_id, "rounds.json") == document  # as the report reads it
+    # Each trial's round is a tag of its run: seeds 10-14 of null ran in round 3.
+    trials = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'trial'", max_results=1000)
+    rounds_of = {
+        (r.data.tags["ablate.variant"], int(r.data.tags["ablate.seed"])): r.data.tags["ablate.round"] for r in trials
+    }
+    assert rounds_of[("null", 12)] == "3" and rounds_of[("fast", 7)] == "2" and rounds_of[("baseline", 0)] == "1"
     # ablate status: each variant's seeds, of the most it may get.
     from ablate.cli import main
 

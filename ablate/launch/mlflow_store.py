@@ -47,6 +47,8 @@ TAG_NAME = "ablate.name"
 """On an MLflow experiment whose name is a storage name (``experiment.storage_name``): the name as written."""
 TAG_STAGE = "ablate.stage"
 """``tune`` (a tuning trial, stage 1 of a ``[tune]`` experiment) or ``eval``; runs without it are ``eval``."""
+TAG_ROUND = "ablate.round"
+"""The round of seeds its launch ran it in (``1``: the first, its tuning stage included)."""
 
 
 def population_sizes(tags: Mapping[str, Mapping[str, str]]) -> dict[str, int]:

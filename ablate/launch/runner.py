@@ -27,7 +27,16 @@ from ablate.launch.progress import ProgressView
 from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
 from ablate.launch.rounds import Judge, Rounds
 from ablate.launch.state import LaunchState
-from ablate.launch.tracking import TAG_HOST, TAG_NODE, TAG_PID, TAG_POPULATION, TAG_POPULATION_SIZE, TAG_ROLE, Tracker
+from ablate.launch.tracking import (
+    TAG_HOST,
+    TAG_NODE,
+    TAG_PID,
+    TAG_POPULATION,
+    TAG_POPULATION_SIZE,
+    TAG_ROLE,
+    TAG_ROUND,
+    Tracker,
+)
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
 # ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
@@ -181,6 +190,7 @@ class _Recorder:
             return
         size = str(self.members.get(key, 1))
         tags = {TAG_NODE: node, TAG_POPULATION: population or key, TAG_POPULATION_SIZE: size}
+        tags[TAG_ROUND] = str(self.state.round)  # what a run is, as tags: never parsed back out of its key
         self.tracker.finish_trial(key, summary, artifacts, tags=tags)
         self.outcome.finished.append(key)
         self.summaries[key] = dict(summary)

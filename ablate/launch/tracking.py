@@ -29,6 +29,7 @@ from ablate.launch.mlflow_store import (  # noqa: F401 - the tags and the opener
     TAG_POPULATION,
     TAG_POPULATION_SIZE,
     TAG_ROLE,
+    TAG_ROUND,
     TAG_SEED,
     TAG_STAGE,
     TAG_VARIANT,
