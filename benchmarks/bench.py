@@ -10,7 +10,8 @@ default ablation; each launch's time-left estimate scored), `eta` (the time-left
 actually remained), `population` (CartPole populations against one trial; the same results), `seeds` (the
 tuned default ablation at 4x its seeds in populations against today's launch), `trainer` (this checkout's
 trainer against an earlier commit's, alternating in one run: CartPole and a user's network in populations of 16,
-one Pong trial per arm; the same runs or not).
+one Pong trial per arm; the same runs or not), `start` (time to the first trial, cold and warm, and 64 seeds end
+to end against one trial's pace, this checkout against an earlier commit's).
 `python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
 """
 
@@ -31,6 +32,7 @@ from bench_launch import bench_ablation, bench_cluster, bench_runner, bench_trac
 from bench_pong import bench_pong, bench_pong_memory, bench_pong_population, bench_pong_seeds  # noqa: E402
 from bench_population import bench_population, bench_seeds  # noqa: E402
 from bench_results import RESULTS  # noqa: E402
+from bench_start import bench_start  # noqa: E402
 from bench_trainer import BEFORE_ONE_TRAINER, bench_trainer  # noqa: E402
 from bench_trial import bench_core  # noqa: E402
 
@@ -49,6 +51,7 @@ SECTIONS = {
     "population": bench_population,
     "seeds": bench_seeds,
     "trainer": bench_trainer,
+    "start": bench_start,
 }
 
 
