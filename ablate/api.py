@@ -52,7 +52,7 @@ def _name(name_or_file: str | Path | Experiment) -> str:
 def _check_store(tracking_uri: str) -> str:
     """Refuse a local store that does not exist, in words for a Python caller (the CLI's says ``--tracking-uri``):
     reading must never create an empty database where a path was mistyped or the notebook runs elsewhere."""
-    from ablate.launch.tracking import resolve_uri, sqlite_path
+    from ablate.launch.store import resolve_uri, sqlite_path
 
     uri = resolve_uri(tracking_uri)
     path = sqlite_path(uri)

@@ -26,8 +26,7 @@ from ablate.experiment import Experiment
 from ablate.launch.grid import expand, select, tuning_trials
 from ablate.launch.lock import LaunchLocked
 from ablate.launch.secrets import masked_output, remember_uri, shown
-from ablate.launch.store import insecure_http
-from ablate.launch.tracking import TrackingError
+from ablate.launch.store import TrackingError, insecure_http
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_PIPE = 0, 1, 2, 130, 141  # 141: ended by SIGPIPE
 

@@ -5,7 +5,7 @@ import re
 from ablate.cli import main
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand, select
-from ablate.launch.tracking import TrialRun
+from ablate.launch.mlflow_store import TrialRun
 from ablate.reporting.status import trial_states
 
 FAULTY = """

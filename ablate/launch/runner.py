@@ -22,12 +22,7 @@ from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment
 from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
-from ablate.launch.plan import Population, plan_populations
-from ablate.launch.progress import ProgressView
-from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
-from ablate.launch.rounds import Judge, Rounds
-from ablate.launch.state import LaunchState
-from ablate.launch.tracking import (
+from ablate.launch.mlflow_store import (
     TAG_HOST,
     TAG_NODE,
     TAG_PID,
@@ -35,8 +30,13 @@ from ablate.launch.tracking import (
     TAG_POPULATION_SIZE,
     TAG_ROLE,
     TAG_ROUND,
-    Tracker,
 )
+from ablate.launch.plan import Population, plan_populations
+from ablate.launch.progress import ProgressView
+from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
+from ablate.launch.rounds import Judge, Rounds
+from ablate.launch.state import LaunchState
+from ablate.launch.tracking import Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
 # ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a

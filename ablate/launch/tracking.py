@@ -14,46 +14,22 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from ablate.launch.mlflow_store import (  # noqa: F401 - the tags and the opener, for the writer's importers
+from ablate.launch.mlflow_store import (
     TAG_ATTEMPT,
     TAG_COMMIT,
     TAG_ERROR,
     TAG_GENERATION,
-    TAG_HOST,
     TAG_KEY,
-    TAG_NAME,
-    TAG_NODE,
     TAG_NOTE,
     TAG_PARENT,
-    TAG_PID,
-    TAG_POPULATION,
-    TAG_POPULATION_SIZE,
     TAG_ROLE,
-    TAG_ROUND,
     TAG_SEED,
     TAG_STAGE,
     TAG_VARIANT,
     Store,
-    TrialRun,
-    population_sizes,
-    quiet_mlflow,
 )
 from ablate.launch.patches import mlflow_answers_kept
 from ablate.launch.secrets import shown as redact
-from ablate.launch.store import (  # noqa: F401 - the reader's, through this module
-    TrackingError,
-    check_sqlite,
-    fail_fast_http,
-    is_database,
-    lock_file,
-    open_uri,
-    probe_database,
-    probe_server,
-    resolve_uri,
-    sqlite_path,
-    store_problem,
-    store_setup_lock,
-)
 from ablate.launch.store_writes import RetryingClient, fail_fast_writes
 
 # A trial's curve: one point per bin of episodes (``ablate.launch.curve``: at most ~100 points however many episodes

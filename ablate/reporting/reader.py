@@ -10,18 +10,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ablate.launch.tracking import (
-    TAG_GENERATION,
-    TAG_ROLE,
-    Store,
+from ablate.launch.mlflow_store import TAG_GENERATION, TAG_ROLE, Store, TrialRun, quiet_mlflow
+from ablate.launch.store import (
     TrackingError,
-    TrialRun,
     fail_fast_http,
     is_database,
     open_uri,
     probe_database,
     probe_server,
-    quiet_mlflow,
     resolve_uri,
     sqlite_path,
     store_problem,

@@ -241,7 +241,7 @@ def _generation_summary(tracker: RunReader, launches: list[Any]) -> list[dict[st
 def check_store(tracking_uri: str | None) -> str:
     """The store's URI; a local store (SQLite file or folder) that does not exist is a ``ConfigError``, so
     that reading never creates an empty database where a user mistyped a path."""
-    from ablate.launch.tracking import resolve_uri
+    from ablate.launch.store import resolve_uri
 
     uri = resolve_uri(tracking_uri)
     if uri.startswith("sqlite:///"):
