@@ -266,3 +266,36 @@ def test_the_question_without_a_solve_threshold_asks_how_fast_it_learns():
     assert "first on the area under the learning curve" in text
     cartpole = SimpleNamespace(**{**vars(pong), "threshold": 475.0, "any_solved": True, "env_id": "CartPole-v1"})
     assert "learns to reach a rolling mean return of 475 on `CartPole-v1`?" in question(cartpole)
+
+
+def test_a_knob_written_at_the_bases_value_is_no_change(tmp_path):
+    # A student's baseline wrote activation = "relu", the default: the report said "deep changes 2 knobs at once
+    # against relu (activation and hidden sizes)" and listed "activation = relu" as the baseline's change.
+    from ablate.reporting.results import Ablation
+    from ablate.reporting.sections import changed_settings
+
+    variants = {
+        "relu": {"curve": rising(5, 30), "overrides": {"activation": "relu"}},
+        "tanh": {"curve": rising(5, 20), "overrides": {"activation": "tanh"}},
+        "deep": {"curve": rising(5, 10), "overrides": {"hidden_sizes": [8, 8]}, "hidden": [8, 8]},
+        "same": {"curve": rising(5, 25), "overrides": {"hidden_sizes": [8], "depth": 1}},
+    }
+    base = {"model.activation": "relu", "model.hidden_sizes": [8]}
+    uri = make_store(tmp_path, "knobs", variants, seeds=(0, 1, 2, 3), base=base)
+    text = _report(tmp_path, "knobs", uri)
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if "compared with" in line}
+    rows |= {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if "baseline (reference)" in line}
+    assert "| nothing (the base) |" in rows["relu"] and "activation = relu" not in text
+    assert "| hidden_sizes = [8, 8] |" in rows["deep"] and "| activation = tanh |" in rows["tanh"]
+    assert "| nothing (the base) |" in rows["same"]  # [8] and depth 1 are the base's one layer of 8
+    assert "knobs at once" not in text and "more than one knob" not in text
+    grid = {
+        "baseline": "relu",
+        "base": base,
+        "variants": [{"name": v, "overrides": s["overrides"]} for v, s in variants.items()],
+    }
+    ablation = Ablation("knobs", grid, {}, pd.DataFrame(), pd.DataFrame())
+    assert ablation.changes("deep") == {"hidden_sizes": [8, 8]} and changed_settings(ablation, "deep") == [
+        "hidden sizes"
+    ]
+    assert ablation.changes("tanh") == {"activation": "tanh"} and ablation.changes("same") == {}

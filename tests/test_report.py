@@ -239,14 +239,15 @@ def make_store(folder: Path, name: str, variants: dict[str, dict], seeds=(0, 1, 
     """One launch of ``name`` in ``folder/mlflow.db``, written by the tracker as a run would. ``variants`` maps a
     name to ``curve(seed) -> returns`` and optionally ``architecture``, ``hidden``, ``parameters``. Options:
     ``env_id``, ``threshold`` (None: no solve threshold), ``window``, ``description``, ``generation``, ``failed``
-    (keys recorded FAILED), ``only`` (keys to run; the rest are not run), ``observation`` (log observation.png)."""
+    (keys recorded FAILED), ``only`` (keys to run; the rest are not run), ``observation`` (log observation.png),
+    ``base`` (more of grid.json's base: ``{"model.activation": "relu"}``)."""
     env_id, threshold = options.get("env_id", "CartPole-v1"), options.get("threshold", 25.0)
     window, generation = options.get("window", 8), options.get("generation", "gen1")
     db = folder / "mlflow.db"
     uri = f"sqlite:///{db}" if db.exists() else fresh_store(db)  # several experiments may share one store
     tracker = Tracker(uri, name)
     base = {"env_id": env_id, "max_episodes": budget, "solve_window": window, "solve_threshold": threshold}
-    base |= {"learning_rate": 0.03, "gamma": 0.95, "episodes_per_update": 4}
+    base |= {"learning_rate": 0.03, "gamma": 0.95, "episodes_per_update": 4} | options.get("base", {})
     trials = [{"key": f"{v}-s{s}", "variant": v, "seed": s} for v in variants for s in seeds]
     grid = {"experiment": name, "description": options.get("description", "synthetic"), "seeds": list(seeds)}
     grid |= {"baseline": next(iter(variants)), "base": base, "trials": trials}

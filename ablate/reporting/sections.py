@@ -11,6 +11,7 @@ from ablate.reporting.figures import esc as _esc
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.networks import factory_args
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
+from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
 from ablate.reporting.text import _interval, _markdown_table
 
@@ -166,7 +167,8 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     for variant in ablation.grid["variants"]:
         params = ablation.params.get(variant["name"], {})
         count = table.loc[table.variant == variant["name"], "parameter_count"]
-        overrides = ", ".join(f"{k} = {v}" for k, v in variant["overrides"].items()) or "nothing (the base)"
+        changed = own_changes(ablation.grid, variant["name"])  # by value: a knob at the base's value is no change
+        overrides = ", ".join(f"{k} = {v}" for k, v in changed.items()) or "nothing (the base)"
         rows.append(
             {
                 "variant": _esc(variant["name"]),
