@@ -25,7 +25,7 @@ def _committed(name: str) -> tuple[str, ReportData]:
     folder = REPORTS / name
     tables = folder / "tables"
     trials = pd.read_csv(tables / "trials.csv")
-    trials = trials[(trials.status == "FINISHED") & (trials.get("stage", "eval") != "tune")]
+    trials = trials[(trials.status == "FINISHED") & (trials.get("stage", "eval") == "eval")]
     claims = pd.read_csv(tables / "claims.csv") if (tables / "claims.csv").is_file() else None
     compare = pd.read_csv(tables / "comparisons.csv", keep_default_na=False, na_values=[""])
     data = ReportData(trials, pd.read_csv(tables / "convergence.csv"), compare, claims)

@@ -233,7 +233,7 @@ def _build(
     table.to_csv(folder / "tables" / "convergence.csv", index=False)
     claimed.to_csv(folder / "tables" / "claims.csv", index=False)
     compare.to_csv(folder / "tables" / "comparisons.csv", index=False)
-    trials_table(ablation.trials).to_csv(folder / "tables" / "trials.csv", index=False)
+    trials_table(ablation).to_csv(folder / "tables" / "trials.csv", index=False)
     untuned = None
     if ablation.tuning_trials is not None:
         ablation.tuning_trials.to_csv(folder / "tables" / "tuning.csv", index=False)
