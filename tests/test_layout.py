@@ -299,3 +299,36 @@ def test_a_knob_written_at_the_bases_value_is_no_change(tmp_path):
         "hidden sizes"
     ]
     assert ablation.changes("tanh") == {"activation": "tanh"} and ablation.changes("same") == {}
+
+
+def test_a_report_without_videos_promises_none_and_says_one_word_per_verdict(stores, tmp_path):
+    # The limitations said "Videos show one greedy episode..." where the appendix said "No videos were
+    # recorded"; the references named the exploratory "too few seeds" rule "too few seeds to tell".
+    _, uri = stores
+    text = _report(tmp_path, "three", uri)
+    assert "No videos were recorded." in text and "Videos show" not in text and "Each video is" not in text
+    assert "too few seeds to tell" not in text and "(The rank test behind *exploratory: too few seeds*" in text
+
+
+def test_a_report_says_in_one_line_when_the_experiment_file_changed_since_its_launch(tmp_path, capsys):
+    # A student removed a line from the file after the launch: the report kept describing the launch's copy and
+    # never said the file had changed since.
+    from ablate.cli import main
+    from ablate.launch.tracking import Tracker
+
+    apart = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 10)}}
+    uri = make_store(tmp_path, "edited", apart, seeds=(0, 1, 2))
+    tracker = Tracker(uri, "edited")
+    launch = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")[0].info.run_id
+    ran = 'name = "edited"\nseeds = 3\nbaseline = "a"\n[[variants]]\nname = "a"\nactivation = "relu"\n'
+    tracker.log_file(launch, "experiment.toml", ran)
+    path = tmp_path / "edited.toml"
+    tracker.client.set_tag(launch, "ablate.experiment_file", str(path))
+    path.write_text(ran)
+    assert "has changed since this launch ran it" not in _report(tmp_path, "edited", uri)
+    path.write_text(ran.replace('activation = "relu"\n', ""))
+    lines = [x for x in _report(tmp_path, "edited", uri).splitlines() if "has changed since" in x]
+    assert len(lines) == 1 and f"The experiment file {path} has changed since this launch ran it" in lines[0]
+    assert f"ablate run {path} --fresh" in lines[0]
+    assert main(["report", "edited", "--tracking-uri", uri, "--out", str(tmp_path / "cli"), "--no-pdf"]) == 0
+    assert "has changed since this launch ran it" in capsys.readouterr().out

@@ -37,7 +37,7 @@ from ablate.reporting.figures import (
 )
 from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.layout import build_markdown, order_figures
-from ablate.reporting.provenance import _generation_note, missing_artifacts_line
+from ablate.reporting.provenance import _generation_note, changed_file_note, missing_artifacts_line
 from ablate.reporting.reader import RunReader
 from ablate.reporting.results import Ablation, NoResults, load_ablation, select
 from ablate.reporting.tables import convergence_table, trials_table
@@ -121,6 +121,8 @@ class ReportResult:
     """The PDF's (body, total) pages, where it was written."""
     missing_note: str = ""
     """What the store could not give and the report left out, in one line (``""`` when nothing)."""
+    file_note: str = ""
+    """Where the experiment file on disk differs from the launch's copy, the report's line saying so."""
 
     def pdf_words(self) -> str:
         """``report.pdf (9 pages: the body 3, the appendix 6)``, or the one line saying why there is none."""
@@ -201,7 +203,9 @@ def build_report(
         except Exception:  # noqa: BLE001 - a count is a courtesy: the PDF stands without it
             pages = None
     missing = missing_artifacts_line(ablation, tracker.shown_uri)
-    return ReportResult(folder, pdf_note, attach_note, _generation_note(ablation), pages, missing)
+    return ReportResult(
+        folder, pdf_note, attach_note, _generation_note(ablation), pages, missing, changed_file_note(ablation)
+    )
 
 
 def _swap(staging: Path, folder: Path) -> None:
@@ -350,7 +354,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         sys.stderr.write(f"ablate report: {result.missing_note}\n")
     written = "report.md, report.html" + ("" if result.pdf_note else f" and {result.pdf_words()}")
     print(f"wrote {result.folder}/: {written}")
-    for note in (result.generation_note, result.pdf_note, result.attach_note):
+    for note in (result.generation_note, result.file_note, result.pdf_note, result.attach_note):
         if note and note != "no PDF (--no-pdf)":
             print(re.sub(r"</?code>|^> ", "", html.unescape(note)))
     return 0

@@ -16,7 +16,12 @@ from ablate.reporting.figures import Figure
 from ablate.reporting.figures import esc as _esc
 from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
-from ablate.reporting.provenance import _generation_note, _reproducibility, missing_artifacts_note
+from ablate.reporting.provenance import (
+    _generation_note,
+    _reproducibility,
+    changed_file_note,
+    missing_artifacts_note,
+)
 from ablate.reporting.results import Ablation
 from ablate.reporting.rounds import rounds_section
 from ablate.reporting.sections import (
@@ -147,9 +152,8 @@ def build_markdown(
 
     author = _esc(discussion.author) if discussion.author and discussion.text else "the student"
     parts = [f"# Ablation report: {_esc(ablation.name)}", ""]
-    note = _generation_note(ablation)
-    if note:
-        parts += [note, ""]
+    for note in (_generation_note(ablation), changed_file_note(ablation)):
+        parts += [note, ""] if note else []
     parts += [
         f"*Every section marked {GENERATED} is written by ablate from the tracking store; the Discussion is "
         f"{author}'s own. The appendix holds every table and comparison.*",
@@ -178,7 +182,7 @@ def build_markdown(
     parts += [f"## Figures {GENERATED}", ""] if shown else []
     for f in shown:
         parts += [f"FIGURE:{f.number}", ""]
-    kept = [text for kind, text in limitations(ablation, table, compare) if kind in BODY_LIMITATIONS]
+    kept = [text for kind, text in limitations(ablation, table, compare, bool(videos)) if kind in BODY_LIMITATIONS]
     parts += [f"## Limitations {GENERATED}", "", *[f"- {line}" for line in kept], ""]
     parts += [*_discussion(ablation, discussion, discussion_path), ""]
     parts += ["## References", "", *[f"- {ref}" for ref in references(ablation)], ""]
@@ -217,7 +221,9 @@ def build_markdown(
     rest = [f for f in figures if f not in shown]
     parts += [f"### {letters['figures']}. More figures {GENERATED}", ""]
     parts += [line for f in rest for line in (f"FIGURE:{f.number}", "")] or ["No other figures.", ""]
-    if _sampling_videos(ablation):
+    if not videos:
+        parts += [f"### {letters['videos']}. Videos {GENERATED}", ""]
+    elif _sampling_videos(ablation):
         frames = int(ablation.grid["base"].get("video_max_frames", 500))
         parts += [
             f"### {letters['videos']}. Videos of the trained agent {GENERATED}",
@@ -245,7 +251,7 @@ def build_markdown(
             for r in failed.itertuples()
         ]
         parts.append("")
-    every = [text for _, text in limitations(ablation, table, compare)]
+    every = [text for _, text in limitations(ablation, table, compare, bool(videos))]
     parts += [f"### {letters['limitations']}. Every limitation {GENERATED}", "", *[f"- {t}" for t in every], ""]
     record = _reproducibility(ablation, command or shown_command(["ablate", "report", ablation.name]))
     parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", record, ""]

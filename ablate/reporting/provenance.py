@@ -90,6 +90,27 @@ def _reproducibility(ablation: Ablation, command: Shown) -> str:
     return "\n".join(lines)
 
 
+def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
+    """One line where the experiment file the launch ran (its copy in the store) differs from the file at the
+    same path now: the report describes the launch's copy, so an edit since (a knob removed, a variant renamed)
+    is not in it. ``""`` where they match, or where either is missing."""
+    path = ablation.launch["tags"].get("ablate.experiment_file", "")
+    ran = ablation.launch.get("experiment_text")
+    if not path or ran is None:
+        return ""
+    on_disk = Path(cwd or ".") / path
+    try:
+        now = on_disk.read_text()
+    except OSError:
+        return ""
+    if now.strip() == ran.strip():
+        return ""
+    return (
+        f"> **The experiment file {_esc(path)} has changed since this launch ran it**: this report describes the "
+        f"launch's copy (stored with it); <code>ablate run {_esc(path)} --fresh</code> runs the file as it is now."
+    )
+
+
 def _generation_note(ablation: Ablation) -> str:
     generations = ablation.launch.get("generations", [])
     current = ablation.launch["tags"].get("ablate.generation", "")

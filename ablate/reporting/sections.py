@@ -348,10 +348,13 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
     return [head]
 
 
-def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame | None = None) -> list[tuple[str, str]]:
+def limitations(
+    ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame | None = None, videos: bool = True
+) -> list[tuple[str, str]]:
     """What the experiment's design itself limits, read off the grid and the results: (kind, text) pairs, the
     kind naming the limitation (``seeds``, ``tuning``, ``shared``, ``capacity``, ``confound``, ``censoring``,
-    ``threshold``, ``wallclock``, ``videos``, ``scope``) so the body can print the ones that matter."""
+    ``threshold``, ``wallclock``, ``videos``, ``scope``) so the body can print the ones that matter. ``videos``:
+    whether the report shows any (no limitation of videos there are none of)."""
     base, variants = ablation.grid["base"], ablation.grid["variants"]
     out: list[tuple[str, str]] = []
     fewest, seeds = ablation.seed_span
@@ -471,7 +474,7 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
             "rough cost.",
         )
     )
-    if _sampling_videos(ablation):
+    if videos and _sampling_videos(ablation):
         out.append(
             (
                 "videos",
@@ -479,7 +482,7 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
                 f"{_fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average.",
             )
         )
-    else:
+    elif videos:
         out.append(
             (
                 "videos",
