@@ -144,8 +144,8 @@ def test_every_variant_has_a_role_in_the_variants_table(stores, tmp_path):
 
 
 def test_markdown_keeps_quotes_and_counts_one_episode():
-    from ablate.reporting.figures import esc
     from ablate.reporting.sections import _episodes
+    from ablate.reporting.text import esc
 
     assert esc("the course's <b>") == "the course's &lt;b&gt;"
     assert _episodes(1) == "1 episode" and _episodes(32) == "32 episodes"

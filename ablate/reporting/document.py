@@ -35,12 +35,12 @@ from ablate.reporting.figures import (
     figure_small_multiples,
     figure_wallclock,
 )
-from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.layout import build_markdown, order_figures
 from ablate.reporting.provenance import _generation_note, changed_file_note, missing_artifacts_line
 from ablate.reporting.reader import RunReader
 from ablate.reporting.results import Ablation, NoResults, load_ablation, select
 from ablate.reporting.tables import convergence_table, trials_table
+from ablate.reporting.text import fmt
 from ablate.reporting.typeset import compile_pdf as print_pdf
 from ablate.reporting.typeset import number_tables, page_counts, to_typst
 from ablate.reporting.writers import CSS, _inline
@@ -295,9 +295,9 @@ def terminal_summary(folder: Path) -> str:
         if not seeds:
             lines.append(f"{row.variant:<{width}} no finished seeds")
             continue
-        median = ("≥ " if row.median_censored else "") + _fmt(row.episodes_median)
+        median = ("≥ " if row.median_censored else "") + fmt(row.episodes_median)
         solved = f"{int(row.solved)}/{seeds}"
-        lines.append(f"{row.variant:<{width}} {solved:>7} {median:>26} {_fmt(row.final_rolling_mean_iqm, 1):>24}")
+        lines.append(f"{row.variant:<{width}} {solved:>7} {median:>26} {fmt(row.final_rolling_mean_iqm, 1):>24}")
     return "\n".join(lines)
 
 

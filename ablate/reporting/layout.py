@@ -13,7 +13,6 @@ import pandas as pd
 from ablate.launch.secrets import Shown, shown_command
 from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
-from ablate.reporting.figures import esc as _esc
 from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
 from ablate.reporting.provenance import (
@@ -31,7 +30,7 @@ from ablate.reporting.sections import (
     comparison_intro,
     limitations,
 )
-from ablate.reporting.text import _metric_name
+from ablate.reporting.text import _metric_name, esc
 from ablate.reporting.tuning_sections import dependence_section, knob_words, tuning_section
 
 BODY_FIGURES = (
@@ -68,14 +67,14 @@ def question(ablation: Ablation) -> str:
         if ablation.threshold is not None
         else "learns"
     )
-    description = _esc(ablation.grid.get("description") or "").strip()
+    description = esc(ablation.grid.get("description") or "").strip()
     lead = (description if description[-1] in ".?!" else f"{description}.") + " " if description else ""
     varied = any(ablation.reference(v) != ablation.baseline for v in others)
-    against = "its reference (the baseline, or the variant it extends)" if varied else _esc(ablation.baseline)
-    listed = ", ".join(_esc(v) for v in others) or "none"
+    against = "its reference (the baseline, or the variant it extends)" if varied else esc(ablation.baseline)
+    listed = ", ".join(esc(v) for v in others) or "none"
     return (
         f"{lead}Does each change to the baseline's settings change how fast REINFORCE {learns} on "
-        f"`{_esc(ablation.env_id)}`? {len(others)} variant{'s' if len(others) != 1 else ''} ({listed}) "
+        f"`{esc(ablation.env_id)}`? {len(others)} variant{'s' if len(others) != 1 else ''} ({listed}) "
         f"{'are each' if len(others) != 1 else 'is'} compared with {against}, first on {primary}."
     )
 
@@ -108,7 +107,7 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
         )
     return (
         "REINFORCE (Williams, 1992), the vanilla policy gradient of the course's lab (MIT 6.S191, Lab 3), trains "
-        f"each variant's policy from {seeds} on `{_esc(ablation.env_id)}`: "
+        f"each variant's policy from {seeds} on `{esc(ablation.env_id)}`: "
         f"{solve}. A variant changes only the knobs it names (Appendix {letters['method']}).{tuned} Every number "
         "is over seeds: interquartile means with 95% percentile bootstrap intervals (Agarwal et al., 2021); unsolved "
         "seeds count as the budget and make a statistic a bound (≥), never dropped. The primary claims are one family "
@@ -120,10 +119,10 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
 
 def _discussion(ablation: Ablation, discussion: Discussion, where: str) -> list[str]:
     if discussion.text is None:
-        return [f"## Discussion{f' — {_esc(discussion.author)}' if discussion.author else ''}", "", missing_line(where)]
+        return [f"## Discussion{f' — {esc(discussion.author)}' if discussion.author else ''}", "", missing_line(where)]
     author = discussion.author or "the author (no Author line in discussion.md)"
     text = re.sub(r"^(#{1,4}) ", r"\1### ", discussion.text, flags=re.M)  # its headings nest under this one
-    return [f"## Discussion — {_esc(author)}", "", f"*Written by {_esc(author)}; printed as written.*", "", text]
+    return [f"## Discussion — {esc(author)}", "", f"*Written by {esc(author)}; printed as written.*", "", text]
 
 
 def build_markdown(
@@ -150,8 +149,8 @@ def build_markdown(
     appendix += ["figures", "videos"] + (["failed"] if len(failed) else []) + ["limitations", "record", "glossary"]
     letters = {name: chr(ord("A") + i) for i, name in enumerate(appendix)}
 
-    author = _esc(discussion.author) if discussion.author and discussion.text else "the student"
-    parts = [f"# Ablation report: {_esc(ablation.name)}", ""]
+    author = esc(discussion.author) if discussion.author and discussion.text else "the student"
+    parts = [f"# Ablation report: {esc(ablation.name)}", ""]
     for note in (_generation_note(ablation), changed_file_note(ablation)):
         parts += [note, ""] if note else []
     parts += [
@@ -247,7 +246,7 @@ def build_markdown(
     if len(failed):
         parts += [f"### {letters['failed']}. Trials that did not finish {GENERATED}", ""]
         parts += [
-            f"- {_esc(r.key)}: {r.status}{(' — ' + _esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
+            f"- {esc(r.key)}: {r.status}{(' — ' + esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
             for r in failed.itertuples()
         ]
         parts.append("")
@@ -276,7 +275,7 @@ def build_markdown(
             f"<figcaption><strong>Figure {f.number}.</strong> {f.caption}</figcaption></figure>\n",
             1,
         )
-    links = "\n".join(f"- [{_esc(v['caption'])}]({v['path']})" for v in videos) or "No videos were recorded."
+    links = "\n".join(f"- [{esc(v['caption'])}]({v['path']})" for v in videos) or "No videos were recorded."
     blocks = "\n".join(
         f'<figure class="video"><video controls muted loop preload="metadata" src="{html.escape(v["path"])}">'
         f"</video><figcaption>{html.escape(v['caption'])}</figcaption></figure>"

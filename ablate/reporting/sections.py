@@ -7,13 +7,11 @@ import numpy as np
 import pandas as pd
 
 from ablate.reporting.figures import ablation_window
-from ablate.reporting.figures import esc as _esc
-from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.networks import factory_args
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
 from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
-from ablate.reporting.text import _interval, _markdown_table
+from ablate.reporting.text import _interval, _markdown_table, esc, fmt
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
@@ -93,8 +91,8 @@ def _role(ablation: Ablation, variant: str) -> str:
     if variant == ablation.baseline:
         return "baseline (reference)"
     users = [v for v in ablation.variants if v != variant and ablation.reference(v) == variant]
-    role = [f"compared with {_esc(ablation.reference(variant))}"]
-    return "; ".join(role + ([f"reference of {', '.join(map(_esc, users))}"] if users else []))
+    role = [f"compared with {esc(ablation.reference(variant))}"]
+    return "; ".join(role + ([f"reference of {', '.join(map(esc, users))}"] if users else []))
 
 
 def _episodes(count) -> str:
@@ -135,13 +133,13 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     budget = int(base.get("max_episodes", 0))
     if threshold is not None:
         env = (
-            f"**Environment.** `{_esc(base['env_id'])}`. Solved when the mean return over "
+            f"**Environment.** `{esc(base['env_id'])}`. Solved when the mean return over "
             f"{ablation_window(ablation)} consecutive episodes reaches {threshold:g}; a trial stops then, or at "
             f"its budget of {budget:,} episodes."
         )
     else:
         env = (
-            f"**Environment.** `{_esc(base['env_id'])}`. No solve threshold: every trial runs its whole budget of "
+            f"**Environment.** `{esc(base['env_id'])}`. No solve threshold: every trial runs its whole budget of "
             f"{budget:,} episodes, and variants are compared on their returns (area under the curve, the return "
             "after fixed budgets, episodes to reach return levels, the improvement over the untrained policy)."
         )
@@ -171,11 +169,11 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
         overrides = ", ".join(f"{k} = {v}" for k, v in changed.items()) or "nothing (the base)"
         rows.append(
             {
-                "variant": _esc(variant["name"]),
+                "variant": esc(variant["name"]),
                 "role": _role(ablation, variant["name"]),
-                "changes": _esc(overrides),
-                "policy": _esc(architecture(params, ablation.env_id)) if params else "–",
-                "parameters": _fmt(count.iloc[0]) if len(count) and not pd.isna(count.iloc[0]) else "–",
+                "changes": esc(overrides),
+                "policy": esc(architecture(params, ablation.env_id)) if params else "–",
+                "parameters": fmt(count.iloc[0]) if len(count) and not pd.isna(count.iloc[0]) else "–",
             }
         )
     lines.append(_markdown_table(pd.DataFrame(rows)))
@@ -188,7 +186,7 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
         tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
         lines += [
             "",
-            f"Tuned per variant (see {{appendix:tuning}}): {_esc(tuned_knobs)}; the base value above is the untuned "
+            f"Tuned per variant (see {{appendix:tuning}}): {esc(tuned_knobs)}; the base value above is the untuned "
             "one.",
         ]
     lines += [
@@ -208,13 +206,13 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
 def _episodes_cell(row: pd.Series, stat: str) -> str:
     value, low, high = row[f"episodes_{stat}"], row[f"episodes_{stat}_ci_low"], row[f"episodes_{stat}_ci_high"]
     bound = "≥ " if row[f"{stat}_censored"] else ""
-    return f"{bound}{_fmt(value)} {_interval(low, high, 0, int(row.seeds_run))}"
+    return f"{bound}{fmt(value)} {_interval(low, high, 0, int(row.seeds_run))}"
 
 
 def _stat_cell(row: pd.Series, prefix: str, digits: int = 1, low_key: str = "", high_key: str = "") -> str:
     low = row.get(low_key or f"{prefix}_ci_low", np.nan)
     high = row.get(high_key or f"{prefix}_ci_high", np.nan)
-    return f"{_fmt(row.get(prefix, np.nan), digits)} {_interval(low, high, digits, int(row.seeds_run))}"
+    return f"{fmt(row.get(prefix, np.nan), digits)} {_interval(low, high, digits, int(row.seeds_run))}"
 
 
 def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
@@ -223,13 +221,13 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
     if ablation.threshold is not None and len(ran):
         rows = [
             {
-                "variant": _esc(row.variant),
+                "variant": esc(row.variant),
                 "seeds": int(row.seeds_run),
                 "solved": f"{int(row.solved)}/{int(row.seeds_run)}",
                 "episodes to solve, median [95% CI]": _episodes_cell(row, "median"),
                 "episodes to solve, IQM [95% CI]": _episodes_cell(row, "iqm"),
-                "env steps to solve (median of solved)": _fmt(row.env_steps_to_solve_median),
-                "seconds to solve (median of solved)": _fmt(row.wall_s_to_solve_median, 1),
+                "env steps to solve (median of solved)": fmt(row.env_steps_to_solve_median),
+                "seconds to solve (median of solved)": fmt(row.wall_s_to_solve_median, 1),
             }
             for _, row in ran.iterrows()
         ]
@@ -245,8 +243,8 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
     rows = []
     for _, row in ran.iterrows():
         entry = {
-            "variant": _esc(row.variant),
-            f"untrained (first {INITIAL_EPISODES} episodes)": _fmt(row.get("initial_return_iqm", np.nan), 1),
+            "variant": esc(row.variant),
+            f"untrained (first {INITIAL_EPISODES} episodes)": fmt(row.get("initial_return_iqm", np.nan), 1),
         }
         for episodes in budgets:
             entry[f"after {episodes:,} episodes [95% CI]"] = _stat_cell(row, f"return_at_{episodes}_iqm")
@@ -265,7 +263,7 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
     if ablation.levels and len(ran):
         rows = []
         for _, row in ran.iterrows():
-            entry = {"variant": _esc(row.variant)}
+            entry = {"variant": esc(row.variant)}
             for level in ablation.levels:
                 key = f"episodes_to_{level:g}"
                 if f"{key}_median" not in row or pd.isna(row[f"{key}_median"]):
@@ -273,7 +271,7 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
                     continue
                 bound = "≥ " if row[f"{key}_median_censored"] else ""
                 entry[f"episodes to reach {level:g} (median; seeds that reached it)"] = (
-                    f"{bound}{_fmt(row[f'{key}_median'])} ({int(row[f'{key}_reached'])}/{int(row.seeds_run)})"
+                    f"{bound}{fmt(row[f'{key}_median'])} ({int(row[f'{key}_reached'])}/{int(row.seeds_run)})"
                 )
             rows.append(entry)
         parts += [
@@ -325,7 +323,7 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
             f"{len(several)} comparison{'s change' if len(several) > 1 else ' changes'} more than one knob, so "
             f"{'their differences' if len(several) > 1 else 'its difference'} cannot be put down to one of them: "
             + "; ".join(
-                f"{_esc(v)} against {_esc(ablation.reference(v))} changes {_and(words)}" for v, words in several.items()
+                f"{esc(v)} against {esc(ablation.reference(v))} changes {_and(words)}" for v, words in several.items()
             )
             + "."
         ]
@@ -336,11 +334,11 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
         return confounded
     extends = _extends(ablation)
     if not extends:
-        head = f"Each variant against {_esc(ablation.baseline)}"
+        head = f"Each variant against {esc(ablation.baseline)}"
     else:
-        pairs = ", ".join(f"{_esc(v)} against {_esc(ablation.reference(v))}" for v in extends)
+        pairs = ", ".join(f"{esc(v)} against {esc(ablation.reference(v))}" for v in extends)
         head = (
-            f"Each variant against its reference: {_esc(ablation.baseline)}, or, for a variant that adds one change "
+            f"Each variant against its reference: {esc(ablation.baseline)}, or, for a variant that adds one change "
             f"to another variant's, that variant ({pairs})"
         )
     if confounded:
@@ -419,7 +417,7 @@ def limitations(
             (
                 "shared",
                 "**One training setting for all architectures.** Every variant"
-                + (f" except {', '.join(_esc(t) for t in touched)}" if touched else "")
+                + (f" except {', '.join(esc(t) for t in touched)}" if touched else "")
                 + f" trains with the base {knobs}, chosen for the baseline and not tuned per architecture: one that "
                 "would learn better at its own learning rate is judged at the baseline's.",
             )
@@ -429,7 +427,7 @@ def limitations(
         out.append(
             (
                 "capacity",
-                f"**Parameter counts span {_fmt(counts.min())} to {_fmt(counts.max())}** "
+                f"**Parameter counts span {fmt(counts.min())} to {fmt(counts.max())}** "
                 f"({counts.max() / counts.min():,.0f}x): a difference between architectures mixes capacity with "
                 "optimisation (one learning rate moves small and large networks differently); Figure "
                 "{parameters} plots performance against size.",
@@ -442,8 +440,8 @@ def limitations(
             out.append(
                 (
                     "confound",
-                    f"**{_esc(variant)} changes {len(words)} knobs at once** against {_esc(reference)} "
-                    f"({_and(words)}): its difference from {_esc(reference)} cannot be attributed to any one of them.",
+                    f"**{esc(variant)} changes {len(words)} knobs at once** against {esc(reference)} "
+                    f"({_and(words)}): its difference from {esc(reference)} cannot be attributed to any one of them.",
                 )
             )
     finished = ablation.finished
@@ -469,7 +467,7 @@ def limitations(
         (
             "wallclock",
             "**Wall-clock times come from contended CPUs.** Trials ran several at a time on "
-            f"{_esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
+            f"{esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
             "its tracking; seconds move between runs and machines. Compare variants on episodes; read seconds as "
             "rough cost.",
         )
@@ -479,7 +477,7 @@ def limitations(
             (
                 "videos",
                 "**Videos show one stretch of play** per chosen seed (the trained policy sampling its actions, up to "
-                f"{_fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average.",
+                f"{fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average.",
             )
         )
     elif videos:
@@ -493,7 +491,7 @@ def limitations(
     out.append(
         (
             "scope",
-            f"**One environment and budget** ({_esc(ablation.env_id)}, {_fmt(base.get('max_episodes'))} "
+            f"**One environment and budget** ({esc(ablation.env_id)}, {fmt(base.get('max_episodes'))} "
             "episodes): the findings say nothing about other tasks or longer training.",
         )
     )

@@ -1,12 +1,25 @@
-"""Small pieces of the report's wording: percentages, signed numbers, intervals, metric names, Markdown tables."""
+"""The report's one formatting module: user text made inert (``esc``), numbers (``fmt``), percentages, signed
+numbers, intervals, metric names, Markdown tables. Every section and figure caption formats through it."""
 
 from __future__ import annotations
 
+import html
 import re
 
+import numpy as np
 import pandas as pd
 
-from ablate.reporting.figures import fmt as _fmt
+
+def esc(text: object) -> str:
+    """User text (descriptions, variant names, errors, commands) made inert in Markdown and HTML."""
+    # quote=False: quotes are inert in Markdown and in HTML text; escaped, the Markdown read "course&#x27;s".
+    return html.escape(str(text), quote=False).replace("|", "&#124;").replace("`", "&#96;")
+
+
+def fmt(x: float | None, digits: int = 0) -> str:
+    if x is None or (isinstance(x, float) and np.isnan(x)) or pd.isna(x):
+        return "–"
+    return f"{x:,.{digits}f}"
 
 
 def _pct(x: float) -> str:
@@ -27,7 +40,7 @@ def _signed_pct(x: float) -> str:
 def _interval(low: float, high: float, digits: int = 0, n: int | None = None) -> str:
     if pd.isna(low) or pd.isna(high):
         return "[no interval: 1 seed]" if n == 1 else "[no interval]"
-    return f"[{_fmt(low, digits)}, {_fmt(high, digits)}]"
+    return f"[{fmt(low, digits)}, {fmt(high, digits)}]"
 
 
 # --- text ------------------------------------------------------------------------------------------------
