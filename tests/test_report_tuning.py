@@ -136,6 +136,10 @@ def test_the_tuned_report(tuned, tmp_path, monkeypatch):
     assert "**exploratory: better**" in line.split("; at the chosen")[0]
     assert "**exploratory: worse**" in line.split("; at the chosen")[1]
     assert "One training setting for all architectures" not in text and "Tuned over 3 candidates" in text
+    # every cross-reference resolved in the model (text.Refs), none left as a token or pointing nowhere
+    assert not re.search(r"\{(appendix:|parameters|sensitivity|next)", text) and "Appendix –" not in text
+    letter = re.search(r"^### ([A-Z])\. Tuning", text, flags=re.M).group(1)
+    assert f"Tuned per variant (see Appendix {letter})" in text and f"(Appendix {letter} flags choices" in text
 
 
 def test_every_trial_the_report_uses_is_in_load_trials_with_its_stage_and_settings(tuned, tmp_path):

@@ -30,7 +30,7 @@ from ablate.reporting.sections import (
     comparison_intro,
     limitations,
 )
-from ablate.reporting.text import _metric_name, esc
+from ablate.reporting.text import Refs, _metric_name, esc
 from ablate.reporting.tuning_sections import dependence_section, knob_words, tuning_section
 
 BODY_FIGURES = (
@@ -148,6 +148,7 @@ def build_markdown(
     appendix += ["dependence"] if tuned_dependence else []
     appendix += ["figures", "videos"] + (["failed"] if len(failed) else []) + ["limitations", "record", "glossary"]
     letters = {name: chr(ord("A") + i) for i, name in enumerate(appendix)}
+    refs = Refs(letters, numbers)  # every cross-reference resolved before a section is written
 
     author = esc(discussion.author) if discussion.author and discussion.text else "the student"
     parts = [f"# Ablation report: {esc(ablation.name)}", ""]
@@ -181,17 +182,19 @@ def build_markdown(
     parts += [f"## Figures {GENERATED}", ""] if shown else []
     for f in shown:
         parts += [f"FIGURE:{f.number}", ""]
-    kept = [text for kind, text in limitations(ablation, table, compare, bool(videos)) if kind in BODY_LIMITATIONS]
+    kept = [
+        text for kind, text in limitations(ablation, table, compare, bool(videos), refs) if kind in BODY_LIMITATIONS
+    ]
     parts += [f"## Limitations {GENERATED}", "", *[f"- {line}" for line in kept], ""]
     parts += [*_discussion(ablation, discussion, discussion_path), ""]
     parts += ["## References", "", *[f"- {ref}" for ref in references(ablation)], ""]
 
     parts += ["## Appendix", ""]
-    parts += [f"### {letters['method']}. Method in detail {GENERATED}", "", _method(ablation, table), ""]
+    parts += [f"### {letters['method']}. Method in detail {GENERATED}", "", _method(ablation, table, refs), ""]
     seeds_in_rounds = rounds_section(ablation.launch.get("rounds"))  # each variant's seeds and why it stopped
     parts += [seeds_in_rounds, ""] if seeds_in_rounds else []
     if ablation.tuning:
-        parts += [f"### {letters['tuning']}. Tuning {GENERATED}", "", tuning_section(ablation), ""]
+        parts += [f"### {letters['tuning']}. Tuning {GENERATED}", "", tuning_section(ablation, refs), ""]
     parts += [
         f"### {letters['results']}. Results {GENERATED}",
         "",
@@ -250,20 +253,12 @@ def build_markdown(
             for r in failed.itertuples()
         ]
         parts.append("")
-    every = [text for _, text in limitations(ablation, table, compare, bool(videos))]
+    every = [text for _, text in limitations(ablation, table, compare, bool(videos), refs)]
     parts += [f"### {letters['limitations']}. Every limitation {GENERATED}", "", *[f"- {t}" for t in every], ""]
     record = _reproducibility(ablation, command or shown_command(["ablate", "report", ablation.name]))
     parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", record, ""]
     parts += [f"### {letters['glossary']}. Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
     text = "\n".join(parts)
-    for key, value in {
-        "Figure {parameters}": f"Figure {numbers.get('performance_vs_parameters', '–')}",
-        "Figure {sensitivity}": f"Figure {numbers.get('tuning_sensitivity', '–')}",
-        "{appendix:tuning}": f"Appendix {letters.get('tuning', '–')}",
-        "{appendix:glossary}": f"Appendix {letters['glossary']}",
-        "{appendix:comparisons}": f"Appendix {letters['comparisons']}",
-    }.items():
-        text = text.replace(key, value)
     md_text, html_text = text, text
     for f in figures:
         md_text = md_text.replace(

@@ -11,7 +11,7 @@ from ablate.reporting.networks import factory_args
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
 from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
-from ablate.reporting.text import _interval, _markdown_table, esc, fmt
+from ablate.reporting.text import NO_REFS, Refs, _interval, _markdown_table, esc, fmt
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
@@ -126,7 +126,7 @@ def _seeds_ran(ablation: Ablation, planned: list[int]) -> str:
     return f"{fewest} to {most} per variant ({seeds}: {len(planned)} at first, more in rounds while one was open)"
 
 
-def _method(ablation: Ablation, table: pd.DataFrame) -> str:
+def _method(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS) -> str:
     base = ablation.grid["base"]
     threshold = ablation.threshold
     seeds = ablation.grid["seeds"]
@@ -186,14 +186,16 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
         tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
         lines += [
             "",
-            f"Tuned per variant (see {{appendix:tuning}}): {esc(tuned_knobs)}; the base value above is the untuned "
+            f"Tuned per variant (see {refs.appendix('tuning')}): {esc(tuned_knobs)}; the base value above is the "
+            "untuned "
             "one.",
         ]
     lines += [
         "",
         "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
         f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, never "
-        "dropped: a statistic that uses one is a lower bound, marked ≥. {appendix:glossary} defines each term."
+        f"dropped: a statistic that uses one is a lower bound, marked ≥. {refs.appendix('glossary')} defines each "
+        "term."
         + (
             " With fewer than 4 seeds the IQM trims nothing: it is the plain mean, and the findings call it so."
             if len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
@@ -347,7 +349,11 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
 
 
 def limitations(
-    ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame | None = None, videos: bool = True
+    ablation: Ablation,
+    table: pd.DataFrame,
+    compare: pd.DataFrame | None = None,
+    videos: bool = True,
+    refs: Refs = NO_REFS,
 ) -> list[tuple[str, str]]:
     """What the experiment's design itself limits, read off the grid and the results: (kind, text) pairs, the
     kind naming the limitation (``seeds``, ``tuning``, ``shared``, ``capacity``, ``confound``, ``censoring``,
@@ -406,7 +412,8 @@ def limitations(
                 "tuning",
                 f"**Tuned over {n_candidates} candidates on {n_seeds} tuning seed{'s' if n_seeds != 1 else ''}.** "
                 "Each variant's choice is the best of a few candidates on a few seeds: a value between or beyond them "
-                "could do better ({appendix:tuning} flags choices at the edge of the grid), and so few seeds choose "
+                f"could do better ({refs.appendix('tuning')} flags choices at the edge of the grid), and so few seeds "
+                "choose "
                 "noisily. The evaluation seeds never took part in the choice. Knobs not tuned are the base's for "
                 "every variant.",
             )
@@ -429,8 +436,8 @@ def limitations(
                 "capacity",
                 f"**Parameter counts span {fmt(counts.min())} to {fmt(counts.max())}** "
                 f"({counts.max() / counts.min():,.0f}x): a difference between architectures mixes capacity with "
-                "optimisation (one learning rate moves small and large networks differently); Figure "
-                "{parameters} plots performance against size.",
+                "optimisation (one learning rate moves small and large networks differently); "
+                f"{refs.figure('performance_vs_parameters')} plots performance against size.",
             )
         )
     for variant in ablation.variants:

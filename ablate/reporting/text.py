@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import html
 import re
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -14,6 +15,27 @@ def esc(text: object) -> str:
     """User text (descriptions, variant names, errors, commands) made inert in Markdown and HTML."""
     # quote=False: quotes are inert in Markdown and in HTML text; escaped, the Markdown read "course&#x27;s".
     return html.escape(str(text), quote=False).replace("|", "&#124;").replace("`", "&#96;")
+
+
+@dataclass(frozen=True)
+class Refs:
+    """Where the report's cross-references point, resolved before any section is written (no token is replaced
+    afterwards): each appendix section's letter and each figure's number; one the report lacks reads –."""
+
+    letters: dict[str, str] = field(default_factory=dict)
+    figures: dict[str, int] = field(default_factory=dict)
+
+    def appendix(self, name: str) -> str:
+        """``Appendix B`` for the section ``name`` (``tuning``, ``glossary``, ...)."""
+        return f"Appendix {self.letters.get(name, '–')}"
+
+    def figure(self, stem: str) -> str:
+        """``Figure 6`` for the figure drawn into ``<stem>.png``."""
+        return f"Figure {self.figures.get(stem, '–')}"
+
+
+NO_REFS = Refs()
+"""A section written outside a report (a test, a notebook): every cross-reference reads –."""
 
 
 def fmt(x: float | None, digits: int = 0) -> str:

@@ -9,7 +9,7 @@ import pandas as pd
 
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import SEPARATED, TOO_FEW_SEEDS
-from ablate.reporting.text import _markdown_table, _metric_name, _signed, _signed_pct, esc, fmt
+from ablate.reporting.text import NO_REFS, Refs, _markdown_table, _metric_name, _signed, _signed_pct, esc, fmt
 from ablate.reporting.tuning import METRICS, base_values, chosen_values, edge, knobs, same_value, sensitivity
 
 
@@ -37,7 +37,7 @@ def knob_words(ablation: Ablation) -> str:
     return "the learning rate" if names == ["learning_rate"] else "the tuned settings"
 
 
-def tuning_section(ablation: Ablation) -> str:
+def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> str:
     """The Tuning section: how each variant's values were chosen, on seeds the comparison never sees."""
     tuning = ablation.tuning or {}
     metric = tuning.get("metric", "auc")
@@ -107,7 +107,8 @@ def tuning_section(ablation: Ablation) -> str:
         ]
     lines += [
         "",
-        "Figure {sensitivity} shows each variant's metric against every candidate; every tuning trial is in "
+        f"{refs.figure('tuning_sensitivity')} shows each variant's metric against every candidate; every tuning "
+        "trial is in "
         "tables/tuning.csv.",
     ]
     return "\n".join(lines)
