@@ -14,9 +14,12 @@ from test_report import make_store
 from test_report_claims import VARIANTS
 
 import ablate
+from ablate.launch.secrets import shown_command
 from ablate.launch.tracking import Tracker
+from ablate.reporting.data import report_data
 from ablate.reporting.document import write_report
 from ablate.reporting.reader import RunReader
+from ablate.reporting.results import load_ablation
 
 REPORTS = Path(__file__).parents[1] / "reports"
 
@@ -144,16 +147,21 @@ def synthetic(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test")
         report = write_report("inrounds", tracking_uri=uri, out_root=folder / "reports", attach=False)
-    return (report / "report.md").read_text(), ablate.load("inrounds", tracking_uri=uri)
+    return (report / "report.md").read_text(), ablate.load("inrounds", tracking_uri=uri), uri
 
 
 def test_a_synthetic_ablation_in_rounds_says_what_ablate_load_says(synthetic):
-    text, results = synthetic
+    text, results, uri = synthetic
     trials = results.trials[results.trials.status == "FINISHED"]
     assert trials.groupby("variant").size().to_dict() == SEEDS  # seeds in rounds: variants differ
     data = ReportData(trials, results.convergence, results.comparisons, results.claims, ROUNDS["start"])
     problems = check_all(text, data)
     assert problems == [], "\n".join(problems)
+    # and against the report's own data model, computed once (reporting.data.ReportData), the same words
+    model = report_data(load_ablation("inrounds", uri), shown_command(["ablate", "report", "inrounds"]))
+    finished = model.trials[(model.trials.status == "FINISHED") & (model.trials.stage == "eval")]
+    start = model.rounds["design"]["start"]
+    assert check_all(text, ReportData(finished, model.convergence, model.comparisons, model.claims, start)) == []
     # The grid's seeds are the first round's (0, 1, 2): the old sentence, written from them, is caught.
     old = text.replace(text.split("**Seeds.** ")[1].split(":")[0], "8 per variant (0, 1, 2, 3, 4, 5, 6, 7)", 1)
     assert any("Seeds sentence" in p for p in check_seeds(old, data))

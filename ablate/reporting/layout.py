@@ -8,9 +8,8 @@ import html
 import re
 from pathlib import Path
 
-import pandas as pd
-
-from ablate.launch.secrets import Shown, shown_command
+from ablate.launch.secrets import shown_command
+from ablate.reporting.data import ReportData
 from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
 from ablate.reporting.findings import findings, summary
@@ -126,19 +125,17 @@ def _discussion(ablation: Ablation, discussion: Discussion, where: str) -> list[
 
 
 def build_markdown(
-    ablation: Ablation,
+    data: ReportData,
     figures: list[Figure],
     videos: list[dict[str, str]],
-    table: pd.DataFrame,
-    compare: pd.DataFrame,
-    command: Shown | None = None,
-    untuned: pd.DataFrame | None = None,
     discussion: Discussion | None = None,
     discussion_path: str = "discussion.md",
-    claimed: pd.DataFrame | None = None,
 ) -> tuple[str, str]:
-    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks). ``claimed``: the
-    claims table (``comparisons.claims_table``) the Claims section is written from; computed when not given."""
+    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks), from its data
+    computed once (``data.ReportData``): the Claims section from ``data.claims``, the findings from
+    ``data.comparisons``, the tables from ``data.convergence``."""
+    ablation, table, compare, claimed = data.ablation, data.convergence, data.comparisons, data.claims
+    command, untuned = data.command, data.untuned
     discussion = discussion or Discussion(None, None)
     failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
     numbers = {Path(f.path).stem: f.number for f in figures}
