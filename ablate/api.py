@@ -222,7 +222,11 @@ class Results:
     (docs/python.md has a table of its columns): ``variant``, ``reference``, ``metric``, ``verdict`` (better,
     worse, equivalent, undetermined), ``change``, ``change_low``, ``change_high`` (the simultaneous interval, in
     ``change_unit``), ``bound``, ``n_variant``, ``n_reference``, ``level`` (Holm's), ``seeds_needed``, ...
-    ``trials``: one row per trial (variant, seed, status, episodes to solve, AUC, ...), as ``tables/trials.csv``.
+    ``trials``: every evaluation trial the report uses, as ``tables/trials.csv``: variant, seed, ``stage``
+    (``eval``: the claims' trials; ``base``: a tuned ablation's trials at the shared base values only),
+    ``at_base_values`` (tuned: in the "depends on the learning rate?" comparison), the trial's settings
+    (``learning_rate``, ``episodes_per_update``, ``gamma``, ``l2``, each knob a variant writes: ``hidden_sizes``,
+    ``depth``, ``width``, ...), status, episodes to solve, AUC, ...
     ``curves``: long form, one row per trial and episode (variant, seed, episode, return, rolling_mean, wall_s).
     ``convergence``: one row per variant (solved seeds, episodes to solve with intervals, final return, ...),
     as ``tables/convergence.csv``. ``comparisons``: each variant against its reference, per metric, each judged
@@ -258,7 +262,7 @@ class Results:
     def trials(self) -> pd.DataFrame:
         from ablate.reporting.tables import trials_table
 
-        return trials_table(self.ablation.trials)
+        return trials_table(self.ablation)
 
     @property
     def curves(self) -> pd.DataFrame:

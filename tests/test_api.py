@@ -110,7 +110,10 @@ def test_load_returns_the_tables_ablate_report_writes(notebook_run, tmp_path):
         written = pd.read_csv(tmp_path / "quickstart" / "tables" / f"{name}.csv")
         through_csv = pd.read_csv(io.StringIO(frame.to_csv(index=False)))  # the same text round trip
         pd.testing.assert_frame_equal(through_csv, written, check_exact=False, rtol=1e-12)
-    assert set(results.curves.variant) == {"narrow", "wide"} and len(results.trials) == 6
+    assert (
+        set(results.curves.variant) == {"narrow", "wide"} and len(results.trials[results.trials.stage == "eval"]) == 6
+    )
+    assert set(results.trials.stage) == {"eval", "base"}  # tuned: the shared base rate's trials are there too
     figure = results.figure("curves")
     assert figure.axes and figure.axes[0].get_lines()  # an open matplotlib figure with the curves drawn
     with pytest.raises(ValueError, match="valid: curves"):

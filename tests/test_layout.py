@@ -144,8 +144,8 @@ def test_every_variant_has_a_role_in_the_variants_table(stores, tmp_path):
 
 
 def test_markdown_keeps_quotes_and_counts_one_episode():
-    from ablate.reporting.figures import esc
     from ablate.reporting.sections import _episodes
+    from ablate.reporting.text import esc
 
     assert esc("the course's <b>") == "the course's &lt;b&gt;"
     assert _episodes(1) == "1 episode" and _episodes(32) == "32 episodes"
@@ -266,3 +266,69 @@ def test_the_question_without_a_solve_threshold_asks_how_fast_it_learns():
     assert "first on the area under the learning curve" in text
     cartpole = SimpleNamespace(**{**vars(pong), "threshold": 475.0, "any_solved": True, "env_id": "CartPole-v1"})
     assert "learns to reach a rolling mean return of 475 on `CartPole-v1`?" in question(cartpole)
+
+
+def test_a_knob_written_at_the_bases_value_is_no_change(tmp_path):
+    # A student's baseline wrote activation = "relu", the default: the report said "deep changes 2 knobs at once
+    # against relu (activation and hidden sizes)" and listed "activation = relu" as the baseline's change.
+    from ablate.reporting.results import Ablation
+    from ablate.reporting.sections import changed_settings
+
+    variants = {
+        "relu": {"curve": rising(5, 30), "overrides": {"activation": "relu"}},
+        "tanh": {"curve": rising(5, 20), "overrides": {"activation": "tanh"}},
+        "deep": {"curve": rising(5, 10), "overrides": {"hidden_sizes": [8, 8]}, "hidden": [8, 8]},
+        "same": {"curve": rising(5, 25), "overrides": {"hidden_sizes": [8], "depth": 1}},
+    }
+    base = {"model.activation": "relu", "model.hidden_sizes": [8]}
+    uri = make_store(tmp_path, "knobs", variants, seeds=(0, 1, 2, 3), base=base)
+    text = _report(tmp_path, "knobs", uri)
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if "compared with" in line}
+    rows |= {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if "baseline (reference)" in line}
+    assert "| nothing (the base) |" in rows["relu"] and "activation = relu" not in text
+    assert "| hidden_sizes = [8, 8] |" in rows["deep"] and "| activation = tanh |" in rows["tanh"]
+    assert "| nothing (the base) |" in rows["same"]  # [8] and depth 1 are the base's one layer of 8
+    assert "knobs at once" not in text and "more than one knob" not in text
+    grid = {
+        "baseline": "relu",
+        "base": base,
+        "variants": [{"name": v, "overrides": s["overrides"]} for v, s in variants.items()],
+    }
+    ablation = Ablation("knobs", grid, {}, pd.DataFrame(), pd.DataFrame())
+    assert ablation.changes("deep") == {"hidden_sizes": [8, 8]} and changed_settings(ablation, "deep") == [
+        "hidden sizes"
+    ]
+    assert ablation.changes("tanh") == {"activation": "tanh"} and ablation.changes("same") == {}
+
+
+def test_a_report_without_videos_promises_none_and_says_one_word_per_verdict(stores, tmp_path):
+    # The limitations said "Videos show one greedy episode..." where the appendix said "No videos were
+    # recorded"; the references named the exploratory "too few seeds" rule "too few seeds to tell".
+    _, uri = stores
+    text = _report(tmp_path, "three", uri)
+    assert "No videos were recorded." in text and "Videos show" not in text and "Each video is" not in text
+    assert "too few seeds to tell" not in text and "(The rank test behind *exploratory: too few seeds*" in text
+
+
+def test_a_report_says_in_one_line_when_the_experiment_file_changed_since_its_launch(tmp_path, capsys):
+    # A student removed a line from the file after the launch: the report kept describing the launch's copy and
+    # never said the file had changed since.
+    from ablate.cli import main
+    from ablate.launch.tracking import Tracker
+
+    apart = {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 10)}}
+    uri = make_store(tmp_path, "edited", apart, seeds=(0, 1, 2))
+    tracker = Tracker(uri, "edited")
+    launch = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")[0].info.run_id
+    ran = 'name = "edited"\nseeds = 3\nbaseline = "a"\n[[variants]]\nname = "a"\nactivation = "relu"\n'
+    tracker.log_file(launch, "experiment.toml", ran)
+    path = tmp_path / "edited.toml"
+    tracker.client.set_tag(launch, "ablate.experiment_file", str(path))
+    path.write_text(ran)
+    assert "has changed since this launch ran it" not in _report(tmp_path, "edited", uri)
+    path.write_text(ran.replace('activation = "relu"\n', ""))
+    lines = [x for x in _report(tmp_path, "edited", uri).splitlines() if "has changed since" in x]
+    assert len(lines) == 1 and f"The experiment file {path} has changed since this launch ran it" in lines[0]
+    assert f"ablate run {path} --fresh" in lines[0]
+    assert main(["report", "edited", "--tracking-uri", uri, "--out", str(tmp_path / "cli"), "--no-pdf"]) == 0
+    assert "has changed since this launch ran it" in capsys.readouterr().out

@@ -117,3 +117,18 @@ def test_an_interval_open_at_one_end_is_worded_from_its_closed_end():
     for (low, high), expected in words.items():
         line = claim_line(pd.Series(row | {"change_low": low, "change_high": high}), question)
         assert expected in line, line
+
+
+def test_an_unsolved_variant_keeps_its_row_and_an_empty_table_its_columns(claimed):
+    # issue 36: an all-censored comparison must stay in comparisons (a bound, not a gap), and an empty table
+    # keep its columns. Both already held when checked; this keeps them.
+    _, uri = claimed
+    results = ablate.load("claimed", tracking_uri=uri)
+    slow = results.trials[results.trials.variant == "slow"]
+    assert len(slow) and (slow.solved == 0).all()  # every seed of slow unsolved
+    row = results.comparisons.query("variant == 'slow' and metric == 'episodes_to_solve'")
+    assert len(row) == 1 and row.bound.iloc[0] == "at least" and row.change.iloc[0] > 0 and bool(row.primary.iloc[0])
+    alone = ablate.load("claimed", tracking_uri=uri, variants=["base"])  # nothing to compare
+    assert alone.claims.empty and list(alone.claims.columns) == list(results.claims.columns)
+    assert alone.comparisons.empty and list(alone.comparisons.columns) == list(results.comparisons.columns)
+    assert alone.tuning.empty and list(alone.tuning.columns) == ["variant", "seed", "auc", "status"]

@@ -46,7 +46,7 @@ def make_tuned_store(folder: Path, eval_seeds: list[int] = EVAL_SEEDS) -> str:
     uri = fresh_store(folder / "mlflow.db")
     tracker = Tracker(uri, "tuned")
     base = {"env_id": "CartPole-v1", "max_episodes": 40, "solve_window": 8, "solve_threshold": 1000.0}
-    base |= {"learning_rate": BASE_LR, "gamma": 0.95, "episodes_per_update": 4}
+    base |= {"learning_rate": BASE_LR, "gamma": 0.95, "episodes_per_update": 4, "model.hidden_sizes": [32]}
     variants = {"baseline": {}, "deep": {"hidden_sizes": [8, 8]}, "course": {"preset": "course"}}
     trials = [{"key": f"{v}-s{s}", "variant": v, "seed": s} for v in variants for s in eval_seeds]
     grid = {"experiment": "tuned", "description": "tuned", "seeds": eval_seeds, "baseline": "baseline"}
@@ -136,3 +136,36 @@ def test_the_tuned_report(tuned, tmp_path, monkeypatch):
     assert "**exploratory: better**" in line.split("; at the chosen")[0]
     assert "**exploratory: worse**" in line.split("; at the chosen")[1]
     assert "One training setting for all architectures" not in text and "Tuned over 3 candidates" in text
+    # every cross-reference resolved in the model (text.Refs), none left as a token or pointing nowhere
+    assert not re.search(r"\{(appendix:|parameters|sensitivity|next)", text) and "Appendix –" not in text
+    letter = re.search(r"^### ([A-Z])\. Tuning", text, flags=re.M).group(1)
+    assert f"Tuned per variant (see Appendix {letter})" in text and f"(Appendix {letter} flags choices" in text
+
+
+def test_every_trial_the_report_uses_is_in_load_trials_with_its_stage_and_settings(tuned, tmp_path):
+    # The trials at the shared base value (the "depends on the learning rate?" section's data) were in no table,
+    # and a trial's settings were not columns: one parsed the variant's name or read MLflow's params.
+    import io
+
+    import ablate
+
+    _, uri = tuned
+    ablation = load_ablation("tuned", uri)
+    trials = ablate.load("tuned", tracking_uri=uri).trials
+    assert set(trials.key) == set(ablation.trials.key) | set(ablation.untuned.trials.key)
+    assert len(trials) == len(set(trials.key))  # a trial at both values is one row
+    rates = trials.groupby(["variant", "stage"]).learning_rate.unique().map(list).to_dict()
+    assert rates == {
+        ("baseline", "eval"): [0.1],  # at its chosen value
+        ("baseline", "base"): [0.03],  # at the shared base value only
+        ("course", "eval"): [0.001],
+        ("deep", "eval"): [0.03],  # chosen = base: one trial serves both comparisons
+    }
+    assert set(trials[trials.at_base_values].key) == set(ablation.untuned.trials.key)
+    deep, baseline = trials[trials.variant == "deep"].iloc[0], trials[trials.variant == "baseline"].iloc[0]
+    assert (deep.hidden_sizes, deep.depth, deep.width) == ("[8, 8]", 2, 8)
+    assert (baseline.hidden_sizes, baseline.depth, baseline.width) == ("[32]", 1, 32)
+    assert set(trials.episodes_per_update) == {4} and set(trials.gamma) == {0.95}
+    folder = write_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False, pdf=False)
+    written = pd.read_csv(folder / "tables" / "trials.csv")
+    pd.testing.assert_frame_equal(pd.read_csv(io.StringIO(trials.to_csv(index=False))), written)

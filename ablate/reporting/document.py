@@ -24,7 +24,7 @@ from ablate.config import ConfigError
 from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
 from ablate.launch.secrets import Shown, shown_command
 from ablate.reporting import discussion
-from ablate.reporting.comparisons import claims_table, comparisons
+from ablate.reporting.data import report_data
 from ablate.reporting.figures import (
     figure_improvement,
     figure_observation,
@@ -35,12 +35,11 @@ from ablate.reporting.figures import (
     figure_small_multiples,
     figure_wallclock,
 )
-from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.layout import build_markdown, order_figures
-from ablate.reporting.provenance import _generation_note, missing_artifacts_line
+from ablate.reporting.provenance import _generation_note, changed_file_note, missing_artifacts_line
 from ablate.reporting.reader import RunReader
 from ablate.reporting.results import Ablation, NoResults, load_ablation, select
-from ablate.reporting.tables import convergence_table, trials_table
+from ablate.reporting.text import fmt
 from ablate.reporting.typeset import compile_pdf as print_pdf
 from ablate.reporting.typeset import number_tables, page_counts, to_typst
 from ablate.reporting.writers import CSS, _inline
@@ -121,6 +120,8 @@ class ReportResult:
     """The PDF's (body, total) pages, where it was written."""
     missing_note: str = ""
     """What the store could not give and the report left out, in one line (``""`` when nothing)."""
+    file_note: str = ""
+    """Where the experiment file on disk differs from the launch's copy, the report's line saying so."""
 
     def pdf_words(self) -> str:
         """``report.pdf (9 pages: the body 3, the appendix 6)``, or the one line saying why there is none."""
@@ -201,7 +202,9 @@ def build_report(
         except Exception:  # noqa: BLE001 - a count is a courtesy: the PDF stands without it
             pages = None
     missing = missing_artifacts_line(ablation, tracker.shown_uri)
-    return ReportResult(folder, pdf_note, attach_note, _generation_note(ablation), pages, missing)
+    return ReportResult(
+        folder, pdf_note, attach_note, _generation_note(ablation), pages, missing, changed_file_note(ablation)
+    )
 
 
 def _swap(staging: Path, folder: Path) -> None:
@@ -227,18 +230,14 @@ def _build(
     """Write the report into ``folder`` (the staging folder that will become ``final``); why no PDF, or None."""
     for sub in ("figures", "tables", "videos"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
-    table = convergence_table(ablation)
-    claimed = claims_table(ablation)  # computed once: claims.csv, comparisons' claim column and the report's words
-    compare = comparisons(ablation, claims=claimed)
-    table.to_csv(folder / "tables" / "convergence.csv", index=False)
-    claimed.to_csv(folder / "tables" / "claims.csv", index=False)
-    compare.to_csv(folder / "tables" / "comparisons.csv", index=False)
-    trials_table(ablation.trials).to_csv(folder / "tables" / "trials.csv", index=False)
-    untuned = None
-    if ablation.tuning_trials is not None:
-        ablation.tuning_trials.to_csv(folder / "tables" / "tuning.csv", index=False)
-    if ablation.untuned is not None:
-        untuned = comparisons(ablation.untuned, power=False)  # the dependence section reads its exploratory words
+    data = report_data(ablation, command)  # every table the report writes and words, computed once
+    data.convergence.to_csv(folder / "tables" / "convergence.csv", index=False)
+    data.claims.to_csv(folder / "tables" / "claims.csv", index=False)
+    data.comparisons.to_csv(folder / "tables" / "comparisons.csv", index=False)
+    data.trials.to_csv(folder / "tables" / "trials.csv", index=False)
+    if data.tuning is not None:
+        data.tuning.to_csv(folder / "tables" / "tuning.csv", index=False)
+    table, compare = data.convergence, data.comparisons
     figures_folder = folder / "figures"
     candidates = [
         figure_overview(ablation, figures_folder),
@@ -260,9 +259,7 @@ def _build(
         figure.caption = figure.caption.replace("Figures 1-2", "Figures " + " and ".join(map(str, curves)))
     videos = _videos(ablation, tracker, folder / "videos")
     where = final / discussion.FILE
-    text, html_md = build_markdown(
-        ablation, figures, videos, table, compare, command, untuned, written, str(where), claimed
-    )
+    text, html_md = build_markdown(data, figures, videos, written, str(where))
     text, html_md = number_tables(text), number_tables(html_md)
     (folder / "report.md").write_text(text)
     body = markdown.markdown(html_md, extensions=["tables"])
@@ -291,9 +288,9 @@ def terminal_summary(folder: Path) -> str:
         if not seeds:
             lines.append(f"{row.variant:<{width}} no finished seeds")
             continue
-        median = ("≥ " if row.median_censored else "") + _fmt(row.episodes_median)
+        median = ("≥ " if row.median_censored else "") + fmt(row.episodes_median)
         solved = f"{int(row.solved)}/{seeds}"
-        lines.append(f"{row.variant:<{width}} {solved:>7} {median:>26} {_fmt(row.final_rolling_mean_iqm, 1):>24}")
+        lines.append(f"{row.variant:<{width}} {solved:>7} {median:>26} {fmt(row.final_rolling_mean_iqm, 1):>24}")
     return "\n".join(lines)
 
 
@@ -350,7 +347,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         sys.stderr.write(f"ablate report: {result.missing_note}\n")
     written = "report.md, report.html" + ("" if result.pdf_note else f" and {result.pdf_words()}")
     print(f"wrote {result.folder}/: {written}")
-    for note in (result.generation_note, result.pdf_note, result.attach_note):
+    for note in (result.generation_note, result.file_note, result.pdf_note, result.attach_note):
         if note and note != "no PDF (--no-pdf)":
             print(re.sub(r"</?code>|^> ", "", html.unescape(note)))
     return 0

@@ -7,7 +7,6 @@ Matplotlib with the Agg backend. Captions carry user text (variant names) escape
 from __future__ import annotations
 
 import contextlib
-import html
 import os
 import shutil
 from collections.abc import Iterator
@@ -25,23 +24,12 @@ import pandas as pd  # noqa: E402
 from ablate.reporting.reader import RunReader  # noqa: E402
 from ablate.reporting.results import Ablation  # noqa: E402
 from ablate.reporting.statistics import N_RESAMPLES, curve_band  # noqa: E402
+from ablate.reporting.text import esc, fmt  # noqa: E402
 from ablate.reporting.tuning import METRICS, chosen_values, knobs, same_value, sensitivity  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
 COLOURS = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7]
 BASELINE_COLOUR = "0.35"
-
-
-def esc(text: object) -> str:
-    """User text (descriptions, variant names, errors, commands) made inert in Markdown and HTML."""
-    # quote=False: quotes are inert in Markdown and in HTML text; escaped, the Markdown read "course&#x27;s".
-    return html.escape(str(text), quote=False).replace("|", "&#124;").replace("`", "&#96;")
-
-
-def fmt(x: float | None, digits: int = 0) -> str:
-    if x is None or (isinstance(x, float) and np.isnan(x)) or pd.isna(x):
-        return "–"
-    return f"{x:,.{digits}f}"
 
 
 @dataclass

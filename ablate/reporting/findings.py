@@ -8,8 +8,6 @@ import pandas as pd
 
 from ablate.claims import BETTER, EQUIVALENT, WORSE, Question, family_sentence
 from ablate.reporting.comparisons import claims_design, claims_table, primary_question
-from ablate.reporting.figures import esc as _esc
-from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import Ablation
 from ablate.reporting.sections import _episodes_cell, _extends, _stat_cell
 from ablate.reporting.statistics import (
@@ -21,16 +19,16 @@ from ablate.reporting.statistics import (
     TOO_FEW_SEEDS,
     smallest_p_value,
 )
-from ablate.reporting.text import _interval, _markdown_table, _metric_name, _pct, _signed, _signed_pct
+from ablate.reporting.text import _interval, _markdown_table, _metric_name, _pct, _signed, _signed_pct, esc, fmt
 
 
 def _findings_intro(ablation: Ablation) -> str:
     extends = _extends(ablation)
     if not extends:
-        return f"Each variant against {_esc(ablation.baseline)}"
-    pairs = ", ".join(f"{_esc(v)} against {_esc(ablation.reference(v))}" for v in extends)
+        return f"Each variant against {esc(ablation.baseline)}"
+    pairs = ", ".join(f"{esc(v)} against {esc(ablation.reference(v))}" for v in extends)
     return (
-        f"Each variant against its reference: {_esc(ablation.baseline)}, or, for a variant that adds one change to "
+        f"Each variant against its reference: {esc(ablation.baseline)}, or, for a variant that adds one change to "
         f"another variant's, that variant, so each comparison isolates one change ({pairs})"
     )
 
@@ -63,11 +61,11 @@ def _estimate(row: pd.Series) -> str:
     if row.metric.startswith("episodes_to_"):
         bound = "≥ " if row.bound else ""
         return (
-            f" {stat} {bound}{_fmt(row.variant_value)} vs {_fmt(row.reference_value)} episodes, change "
+            f" {stat} {bound}{fmt(row.variant_value)} vs {fmt(row.reference_value)} episodes, change "
             f"{_signed_pct(-row.point)} (95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})."
         )
     return (
-        f" {stat} {_fmt(row.variant_value, 1)} vs {_fmt(row.reference_value, 1)}, {_signed(row.point)} "
+        f" {stat} {fmt(row.variant_value, 1)} vs {fmt(row.reference_value, 1)}, {_signed(row.point)} "
         f"(95% bootstrap CI {_signed(row.low)} to {_signed(row.high)})."
     )
 
@@ -107,14 +105,14 @@ def _stability(row: pd.Series) -> str:
 def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     """One metric's comparison in words: what may be claimed, sized as an estimate or as a bound, with its
     interval and whether it survives leaving out any one seed."""
-    base, metric, name = _esc(row.reference), row.metric, _metric_name(row.metric)
+    base, metric, name = esc(row.reference), row.metric, _metric_name(row.metric)
     n, m = int(row.n_variant), int(row.n_reference)
     stat = stat_name(n, m)
     reading = seeds_reading(row, ablation.smallest_effect)
     if row.verdict == TOO_FEW_SEEDS:
         return f"{name}: *{TOO_FEW_SEEDS}*.{_estimate(row)}{reading}"
     if metric.startswith("episodes_to_"):
-        x, y = _fmt(row.variant_value), _fmt(row.reference_value)
+        x, y = fmt(row.variant_value), fmt(row.reference_value)
         unsolved = (
             (lambda v: int(table.loc[table.variant == v, "unsolved_censored"].iloc[0]))
             if metric == "episodes_to_solve"
@@ -123,7 +121,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
         counts = ""
         if unsolved is not None:
             counts = (
-                f"{unsolved(row.variant)} of {n} {_esc(row.variant)} seeds and {unsolved(row.reference)} of {m} "
+                f"{unsolved(row.variant)} of {n} {esc(row.variant)} seeds and {unsolved(row.reference)} of {m} "
                 f"{base} seeds never solved"
             )
         if row.bound == "censored":
@@ -164,7 +162,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
             f"{name}: *{NOT_SEPARATED}* ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
             f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''}).{reading}"
         )
-    x, y = _fmt(row.variant_value, 1), _fmt(row.reference_value, 1)
+    x, y = fmt(row.variant_value, 1), fmt(row.reference_value, 1)
     interval = f"95% CI {_signed(row.low)} to {_signed(row.high)}"
     if row.verdict == EXPLORATORY_BETTER:
         return f"{name}: *{row.verdict}*, **higher**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
@@ -211,7 +209,7 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
         rows = compare[compare.variant == variant] if len(compare) else compare
         if rows.empty:
             continue
-        lines.append(f"- **{_esc(variant)}** vs {_esc(ablation.reference(variant))}:")
+        lines.append(f"- **{esc(variant)}** vs {esc(ablation.reference(variant))}:")
         for _, row in rows.iterrows():
             text = finding(row, ablation, table)
             if row.get("primary", False) and row.claim:
@@ -225,8 +223,8 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
     for _, row in table.iterrows():
         if row.seeds_run and ablation.threshold is not None and row.solved < row.seeds_run:
             lines.append(
-                f"- **{_esc(row.variant)}**: {int(row.seeds_run - row.solved)} of {int(row.seeds_run)} seeds did "
-                f"not solve within {_fmt(row.budget)} episodes."
+                f"- **{esc(row.variant)}**: {int(row.seeds_run - row.solved)} of {int(row.seeds_run)} seeds did "
+                f"not solve within {fmt(row.budget)} episodes."
             )
     return lines
 
@@ -277,11 +275,11 @@ def _seeds_needed_words(needed: float, cap: int) -> str:
 
 def claim_line(row: pd.Series, question: Question) -> str:
     """One primary claim (a row of ``claims_table``) in words a student can hand in."""
-    variant, reference = _esc(row.variant), _esc(row.reference)
+    variant, reference = esc(row.variant), esc(row.reference)
     stat = stat_name(int(row.n_variant), int(row.n_reference))
     digits = 0 if question.relative else 1
     at_least = "≥ " if row.bound and row.verdict == WORSE else ""
-    iqms = f"{stat} {at_least}{_fmt(row.variant_value, digits)} vs {_fmt(row.reference_value, digits)}"
+    iqms = f"{stat} {at_least}{fmt(row.variant_value, digits)} vs {fmt(row.reference_value, digits)}"
     seeds = f"{int(row.n_variant)} and {int(row.n_reference)} seeds"
     effect = _effect_words(row, question)
     if row.verdict in (BETTER, WORSE):
@@ -336,8 +334,8 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame, clai
         if row.variant in verdicts:
             verdict = verdicts[row.variant].verdict
             if extends:
-                verdict = f"vs {_esc(ablation.reference(row.variant))}: {verdict}"
-        entry = {"rank": rank, "variant": _esc(row.variant)}
+                verdict = f"vs {esc(ablation.reference(row.variant))}: {verdict}"
+        entry = {"rank": rank, "variant": esc(row.variant)}
         if ablation.threshold is not None:
             entry["solved"] = f"{int(row.solved)}/{int(row.seeds_run)}"
         if ablation.any_solved:

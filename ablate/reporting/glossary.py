@@ -106,8 +106,8 @@ REFERENCES = [
     "reinforcement learning algorithms. *ICLR 2019 Workshop on Reproducibility in Machine Learning*. (How many "
     "seeds a comparison needs; which tests hold with few seeds.)",
     "Mann, H. B., & Whitney, D. R. (1947). On a test of whether one of two random variables is stochastically "
-    "larger than the other. *Annals of Mathematical Statistics*, 18(1), 50-60. (The rank test behind *too few "
-    "seeds to tell*, and the probability of improvement.)",
+    "larger than the other. *Annals of Mathematical Statistics*, 18(1), 50-60. (The rank test behind *exploratory: "
+    "too few seeds*, and the probability of improvement.)",
     "Efron, B., & Tibshirani, R. J. (1993). *An Introduction to the Bootstrap*. Chapman & Hall. (Percentile "
     "intervals.)",
     "Good, P. (2005). *Permutation, Parametric and Bootstrap Tests of Hypotheses* (3rd ed.). Springer. (The "

@@ -8,15 +8,18 @@ import html
 import re
 from pathlib import Path
 
-import pandas as pd
-
-from ablate.launch.secrets import Shown, shown_command
+from ablate.launch.secrets import shown_command
+from ablate.reporting.data import ReportData
 from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
-from ablate.reporting.figures import esc as _esc
 from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
-from ablate.reporting.provenance import _generation_note, _reproducibility, missing_artifacts_note
+from ablate.reporting.provenance import (
+    _generation_note,
+    _reproducibility,
+    changed_file_note,
+    missing_artifacts_note,
+)
 from ablate.reporting.results import Ablation
 from ablate.reporting.rounds import rounds_section
 from ablate.reporting.sections import (
@@ -26,7 +29,7 @@ from ablate.reporting.sections import (
     comparison_intro,
     limitations,
 )
-from ablate.reporting.text import _metric_name
+from ablate.reporting.text import Refs, _metric_name, esc
 from ablate.reporting.tuning_sections import dependence_section, knob_words, tuning_section
 
 BODY_FIGURES = (
@@ -63,14 +66,14 @@ def question(ablation: Ablation) -> str:
         if ablation.threshold is not None
         else "learns"
     )
-    description = _esc(ablation.grid.get("description") or "").strip()
+    description = esc(ablation.grid.get("description") or "").strip()
     lead = (description if description[-1] in ".?!" else f"{description}.") + " " if description else ""
     varied = any(ablation.reference(v) != ablation.baseline for v in others)
-    against = "its reference (the baseline, or the variant it extends)" if varied else _esc(ablation.baseline)
-    listed = ", ".join(_esc(v) for v in others) or "none"
+    against = "its reference (the baseline, or the variant it extends)" if varied else esc(ablation.baseline)
+    listed = ", ".join(esc(v) for v in others) or "none"
     return (
         f"{lead}Does each change to the baseline's settings change how fast REINFORCE {learns} on "
-        f"`{_esc(ablation.env_id)}`? {len(others)} variant{'s' if len(others) != 1 else ''} ({listed}) "
+        f"`{esc(ablation.env_id)}`? {len(others)} variant{'s' if len(others) != 1 else ''} ({listed}) "
         f"{'are each' if len(others) != 1 else 'is'} compared with {against}, first on {primary}."
     )
 
@@ -103,7 +106,7 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
         )
     return (
         "REINFORCE (Williams, 1992), the vanilla policy gradient of the course's lab (MIT 6.S191, Lab 3), trains "
-        f"each variant's policy from {seeds} on `{_esc(ablation.env_id)}`: "
+        f"each variant's policy from {seeds} on `{esc(ablation.env_id)}`: "
         f"{solve}. A variant changes only the knobs it names (Appendix {letters['method']}).{tuned} Every number "
         "is over seeds: interquartile means with 95% percentile bootstrap intervals (Agarwal et al., 2021); unsolved "
         "seeds count as the budget and make a statistic a bound (≥), never dropped. The primary claims are one family "
@@ -115,26 +118,24 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
 
 def _discussion(ablation: Ablation, discussion: Discussion, where: str) -> list[str]:
     if discussion.text is None:
-        return [f"## Discussion{f' — {_esc(discussion.author)}' if discussion.author else ''}", "", missing_line(where)]
+        return [f"## Discussion{f' — {esc(discussion.author)}' if discussion.author else ''}", "", missing_line(where)]
     author = discussion.author or "the author (no Author line in discussion.md)"
     text = re.sub(r"^(#{1,4}) ", r"\1### ", discussion.text, flags=re.M)  # its headings nest under this one
-    return [f"## Discussion — {_esc(author)}", "", f"*Written by {_esc(author)}; printed as written.*", "", text]
+    return [f"## Discussion — {esc(author)}", "", f"*Written by {esc(author)}; printed as written.*", "", text]
 
 
 def build_markdown(
-    ablation: Ablation,
+    data: ReportData,
     figures: list[Figure],
     videos: list[dict[str, str]],
-    table: pd.DataFrame,
-    compare: pd.DataFrame,
-    command: Shown | None = None,
-    untuned: pd.DataFrame | None = None,
     discussion: Discussion | None = None,
     discussion_path: str = "discussion.md",
-    claimed: pd.DataFrame | None = None,
 ) -> tuple[str, str]:
-    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks). ``claimed``: the
-    claims table (``comparisons.claims_table``) the Claims section is written from; computed when not given."""
+    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks), from its data
+    computed once (``data.ReportData``): the Claims section from ``data.claims``, the findings from
+    ``data.comparisons``, the tables from ``data.convergence``."""
+    ablation, table, compare, claimed = data.ablation, data.convergence, data.comparisons, data.claims
+    command, untuned = data.command, data.untuned
     discussion = discussion or Discussion(None, None)
     failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
     numbers = {Path(f.path).stem: f.number for f in figures}
@@ -144,12 +145,12 @@ def build_markdown(
     appendix += ["dependence"] if tuned_dependence else []
     appendix += ["figures", "videos"] + (["failed"] if len(failed) else []) + ["limitations", "record", "glossary"]
     letters = {name: chr(ord("A") + i) for i, name in enumerate(appendix)}
+    refs = Refs(letters, numbers)  # every cross-reference resolved before a section is written
 
-    author = _esc(discussion.author) if discussion.author and discussion.text else "the student"
-    parts = [f"# Ablation report: {_esc(ablation.name)}", ""]
-    note = _generation_note(ablation)
-    if note:
-        parts += [note, ""]
+    author = esc(discussion.author) if discussion.author and discussion.text else "the student"
+    parts = [f"# Ablation report: {esc(ablation.name)}", ""]
+    for note in (_generation_note(ablation), changed_file_note(ablation)):
+        parts += [note, ""] if note else []
     parts += [
         f"*Every section marked {GENERATED} is written by ablate from the tracking store; the Discussion is "
         f"{author}'s own. The appendix holds every table and comparison.*",
@@ -178,17 +179,19 @@ def build_markdown(
     parts += [f"## Figures {GENERATED}", ""] if shown else []
     for f in shown:
         parts += [f"FIGURE:{f.number}", ""]
-    kept = [text for kind, text in limitations(ablation, table, compare) if kind in BODY_LIMITATIONS]
+    kept = [
+        text for kind, text in limitations(ablation, table, compare, bool(videos), refs) if kind in BODY_LIMITATIONS
+    ]
     parts += [f"## Limitations {GENERATED}", "", *[f"- {line}" for line in kept], ""]
     parts += [*_discussion(ablation, discussion, discussion_path), ""]
     parts += ["## References", "", *[f"- {ref}" for ref in references(ablation)], ""]
 
     parts += ["## Appendix", ""]
-    parts += [f"### {letters['method']}. Method in detail {GENERATED}", "", _method(ablation, table), ""]
+    parts += [f"### {letters['method']}. Method in detail {GENERATED}", "", _method(ablation, table, refs), ""]
     seeds_in_rounds = rounds_section(ablation.launch.get("rounds"))  # each variant's seeds and why it stopped
     parts += [seeds_in_rounds, ""] if seeds_in_rounds else []
     if ablation.tuning:
-        parts += [f"### {letters['tuning']}. Tuning {GENERATED}", "", tuning_section(ablation), ""]
+        parts += [f"### {letters['tuning']}. Tuning {GENERATED}", "", tuning_section(ablation, refs), ""]
     parts += [
         f"### {letters['results']}. Results {GENERATED}",
         "",
@@ -217,7 +220,9 @@ def build_markdown(
     rest = [f for f in figures if f not in shown]
     parts += [f"### {letters['figures']}. More figures {GENERATED}", ""]
     parts += [line for f in rest for line in (f"FIGURE:{f.number}", "")] or ["No other figures.", ""]
-    if _sampling_videos(ablation):
+    if not videos:
+        parts += [f"### {letters['videos']}. Videos {GENERATED}", ""]
+    elif _sampling_videos(ablation):
         frames = int(ablation.grid["base"].get("video_max_frames", 500))
         parts += [
             f"### {letters['videos']}. Videos of the trained agent {GENERATED}",
@@ -241,24 +246,16 @@ def build_markdown(
     if len(failed):
         parts += [f"### {letters['failed']}. Trials that did not finish {GENERATED}", ""]
         parts += [
-            f"- {_esc(r.key)}: {r.status}{(' — ' + _esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
+            f"- {esc(r.key)}: {r.status}{(' — ' + esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
             for r in failed.itertuples()
         ]
         parts.append("")
-    every = [text for _, text in limitations(ablation, table, compare)]
+    every = [text for _, text in limitations(ablation, table, compare, bool(videos), refs)]
     parts += [f"### {letters['limitations']}. Every limitation {GENERATED}", "", *[f"- {t}" for t in every], ""]
     record = _reproducibility(ablation, command or shown_command(["ablate", "report", ablation.name]))
     parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", record, ""]
     parts += [f"### {letters['glossary']}. Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
     text = "\n".join(parts)
-    for key, value in {
-        "Figure {parameters}": f"Figure {numbers.get('performance_vs_parameters', '–')}",
-        "Figure {sensitivity}": f"Figure {numbers.get('tuning_sensitivity', '–')}",
-        "{appendix:tuning}": f"Appendix {letters.get('tuning', '–')}",
-        "{appendix:glossary}": f"Appendix {letters['glossary']}",
-        "{appendix:comparisons}": f"Appendix {letters['comparisons']}",
-    }.items():
-        text = text.replace(key, value)
     md_text, html_text = text, text
     for f in figures:
         md_text = md_text.replace(
@@ -270,7 +267,7 @@ def build_markdown(
             f"<figcaption><strong>Figure {f.number}.</strong> {f.caption}</figcaption></figure>\n",
             1,
         )
-    links = "\n".join(f"- [{_esc(v['caption'])}]({v['path']})" for v in videos) or "No videos were recorded."
+    links = "\n".join(f"- [{esc(v['caption'])}]({v['path']})" for v in videos) or "No videos were recorded."
     blocks = "\n".join(
         f'<figure class="video"><video controls muted loop preload="metadata" src="{html.escape(v["path"])}">'
         f"</video><figcaption>{html.escape(v['caption'])}</figcaption></figure>"

@@ -8,8 +8,8 @@ import time
 from pathlib import Path
 
 from ablate.launch.secrets import Shown, shown
-from ablate.reporting.figures import esc as _esc
 from ablate.reporting.results import Ablation
+from ablate.reporting.text import esc
 
 
 def experiment_file_state(commit: str, path: str, text: str | None, cwd: str | Path | None = None) -> str:
@@ -26,29 +26,29 @@ def experiment_file_state(commit: str, path: str, text: str | None, cwd: str | P
     try:
         top = git("rev-parse", "--show-toplevel")
         if top.returncode != 0:
-            return f"Not checked whether the experiment file {_esc(path)} is in that commit: no git clone here."
+            return f"Not checked whether the experiment file {esc(path)} is in that commit: no git clone here."
         if git("cat-file", "-e", f"{commit}^{{commit}}").returncode != 0:
-            return f"Not checked whether the experiment file {_esc(path)} is in that commit: this clone lacks it."
+            return f"Not checked whether the experiment file {esc(path)} is in that commit: this clone lacks it."
         where = Path(path)
         if where.is_absolute():
             try:
                 where = where.resolve().relative_to(Path(top.stdout.strip()).resolve())
             except ValueError:
-                return f"**The experiment file {_esc(path)} is outside the git clone**: the commit does not hold it."
+                return f"**The experiment file {esc(path)} is outside the git clone**: the commit does not hold it."
         committed = git("show", f"{commit}:./{where.as_posix()}")
     except (OSError, subprocess.TimeoutExpired):
         return ""
     if committed.returncode != 0:
         return (
-            f"**The experiment file {_esc(path)} was not committed at {_esc(commit[:12])}**: the commit alone cannot "
+            f"**The experiment file {esc(path)} was not committed at {esc(commit[:12])}**: the commit alone cannot "
             "rebuild this run; the launch run's <code>experiment.toml</code> artifact holds the file as it ran."
         )
     if text is not None and committed.stdout.strip() != text.strip():
         return (
-            f"**The experiment file {_esc(path)} had uncommitted changes** when it ran: it differs from the file at "
-            f"{_esc(commit[:12])}; the launch run's <code>experiment.toml</code> artifact holds the file as it ran."
+            f"**The experiment file {esc(path)} had uncommitted changes** when it ran: it differs from the file at "
+            f"{esc(commit[:12])}; the launch run's <code>experiment.toml</code> artifact holds the file as it ran."
         )
-    return f"The experiment file {_esc(path)} is the one committed at {_esc(commit[:12])}."
+    return f"The experiment file {esc(path)} is the one committed at {esc(commit[:12])}."
 
 
 def _reproducibility(ablation: Ablation, command: Shown) -> str:
@@ -68,26 +68,47 @@ def _reproducibility(ablation: Ablation, command: Shown) -> str:
     )
     launched = shown(tags.get("ablate.command") or "ablate run " + tags.get("ablate.experiment_file", ""))
     lines = [
-        f"- Command: <code>{_esc(launched)}</code>",
-        f"- Code version (git commit): <code>{_esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>"
+        f"- Command: <code>{esc(launched)}</code>",
+        f"- Code version (git commit): <code>{esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>"
         + (f". {state}" if state else ""),
-        f"- Machine: {_esc(environment.get('machine', 'unknown'))}; CPU model: {_esc(cpu)}; torch CPU capability "
-        f"(the vector kernels torch picked): {_esc(capability)}",
-        f"- Python {_esc(environment.get('python', '?'))}; "
-        + ", ".join(f"{_esc(k)} {_esc(v)}" for k, v in versions.items()),
-        f"- MLflow launch run: <code>{_esc(ablation.launch['run_id'])}</code> (generation "
-        f"<code>{_esc(tags.get('ablate.generation', ''))}</code>); this report is attached to it as artifacts.",
+        f"- Machine: {esc(environment.get('machine', 'unknown'))}; CPU model: {esc(cpu)}; torch CPU capability "
+        f"(the vector kernels torch picked): {esc(capability)}",
+        f"- Python {esc(environment.get('python', '?'))}; "
+        + ", ".join(f"{esc(k)} {esc(v)}" for k, v in versions.items()),
+        f"- MLflow launch run: <code>{esc(ablation.launch['run_id'])}</code> (generation "
+        f"<code>{esc(tags.get('ablate.generation', ''))}</code>); this report is attached to it as artifacts.",
         f"- Report written {time.strftime('%Y-%m-%d %H:%M')}, from the tracking store only: "
-        f"<code>{_esc(command)}</code>",
+        f"<code>{esc(command)}</code>",
         "",
         '**What "the same results" means here.** A trial is deterministic given its config and seed on one '
         "machine: the test suite runs a trial twice and checks identical returns. Nothing else was verified. Float "
         "kernels differ between CPU models and torch CPU capabilities, so on a machine other than the one above "
-        f"(CPU model {_esc(cpu)}, capability {_esc(capability)}, the package versions above) a seed can follow "
+        f"(CPU model {esc(cpu)}, capability {esc(capability)}, the package versions above) a seed can follow "
         "another trajectory and the numbers here will differ; the leave-one-seed-out check in the findings shows how "
         "much each conclusion depends on any one seed.",
     ]
     return "\n".join(lines)
+
+
+def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
+    """One line where the experiment file the launch ran (its copy in the store) differs from the file at the
+    same path now: the report describes the launch's copy, so an edit since (a knob removed, a variant renamed)
+    is not in it. ``""`` where they match, or where either is missing."""
+    path = ablation.launch["tags"].get("ablate.experiment_file", "")
+    ran = ablation.launch.get("experiment_text")
+    if not path or ran is None:
+        return ""
+    on_disk = Path(cwd or ".") / path
+    try:
+        now = on_disk.read_text()
+    except OSError:
+        return ""
+    if now.strip() == ran.strip():
+        return ""
+    return (
+        f"> **The experiment file {esc(path)} has changed since this launch ran it**: this report describes the "
+        f"launch's copy (stored with it); <code>ablate run {esc(path)} --fresh</code> runs the file as it is now."
+    )
 
 
 def _generation_note(ablation: Ablation) -> str:
@@ -99,11 +120,11 @@ def _generation_note(ablation: Ablation) -> str:
     if done >= total:
         return ""
     others = [g for g in generations if g["generation"] != current and g["finished"] > done]
-    note = f"> This report covers generation {_esc(current)}, where {done} of {total} trials finished."
+    note = f"> This report covers generation {esc(current)}, where {done} of {total} trials finished."
     if others:
         note += (
-            f" Generation {_esc(others[0]['generation'])} has {others[0]['finished']} finished trials: "
-            f"<code>ablate report {_esc(ablation.name)} --generation {_esc(others[0]['generation'])}</code> reports it."
+            f" Generation {esc(others[0]['generation'])} has {others[0]['finished']} finished trials: "
+            f"<code>ablate report {esc(ablation.name)} --generation {esc(others[0]['generation'])}</code> reports it."
         )
     return note
 
@@ -120,7 +141,7 @@ def missing_artifacts_note(ablation: Ablation) -> str:
     one = len(keys) == 1
     few = f"{len(keys)} finished trial{'' if one else 's'}"
     return (
-        f"> The episodes.csv of {few} could not be read from the store ({_esc(_listed(keys))}): "
+        f"> The episodes.csv of {few} could not be read from the store ({esc(_listed(keys))}): "
         f"{'its' if one else 'their'} artifact folder was moved or removed. {'Its row' if one else 'Their rows'} "
         f"in the tables {'holds' if one else 'hold'} the tracked metrics and params (solved, "
         "episodes to solve, final rolling mean); the measures read from that file (AUC, the untrained return, "

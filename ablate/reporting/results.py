@@ -18,6 +18,7 @@ import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment
+from ablate.reporting import settings
 from ablate.reporting.networks import layers
 from ablate.reporting.reader import RunReader, TrackingError
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
@@ -81,14 +82,9 @@ class Ablation:
         return self.grid["baseline"]
 
     def changes(self, variant: str, against: str | None = None) -> dict[str, Any]:
-        """The knobs ``variant`` sets differently from ``against`` (default: the baseline), with its values."""
-        overrides = {v["name"]: v.get("overrides", {}) for v in self.grid["variants"]}
-        base, mine, theirs = self.grid.get("base", {}), overrides[variant], overrides[against or self.baseline]
-        return {
-            knob: mine.get(knob, base.get(knob))
-            for knob in sorted(set(mine) | set(theirs))
-            if mine.get(knob, base.get(knob)) != theirs.get(knob, base.get(knob))
-        }
+        """The knobs ``variant`` runs at another value than ``against`` (default: the baseline), with its values
+        (``settings.changes``: by value, not by the keys written)."""
+        return settings.changes(self.grid, variant, against or self.baseline)
 
     def reference(self, variant: str) -> str:
         """The variant ``variant`` is compared with: of the others, the one whose changes from the baseline

@@ -7,12 +7,11 @@ import numpy as np
 import pandas as pd
 
 from ablate.reporting.figures import ablation_window
-from ablate.reporting.figures import esc as _esc
-from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.networks import factory_args
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
+from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
-from ablate.reporting.text import _interval, _markdown_table
+from ablate.reporting.text import NO_REFS, Refs, _interval, _markdown_table, esc, fmt
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
@@ -92,8 +91,8 @@ def _role(ablation: Ablation, variant: str) -> str:
     if variant == ablation.baseline:
         return "baseline (reference)"
     users = [v for v in ablation.variants if v != variant and ablation.reference(v) == variant]
-    role = [f"compared with {_esc(ablation.reference(variant))}"]
-    return "; ".join(role + ([f"reference of {', '.join(map(_esc, users))}"] if users else []))
+    role = [f"compared with {esc(ablation.reference(variant))}"]
+    return "; ".join(role + ([f"reference of {', '.join(map(esc, users))}"] if users else []))
 
 
 def _episodes(count) -> str:
@@ -127,20 +126,20 @@ def _seeds_ran(ablation: Ablation, planned: list[int]) -> str:
     return f"{fewest} to {most} per variant ({seeds}: {len(planned)} at first, more in rounds while one was open)"
 
 
-def _method(ablation: Ablation, table: pd.DataFrame) -> str:
+def _method(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS) -> str:
     base = ablation.grid["base"]
     threshold = ablation.threshold
     seeds = ablation.grid["seeds"]
     budget = int(base.get("max_episodes", 0))
     if threshold is not None:
         env = (
-            f"**Environment.** `{_esc(base['env_id'])}`. Solved when the mean return over "
+            f"**Environment.** `{esc(base['env_id'])}`. Solved when the mean return over "
             f"{ablation_window(ablation)} consecutive episodes reaches {threshold:g}; a trial stops then, or at "
             f"its budget of {budget:,} episodes."
         )
     else:
         env = (
-            f"**Environment.** `{_esc(base['env_id'])}`. No solve threshold: every trial runs its whole budget of "
+            f"**Environment.** `{esc(base['env_id'])}`. No solve threshold: every trial runs its whole budget of "
             f"{budget:,} episodes, and variants are compared on their returns (area under the curve, the return "
             "after fixed budgets, episodes to reach return levels, the improvement over the untrained policy)."
         )
@@ -166,14 +165,15 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
     for variant in ablation.grid["variants"]:
         params = ablation.params.get(variant["name"], {})
         count = table.loc[table.variant == variant["name"], "parameter_count"]
-        overrides = ", ".join(f"{k} = {v}" for k, v in variant["overrides"].items()) or "nothing (the base)"
+        changed = own_changes(ablation.grid, variant["name"])  # by value: a knob at the base's value is no change
+        overrides = ", ".join(f"{k} = {v}" for k, v in changed.items()) or "nothing (the base)"
         rows.append(
             {
-                "variant": _esc(variant["name"]),
+                "variant": esc(variant["name"]),
                 "role": _role(ablation, variant["name"]),
-                "changes": _esc(overrides),
-                "policy": _esc(architecture(params, ablation.env_id)) if params else "–",
-                "parameters": _fmt(count.iloc[0]) if len(count) and not pd.isna(count.iloc[0]) else "–",
+                "changes": esc(overrides),
+                "policy": esc(architecture(params, ablation.env_id)) if params else "–",
+                "parameters": fmt(count.iloc[0]) if len(count) and not pd.isna(count.iloc[0]) else "–",
             }
         )
     lines.append(_markdown_table(pd.DataFrame(rows)))
@@ -186,14 +186,16 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
         tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
         lines += [
             "",
-            f"Tuned per variant (see {{appendix:tuning}}): {_esc(tuned_knobs)}; the base value above is the untuned "
+            f"Tuned per variant (see {refs.appendix('tuning')}): {esc(tuned_knobs)}; the base value above is the "
+            "untuned "
             "one.",
         ]
     lines += [
         "",
         "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
         f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, never "
-        "dropped: a statistic that uses one is a lower bound, marked ≥. {appendix:glossary} defines each term."
+        f"dropped: a statistic that uses one is a lower bound, marked ≥. {refs.appendix('glossary')} defines each "
+        "term."
         + (
             " With fewer than 4 seeds the IQM trims nothing: it is the plain mean, and the findings call it so."
             if len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
@@ -206,13 +208,13 @@ def _method(ablation: Ablation, table: pd.DataFrame) -> str:
 def _episodes_cell(row: pd.Series, stat: str) -> str:
     value, low, high = row[f"episodes_{stat}"], row[f"episodes_{stat}_ci_low"], row[f"episodes_{stat}_ci_high"]
     bound = "≥ " if row[f"{stat}_censored"] else ""
-    return f"{bound}{_fmt(value)} {_interval(low, high, 0, int(row.seeds_run))}"
+    return f"{bound}{fmt(value)} {_interval(low, high, 0, int(row.seeds_run))}"
 
 
 def _stat_cell(row: pd.Series, prefix: str, digits: int = 1, low_key: str = "", high_key: str = "") -> str:
     low = row.get(low_key or f"{prefix}_ci_low", np.nan)
     high = row.get(high_key or f"{prefix}_ci_high", np.nan)
-    return f"{_fmt(row.get(prefix, np.nan), digits)} {_interval(low, high, digits, int(row.seeds_run))}"
+    return f"{fmt(row.get(prefix, np.nan), digits)} {_interval(low, high, digits, int(row.seeds_run))}"
 
 
 def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
@@ -221,13 +223,13 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
     if ablation.threshold is not None and len(ran):
         rows = [
             {
-                "variant": _esc(row.variant),
+                "variant": esc(row.variant),
                 "seeds": int(row.seeds_run),
                 "solved": f"{int(row.solved)}/{int(row.seeds_run)}",
                 "episodes to solve, median [95% CI]": _episodes_cell(row, "median"),
                 "episodes to solve, IQM [95% CI]": _episodes_cell(row, "iqm"),
-                "env steps to solve (median of solved)": _fmt(row.env_steps_to_solve_median),
-                "seconds to solve (median of solved)": _fmt(row.wall_s_to_solve_median, 1),
+                "env steps to solve (median of solved)": fmt(row.env_steps_to_solve_median),
+                "seconds to solve (median of solved)": fmt(row.wall_s_to_solve_median, 1),
             }
             for _, row in ran.iterrows()
         ]
@@ -243,8 +245,8 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
     rows = []
     for _, row in ran.iterrows():
         entry = {
-            "variant": _esc(row.variant),
-            f"untrained (first {INITIAL_EPISODES} episodes)": _fmt(row.get("initial_return_iqm", np.nan), 1),
+            "variant": esc(row.variant),
+            f"untrained (first {INITIAL_EPISODES} episodes)": fmt(row.get("initial_return_iqm", np.nan), 1),
         }
         for episodes in budgets:
             entry[f"after {episodes:,} episodes [95% CI]"] = _stat_cell(row, f"return_at_{episodes}_iqm")
@@ -263,7 +265,7 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
     if ablation.levels and len(ran):
         rows = []
         for _, row in ran.iterrows():
-            entry = {"variant": _esc(row.variant)}
+            entry = {"variant": esc(row.variant)}
             for level in ablation.levels:
                 key = f"episodes_to_{level:g}"
                 if f"{key}_median" not in row or pd.isna(row[f"{key}_median"]):
@@ -271,7 +273,7 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
                     continue
                 bound = "≥ " if row[f"{key}_median_censored"] else ""
                 entry[f"episodes to reach {level:g} (median; seeds that reached it)"] = (
-                    f"{bound}{_fmt(row[f'{key}_median'])} ({int(row[f'{key}_reached'])}/{int(row.seeds_run)})"
+                    f"{bound}{fmt(row[f'{key}_median'])} ({int(row[f'{key}_reached'])}/{int(row.seeds_run)})"
                 )
             rows.append(entry)
         parts += [
@@ -323,7 +325,7 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
             f"{len(several)} comparison{'s change' if len(several) > 1 else ' changes'} more than one knob, so "
             f"{'their differences' if len(several) > 1 else 'its difference'} cannot be put down to one of them: "
             + "; ".join(
-                f"{_esc(v)} against {_esc(ablation.reference(v))} changes {_and(words)}" for v, words in several.items()
+                f"{esc(v)} against {esc(ablation.reference(v))} changes {_and(words)}" for v, words in several.items()
             )
             + "."
         ]
@@ -334,11 +336,11 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
         return confounded
     extends = _extends(ablation)
     if not extends:
-        head = f"Each variant against {_esc(ablation.baseline)}"
+        head = f"Each variant against {esc(ablation.baseline)}"
     else:
-        pairs = ", ".join(f"{_esc(v)} against {_esc(ablation.reference(v))}" for v in extends)
+        pairs = ", ".join(f"{esc(v)} against {esc(ablation.reference(v))}" for v in extends)
         head = (
-            f"Each variant against its reference: {_esc(ablation.baseline)}, or, for a variant that adds one change "
+            f"Each variant against its reference: {esc(ablation.baseline)}, or, for a variant that adds one change "
             f"to another variant's, that variant ({pairs})"
         )
     if confounded:
@@ -346,10 +348,17 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
     return [head]
 
 
-def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame | None = None) -> list[tuple[str, str]]:
+def limitations(
+    ablation: Ablation,
+    table: pd.DataFrame,
+    compare: pd.DataFrame | None = None,
+    videos: bool = True,
+    refs: Refs = NO_REFS,
+) -> list[tuple[str, str]]:
     """What the experiment's design itself limits, read off the grid and the results: (kind, text) pairs, the
     kind naming the limitation (``seeds``, ``tuning``, ``shared``, ``capacity``, ``confound``, ``censoring``,
-    ``threshold``, ``wallclock``, ``videos``, ``scope``) so the body can print the ones that matter."""
+    ``threshold``, ``wallclock``, ``videos``, ``scope``) so the body can print the ones that matter. ``videos``:
+    whether the report shows any (no limitation of videos there are none of)."""
     base, variants = ablation.grid["base"], ablation.grid["variants"]
     out: list[tuple[str, str]] = []
     fewest, seeds = ablation.seed_span
@@ -403,7 +412,8 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
                 "tuning",
                 f"**Tuned over {n_candidates} candidates on {n_seeds} tuning seed{'s' if n_seeds != 1 else ''}.** "
                 "Each variant's choice is the best of a few candidates on a few seeds: a value between or beyond them "
-                "could do better ({appendix:tuning} flags choices at the edge of the grid), and so few seeds choose "
+                f"could do better ({refs.appendix('tuning')} flags choices at the edge of the grid), and so few seeds "
+                "choose "
                 "noisily. The evaluation seeds never took part in the choice. Knobs not tuned are the base's for "
                 "every variant.",
             )
@@ -414,7 +424,7 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
             (
                 "shared",
                 "**One training setting for all architectures.** Every variant"
-                + (f" except {', '.join(_esc(t) for t in touched)}" if touched else "")
+                + (f" except {', '.join(esc(t) for t in touched)}" if touched else "")
                 + f" trains with the base {knobs}, chosen for the baseline and not tuned per architecture: one that "
                 "would learn better at its own learning rate is judged at the baseline's.",
             )
@@ -424,10 +434,10 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
         out.append(
             (
                 "capacity",
-                f"**Parameter counts span {_fmt(counts.min())} to {_fmt(counts.max())}** "
+                f"**Parameter counts span {fmt(counts.min())} to {fmt(counts.max())}** "
                 f"({counts.max() / counts.min():,.0f}x): a difference between architectures mixes capacity with "
-                "optimisation (one learning rate moves small and large networks differently); Figure "
-                "{parameters} plots performance against size.",
+                "optimisation (one learning rate moves small and large networks differently); "
+                f"{refs.figure('performance_vs_parameters')} plots performance against size.",
             )
         )
     for variant in ablation.variants:
@@ -437,8 +447,8 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
             out.append(
                 (
                     "confound",
-                    f"**{_esc(variant)} changes {len(words)} knobs at once** against {_esc(reference)} "
-                    f"({_and(words)}): its difference from {_esc(reference)} cannot be attributed to any one of them.",
+                    f"**{esc(variant)} changes {len(words)} knobs at once** against {esc(reference)} "
+                    f"({_and(words)}): its difference from {esc(reference)} cannot be attributed to any one of them.",
                 )
             )
     finished = ablation.finished
@@ -464,20 +474,20 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
         (
             "wallclock",
             "**Wall-clock times come from contended CPUs.** Trials ran several at a time on "
-            f"{_esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
+            f"{esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
             "its tracking; seconds move between runs and machines. Compare variants on episodes; read seconds as "
             "rough cost.",
         )
     )
-    if _sampling_videos(ablation):
+    if videos and _sampling_videos(ablation):
         out.append(
             (
                 "videos",
                 "**Videos show one stretch of play** per chosen seed (the trained policy sampling its actions, up to "
-                f"{_fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average.",
+                f"{fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average.",
             )
         )
-    else:
+    elif videos:
         out.append(
             (
                 "videos",
@@ -488,7 +498,7 @@ def limitations(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame |
     out.append(
         (
             "scope",
-            f"**One environment and budget** ({_esc(ablation.env_id)}, {_fmt(base.get('max_episodes'))} "
+            f"**One environment and budget** ({esc(ablation.env_id)}, {fmt(base.get('max_episodes'))} "
             "episodes): the findings say nothing about other tasks or longer training.",
         )
     )

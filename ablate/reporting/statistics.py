@@ -1,8 +1,9 @@
 """The statistics the report rests on: interquartile means, percentile bootstrap intervals, the probability
 of improvement, the smallest p-value a rank test can give, and the decision rule that turns them into a verdict.
 
-SciPy: ``trim_mean`` for the IQM, ``bootstrap`` for 95% intervals, ``mannwhitneyu`` for the probability of
-improvement. Pure functions of arrays (and one of a curves frame); nothing here reads the tracking store.
+The IQM is ``claims.permutation.iqm`` (one IQM for the claims and the report: SciPy's ``trim_mean`` exactly);
+SciPy's ``bootstrap`` for 95% intervals, ``mannwhitneyu`` for the probability of improvement. Pure functions of
+arrays (and one of a curves frame); nothing here reads the tracking store.
 """
 
 from __future__ import annotations
@@ -11,15 +12,11 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from ablate.claims.permutation import iqm
 from ablate.design import CONFIDENCE, smallest_p_value  # noqa: F401  (the rule --dry-run applies, one copy)
 
 N_RESAMPLES = 2000
 SEED = 12345  # bootstrap resampling is seeded: the same runs give the same report
-
-
-def iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
-    """Interquartile mean: the mean of the middle 50% (25% trimmed from each end)."""
-    return stats.trim_mean(values, 0.25, axis=axis)
 
 
 def _percentile_bootstrap(samples: tuple, statistic, n_resamples: int = N_RESAMPLES):

@@ -9,16 +9,35 @@ import numpy as np
 import pandas as pd
 
 from ablate.reporting.results import Ablation
+from ablate.reporting.settings import setting
 from ablate.reporting.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
+from ablate.reporting.tuning import EVAL
 
 INTEGER_COLUMNS = ("seed", "budget", "solved", "episodes_to_solve", "env_steps_to_solve", "episodes_run", "env_steps")
-INTEGER_COLUMNS += ("parameter_count", "censored_episodes")
+INTEGER_COLUMNS += ("parameter_count", "censored_episodes", "episodes_per_update", "depth", "width")
+BASE = "base"
+"""The stage of a trial run at the shared base values only (the word of ``train_from.STAGES``)."""
 
 
-def trials_table(trials: pd.DataFrame) -> pd.DataFrame:
-    """The trials as ``tables/trials.csv`` holds them: counts and flags as integers (``solved`` 1, not 1.0;
-    ``episodes_run`` 1000, not 1000.0), empty where a trial has none. MLflow stores every metric as a float."""
-    table = trials.copy()
+def trials_table(ablation: Ablation) -> pd.DataFrame:
+    """Every evaluation trial the report uses, as ``tables/trials.csv`` and ``ablate.load(...).trials`` hold them:
+    ``stage`` ``eval`` (the claims' trials: at each variant's chosen values when tuned) or ``base`` (a tuned
+    ablation's trials at the shared base values only, the data of "does the finding depend on the learning
+    rate?"), ``at_base_values`` (tuned only: the trial is in that section's comparison), then each trial's
+    settings (``settings_of``) beside its results. Counts and flags are integers (``solved`` 1, not 1.0), empty
+    where a trial has none: MLflow stores every metric as a float."""
+    table = ablation.trials.copy()
+    if "stage" not in table:
+        table.insert(min(3, len(table.columns)), "stage", EVAL)
+    if ablation.untuned is not None:
+        shared = ablation.untuned.trials
+        extra = shared[~shared.key.isin(set(table.key))].assign(stage=BASE)
+        table = pd.concat([table, extra], ignore_index=True) if len(extra) else table
+        table.insert(4, "at_base_values", table.key.isin(set(shared.key)))
+    settings = settings_of(ablation, table)
+    after = list(table.columns).index("stage") + 1 + ("at_base_values" in table)
+    for position, column in enumerate(c for c in settings.columns if c not in table):
+        table.insert(after + position, column, settings[column])
     columns = [c for c in table if c in INTEGER_COLUMNS or c.startswith(("reached_", "episodes_to_"))]
     for column in columns:
         values = pd.to_numeric(table[column], errors="coerce")
@@ -26,6 +45,33 @@ def trials_table(trials: pd.DataFrame) -> pd.DataFrame:
         if len(present) and (present == present.round()).all():
             table[column] = values.round().astype("Int64")
     return table
+
+
+SETTINGS = ("learning_rate", "episodes_per_update", "gamma", "l2")
+"""Settings every trial's row carries, whether or not a variant changes them."""
+
+
+def settings_of(ablation: Ablation, trials: pd.DataFrame) -> pd.DataFrame:
+    """Each trial's settings as columns: ``SETTINGS`` and every knob a variant writes (``hidden_sizes`` with its
+    ``depth`` and ``width``), each the variant's value or the base's (``settings.setting``); a tuned knob keeps
+    the trial's own column. A knob the grid holds for no variant (an older store) is left out."""
+    written = sorted({k for v in ablation.grid["variants"] for k in v.get("overrides", {})})
+    knobs = [*SETTINGS, *(k for k in written if k not in SETTINGS)]
+    if any(knob in ("hidden_sizes", "depth", "width") for knob in knobs):
+        knobs += [k for k in ("hidden_sizes", "depth", "width") if k not in knobs]
+    columns = {}
+    for knob in knobs:
+        if knob in trials:
+            continue
+        values = {v: _cell(setting(ablation.grid, v, knob)) for v in ablation.variants}
+        if any(value is not None for value in values.values()):
+            columns[knob] = trials.variant.map(values)
+    return pd.DataFrame(columns, index=trials.index)
+
+
+def _cell(value: Any) -> Any:
+    """A setting in one cell: a list as its text (``[32, 32]``), so that a column holds one type."""
+    return str(value) if isinstance(value, list | dict) else value
 
 
 def _with_interval(row: dict[str, Any], prefix: str, values: np.ndarray) -> None:

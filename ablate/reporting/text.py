@@ -1,12 +1,47 @@
-"""Small pieces of the report's wording: percentages, signed numbers, intervals, metric names, Markdown tables."""
+"""The report's one formatting module: user text made inert (``esc``), numbers (``fmt``), percentages, signed
+numbers, intervals, metric names, Markdown tables. Every section and figure caption formats through it."""
 
 from __future__ import annotations
 
+import html
 import re
+from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 
-from ablate.reporting.figures import fmt as _fmt
+
+def esc(text: object) -> str:
+    """User text (descriptions, variant names, errors, commands) made inert in Markdown and HTML."""
+    # quote=False: quotes are inert in Markdown and in HTML text; escaped, the Markdown read "course&#x27;s".
+    return html.escape(str(text), quote=False).replace("|", "&#124;").replace("`", "&#96;")
+
+
+@dataclass(frozen=True)
+class Refs:
+    """Where the report's cross-references point, resolved before any section is written (no token is replaced
+    afterwards): each appendix section's letter and each figure's number; one the report lacks reads –."""
+
+    letters: dict[str, str] = field(default_factory=dict)
+    figures: dict[str, int] = field(default_factory=dict)
+
+    def appendix(self, name: str) -> str:
+        """``Appendix B`` for the section ``name`` (``tuning``, ``glossary``, ...)."""
+        return f"Appendix {self.letters.get(name, '–')}"
+
+    def figure(self, stem: str) -> str:
+        """``Figure 6`` for the figure drawn into ``<stem>.png``."""
+        return f"Figure {self.figures.get(stem, '–')}"
+
+
+NO_REFS = Refs()
+"""A section written outside a report (a test, a notebook): every cross-reference reads –."""
+
+
+def fmt(x: float | None, digits: int = 0) -> str:
+    if x is None or (isinstance(x, float) and np.isnan(x)) or pd.isna(x):
+        return "–"
+    return f"{x:,.{digits}f}"
 
 
 def _pct(x: float) -> str:
@@ -27,7 +62,7 @@ def _signed_pct(x: float) -> str:
 def _interval(low: float, high: float, digits: int = 0, n: int | None = None) -> str:
     if pd.isna(low) or pd.isna(high):
         return "[no interval: 1 seed]" if n == 1 else "[no interval]"
-    return f"[{_fmt(low, digits)}, {_fmt(high, digits)}]"
+    return f"[{fmt(low, digits)}, {fmt(high, digits)}]"
 
 
 # --- text ------------------------------------------------------------------------------------------------

@@ -7,11 +7,9 @@ from __future__ import annotations
 
 import pandas as pd
 
-from ablate.reporting.figures import esc as _esc
-from ablate.reporting.figures import fmt as _fmt
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import SEPARATED, TOO_FEW_SEEDS
-from ablate.reporting.text import _markdown_table, _metric_name, _signed, _signed_pct
+from ablate.reporting.text import NO_REFS, Refs, _markdown_table, _metric_name, _signed, _signed_pct, esc, fmt
 from ablate.reporting.tuning import METRICS, base_values, chosen_values, edge, knobs, same_value, sensitivity
 
 
@@ -39,7 +37,7 @@ def knob_words(ablation: Ablation) -> str:
     return "the learning rate" if names == ["learning_rate"] else "the tuned settings"
 
 
-def tuning_section(ablation: Ablation) -> str:
+def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> str:
     """The Tuning section: how each variant's values were chosen, on seeds the comparison never sees."""
     tuning = ablation.tuning or {}
     metric = tuning.get("metric", "auc")
@@ -60,12 +58,12 @@ def tuning_section(ablation: Ablation) -> str:
         "(Patterson et al., 2024; Eimer et al., 2023). **The summary, findings and figures use the evaluation "
         "seeds only, at the chosen values.**",
         "",
-        f"- **Candidates.** {_esc(candidates)}.",
+        f"- **Candidates.** {esc(candidates)}.",
         f"- **Tuning seeds.** {len(seeds)} per candidate ({', '.join(map(str, seeds))}), disjoint from the "
         f"{len(evaluation)} evaluation seeds ({', '.join(map(str, evaluation))}).",
         f"- **Metric.** {words}, {'higher' if direction == 'max' else 'lower'} is better, over each tuning trial's "
         f"budget of {int(tune_budget):,} episodes.",
-        f"- **Rule.** {_esc(rule.rstrip('.'))}.",
+        f"- **Rule.** {esc(rule.rstrip('.'))}.",
     ]
     if tune_budget < budget:
         lines.append(
@@ -82,22 +80,22 @@ def tuning_section(ablation: Ablation) -> str:
             continue
         values = chosen_values(tuning, variant)
         if not choice.get("tuned", True):
-            kept.append(f"{_esc(variant)} ({_values(values)})")
+            kept.append(f"{esc(variant)} ({_values(values)})")
         at = summary[summary.variant == variant] if len(summary) else summary
         for knob, value in values.items():
             at = at[[same_value(v, value) for v in at[knob]]] if len(at) else at
         score = (
-            f"{_fmt(at['mean'].iloc[0], 1)} [{_fmt(at['low'].iloc[0], 1)}, {_fmt(at['high'].iloc[0], 1)}]"
+            f"{fmt(at['mean'].iloc[0], 1)} [{fmt(at['low'].iloc[0], 1)}, {fmt(at['high'].iloc[0], 1)}]"
             if len(at)
             else "–"
         )
         flags = edge(tuning, values) if choice.get("tuned", True) else []
         rows.append(
             {
-                "variant": _esc(variant),
+                "variant": esc(variant),
                 **{f"{k.replace('_', ' ')} chosen": _value(v) for k, v in values.items()},
                 f"mean {words} at the choice [lowest, highest seed]": score,
-                "how": _esc(choice.get("reason", "")) if choice.get("tuned", True) else "set by the variant: not tuned",
+                "how": esc(choice.get("reason", "")) if choice.get("tuned", True) else "set by the variant: not tuned",
                 "flag": "; ".join(f"{f}: the best may lie beyond the grid" for f in flags) or "",
             }
         )
@@ -109,7 +107,8 @@ def tuning_section(ablation: Ablation) -> str:
         ]
     lines += [
         "",
-        "Figure {sensitivity} shows each variant's metric against every candidate; every tuning trial is in "
+        f"{refs.figure('tuning_sensitivity')} shows each variant's metric against every candidate; every tuning "
+        "trial is in "
         "tables/tuning.csv.",
     ]
     return "\n".join(lines)
@@ -150,11 +149,11 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
         at_choice = _pair(chosen_values(tuning, row.variant), chosen_values(tuning, reference))
         label = {"flips": "**flips**", "vanishes": "**vanishes**", "appears": "**appears**"}.get(kind, kind)
         if kind in ("flips", "vanishes", "appears"):
-            changed.append(f"{_esc(row.variant)} vs {_esc(reference)} on {_metric_name(row.metric)} ({kind})")
+            changed.append(f"{esc(row.variant)} vs {esc(reference)} on {_metric_name(row.metric)} ({kind})")
         if kind == "none":
             label = "no finding at either"
         lines.append(
-            f"- {_esc(row.variant)} vs {_esc(reference)}, {_metric_name(row.metric)}: at the base value "
+            f"- {esc(row.variant)} vs {esc(reference)}, {_metric_name(row.metric)}: at the base value "
             f"({at_base}) {_verdict_words(base)}; at the chosen values ({at_choice}) "
             f"{_verdict_words(row)}: {label}."
         )
@@ -201,7 +200,7 @@ def unchanged_words(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFra
         if moved:
             _, base, row = max(moved, key=lambda item: item[0])
             text += (
-                f" The estimates did move: {_esc(row.variant)} vs {_esc(row.reference)} on {_metric_name(row.metric)} "
+                f" The estimates did move: {esc(row.variant)} vs {esc(row.reference)} on {_metric_name(row.metric)} "
                 f"went from {_estimate(base)} at the base value to {_estimate(row)} at the chosen values."
             )
         return text

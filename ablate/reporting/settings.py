@@ -1,0 +1,65 @@
+"""What a variant runs at, knob by knob, read off the launch's ``grid.json``: its own value where it sets the
+knob, else the base's; a knob counts as changed only when those values differ (``activation = "relu"`` written
+in a file whose default is ``relu`` changes nothing)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+DERIVED = {"depth": lambda sizes: len(sizes), "width": lambda sizes: sizes[0] if sizes else None}
+"""Shorthands a trial's config holds only as ``model.hidden_sizes``."""
+
+
+def _plain(value: Any) -> Any:
+    """Tuples as lists (grid.json's form), recursively, so that written and stored values compare equal."""
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
+
+
+def overrides(grid: dict[str, Any], variant: str) -> dict[str, Any]:
+    """The knobs ``variant`` writes in the experiment file, as written."""
+    return next((dict(v.get("overrides", {})) for v in grid["variants"] if v["name"] == variant), {})
+
+
+def base_value(grid: dict[str, Any], knob: str) -> Any:
+    """The base's value of ``knob`` (model knobs under their ``model.`` prefix); None where the grid lacks it."""
+    base = grid.get("base", {})
+    for key in (knob, f"model.{knob}"):
+        if key in base:
+            return _plain(base[key])
+    sizes = base.get("model.hidden_sizes")
+    return DERIVED[knob](list(sizes)) if knob in DERIVED and sizes is not None else None
+
+
+def setting(grid: dict[str, Any], variant: str, knob: str) -> Any:
+    """The value ``variant`` runs ``knob`` at: its own, else the base's."""
+    own = overrides(grid, variant)
+    if knob in own:
+        return _plain(own[knob])
+    if knob == "hidden_sizes" and ("depth" in own or "width" in own):  # config.apply_knobs' expansion
+        sizes = base_value(grid, "hidden_sizes") or []
+        return [own.get("width", sizes[0] if sizes else 32)] * own.get("depth", len(sizes))
+    if knob in DERIVED:
+        sizes = setting(grid, variant, "hidden_sizes")
+        return DERIVED[knob](sizes) if isinstance(sizes, list) else None
+    return base_value(grid, knob)
+
+
+def changes(grid: dict[str, Any], variant: str, against: str) -> dict[str, Any]:
+    """The knobs ``variant`` runs at another value than ``against`` does, with ``variant``'s values, in knob
+    order. Only knobs one of them writes can differ: the others are the base's for both."""
+    written = set(overrides(grid, variant)) | set(overrides(grid, against))
+    return {
+        knob: setting(grid, variant, knob)
+        for knob in sorted(written)
+        if setting(grid, variant, knob) != setting(grid, against, knob)
+    }
+
+
+def own_changes(grid: dict[str, Any], variant: str) -> dict[str, Any]:
+    """The knobs ``variant`` writes at a value other than the base's, as written (the variants table's
+    "changes" column): a knob written at the base's own value is no change."""
+    return {k: v for k, v in overrides(grid, variant).items() if base_value(grid, k) != _plain(v)}

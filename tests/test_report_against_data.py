@@ -1,0 +1,167 @@
+"""The report read against its data (issue 36, item 4): every seed count, verdict, percentage and interval of
+the claims, seeds and comparison sentences (``report_reading``), for the committed CartPole report against the
+tables the same build wrote (no store of it here), for Pong's seeds against its committed tables, and for a
+synthetic ablation with seeds in rounds against ``ablate.load`` of its store. Mutated sentences (the old
+"5 per variant (0, 1, 2, 3, 4)" among them) show that each check can fail."""
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from report_reading import ReportData, check_all, check_claims, check_comparisons, check_seeds
+from test_report import make_store
+from test_report_claims import VARIANTS
+
+import ablate
+from ablate.launch.secrets import shown_command
+from ablate.launch.tracking import Tracker
+from ablate.reporting.data import report_data
+from ablate.reporting.document import write_report
+from ablate.reporting.reader import RunReader
+from ablate.reporting.results import load_ablation
+
+REPORTS = Path(__file__).parents[1] / "reports"
+
+
+def _committed(name: str) -> tuple[str, ReportData]:
+    folder = REPORTS / name
+    tables = folder / "tables"
+    trials = pd.read_csv(tables / "trials.csv")
+    trials = trials[(trials.status == "FINISHED") & (trials.get("stage", "eval") == "eval")]
+    claims = pd.read_csv(tables / "claims.csv") if (tables / "claims.csv").is_file() else None
+    compare = pd.read_csv(tables / "comparisons.csv", keep_default_na=False, na_values=[""])
+    data = ReportData(trials, pd.read_csv(tables / "convergence.csv"), compare, claims)
+    return (folder / "report.md").read_text(), data
+
+
+@pytest.fixture(scope="module")
+def cartpole():
+    text, data = _committed("cartpole")
+    data.rounds_start = 5  # experiments/cartpole.toml: seeds = { start = 5, ... }; the store is not here
+    return text, data
+
+
+def test_the_committed_cartpole_report_says_what_its_tables_say(cartpole):
+    text, data = cartpole
+    assert len(data.claims) == 9 and len(data.trials) == 265  # the tables are there and read
+    assert check_all(text, data) == []
+
+
+def test_the_committed_pong_reports_seeds_and_tables_agree():
+    text, data = _committed("pong")
+    # Pong's report predates claims.csv and its store is not on this machine, so its claims cannot be read
+    # against a claims table (nor regenerated) here; its seeds, counts and results tables can.
+    assert data.claims is None
+    assert check_seeds(text, data) == []
+    assert "5 and 5 seeds" in text and set(data.trials.groupby("variant").size()) == {5}
+
+
+@pytest.mark.parametrize(
+    "old, new, caught",
+    [
+        # the old Seeds sentence, written from the file's start rather than the seeds that ran
+        (
+            "**Seeds.** 15 to 30 per variant (0-29: 5 at first, more in rounds while one was open)",
+            "**Seeds.** 5 per variant (0, 1, 2, 3, 4)",
+            "Seeds sentence",
+        ),
+        ("trains each variant's policy from 15 to 30 seeds", "trains each variant's policy from 5 seeds", "method"),
+        ("- **15 to 30 seeds per variant**", "- **5 to 30 seeds per variant**", "limitations"),
+        ("| narrow | 30 | reached", "| narrow | 25 | reached", "rounds table"),
+        ("**Censoring.** 60 of 265", "**Censoring.** 59 of 265", "censoring"),
+        ("- **l2**: 10 of 20 seeds", "- **l2**: 9 of 20 seeds", "l2"),
+    ],
+)
+def test_a_seeds_sentence_other_than_the_data_is_caught(cartpole, old, new, caught):
+    text, data = cartpole
+    assert old in text
+    problems = check_seeds(text.replace(old, new, 1), data)
+    assert problems and all(caught in p for p in problems), problems
+
+
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        ("**narrow** vs baseline: **undetermined**", "**narrow** is **worse**"),  # the exploratory rule's word
+        ("36% more episodes to solve (interval 19% fewer", "36% more episodes to solve (interval 2% more"),
+        ("60% more episodes to solve", "45% more episodes to solve"),  # the exploratory estimate, not the claim's
+        ("IQM 818 vs 510; 20 and 20 seeds", "IQM 818 vs 564; 20 and 20 seeds"),
+        ("about 80 seeds per variant would decide it", "about 6 seeds per variant would decide it"),
+        ("30 and 30 seeds; about 80", "5 and 5 seeds; about 80"),
+    ],
+)
+def test_a_claim_other_than_the_claims_table_is_caught(cartpole, old, new):
+    text, data = cartpole
+    assert old in text
+    assert check_claims(text.replace(old, new, 1), data)
+
+
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        (
+            "episodes to solve: *exploratory: worse*, **36% more**",
+            "episodes to solve: *exploratory: worse*, **30% more**",
+        ),
+        (
+            "The primary claim (above): **undetermined**. P(fewer episodes) = 0.38",
+            "The primary claim (above): **worse**. P(fewer episodes) = 0.38",
+        ),
+        ("P(fewer episodes) = 0.38 [0.24, 0.52]", "P(fewer episodes) = 0.38 [0.24, 0.62]"),
+        ("(IQM 720 vs 564; change +28%", "(IQM 720 vs 564; change +38%"),
+        ("Seeds needed (the primary claim's): more than 100", "Seeds needed (the primary claim's): about 4"),
+        ("*exploratory: not separated*, IQM 343.7", "*exploratory: worse*, IQM 343.7"),
+        ("7 of 30 wide seeds and 4 of 30", "7 of 30 wide seeds and 5 of 30"),
+    ],
+)
+def test_a_comparison_other_than_the_comparisons_table_is_caught(cartpole, old, new):
+    text, data = cartpole
+    assert old in text
+    assert check_comparisons(text.replace(old, new, 1), data)
+
+
+ROUNDS = {"start": 8, "step": 2, "max": 10, "max_minutes": None}
+SEEDS = {"base": 10, "fast": 8, "slow": 8, "spread": 10}
+"""Seeds that ran: fast and slow were decided at the first look (8 seeds), spread ran to the cap with base."""
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    """An ablation whose seeds came in rounds (8 per variant first, then 2 more to the open comparison and its
+    reference), with ``grid.json`` and ``rounds.json`` as the runner writes them: the file's first seeds, every
+    trial that ran, each variant's seeds and why it stopped (the runner's judge is the claims' rule)."""
+    folder = tmp_path_factory.mktemp("against")
+    ran = {f"{v}-s{s}" for v, n in SEEDS.items() for s in range(n)}
+    uri = make_store(folder, "inrounds", VARIANTS, seeds=tuple(range(10)), only=ran)
+    tracker = Tracker(uri, "inrounds")
+    launch = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")[0].info.run_id
+    grid = json.loads(RunReader(uri, "inrounds").load_text(launch, "grid.json"))
+    grid["trials"] = [t for t in grid["trials"] if t["key"] in ran]
+    tracker.log_file(launch, "grid.json", json.dumps(grid | {"seeds": list(range(ROUNDS["start"]))}))
+    variants = {"base": {"seeds": 10}, "spread": {"seeds": 10, "verdict": "undetermined", "why": "reached max"}}
+    variants |= {
+        v: {"seeds": 8, "verdict": w, "why": "decided at round 1"} for v, w in (("fast", "better"), ("slow", "worse"))
+    }
+    tracker.log_file(launch, "rounds.json", json.dumps({"design": ROUNDS, "round": 2, "variants": variants}))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test")
+        report = write_report("inrounds", tracking_uri=uri, out_root=folder / "reports", attach=False)
+    return (report / "report.md").read_text(), ablate.load("inrounds", tracking_uri=uri), uri
+
+
+def test_a_synthetic_ablation_in_rounds_says_what_ablate_load_says(synthetic):
+    text, results, uri = synthetic
+    trials = results.trials[results.trials.status == "FINISHED"]
+    assert trials.groupby("variant").size().to_dict() == SEEDS  # seeds in rounds: variants differ
+    data = ReportData(trials, results.convergence, results.comparisons, results.claims, ROUNDS["start"])
+    problems = check_all(text, data)
+    assert problems == [], "\n".join(problems)
+    # and against the report's own data model, computed once (reporting.data.ReportData), the same words
+    model = report_data(load_ablation("inrounds", uri), shown_command(["ablate", "report", "inrounds"]))
+    finished = model.trials[(model.trials.status == "FINISHED") & (model.trials.stage == "eval")]
+    start = model.rounds["design"]["start"]
+    assert check_all(text, ReportData(finished, model.convergence, model.comparisons, model.claims, start)) == []
+    # The grid's seeds are the first round's (0, 1, 2): the old sentence, written from them, is caught.
+    old = text.replace(text.split("**Seeds.** ")[1].split(":")[0], "8 per variant (0, 1, 2, 3, 4, 5, 6, 7)", 1)
+    assert any("Seeds sentence" in p for p in check_seeds(old, data))
