@@ -23,6 +23,7 @@ from ablate import experiment as experiment_module
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, ModelConfig, TrialConfig, apply_knobs
 from ablate.dry_run import dry_run
 from ablate.experiment import Experiment
+from ablate.launch.clock import EpisodeLine
 from ablate.launch.grid import expand, select, tuning_trials
 from ablate.launch.lock import LaunchLocked
 from ablate.launch.secrets import masked_output, remember_uri, shown
@@ -372,7 +373,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     from ablate.agent.trainer import run_trial  # heavy imports only once the input is known to be good
 
-    progress = _ProgressLine()
+    progress = EpisodeLine()
     result = run_trial(config, on_episodes=progress.update, artifacts_dir=out)
     progress.close()
     summary = result.summary()
@@ -391,30 +392,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     )
     print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())))
     return EXIT_OK
-
-
-class _ProgressLine:
-    """One refreshing line on a terminal; a line every few seconds when output is a file or a pipe."""
-
-    def __init__(self) -> None:
-        self.tty = sys.stdout.isatty()
-        self.last_print = 0.0
-
-    def update(self, episodes: list[Any]) -> None:
-        now = time.monotonic()
-        if not self.tty and now - self.last_print < 2.0:
-            return
-        self.last_print = now
-        m = episodes[-1]
-        line = (
-            f"episode {m.episode:>6} | return {m.episode_return:7.1f} | rolling mean {m.rolling_mean:7.1f}"
-            f" | {m.env_steps / max(m.wall_s, 1e-9):>9,.0f} steps/s"
-        )
-        print(f"\r{line}" if self.tty else line, end="" if self.tty else "\n", flush=True)
-
-    def close(self) -> None:
-        if self.tty:
-            print()
 
 
 def cmd_status(args: argparse.Namespace) -> int:

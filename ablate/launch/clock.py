@@ -1,5 +1,5 @@
-"""Clocks for a terminal: ``m:ss``, and a line with a running clock while a slow step runs (Ray's start, the
-report)."""
+"""Clocks for a terminal: ``m:ss``, a line with a running clock while a slow step runs (Ray's start, the
+report), and one trial's episode line (``ablate train``)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 
 from rich.live import Live
 
@@ -40,3 +41,28 @@ def stage(text: str, enabled: bool = True) -> Iterator[list[float]]:
             live.__exit__(None, None, None)
         if enabled:
             print(f"{text}: done in {seconds[0]:.1f} s", flush=True)
+
+
+class EpisodeLine:
+    """``ablate train``'s progress: one refreshing line on a terminal; a line every few seconds when output is a
+    file or a pipe."""
+
+    def __init__(self) -> None:
+        self.tty = sys.stdout.isatty()
+        self.last_print = 0.0
+
+    def update(self, episodes: list[Any]) -> None:
+        now = time.monotonic()
+        if not self.tty and now - self.last_print < 2.0:
+            return
+        self.last_print = now
+        m = episodes[-1]
+        line = (
+            f"episode {m.episode:>6} | return {m.episode_return:7.1f} | rolling mean {m.rolling_mean:7.1f}"
+            f" | {m.env_steps / max(m.wall_s, 1e-9):>9,.0f} steps/s"
+        )
+        print(f"\r{line}" if self.tty else line, end="" if self.tty else "\n", flush=True)
+
+    def close(self) -> None:
+        if self.tty:
+            print()

@@ -11,7 +11,7 @@ from ablate.reporting.networks import factory_args
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
 from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
-from ablate.reporting.text import NO_REFS, Refs, _interval, _markdown_table, esc, fmt
+from ablate.reporting.text import NO_REFS, Refs, _interval, _markdown_table, esc, fmt, joined, setting_value
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
@@ -299,19 +299,8 @@ def changed_settings(ablation: Ablation, variant: str) -> list[str]:
         for knob, value in mine.items():
             if knob in ablation.changes(variant, reference) or same_value(value, theirs.get(knob)):
                 continue
-            words.append(f"{knob.replace('_', ' ')} ({_value(value)} against {_value(theirs.get(knob))})")
+            words.append(f"{knob.replace('_', ' ')} ({setting_value(value)} against {setting_value(theirs.get(knob))})")
     return words
-
-
-def _value(value) -> str:
-    try:
-        return f"{float(value):g}"
-    except (TypeError, ValueError):
-        return str(value)
-
-
-def _and(words: list[str]) -> str:
-    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
 
 
 def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
@@ -325,7 +314,7 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
             f"{len(several)} comparison{'s change' if len(several) > 1 else ' changes'} more than one knob, so "
             f"{'their differences' if len(several) > 1 else 'its difference'} cannot be put down to one of them: "
             + "; ".join(
-                f"{esc(v)} against {esc(ablation.reference(v))} changes {_and(words)}" for v, words in several.items()
+                f"{esc(v)} against {esc(ablation.reference(v))} changes {joined(words)}" for v, words in several.items()
             )
             + "."
         ]
@@ -448,7 +437,7 @@ def limitations(
                 (
                     "confound",
                     f"**{esc(variant)} changes {len(words)} knobs at once** against {esc(reference)} "
-                    f"({_and(words)}): its difference from {esc(reference)} cannot be attributed to any one of them.",
+                    f"({joined(words)}): its difference from {esc(reference)} cannot be attributed to any one of them.",
                 )
             )
     finished = ablation.finished

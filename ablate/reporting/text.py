@@ -44,6 +44,19 @@ def fmt(x: float | None, digits: int = 0) -> str:
     return f"{x:,.{digits}f}"
 
 
+def setting_value(value) -> str:
+    """A setting's value in a sentence: a number as ``%g`` (0.03, 1e-05), anything else as written."""
+    try:
+        return f"{float(value):g}"
+    except (TypeError, ValueError):
+        return str(value)
+
+
+def joined(words: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
 def _pct(x: float) -> str:
     return f"{int(round(100 * x))}%"
 
