@@ -57,8 +57,8 @@ class ProgressView:
         self.refresh()
 
     def _quartered(self) -> bool:
-        first = self.state.phases[0]
-        return sum(self.state.trials[k].ended_at is not None for k in first) >= len(first) / 4
+        ended, first = self.state.first_ended
+        return ended >= first / 4
 
     # --- rendering --------------------------------------------------------------------------------
     def headline(self) -> str:
@@ -66,15 +66,15 @@ class ProgressView:
         state = self.state
         now = time.monotonic()
         counts = {s: state.count(s) for s in ("done", "running", "pending", "failed")}
-        first = state.phases[0]
         if state.first_start is None:
             status = "starting Ray (its workers import torch before the first trial starts)"
         elif state.trials_end is not None and not state.possible:
             status = "all trials ended"
-        elif (ended := sum(state.trials[k].ended_at is not None for k in first)) < len(first) / 4:
+        elif not self._quartered():
             # Until a quarter of the launch's first trials have ended, their costs are guesses (a launch of 36 read
             # ~0:55 where 2:08 remained): say so, not a figure. Later rounds draw on what these taught.
-            status = f"time left: estimating until a quarter of the trials have ended ({ended} of {len(first)})"
+            ended, first = state.first_ended
+            status = f"time left: estimating until a quarter of the trials have ended ({ended} of {first})"
         else:
             left, most = TimeLeft(state).figures(now)
             status = time_left_words(left, most, state.round if state.possible or state.round > 1 else None)

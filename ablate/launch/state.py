@@ -292,6 +292,12 @@ class LaunchState:
         return self.count("done") + self.count("failed")
 
     @property
+    def first_ended(self) -> tuple[int, int]:
+        """(trials ended, trials) of the launch's first phase: until a quarter have ended, costs are guesses."""
+        first = self.phases[0]
+        return sum(self.trials[k].ended_at is not None for k in first), len(first)
+
+    @property
     def at_most_more(self) -> int:
         """Trials later rounds may still add (0 without rounds, or once every comparison is decided)."""
         return sum(len(r) for r in self.possible)
