@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 
 from ablate.config import DEFAULT_POPULATION
 from ablate.experiment import Experiment
@@ -18,7 +19,7 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     """The two figures a launch's progress line gives, before anything runs: the time of round 1 (with its
     tuning) and the most the launch can take (every comparison to ``max`` seeds, round after round), from the
     store's earlier runs of these trials (and of their variants); without any, a guess in trial counts."""
-    from ablate.launch.estimate import forecast
+    from ablate.launch.estimate import estimate
     from ablate.launch.plan import plan_populations
     from ablate.launch.state import LaunchState
     from ablate.launch.tuning import StagePlan, unique
@@ -38,11 +39,11 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     if experiment.rounds is not None:
         possible = Rounds(experiment, wanted, judge=lambda samples: None).possible({}, known)  # type: ignore[arg-type, return-value]
     every = [*todo, *later, *(t for r in possible for t in r)]
-    prior = earlier_costs(experiment, tracking_uri, [t.key for t in every])
+    prior = costed(every, earlier_costs(experiment, tracking_uri, [t.key for t in every]))
     state = LaunchState(experiment.name, todo, 0, slots, 0.0, prior, groups=groups(todo), later=later,
                         later_groups=groups(later))  # fmt: skip
     state.set_possible(possible, groups([t for r in possible for t in r]))
-    left, most = forecast(state)
+    left, most = estimate(state, state.start) if prior else (None, None)
     more = sum(len(r) for r in possible)
     rounds = f" and at most {more} more in later rounds" if more else ""
     if left is None or most is None:
@@ -59,6 +60,22 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     upper = f", at most ~{clock(most)} in all" if more else ""
     source = f"from the store's earlier runs, on {slots} slot(s)"
     return f"time: {words}{upper} ({len(todo) + len(later)} trials{rounds}; {source})"
+
+
+def costed(trials: list[GridTrial], earlier: dict[str, float]) -> dict[str, float]:
+    """Seconds for each of ``trials`` before anything runs: its earlier run's where the store has one, else the
+    mean of its variant's earlier runs, else of every earlier run (none without any earlier run)."""
+    if not earlier:
+        return {}
+    by_variant: dict[str, list[float]] = {}
+    for t in trials:
+        if t.key in earlier:
+            by_variant.setdefault(t.variant, []).append(earlier[t.key])
+    overall = statistics.fmean(earlier.values())
+    return {
+        t.key: earlier[t.key] if t.key in earlier else statistics.fmean(by_variant.get(t.variant) or [overall])
+        for t in trials
+    }
 
 
 def earlier_costs(experiment: Experiment, tracking_uri: str | None, keys: list[str]) -> dict[str, float]:

@@ -303,22 +303,3 @@ def estimate(state: LaunchState, now: float | None = None) -> tuple[float | None
     """(seconds left in the current round, the most the launch can still take), read under the state's lock."""
     with state.lock:
         return TimeLeft(state).figures(now)
-
-
-def forecast(state: LaunchState) -> tuple[float | None, float | None]:
-    """``estimate`` before anything runs (``ablate run --dry-run``): each trial, stand-in and trial later rounds
-    may add costed at its earlier run's seconds (``state.prior``) where the store has one, else at the mean of its
-    variant's earlier runs, else of every earlier run; ``(None, None)`` without any earlier run."""
-    if not state.prior:
-        return None, None
-    everything = [*state.trials.values(), *state.later, *(t for r in state.possible for t in r)]
-    by_variant: dict[str, list[float]] = {}
-    for t in everything:
-        if t.trial.key in state.prior:
-            by_variant.setdefault(t.trial.variant, []).append(state.prior[t.trial.key])
-    overall = statistics.fmean(state.prior.values())
-    for t in everything:
-        if t.trial.key not in state.prior:
-            seconds = by_variant.get(t.trial.variant)
-            state.prior[t.trial.key] = statistics.fmean(seconds) if seconds else overall
-    return estimate(state, state.start)
