@@ -9,6 +9,7 @@ import pytest
 from test_results import _grid_ablation, _row
 
 from ablate.reporting.comparisons import compare_metric, comparisons
+from ablate.reporting.render import markdown
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import smallest_p_value
 from ablate.reporting.tables import convergence_table
@@ -43,7 +44,7 @@ def _findings_text(ablation):
     from ablate.reporting.findings import findings
 
     table = convergence_table(ablation)
-    return "\n".join(findings(ablation, table, comparisons(ablation)))
+    return markdown(findings(ablation, table, comparisons(ablation)))
 
 
 def test_an_unsolved_variant_gets_a_lower_bound_not_an_estimate_with_an_upper_end():
@@ -90,7 +91,7 @@ def test_three_seeds_against_three_support_no_claim():
     assert "Seeds needed (the primary claim's): about 6 seeds per variant would decide it" in line
     from ablate.reporting.findings import summary
 
-    claims = summary(ablation, convergence_table(ablation), comparisons(ablation))
+    claims = markdown(summary(ablation, convergence_table(ablation), comparisons(ablation)))
     assert "| undetermined |" in claims and "The one primary comparison is a family" in claims
     assert "**b** vs a: **undetermined** (no ordering of 3 and 3 seeds reaches the family level" in claims
     never = _frame({"a": [None, None, None], "b": [None, None, 50]}, budget=100)  # both IQMs use the budget
@@ -215,7 +216,7 @@ def test_the_summary_states_each_primary_claim_in_words_with_the_family_sentence
     samples["same"] = [int(x) for x in rng.normal(505, 20, 8)]
     samples["never"] = [None] * 8
     ablation = _frame(samples)
-    text = summary(ablation, convergence_table(ablation), comparisons(ablation, power=False))
+    text = markdown(summary(ablation, convergence_table(ablation), comparisons(ablation, power=False)))
     assert text.startswith("The 3 primary comparisons form one family whose chance of any false claim is at most 5%")
     assert "Holm's step-down" in text and "on episodes to solve" in text
     assert re.search(r"\*\*fast\*\* is \*\*better\*\* than baseline: \d+% fewer episodes to solve \(interval", text)
@@ -229,10 +230,10 @@ def test_an_undetermined_claim_says_why_and_the_seeds_it_would_take():
     from ablate.reporting.findings import claims
 
     ablation = _frame({"baseline": [500, 520, 480, 510, 530], "slower": [700, 650, 720, 690, 710]})
-    (line,) = [x for x in claims(ablation) if x.startswith("- ")]
+    (line,) = [item.text for item in claims(ablation)[1].items]
     assert "**worse**" in line  # one comparison at 5%: 4/252 = 0.016 is enough
     five = _frame({"baseline": [500, 520, 480, 510, 530], **{f"v{i}": [505, 515, 495, 500, 525] for i in range(9)}})
-    lines = [x for x in claims(five) if x.startswith("- ")]
+    lines = [item.text for item in claims(five)[1].items]
     assert len(lines) == 9 and all("**undetermined** (no ordering of 5 and 5 seeds" in x for x in lines)
     assert all(re.search(r"(about \d+|more than 100) seeds per variant would", x) for x in lines)
 

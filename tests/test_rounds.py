@@ -264,6 +264,8 @@ def fresh_store_uri(tmp_path):
 
 
 def test_the_report_section_says_each_variants_seeds_and_why_it_stopped():
+    from ablate.reporting.blocks import number_tables
+    from ablate.reporting.render import markdown
     from ablate.reporting.rounds import rounds_section
 
     document = {
@@ -275,12 +277,12 @@ def test_the_report_section_says_each_variants_seeds_and_why_it_stopped():
             "null": {"seeds": 15, "verdict": "undetermined", "why": "reached max"},
         },
     }
-    text = rounds_section(document)
+    text = markdown(number_tables(rounds_section(document)))
     assert "5 per variant first, then 5 more per round" in text and "up to 15" in text and "3 rounds ran" in text
-    assert "| fast | 10 | better, decided at round 2 |" in text
+    assert "| fast | 10 | better, decided at round 2 |" in text and "*Table 1. Seeds in rounds*" in text
     assert "| null | 15 | reached the most seeds (max) undecided |" in text
     assert "| baseline | 15 | the reference of the others |" in text
-    assert rounds_section(None) == ""
+    assert rounds_section(None) == []
 
 
 def test_train_from_names_a_seed_a_later_round_runs(tmp_path):

@@ -17,13 +17,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import markdown
 import pandas as pd
 
 from ablate.config import ConfigError
 from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
 from ablate.launch.secrets import Shown, shown_command
-from ablate.reporting import discussion
+from ablate.reporting import discussion, render
 from ablate.reporting.data import report_data
 from ablate.reporting.figures import (
     figure_improvement,
@@ -35,13 +34,13 @@ from ablate.reporting.figures import (
     figure_small_multiples,
     figure_wallclock,
 )
-from ablate.reporting.layout import build_markdown, order_figures
+from ablate.reporting.layout import build_document, order_figures
 from ablate.reporting.provenance import _generation_note, changed_file_note, missing_artifacts_line
 from ablate.reporting.reader import RunReader
 from ablate.reporting.results import Ablation, NoResults, load_ablation, select
 from ablate.reporting.text import fmt
 from ablate.reporting.typeset import compile_pdf as print_pdf
-from ablate.reporting.typeset import number_tables, page_counts, to_typst
+from ablate.reporting.typeset import page_counts, typst
 from ablate.reporting.writers import CSS, _inline
 
 
@@ -252,24 +251,16 @@ def _build(
     figures = order_figures([f for f in candidates if f is not None])
     for number, figure in enumerate(figures, 1):
         figure.number = number
-    numbers = {Path(f.path).stem: f.number for f in figures}
-    curves = [n for n in (numbers.get("learning_curves_episodes"), numbers.get("learning_curves_by_variant")) if n]
-    for figure in figures:
-        figure.caption = figure.caption.replace("{next}", str(numbers.get("learning_curves_by_variant", "–")))
-        figure.caption = figure.caption.replace("Figures 1-2", "Figures " + " and ".join(map(str, curves)))
     videos = _videos(ablation, tracker, folder / "videos")
-    where = final / discussion.FILE
-    text, html_md = build_markdown(data, figures, videos, written, str(where))
-    text, html_md = number_tables(text), number_tables(html_md)
-    (folder / "report.md").write_text(text)
-    body = markdown.markdown(html_md, extensions=["tables"])
+    blocks = build_document(data, figures, videos, written, str(final / discussion.FILE))
+    (folder / "report.md").write_text(render.markdown(blocks))
     page = (
         f"<!doctype html><html><head><meta charset='utf-8'><title>Ablation report: {html.escape(ablation.name)}"
-        f"</title><style>{CSS}</style></head><body>{body}</body></html>"
+        f"</title><style>{CSS}</style></head><body>\n{render.html_body(blocks)}\n</body></html>\n"
     )
     (folder / "report.html").write_text(_inline(page, folder))
-    written = time.strftime("%Y-%m-%d")
-    (folder / "report.typ").write_text(to_typst(text, folder, f"Ablation report: {ablation.name}", written))
+    title, day = f"Ablation report: {ablation.name}", time.strftime("%Y-%m-%d")
+    (folder / "report.typ").write_text(typst(blocks, folder, title, day))
     if not pdf:
         return "no PDF (--no-pdf)"
     return print_pdf(folder / "report.typ", folder / "report.pdf")
@@ -349,5 +340,5 @@ def cmd_report(args: argparse.Namespace) -> int:
     print(f"wrote {result.folder}/: {written}")
     for note in (result.generation_note, result.file_note, result.pdf_note, result.attach_note):
         if note and note != "no PDF (--no-pdf)":
-            print(re.sub(r"</?code>|^> ", "", html.unescape(note)))
+            print(re.sub(r"</?code>", "", html.unescape(note)))
     return 0

@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +24,7 @@ import pandas as pd  # noqa: E402
 from ablate.reporting.reader import RunReader  # noqa: E402
 from ablate.reporting.results import Ablation  # noqa: E402
 from ablate.reporting.statistics import N_RESAMPLES, curve_band  # noqa: E402
-from ablate.reporting.text import esc, fmt  # noqa: E402
+from ablate.reporting.text import Refs, esc, fmt  # noqa: E402
 from ablate.reporting.tuning import METRICS, chosen_values, knobs, same_value, sensitivity  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
@@ -35,9 +35,16 @@ BASELINE_COLOUR = "0.35"
 @dataclass
 class Figure:
     path: str
-    caption: str
+    caption: str | Callable[[Refs], str]
+    """Its caption; one that names other figures is a function of their numbers (``Refs``), given once the
+    report has numbered its figures (``resolve``)."""
     alt: str
     number: int = 0
+
+    def resolve(self, refs: Refs) -> None:
+        """Write the caption that names other figures, now that every figure has its number."""
+        if callable(self.caption):
+            self.caption = self.caption(refs)
 
 
 _kept: list[list] = []
@@ -114,12 +121,16 @@ def figure_overview(ablation: Ablation, folder: Path) -> Figure:
     ax.set_ylabel(f"rolling mean return ({ablation_window(ablation)} episodes), IQM over seeds")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    caption = (
-        f"Learning curves of every variant against episodes; thick grey: {_reference(ablation)}. "
-        f"Lines: IQM across seeds of the rolling mean return over {ablation_window(ablation)} episodes; no bands "
-        "here, so the lines stay readable (Figure {next} shows each variant with its band)."
-        + (f" Dashed: the solve threshold ({ablation.threshold:g})." if ablation.threshold is not None else "")
-    )
+    dashed = f" Dashed: the solve threshold ({ablation.threshold:g})." if ablation.threshold is not None else ""
+
+    def caption(refs: Refs) -> str:
+        return (
+            f"Learning curves of every variant against episodes; thick grey: {_reference(ablation)}. "
+            f"Lines: IQM across seeds of the rolling mean return over {ablation_window(ablation)} episodes; no bands "
+            f"here, so the lines stay readable ({refs.figure('learning_curves_by_variant')} shows each variant with "
+            f"its band).{dashed}"
+        )
+
     return Figure(_save(fig, folder, "learning_curves_episodes"), caption, "Learning curves of every variant")
 
 
@@ -193,12 +204,16 @@ def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
     ax.set_ylabel("rolling mean return, IQM over seeds")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    caption = (
-        "Learning curves against wall-clock time (log axis), IQM across seeds, no bands. Caveat: trials ran "
-        "several at a time on shared CPUs beside the driver process, so their clocks include contention and move "
-        "between runs and machines; compare variants on episodes (Figures 1-2), and read this figure for rough "
-        "cost only. A curve stops where fewer than half its seeds are still running."
-    )
+
+    def caption(refs: Refs) -> str:
+        episodes = refs.figures_of("learning_curves_episodes", "learning_curves_by_variant")
+        return (
+            "Learning curves against wall-clock time (log axis), IQM across seeds, no bands. Caveat: trials ran "
+            "several at a time on shared CPUs beside the driver process, so their clocks include contention and "
+            f"move between runs and machines; compare variants on episodes ({episodes}), and read this figure for "
+            "rough cost only. A curve stops where fewer than half its seeds are still running."
+        )
+
     return Figure(_save(fig, folder, "learning_curves_wallclock"), caption, "Learning curves against wall-clock")
 
 

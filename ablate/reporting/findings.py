@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.claims import BETTER, EQUIVALENT, WORSE, Question, family_sentence
+from ablate.reporting.blocks import Block, Item, Items, Paragraph, Table
 from ablate.reporting.comparisons import claims_design, claims_table, primary_question
 from ablate.reporting.results import Ablation
 from ablate.reporting.sections import _episodes_cell, _extends, _stat_cell
@@ -19,7 +20,7 @@ from ablate.reporting.statistics import (
     TOO_FEW_SEEDS,
     smallest_p_value,
 )
-from ablate.reporting.text import _interval, _markdown_table, _metric_name, _pct, _signed, _signed_pct, esc, fmt
+from ablate.reporting.text import _interval, _metric_name, _pct, _signed, _signed_pct, esc, fmt
 
 
 def _findings_intro(ablation: Ablation) -> str:
@@ -171,25 +172,27 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     return f"{name}: *{NOT_SEPARATED}*, {stat} {x} vs {y} ({_signed(row.point)}; {interval}).{reading}"
 
 
-def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[str]:
+def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> list[Block]:
     """Per variant, one line per metric; no claim without an interval, bounds worded as bounds. What holds
     for every comparison (too few seeds for any claim) is said once, first."""
-    lines = [
-        "*Exploratory:* every metric, each comparison judged on its own by its 95% bootstrap interval "
-        "(unadjusted for the others: about one in twenty true nulls reads as a difference here). The report's "
-        "claims are the primary ones, above.",
-        "",
+    blocks: list[Block] = [
+        Paragraph(
+            "*Exploratory:* every metric, each comparison judged on its own by its 95% bootstrap interval "
+            "(unadjusted for the others: about one in twenty true nulls reads as a difference here). The report's "
+            "claims are the primary ones, above."
+        )
     ]
     undecidable = compare[compare.verdict == TOO_FEW_SEEDS] if len(compare) else compare
     if len(undecidable):
         pairs = sorted({(int(r.n_variant), int(r.n_reference)) for r in undecidable.itertuples()})
         reasons = "; ".join(_no_claim_reason(n, m) for n, m in pairs)
-        lines += [
-            f"**Too few seeds for a claim** ({reasons}): {len(undecidable)} of {len(compare)} comparisons below "
-            f"read *{TOO_FEW_SEEDS}*. Their estimates are pointers for a larger run, not results; *seeds "
-            "needed* says how many would do.",
-            "",
-        ]
+        blocks.append(
+            Paragraph(
+                f"**Too few seeds for a claim** ({reasons}): {len(undecidable)} of {len(compare)} comparisons below "
+                f"read *{TOO_FEW_SEEDS}*. Their estimates are pointers for a larger run, not results; *seeds "
+                "needed* says how many would do."
+            )
+        )
     claims = compare[compare.verdict.isin(list(SEPARATED))] if len(compare) else compare
     if len(claims):
         checked = claims[claims.loo_checked.astype(bool)] if "loo_checked" in claims else claims
@@ -204,12 +207,13 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
                 "Leaving out one of so few seeds leaves too few for any claim, so the claims of a variant with 4 "
                 "seeds or fewer were not checked that way."
             )
-        lines += [" ".join(notes), ""]
+        blocks.append(Paragraph(" ".join(notes)))
+    items: list[Item] = []
     for variant in ablation.variants:
         rows = compare[compare.variant == variant] if len(compare) else compare
         if rows.empty:
             continue
-        lines.append(f"- **{esc(variant)}** vs {esc(ablation.reference(variant))}:")
+        sub = []
         for _, row in rows.iterrows():
             text = finding(row, ablation, table)
             if row.get("primary", False) and row.claim:
@@ -219,14 +223,17 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
                     f" P(fewer episodes) = {row.p_improvement:.2f} "
                     f"{_interval(row.p_improvement_ci_low, row.p_improvement_ci_high, 2)}."
                 )
-            lines.append(f"    - {text}")
+            sub.append(text)
+        items.append(Item(f"**{esc(variant)}** vs {esc(ablation.reference(variant))}:", tuple(sub)))
     for _, row in table.iterrows():
         if row.seeds_run and ablation.threshold is not None and row.solved < row.seeds_run:
-            lines.append(
-                f"- **{esc(row.variant)}**: {int(row.seeds_run - row.solved)} of {int(row.seeds_run)} seeds did "
-                f"not solve within {fmt(row.budget)} episodes."
+            items.append(
+                Item(
+                    f"**{esc(row.variant)}**: {int(row.seeds_run - row.solved)} of {int(row.seeds_run)} seeds did "
+                    f"not solve within {fmt(row.budget)} episodes."
+                )
             )
-    return lines
+    return blocks + ([Items(tuple(items))] if items else [])
 
 
 def _rank_key(ablation: Ablation, row: pd.Series) -> tuple:
@@ -292,34 +299,35 @@ def claim_line(row: pd.Series, question: Question) -> str:
             if reaches
             else ""
         )
-        return f"- **{variant}** is **{row.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}{step}."
+        return f"**{variant}** is **{row.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}{step}."
     if row.verdict == EQUIVALENT:
         margin = _pct(question.smallest_effect)
-        return f"- **{variant}** is **equivalent** to {reference} within ±{margin}: {effect}; {iqms}; {seeds}."
+        return f"**{variant}** is **equivalent** to {reference} within ±{margin}: {effect}; {iqms}; {seeds}."
     needed = "" if pd.isna(row.seeds_needed) else f"; {_seeds_needed_words(row.seeds_needed, int(row.seeds_cap))}"
-    return f"- **{variant}** vs {reference}: **undetermined** ({row.reason}): {effect}; {iqms}; {seeds}{needed}."
+    return f"**{variant}** vs {reference}: **undetermined** ({row.reason}): {effect}; {iqms}; {seeds}{needed}."
 
 
-def claims(ablation: Ablation, table: pd.DataFrame | None = None) -> list[str]:
+def claims(ablation: Ablation, table: pd.DataFrame | None = None) -> list[Block]:
     """The primary claims (``table``: ``claims_table``, computed when not given): one sentence naming the family,
-    the correction and the level, then one line per row with its verdict, effect, interval and seeds."""
+    the correction and the level, then a list of one item per row with its verdict, effect, interval and seeds."""
     table = table if table is not None else claims_table(ablation)
     question = primary_question(ablation)
     k = len(table)
     if not k:
-        return ["No variant has finished seeds to compare with its reference."]
+        return [Paragraph("No variant has finished seeds to compare with its reference.")]
     design = claims_design(ablation)
-    lines = [
+    intro = (
         f"{family_sentence(k, sequential=design.max > design.start)} The claims are on "
         f"{_metric_name(question.metric)} (the experiment's primary question); each interval is simultaneous "
         f"over the {k} (95% for all of them together); "
-        f"*equivalent* means within ±{_pct(question.smallest_effect)} of the reference.",
-        "",
-    ]
-    return lines + [claim_line(row, question) for _, row in table.iterrows()]
+        f"*equivalent* means within ±{_pct(question.smallest_effect)} of the reference."
+    )
+    return [Paragraph(intro), Items.of(claim_line(row, question) for _, row in table.iterrows())]
 
 
-def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame, claimed: pd.DataFrame | None = None) -> str:
+def summary(
+    ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame, claimed: pd.DataFrame | None = None
+) -> list[Block]:
     """The primary claims first (``claimed``: ``claims_table``, computed when not given); then the variants
     ranked on the primary metric with each one's own 95% interval (exploratory: unadjusted)."""
     claimed = claimed if claimed is not None else claims_table(ablation)
@@ -348,14 +356,12 @@ def summary(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame, clai
         if ablation.any_solved
         else "highest area under the learning curve (IQM)"
     )
-    return "\n".join(
-        [
-            *claims(ablation, claimed),
-            "",
+    return [
+        *claims(ablation, claimed),
+        Paragraph(
             f"*Exploratory:* the variants ranked by {how}, each interval a 95% bootstrap interval of that variant "
             f"alone (unadjusted: not a claim). A rank orders point estimates only; the last column repeats the "
-            f"primary claim on {_metric_name(primary)}.",
-            "",
-            _markdown_table(pd.DataFrame(rows)),
-        ]
-    )
+            f"primary claim on {_metric_name(primary)}."
+        ),
+        Table(pd.DataFrame(rows)),
+    ]

@@ -4,11 +4,22 @@ an appendix with everything else (every table, every comparison, the tuning, the
 
 from __future__ import annotations
 
-import html
-import re
 from pathlib import Path
 
 from ablate.launch.secrets import shown_command
+from ablate.reporting.blocks import (
+    AppendixStart,
+    Authored,
+    Block,
+    Heading,
+    Items,
+    Note,
+    Paragraph,
+    Picture,
+    Videos,
+    number_tables,
+    paragraphs,
+)
 from ablate.reporting.data import ReportData
 from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
@@ -23,11 +34,11 @@ from ablate.reporting.provenance import (
 from ablate.reporting.results import Ablation
 from ablate.reporting.rounds import rounds_section
 from ablate.reporting.sections import (
-    _convergence_markdown,
-    _method,
     _sampling_videos,
     comparison_intro,
+    convergence_blocks,
     limitations,
+    method_blocks,
 )
 from ablate.reporting.text import Refs, _metric_name, esc
 from ablate.reporting.tuning_sections import dependence_section, knob_words, tuning_section
@@ -116,162 +127,145 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
     )
 
 
-def _discussion(ablation: Ablation, discussion: Discussion, where: str) -> list[str]:
+def _discussion(discussion: Discussion, where: str) -> list[Block]:
     if discussion.text is None:
-        return [f"## Discussion{f' — {esc(discussion.author)}' if discussion.author else ''}", "", missing_line(where)]
-    author = discussion.author or "the author (no Author line in discussion.md)"
-    text = re.sub(r"^(#{1,4}) ", r"\1### ", discussion.text, flags=re.M)  # its headings nest under this one
-    return [f"## Discussion — {esc(author)}", "", f"*Written by {esc(author)}; printed as written.*", "", text]
+        title = f"Discussion{f' — {esc(discussion.author)}' if discussion.author else ''}"
+        return [Heading(title), Paragraph(missing_line(where))]
+    author = esc(discussion.author or "the author (no Author line in discussion.md)")
+    return [
+        Heading(f"Discussion — {author}"),
+        Paragraph(f"*Written by {author}; printed as written.*"),
+        Authored(discussion.text),
+    ]
 
 
-def build_markdown(
+def _videos_intro(ablation: Ablation, videos: list[dict[str, str]], letter: str) -> list[Block]:
+    if not videos:
+        return [Heading("Videos", 3, True, letter)]
+    if _sampling_videos(ablation):
+        frames = int(ablation.grid["base"].get("video_max_frames", 500))
+        return [
+            Heading("Videos of the trained agent", 3, True, letter),
+            Paragraph(
+                "Each video is the trained policy sampling its actions, as in training, on a seed training never "
+                f"used: up to {frames:,} frames ({frames / 30:.0f} s at 30 frames/s), for two seeds per variant chosen "
+                "as the captions say. Not greedy: a Pong agent that has not learnt much holds one button for the whole "
+                "video when it always takes its most likely action. Each trial's MLflow run also holds videos of it "
+                "playing during training (`videos/`)."
+            ),
+        ]
+    return [
+        Heading("Videos of the greedy agent", 3, True, letter),
+        Paragraph(
+            "Each video is one greedy episode (the most likely action at every step) of a trained agent, for two "
+            "seeds per variant chosen as the captions say."
+        ),
+    ]
+
+
+def build_document(
     data: ReportData,
     figures: list[Figure],
     videos: list[dict[str, str]],
     discussion: Discussion | None = None,
     discussion_path: str = "discussion.md",
-) -> tuple[str, str]:
-    """The report in Markdown, and the HTML-ready variant (``<figure>`` and ``<video>`` blocks), from its data
-    computed once (``data.ReportData``): the Claims section from ``data.claims``, the findings from
-    ``data.comparisons``, the tables from ``data.convergence``."""
+) -> list[Block]:
+    """The report as blocks, from its data computed once (``data.ReportData``): the Claims section from
+    ``data.claims``, the findings from ``data.comparisons``, the tables from ``data.convergence``. ``figures``
+    are numbered (``order_figures``); every cross-reference and table number is resolved here."""
     ablation, table, compare, claimed = data.ablation, data.convergence, data.comparisons, data.claims
     command, untuned = data.command, data.untuned
     discussion = discussion or Discussion(None, None)
     failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
-    numbers = {Path(f.path).stem: f.number for f in figures}
     tuned_dependence = bool(ablation.tuning and untuned is not None)
     appendix = ["method", "results", "comparisons"]
     appendix[1:1] = ["tuning"] if ablation.tuning else []
     appendix += ["dependence"] if tuned_dependence else []
     appendix += ["figures", "videos"] + (["failed"] if len(failed) else []) + ["limitations", "record", "glossary"]
     letters = {name: chr(ord("A") + i) for i, name in enumerate(appendix)}
-    refs = Refs(letters, numbers)  # every cross-reference resolved before a section is written
+    refs = Refs(letters, {Path(f.path).stem: f.number for f in figures})  # every cross-reference, resolved first
+    for f in figures:
+        f.resolve(refs)
 
     author = esc(discussion.author) if discussion.author and discussion.text else "the student"
-    parts = [f"# Ablation report: {esc(ablation.name)}", ""]
-    for note in (_generation_note(ablation), changed_file_note(ablation)):
-        parts += [note, ""] if note else []
-    parts += [
-        f"*Every section marked {GENERATED} is written by ablate from the tracking store; the Discussion is "
-        f"{author}'s own. The appendix holds every table and comparison.*",
-        "",
-    ]
+    doc: list[Block] = [Heading(f"Ablation report: {esc(ablation.name)}", 1)]
+    doc += [Note(n) for n in (_generation_note(ablation), changed_file_note(ablation)) if n]
+    doc.append(
+        Paragraph(
+            f"*Every section marked {GENERATED} is written by ablate from the tracking store; the Discussion is "
+            f"{author}'s own. The appendix holds every table and comparison.*"
+        )
+    )
     if len(failed):
-        parts += [
-            f"> {len(failed)} of {len(ablation.trials)} trials did not finish (failed, killed or not run); "
-            f"they are left out of the statistics and listed in Appendix {letters['failed']}.",
-            "",
-        ]
+        doc.append(
+            Note(
+                f"{len(failed)} of {len(ablation.trials)} trials did not finish (failed, killed or not run); "
+                f"they are left out of the statistics and listed in Appendix {letters['failed']}."
+            )
+        )
     lost = missing_artifacts_note(ablation)
-    parts += [lost, ""] if lost else []
-    parts += [f"## Question {GENERATED}", "", question(ablation), ""]
-    parts += [f"## Method {GENERATED}", "", method_paragraph(ablation, letters), ""]
-    parts += [f"## Claims {GENERATED}", "", summary(ablation, table, compare, claimed), ""]
-    confounded = [line for line in comparison_intro(ablation) if line]
-    if confounded:
-        parts += [" ".join(confounded), ""]
-    parts += [
-        f"Every comparison on every metric, with its interval: Appendix {letters['comparisons']}; every table: "
-        f"Appendix {letters['results']}.",
-        "",
-    ]
+    doc += [Note(lost)] if lost else []
+    doc += [Heading("Question", generated=True), Paragraph(question(ablation))]
+    doc += [Heading("Method", generated=True), Paragraph(method_paragraph(ablation, letters))]
+    doc += [Heading("Claims", generated=True), *summary(ablation, table, compare, claimed)]
+    doc += paragraphs(" ".join(line for line in comparison_intro(ablation) if line))
+    doc.append(
+        Paragraph(
+            f"Every comparison on every metric, with its interval: Appendix {letters['comparisons']}; every table: "
+            f"Appendix {letters['results']}."
+        )
+    )
     shown = body_figures(figures)
-    parts += [f"## Figures {GENERATED}", ""] if shown else []
-    for f in shown:
-        parts += [f"FIGURE:{f.number}", ""]
+    doc += [Heading("Figures", generated=True), *(Picture(f) for f in shown)] if shown else []
     kept = [
         text for kind, text in limitations(ablation, table, compare, bool(videos), refs) if kind in BODY_LIMITATIONS
     ]
-    parts += [f"## Limitations {GENERATED}", "", *[f"- {line}" for line in kept], ""]
-    parts += [*_discussion(ablation, discussion, discussion_path), ""]
-    parts += ["## References", "", *[f"- {ref}" for ref in references(ablation)], ""]
+    doc += [Heading("Limitations", generated=True), Items.of(kept)]
+    doc += _discussion(discussion, discussion_path)
+    doc += [Heading("References"), Items.of(references(ablation))]
 
-    parts += ["## Appendix", ""]
-    parts += [f"### {letters['method']}. Method in detail {GENERATED}", "", _method(ablation, table, refs), ""]
-    seeds_in_rounds = rounds_section(ablation.launch.get("rounds"))  # each variant's seeds and why it stopped
-    parts += [seeds_in_rounds, ""] if seeds_in_rounds else []
+    doc += [AppendixStart(), Heading("Method in detail", 3, True, letters["method"])]
+    doc += [*method_blocks(ablation, table, refs), *rounds_section(ablation.launch.get("rounds"))]
     if ablation.tuning:
-        parts += [f"### {letters['tuning']}. Tuning {GENERATED}", "", tuning_section(ablation, refs), ""]
-    parts += [
-        f"### {letters['results']}. Results {GENERATED}",
-        "",
-        _convergence_markdown(ablation, table),
-        "Tables as CSV: tables/convergence.csv, tables/comparisons.csv, tables/trials.csv"
-        + (", tables/tuning.csv." if ablation.tuning else "."),
-        "",
-        f"### {letters['comparisons']}. Every comparison {GENERATED}",
-        "",
-        " ".join(comparison_intro(ablation, full=True))
-        + ", on "
-        + ", ".join(_metric_name(m) for m in dict.fromkeys(compare.metric) if isinstance(m, str))
-        + ". Episodes: the relative change of the IQM; returns: the difference of the IQMs; each with its 95% "
-        "interval, sized as a bound where censoring makes it one.",
-        "",
+        doc += [Heading("Tuning", 3, True, letters["tuning"]), *tuning_section(ablation, refs)]
+    doc += [Heading("Results", 3, True, letters["results"]), *convergence_blocks(ablation, table)]
+    doc.append(
+        Paragraph(
+            "Tables as CSV: tables/convergence.csv, tables/comparisons.csv, tables/trials.csv"
+            + (", tables/tuning.csv." if ablation.tuning else ".")
+        )
+    )
+    metrics = ", ".join(_metric_name(m) for m in dict.fromkeys(compare.metric) if isinstance(m, str))
+    doc += [
+        Heading("Every comparison", 3, True, letters["comparisons"]),
+        Paragraph(
+            " ".join(comparison_intro(ablation, full=True))
+            + f", on {metrics}. Episodes: the relative change of the IQM; returns: the difference of the IQMs; each "
+            "with its 95% interval, sized as a bound where censoring makes it one."
+        ),
         *findings(ablation, table, compare),
-        "",
     ]
     if tuned_dependence:
-        parts += [
-            f"### {letters['dependence']}. Does the finding depend on {knob_words(ablation)}? {GENERATED}",
-            "",
-            dependence_section(ablation, compare, untuned),
-            "",
-        ]
+        title = f"Does the finding depend on {knob_words(ablation)}?"
+        doc += [Heading(title, 3, True, letters["dependence"]), *dependence_section(ablation, compare, untuned)]
     rest = [f for f in figures if f not in shown]
-    parts += [f"### {letters['figures']}. More figures {GENERATED}", ""]
-    parts += [line for f in rest for line in (f"FIGURE:{f.number}", "")] or ["No other figures.", ""]
-    if not videos:
-        parts += [f"### {letters['videos']}. Videos {GENERATED}", ""]
-    elif _sampling_videos(ablation):
-        frames = int(ablation.grid["base"].get("video_max_frames", 500))
-        parts += [
-            f"### {letters['videos']}. Videos of the trained agent {GENERATED}",
-            "",
-            "Each video is the trained policy sampling its actions, as in training, on a seed training never used: "
-            f"up to {frames:,} frames ({frames / 30:.0f} s at 30 frames/s), for two seeds per variant chosen as the "
-            "captions say. Not greedy: a Pong agent that has not learnt much holds one button for the whole video "
-            "when it always takes its most likely action. Each trial's MLflow run also holds videos of it playing "
-            "during training (`videos/`).",
-            "",
-        ]
-    else:
-        parts += [
-            f"### {letters['videos']}. Videos of the greedy agent {GENERATED}",
-            "",
-            "Each video is one greedy episode (the most likely action at every step) of a trained agent, for two "
-            "seeds per variant chosen as the captions say.",
-            "",
-        ]
-    parts += ["VIDEOS_PLACEHOLDER", ""]
+    doc += [Heading("More figures", 3, True, letters["figures"])]
+    doc += [Picture(f) for f in rest] or [Paragraph("No other figures.")]
+    doc += [*_videos_intro(ablation, videos, letters["videos"]), Videos(tuple(videos))]
     if len(failed):
-        parts += [f"### {letters['failed']}. Trials that did not finish {GENERATED}", ""]
-        parts += [
-            f"- {esc(r.key)}: {r.status}{(' — ' + esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
-            for r in failed.itertuples()
+        doc += [
+            Heading("Trials that did not finish", 3, True, letters["failed"]),
+            Items.of(
+                f"{esc(r.key)}: {r.status}{(' — ' + esc(r.error)) if isinstance(r.error, str) and r.error else ''}"
+                for r in failed.itertuples()
+            ),
         ]
-        parts.append("")
     every = [text for _, text in limitations(ablation, table, compare, bool(videos), refs)]
-    parts += [f"### {letters['limitations']}. Every limitation {GENERATED}", "", *[f"- {t}" for t in every], ""]
+    doc += [Heading("Every limitation", 3, True, letters["limitations"]), Items.of(every)]
     record = _reproducibility(ablation, command or shown_command(["ablate", "report", ablation.name]))
-    parts += [f"### {letters['record']}. Reproducibility {GENERATED}", "", record, ""]
-    parts += [f"### {letters['glossary']}. Glossary", "", *[f"- **{term}.** {text}" for term, text in GLOSSARY], ""]
-    text = "\n".join(parts)
-    md_text, html_text = text, text
-    for f in figures:
-        md_text = md_text.replace(
-            f"FIGURE:{f.number}\n", f"![{f.alt}]({f.path})\n\n*Figure {f.number}. {f.caption}*\n", 1
-        )
-        html_text = html_text.replace(
-            f"FIGURE:{f.number}\n",
-            f'<figure id="figure-{f.number}"><img src="{f.path}" alt="{html.escape(f.alt)}">'
-            f"<figcaption><strong>Figure {f.number}.</strong> {f.caption}</figcaption></figure>\n",
-            1,
-        )
-    links = "\n".join(f"- [{esc(v['caption'])}]({v['path']})" for v in videos) or "No videos were recorded."
-    blocks = "\n".join(
-        f'<figure class="video"><video controls muted loop preload="metadata" src="{html.escape(v["path"])}">'
-        f"</video><figcaption>{html.escape(v['caption'])}</figcaption></figure>"
-        for v in videos
-    )
-    html_text = html_text.replace("VIDEOS_PLACEHOLDER", f'<div class="videos">\n{blocks}\n</div>' if videos else links)
-    return md_text.replace("VIDEOS_PLACEHOLDER", links), html_text
+    doc += [Heading("Reproducibility", 3, True, letters["record"]), *record]
+    doc += [
+        Heading("Glossary", 3, letter=letters["glossary"]),
+        Items.of(f"**{term}.** {text}" for term, text in GLOSSARY),
+    ]
+    return number_tables(doc)

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from ablate.launch.secrets import Shown, shown
+from ablate.reporting.blocks import Block, Items, Paragraph
 from ablate.reporting.results import Ablation
 from ablate.reporting.text import esc
 
@@ -51,7 +52,7 @@ def experiment_file_state(commit: str, path: str, text: str | None, cwd: str | P
     return f"The experiment file {esc(path)} is the one committed at {esc(commit[:12])}."
 
 
-def _reproducibility(ablation: Ablation, command: Shown) -> str:
+def _reproducibility(ablation: Ablation, command: Shown) -> list[Block]:
     """The reproducibility record. ``command`` (the report's) is taken masked (``secrets.shown_command``), never
     as typed; the launch's, read from the store, is masked again here (a store written before the masks)."""
     if not isinstance(command, Shown):
@@ -68,26 +69,26 @@ def _reproducibility(ablation: Ablation, command: Shown) -> str:
     )
     launched = shown(tags.get("ablate.command") or "ablate run " + tags.get("ablate.experiment_file", ""))
     lines = [
-        f"- Command: <code>{esc(launched)}</code>",
-        f"- Code version (git commit): <code>{esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>"
+        f"Command: <code>{esc(launched)}</code>",
+        f"Code version (git commit): <code>{esc(tags.get('mlflow.source.git.commit', 'unknown'))}</code>"
         + (f". {state}" if state else ""),
-        f"- Machine: {esc(environment.get('machine', 'unknown'))}; CPU model: {esc(cpu)}; torch CPU capability "
+        f"Machine: {esc(environment.get('machine', 'unknown'))}; CPU model: {esc(cpu)}; torch CPU capability "
         f"(the vector kernels torch picked): {esc(capability)}",
-        f"- Python {esc(environment.get('python', '?'))}; "
+        f"Python {esc(environment.get('python', '?'))}; "
         + ", ".join(f"{esc(k)} {esc(v)}" for k, v in versions.items()),
-        f"- MLflow launch run: <code>{esc(ablation.launch['run_id'])}</code> (generation "
+        f"MLflow launch run: <code>{esc(ablation.launch['run_id'])}</code> (generation "
         f"<code>{esc(tags.get('ablate.generation', ''))}</code>); this report is attached to it as artifacts.",
-        f"- Report written {time.strftime('%Y-%m-%d %H:%M')}, from the tracking store only: "
-        f"<code>{esc(command)}</code>",
-        "",
+        f"Report written {time.strftime('%Y-%m-%d %H:%M')}, from the tracking store only: <code>{esc(command)}</code>",
+    ]
+    meaning = (
         '**What "the same results" means here.** A trial is deterministic given its config and seed on one '
         "machine: the test suite runs a trial twice and checks identical returns. Nothing else was verified. Float "
         "kernels differ between CPU models and torch CPU capabilities, so on a machine other than the one above "
         f"(CPU model {esc(cpu)}, capability {esc(capability)}, the package versions above) a seed can follow "
         "another trajectory and the numbers here will differ; the leave-one-seed-out check in the findings shows how "
-        "much each conclusion depends on any one seed.",
-    ]
-    return "\n".join(lines)
+        "much each conclusion depends on any one seed."
+    )
+    return [Items.of(lines), Paragraph(meaning)]
 
 
 def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
@@ -106,7 +107,7 @@ def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
     if now.strip() == ran.strip():
         return ""
     return (
-        f"> **The experiment file {esc(path)} has changed since this launch ran it**: this report describes the "
+        f"**The experiment file {esc(path)} has changed since this launch ran it**: this report describes the "
         f"launch's copy (stored with it); <code>ablate run {esc(path)} --fresh</code> runs the file as it is now."
     )
 
@@ -120,7 +121,7 @@ def _generation_note(ablation: Ablation) -> str:
     if done >= total:
         return ""
     others = [g for g in generations if g["generation"] != current and g["finished"] > done]
-    note = f"> This report covers generation {esc(current)}, where {done} of {total} trials finished."
+    note = f"This report covers generation {esc(current)}, where {done} of {total} trials finished."
     if others:
         note += (
             f" Generation {esc(others[0]['generation'])} has {others[0]['finished']} finished trials: "
@@ -141,7 +142,7 @@ def missing_artifacts_note(ablation: Ablation) -> str:
     one = len(keys) == 1
     few = f"{len(keys)} finished trial{'' if one else 's'}"
     return (
-        f"> The episodes.csv of {few} could not be read from the store ({esc(_listed(keys))}): "
+        f"The episodes.csv of {few} could not be read from the store ({esc(_listed(keys))}): "
         f"{'its' if one else 'their'} artifact folder was moved or removed. {'Its row' if one else 'Their rows'} "
         f"in the tables {'holds' if one else 'hold'} the tracked metrics and params (solved, "
         "episodes to solve, final rolling mean); the measures read from that file (AUC, the untrained return, "

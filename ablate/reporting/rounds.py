@@ -103,24 +103,29 @@ WHY = {
 }
 
 
-def rounds_section(document: Mapping[str, Any] | None) -> str:
-    """Markdown: the design of the rounds, then per variant its seeds and why it got no more. ``document``: the
-    launch's ``rounds.json`` (``""`` without rounds)."""
+def rounds_section(document: Mapping[str, Any] | None) -> list[Any]:
+    """The design of the rounds, then a table of each variant's seeds and why it got no more (report blocks).
+    ``document``: the launch's ``rounds.json`` (no blocks without rounds)."""
+    import pandas as pd  # here, not above: a launch imports this module for its judge, and starts faster without
+
+    from ablate.reporting.blocks import Paragraph, Table
+    from ablate.reporting.text import esc
+
     if not document:
-        return ""
+        return []
     design = document["design"]
     budget = f", no new round after {design['max_minutes']:g} minutes" if design.get("max_minutes") else ""
-    lines = [
+    intro = (
         f"Seeds were added in rounds: {design['start']} per variant first, then {design['step']} more per round to "
         f"each variant whose primary comparison was still undetermined (and its reference), up to {design['max']}"
         f"{budget}; the error rate holds across the rounds (an alpha-spending boundary). "
-        f"{document['round']} round{'s' if document['round'] != 1 else ''} ran.",
-        "",
-        "| variant | seeds | why it stopped |",
-        "| --- | --- | --- |",
-    ]
+        f"{document['round']} round{'s' if document['round'] != 1 else ''} ran."
+    )
+    rows = []
     for name, entry in document["variants"].items():
         why = entry.get("why") or "the reference of the others"
         verdict = f"{entry['verdict']}, " if entry.get("verdict") and why.startswith("decided") else ""
-        lines.append(f"| {name} | {entry.get('seeds', 0)} | {verdict}{WHY.get(why, why)} |")
-    return "\n".join(lines)
+        rows.append(
+            {"variant": esc(name), "seeds": entry.get("seeds", 0), "why it stopped": f"{verdict}{WHY.get(why, why)}"}
+        )
+    return [Paragraph(intro), Table(pd.DataFrame(rows), "Seeds in rounds")]

@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.figures import ablation_window
 from ablate.reporting.networks import factory_args
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
 from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
-from ablate.reporting.text import NO_REFS, Refs, _interval, _markdown_table, esc, fmt, joined, setting_value
+from ablate.reporting.text import NO_REFS, Refs, _interval, esc, fmt, joined, setting_value
 
 # Knobs that together make one architecture: a variant changing several of them changes one thing.
 ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
@@ -126,7 +127,8 @@ def _seeds_ran(ablation: Ablation, planned: list[int]) -> str:
     return f"{fewest} to {most} per variant ({seeds}: {len(planned)} at first, more in rounds while one was open)"
 
 
-def _method(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS) -> str:
+def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS) -> list[Block]:
+    """Appendix A: the environment, algorithm, seeds, variants (a table), base settings (a table), statistics."""
     base = ablation.grid["base"]
     threshold = ablation.threshold
     seeds = ablation.grid["seeds"]
@@ -146,20 +148,20 @@ def _method(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS) -> st
     reset = (
         " Pong's discounted return restarts at every point scored." if ablation.env_id.startswith("ALE/Pong") else ""
     )
-    lines = [
-        env,
-        "",
-        "**Algorithm.** REINFORCE (Williams, 1992), the vanilla policy gradient: actions sampled from the softmax "
-        "of the policy's logits; each episode's rewards discounted (gamma "
-        f"{base.get('gamma', '?')}), the returns normalised by mean and standard deviation across the update's "
-        "batch; loss = softmax cross-entropy of the taken actions weighted by those returns; one Adam step per "
-        f"update of {_episodes(base.get('episodes_per_update', '?'))}. L2 is a loss term over weight matrices; "
-        f"dropout is active in updates and off while acting.{reset}",
-        "",
-        f"**Seeds.** {_seeds_ran(ablation, seeds)}: each seeds torch, the action sampler and the environment.",
-        "",
-        "**Variants.** Each changes the listed knobs over the base; every other knob is the base's.",
-        "",
+    blocks: list[Block] = [
+        Paragraph(env),
+        Paragraph(
+            "**Algorithm.** REINFORCE (Williams, 1992), the vanilla policy gradient: actions sampled from the softmax "
+            "of the policy's logits; each episode's rewards discounted (gamma "
+            f"{base.get('gamma', '?')}), the returns normalised by mean and standard deviation across the update's "
+            "batch; loss = softmax cross-entropy of the taken actions weighted by those returns; one Adam step per "
+            f"update of {_episodes(base.get('episodes_per_update', '?'))}. L2 is a loss term over weight matrices; "
+            f"dropout is active in updates and off while acting.{reset}"
+        ),
+        Paragraph(
+            f"**Seeds.** {_seeds_ran(ablation, seeds)}: each seeds torch, the action sampler and the environment."
+        ),
+        Paragraph("**Variants.** Each changes the listed knobs over the base; every other knob is the base's."),
     ]
     rows = []
     for variant in ablation.grid["variants"]:
@@ -176,33 +178,33 @@ def _method(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS) -> st
                 "parameters": fmt(count.iloc[0]) if len(count) and not pd.isna(count.iloc[0]) else "–",
             }
         )
-    lines.append(_markdown_table(pd.DataFrame(rows)))
-    lines += ["", "**Base hyper-parameters.**", ""]
+    blocks += [Table(pd.DataFrame(rows), "Variants"), Paragraph("**Base hyper-parameters.**")]
     keep = ("learning_rate", "gamma", "episodes_per_update", "max_episodes", "solve_window", "l2")
     if ablation.env_id.startswith("ALE/Pong"):
         keep += ("action_set", "frameskip", "max_episode_steps")
-    lines.append(_markdown_table(pd.DataFrame([{k: base[k] for k in keep if k in base}])))
+    blocks.append(Table(pd.DataFrame([{k: base[k] for k in keep if k in base}]), "Base hyper-parameters"))
     if ablation.tuning:
         tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
-        lines += [
-            "",
-            f"Tuned per variant (see {refs.appendix('tuning')}): {esc(tuned_knobs)}; the base value above is the "
-            "untuned "
-            "one.",
-        ]
-    lines += [
-        "",
-        "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
-        f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, never "
-        f"dropped: a statistic that uses one is a lower bound, marked ≥. {refs.appendix('glossary')} defines each "
-        "term."
-        + (
-            " With fewer than 4 seeds the IQM trims nothing: it is the plain mean, and the findings call it so."
-            if len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
-            else ""
-        ),
-    ]
-    return "\n".join(lines)
+        blocks.append(
+            Paragraph(
+                f"Tuned per variant (see {refs.appendix('tuning')}): {esc(tuned_knobs)}; the base value above is "
+                "the untuned one."
+            )
+        )
+    blocks.append(
+        Paragraph(
+            "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
+            f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, "
+            "never dropped: a statistic that uses one is a lower bound, marked ≥. "
+            f"{refs.appendix('glossary')} defines each term."
+            + (
+                " With fewer than 4 seeds the IQM trims nothing: it is the plain mean, and the findings call it so."
+                if len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
+                else ""
+            )
+        )
+    )
+    return blocks
 
 
 def _episodes_cell(row: pd.Series, stat: str) -> str:
@@ -217,8 +219,9 @@ def _stat_cell(row: pd.Series, prefix: str, digits: int = 1, low_key: str = "", 
     return f"{fmt(row.get(prefix, np.nan), digits)} {_interval(low, high, digits, int(row.seeds_run))}"
 
 
-def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
-    parts = []
+def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
+    """The Results appendix: episodes to solve, returns, episodes to reach return levels, one table each."""
+    parts: list[Block] = []
     ran = table[table.seeds_run > 0]
     if ablation.threshold is not None and len(ran):
         rows = [
@@ -234,12 +237,12 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
             for _, row in ran.iterrows()
         ]
         parts += [
-            "**Episodes to solve.** Unsolved seeds count as the budget (censored); a statistic that uses such a "
-            "value is a lower bound, marked ≥, and its interval's upper end is no bound at all. Steps and "
-            "seconds are over solved seeds only (– where none solved); seconds come from CPUs the trials shared.",
-            "",
-            _markdown_table(pd.DataFrame(rows)),
-            "",
+            Paragraph(
+                "**Episodes to solve.** Unsolved seeds count as the budget (censored); a statistic that uses such a "
+                "value is a lower bound, marked ≥, and its interval's upper end is no bound at all. Steps and "
+                "seconds are over solved seeds only (– where none solved); seconds come from CPUs the trials shared."
+            ),
+            Table(pd.DataFrame(rows), "Episodes to solve"),
         ]
     budgets = ablation.budgets
     rows = []
@@ -254,13 +257,13 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
         entry["AUC [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
         rows.append(entry)
     parts += [
-        f"**Returns.** IQM over seeds of the rolling mean return ({ablation_window(ablation)} episodes) of the "
-        f"untrained policy, after fixed episode budgets (a seed that stopped because it solved keeps its last value), "
-        "the improvement over the untrained policy, and the area under the learning curve (AUC: the mean rolling "
-        "return over the whole budget, which rewards learning early).",
-        "",
-        _markdown_table(pd.DataFrame(rows)),
-        "",
+        Paragraph(
+            f"**Returns.** IQM over seeds of the rolling mean return ({ablation_window(ablation)} episodes) of the "
+            "untrained policy, after fixed episode budgets (a seed that stopped because it solved keeps its last "
+            "value), the improvement over the untrained policy, and the area under the learning curve (AUC: the mean "
+            "rolling return over the whole budget, which rewards learning early)."
+        ),
+        Table(pd.DataFrame(rows), "Returns"),
     ]
     if ablation.levels and len(ran):
         rows = []
@@ -277,13 +280,13 @@ def _convergence_markdown(ablation: Ablation, table: pd.DataFrame) -> str:
                 )
             rows.append(entry)
         parts += [
-            "**Episodes to reach a return level.** The first episode at which the rolling mean return reaches the "
-            "level; a seed that never does counts as the budget (censored, ≥).",
-            "",
-            _markdown_table(pd.DataFrame(rows)),
-            "",
+            Paragraph(
+                "**Episodes to reach a return level.** The first episode at which the rolling mean return reaches the "
+                "level; a seed that never does counts as the budget (censored, ≥)."
+            ),
+            Table(pd.DataFrame(rows), "Episodes to reach a return level"),
         ]
-    return "\n".join(parts)
+    return parts
 
 
 def changed_settings(ablation: Ablation, variant: str) -> list[str]:

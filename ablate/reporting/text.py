@@ -1,10 +1,9 @@
 """The report's one formatting module: user text made inert (``esc``), numbers (``fmt``), percentages, signed
-numbers, intervals, metric names, Markdown tables. Every section and figure caption formats through it."""
+numbers, intervals, metric names. Every section and figure caption formats through it."""
 
 from __future__ import annotations
 
 import html
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +31,13 @@ class Refs:
     def figure(self, stem: str) -> str:
         """``Figure 6`` for the figure drawn into ``<stem>.png``."""
         return f"Figure {self.figures.get(stem, '–')}"
+
+    def figures_of(self, *stems: str) -> str:
+        """``Figures 1 and 2`` for those of ``stems`` the report drew (``Figure 1`` for one)."""
+        numbers = [str(self.figures[s]) for s in stems if s in self.figures]
+        if len(numbers) == 1:
+            return f"Figure {numbers[0]}"
+        return f"Figures {joined(numbers)}" if numbers else "Figure –"
 
 
 NO_REFS = Refs()
@@ -76,20 +82,6 @@ def _interval(low: float, high: float, digits: int = 0, n: int | None = None) ->
     if pd.isna(low) or pd.isna(high):
         return "[no interval: 1 seed]" if n == 1 else "[no interval]"
     return f"[{fmt(low, digits)}, {fmt(high, digits)}]"
-
-
-# --- text ------------------------------------------------------------------------------------------------
-def _is_text(values) -> bool:
-    """A column of words (left-aligned) rather than of numbers, intervals and counts (right-aligned)."""
-    return any(re.search(r"[A-Za-z]", re.sub(r"\[[^\]]*\]|\([^)]*\)", "", str(v))) for v in values)
-
-
-def _markdown_table(frame: pd.DataFrame) -> str:
-    """A Markdown table: text columns left-aligned, numbers right-aligned."""
-    header = "| " + " | ".join(frame.columns) + " |"
-    rule = "| " + " | ".join(":---" if _is_text(frame[c]) else "---:" for c in frame.columns) + " |"
-    rows = ["| " + " | ".join(str(v) for v in row) + " |" for row in frame.itertuples(index=False)]
-    return "\n".join([header, rule, *rows])
 
 
 METRIC_NAMES = {"episodes_to_solve": "episodes to solve", "auc": "area under the curve (AUC)"}

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import pandas as pd
 
+from ablate.reporting.blocks import Block, Items, Paragraph, Table
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import SEPARATED, TOO_FEW_SEEDS
-from ablate.reporting.text import NO_REFS, Refs, _markdown_table, _metric_name, _signed, _signed_pct, esc, fmt
+from ablate.reporting.text import NO_REFS, Refs, _metric_name, _signed, _signed_pct, esc, fmt
 from ablate.reporting.tuning import METRICS, base_values, chosen_values, edge, knobs, same_value, sensitivity
 
 
@@ -37,7 +38,7 @@ def knob_words(ablation: Ablation) -> str:
     return "the learning rate" if names == ["learning_rate"] else "the tuned settings"
 
 
-def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> str:
+def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> list[Block]:
     """The Tuning section: how each variant's values were chosen, on seeds the comparison never sees."""
     tuning = ablation.tuning or {}
     metric = tuning.get("metric", "auc")
@@ -51,23 +52,24 @@ def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> str:
         f"{k.replace('_', ' ')}: {', '.join(_value(c) for c in values)} (base value {_value(tuning['base'].get(k))})"
         for k, values in tuning.get("knobs", {}).items()
     )
-    lines = [
+    intro = Paragraph(
         f"Each variant's {knob_words(ablation).removeprefix('the ')} was chosen on tuning seeds of its own, then the "
         "variants were compared at their chosen values on evaluation seeds tuning never saw, so that no variant is "
         "judged at a setting chosen for another, and the winner of tuning is not inflated by re-using its seeds "
         "(Patterson et al., 2024; Eimer et al., 2023). **The summary, findings and figures use the evaluation "
-        "seeds only, at the chosen values.**",
-        "",
-        f"- **Candidates.** {esc(candidates)}.",
-        f"- **Tuning seeds.** {len(seeds)} per candidate ({', '.join(map(str, seeds))}), disjoint from the "
+        "seeds only, at the chosen values.**"
+    )
+    lines = [
+        f"**Candidates.** {esc(candidates)}.",
+        f"**Tuning seeds.** {len(seeds)} per candidate ({', '.join(map(str, seeds))}), disjoint from the "
         f"{len(evaluation)} evaluation seeds ({', '.join(map(str, evaluation))}).",
-        f"- **Metric.** {words}, {'higher' if direction == 'max' else 'lower'} is better, over each tuning trial's "
+        f"**Metric.** {words}, {'higher' if direction == 'max' else 'lower'} is better, over each tuning trial's "
         f"budget of {int(tune_budget):,} episodes.",
-        f"- **Rule.** {esc(rule.rstrip('.'))}.",
+        f"**Rule.** {esc(rule.rstrip('.'))}.",
     ]
     if tune_budget < budget:
         lines.append(
-            f"- **Short horizon.** Tuning trials ran {int(tune_budget):,} episodes, the evaluation {budget:,}: a value "
+            f"**Short horizon.** Tuning trials ran {int(tune_budget):,} episodes, the evaluation {budget:,}: a value "
             "that learns fast early is favoured over one that learns slower but further (short-horizon bias), so a "
             "choice can be worse at the full budget than a candidate tuning passed over."
         )
@@ -99,19 +101,19 @@ def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> str:
                 "flag": "; ".join(f"{f}: the best may lie beyond the grid" for f in flags) or "",
             }
         )
-    lines += ["", _markdown_table(pd.DataFrame(rows))] if rows else []
+    blocks: list[Block] = [intro, Items.of(lines)]
+    blocks += [Table(pd.DataFrame(rows))] if rows else []
     if kept:
-        lines += [
-            "",
-            f"Kept their own value, not tuned (the variant sets the knob itself): {', '.join(kept)}.",
-        ]
-    lines += [
-        "",
-        f"{refs.figure('tuning_sensitivity')} shows each variant's metric against every candidate; every tuning "
-        "trial is in "
-        "tables/tuning.csv.",
-    ]
-    return "\n".join(lines)
+        blocks.append(
+            Paragraph(f"Kept their own value, not tuned (the variant sets the knob itself): {', '.join(kept)}.")
+        )
+    blocks.append(
+        Paragraph(
+            f"{refs.figure('tuning_sensitivity')} shows each variant's metric against every candidate; every tuning "
+            "trial is in tables/tuning.csv."
+        )
+    )
+    return blocks
 
 
 def _verdict_words(row: pd.Series) -> str:
@@ -135,7 +137,7 @@ def change_kind(base: str, tuned: str) -> str:
     return "none"
 
 
-def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFrame) -> str:
+def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFrame) -> list[Block]:
     """Each comparison at the shared base value beside the same comparison at the chosen values, both on the
     evaluation seeds, naming every finding that flips, vanishes or appears."""
     tuning = ablation.tuning or {}
@@ -153,7 +155,7 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
         if kind == "none":
             label = "no finding at either"
         lines.append(
-            f"- {esc(row.variant)} vs {esc(reference)}, {_metric_name(row.metric)}: at the base value "
+            f"{esc(row.variant)} vs {esc(reference)}, {_metric_name(row.metric)}: at the base value "
             f"({at_base}) {_verdict_words(base)}; at the chosen values ({at_choice}) "
             f"{_verdict_words(row)}: {label}."
         )
@@ -170,7 +172,7 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
         )
     else:
         head += unchanged_words(ablation, tuned, untuned)
-    return "\n".join([head, "", *lines])
+    return [Paragraph(head), Items.of(lines)]
 
 
 def _estimate(row: pd.Series) -> str:

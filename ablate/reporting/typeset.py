@@ -1,17 +1,33 @@
-"""Typeset the report as a paper: report.md's text becomes report.typ (Typst markup) and report.pdf, compiled by
-the ``typst`` wheel (the Typst compiler with its fonts inside: no browser, no system package, any machine pip reaches).
+"""Typeset the report as a paper: the report's blocks (``blocks.py``) become report.typ (Typst markup) and
+report.pdf, compiled by the ``typst`` wheel (the Typst compiler with its fonts inside: no browser, no system package,
+any machine pip reaches).
 
-Only the Markdown the report writes is read (headings, paragraphs, lists, pipe tables, figures, block quotes, fenced
-code) plus whatever a student writes in ``discussion.md``; anything else is printed as plain text, never as markup:
-every run of text becomes a Typst string literal, so no variant name or sentence can be read as a Typst command.
+The only Markdown read here is the student's own ``discussion.md`` (headings, paragraphs, lists, pipe tables, images,
+block quotes, fenced code). Every run of text becomes a Typst string literal, never markup, so no variant name or
+sentence can be read as a Typst command.
 """
 
 from __future__ import annotations
 
 import html
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
+
+from ablate.reporting.blocks import (
+    INLINE,
+    AppendixStart,
+    Authored,
+    Block,
+    Heading,
+    Items,
+    Note,
+    Paragraph,
+    Picture,
+    Table,
+    Videos,
+)
+from ablate.reporting.render import NO_VIDEOS, nested
+from ablate.reporting.text import esc
 
 PREAMBLE = """\
 #set document(title: {title})
@@ -55,16 +71,6 @@ def plain(text: str) -> str:
     return html.unescape(text)
 
 
-INLINE = re.compile(
-    r"\*\*(?P<strong>.+?)\*\*"
-    r"|(?<![\w*])\*(?P<emph>[^*\s](?:[^*]*[^*\s])?)\*(?![\w*])"
-    r"|`(?P<code>[^`]+)`"
-    r"|<code>(?P<html_code>.*?)</code>"
-    r"|\[(?P<label>[^\]]+)\]\((?P<url>[^)\s]+)\)"
-    r"|<br\s*/?>"
-)
-
-
 def inline(text: str) -> str:
     """One paragraph's Markdown (bold, italics, code, links) as Typst content; everything else as strings."""
     out, at = [], 0
@@ -95,56 +101,42 @@ def _cells(line: str) -> list[str]:
     return [cell.strip() for cell in body.split("|")]
 
 
-@dataclass
-class Counters:
-    """What the document has numbered so far; a caption's own number wins, so Markdown and PDF agree."""
-
-    tables: int = 0
-    seen: dict = field(default_factory=dict)
-
-
-def table(lines: list[str], caption: str | None, counters: Counters) -> str:
-    header, rule, rows = _cells(lines[0]), _cells(lines[1]), [_cells(line) for line in lines[2:]]
+def table(header: list[str], rows: list[list[str]], align: list[str], caption: str = "", number: int = 0) -> str:
+    """A table in type sized to its widest row (a landscape page past the last size); a numbered figure with its
+    caption above it where it has a number, a bare table otherwise (one in the student's own text)."""
     rows = [row + [""] * (len(header) - len(row)) for row in rows]
-    align = ["right" if cell.endswith(":") and not cell.startswith(":") else "left" for cell in rule]
-    align += ["left"] * (len(header) - len(align))
+    align = align + ["left"] * (len(header) - len(align))
     widths = [max(len(plain(row[i])) for row in [header, *rows]) for i in range(len(header))]
     # A column's share of the width: its longest cell, capped so one long text column cannot starve the rest.
     total = sum(min(w, 60) for w in widths) + 3 * len(widths)
     size = next((s for limit, s in TABLE_SIZES if total <= limit), None)
     landscape = size is None
     size = size or LANDSCAPE_SIZE
-    number = caption_number(caption, counters)
-    text = caption_text(caption) or "Table"
-    cells = []
-    for row in rows:
-        cells.append(", ".join(f"[{inline(cell)}]" for cell in row))
+    cells = [", ".join(f"[{inline(cell)}]" for cell in row) for row in rows]
     body = (
         f"table(columns: {len(header)}, align: ({', '.join(align)},),\n"
         "  table.hline(stroke: 0.8pt),\n"
         f"  table.header({', '.join(f'[*{inline(cell)}*]' for cell in header)}),\n"
         "  table.hline(stroke: 0.5pt),\n" + "".join(f"  {row},\n" for row in cells) + "  table.hline(stroke: 0.8pt),\n)"
     )
-    figure = (
-        f"#counter(figure.where(kind: table)).update({number - 1})\n"
-        f"#figure(kind: table, caption: [{inline(text)}], {{set text(size: {size}); set par(justify: false); "
-        f"{body}}})\n"
-    )
+    sized = f"{{set text(size: {size}); set par(justify: false); {body}}}"
+    if number:
+        figure = (
+            f"#counter(figure.where(kind: table)).update({number - 1})\n"
+            f"#figure(kind: table, caption: [{inline(caption)}], {sized})\n"
+        )
+    else:
+        figure = f"#{sized}\n"
     return f"#page(flipped: true)[\n{figure}]\n" if landscape else figure
 
 
-def caption_number(caption: str | None, counters: Counters) -> int:
-    found = re.match(r"Table (\d+)\.", caption or "")
-    counters.tables = int(found.group(1)) if found else counters.tables + 1
-    return counters.tables
+def pipe_table(lines: list[str]) -> str:
+    """A pipe table of the student's own Markdown, unnumbered."""
+    header, rule, rows = _cells(lines[0]), _cells(lines[1]), [_cells(line) for line in lines[2:]]
+    align = ["right" if cell.endswith(":") and not cell.startswith(":") else "left" for cell in rule]
+    return table(header, rows, align)
 
 
-def caption_text(caption: str | None) -> str:
-    return re.sub(r"^(Table|Figure) \d+\.\s*", "", caption or "")
-
-
-FIGURE_CAPTION = re.compile(r"^\*Figure (\d+)\. (.*)\*$")
-TABLE_CAPTION = re.compile(r"^\*(Table \d+\. .*)\*$")
 IMAGE = re.compile(r"^!\[(?P<alt>[^\]]*)\]\((?P<path>[^)\s]+)\)$")
 
 
@@ -155,8 +147,8 @@ def image(path: str, folder: Path | None, alt: str) -> str:
     return f"image({string(path)}, width: 82%, alt: {string(plain(alt))})"
 
 
-def blocks(markdown: str) -> list[tuple[str, list[str]]]:
-    """The Markdown as (kind, lines) blocks: heading, table, list, quote, code, image, paragraph, comment."""
+def markdown_blocks(markdown: str) -> list[tuple[str, list[str]]]:
+    """The student's Markdown as (kind, lines) blocks: heading, table, list, quote, code, image, paragraph, comment."""
     out: list[tuple[str, list[str]]] = []
     lines = markdown.splitlines()
     i = 0
@@ -224,68 +216,83 @@ def list_items(lines: list[str]) -> str:
     return "\n".join(f"{'  ' * levels.index(d)}{marker} {inline(text)}" for d, marker, text in items) + "\n"
 
 
-def to_typst(markdown: str, folder: Path | None = None, title: str = "Report", date: str = "") -> str:
-    """The report's Markdown as a Typst document: numbered sections, figures and tables (the numbers the
-    Markdown gives them), page numbers, wide tables in smaller type or on a landscape page.
-
-    ``## Appendix`` starts the appendix on a new page: its sections carry their own letters (``### A. ...``)."""
-    out = [PREAMBLE.format(title=string(title), date=string(date))]
-    counters = Counters()
-    parts = blocks(markdown)
-    skip = set()
-    for index, (kind, lines) in enumerate(parts):
-        if index in skip or kind == "comment":
+def authored(markdown: str, folder: Path | None = None) -> str:
+    """The student's own Markdown (the discussion) as Typst: headings, paragraphs, lists, pipe tables, images, block
+    quotes and fenced code; anything else as plain text."""
+    out = []
+    for kind, lines in markdown_blocks(markdown):
+        if kind == "comment":
             continue
-        following = parts[index + 1] if index + 1 < len(parts) else ("", [])
         if kind == "heading":
             hashes, text = lines[0].split(" ", 1)
-            level = len(hashes)
-            if level == 1:
-                out.append(f'#align(center, text(size: 17pt, weight: "bold")[{inline(text)}])\n')
-            elif level == 2 and text.strip() == "Appendix":
-                out.append("#pagebreak(weak: true)\n#set heading(numbering: none)\n")
-                out.append("#context [#metadata(here().page()) <appendix-page>]\n")
-                out.append(f"#heading(level: 1)[{inline(text)}]\n")
-            else:
-                out.append(f"#heading(level: {level - 1})[{inline(text)}]\n")
+            out.append(f"#heading(level: {max(len(hashes) - 1, 1)})[{inline(text)}]\n")
         elif kind == "image":
             found = IMAGE.match(lines[0])
-            caption, number = "", None
-            if following[0] == "paragraph":
-                cap = FIGURE_CAPTION.match(" ".join(following[1]).strip())
-                if cap:
-                    number, caption = int(cap.group(1)), cap.group(2)
-                    skip.add(index + 1)
-            counter = f"#counter(figure.where(kind: image)).update({number - 1})\n" if number else ""
-            out.append(
-                f"{counter}#figure({image(found.group('path'), folder, found.group('alt'))}, "
-                f"caption: [{inline(caption)}])\n"
-                if caption
-                else f"#align(center, {image(found.group('path'), folder, found.group('alt'))})\n"
-            )
-        elif kind == "paragraph" and following[0] == "table" and TABLE_CAPTION.match(" ".join(lines).strip()):
-            continue  # the caption of the table that follows
+            out.append(f"#align(center, {image(found.group('path'), folder, found.group('alt'))})\n")
         elif kind == "table":
-            before = parts[index - 1] if index else ("", [])
-            cap = TABLE_CAPTION.match(" ".join(before[1]).strip()) if before[0] == "paragraph" else None
-            if len(lines) < 2:
-                out.append(f"{inline(lines[0])}\n")
-                continue
-            out.append(table(lines, cap.group(1) if cap else None, counters))
+            out.append(pipe_table(lines) if len(lines) >= 2 else f"{inline(lines[0])}\n")
         elif kind == "list":
             out.append(list_items(lines))
         elif kind == "quote":
-            text = " ".join(re.sub(r"^>\s?", "", line) for line in lines)
-            out.append(
-                f'#block(fill: rgb("#fff4e0"), stroke: (left: 3pt + rgb("#f0a000")), inset: 8pt, width: 100%)'
-                f"[{inline(text)}]\n"
-            )
+            out.append(_quote(" ".join(re.sub(r"^>\s?", "", line) for line in lines)))
         elif kind == "code":
             code = string("\n".join(lines), lines=True)
             out.append(f"#block(fill: luma(245), inset: 6pt, width: 100%, raw(block: true, {code}))\n")
         else:
             out.append(inline(" ".join(line.strip() for line in lines)) + "\n")
         out.append("\n")
+    return "".join(out)
+
+
+def _quote(text: str) -> str:
+    return (
+        f'#block(fill: rgb("#fff4e0"), stroke: (left: 3pt + rgb("#f0a000")), inset: 8pt, width: 100%)[{inline(text)}]\n'
+    )
+
+
+def _block(block: Block, folder: Path | None) -> str:
+    if isinstance(block, Heading):
+        if block.level == 1:
+            return f'#align(center, text(size: 17pt, weight: "bold")[{inline(block.text)}])\n'
+        return f"#heading(level: {block.level - 1})[{inline(block.text)}]\n"
+    if isinstance(block, AppendixStart):
+        return (
+            "#pagebreak(weak: true)\n#set heading(numbering: none)\n"
+            "#context [#metadata(here().page()) <appendix-page>]\n#heading(level: 1)[Appendix]\n"
+        )
+    if isinstance(block, Paragraph):
+        return inline(block.text) + "\n"
+    if isinstance(block, Note):
+        return _quote(block.text)
+    if isinstance(block, Items):
+        lines = []
+        for item in block.items:
+            lines.append(f"- {inline(item.text)}")
+            lines += [f"  - {inline(sub)}" for sub in item.sub]
+        return "\n".join(lines) + "\n"
+    if isinstance(block, Table):
+        return table(block.header, block.rows, block.align, block.caption or "", block.number)
+    if isinstance(block, Picture):
+        f = block.figure
+        return (
+            f"#counter(figure.where(kind: image)).update({f.number - 1})\n"
+            f"#figure({image(f.path, folder, f.alt)}, caption: [{inline(f.caption)}])\n"
+        )
+    if isinstance(block, Videos):
+        listed = [f"- #link({string(v['path'])})[{inline(esc(v['caption']))}]" for v in block.videos]
+        return "\n".join(listed) + "\n" if listed else inline(NO_VIDEOS) + "\n"
+    if isinstance(block, Authored):
+        return authored(nested(block.text, 3), folder)
+    raise TypeError(f"not a report block: {block!r}")
+
+
+def typst(blocks: list[Block], folder: Path | None = None, title: str = "Report", date: str = "") -> str:
+    """The report's blocks as a Typst document: numbered sections, figures and tables (the numbers the blocks
+    carry), page numbers, wide tables in smaller type or on a landscape page; the appendix starts a new page and
+    its sections carry their own letters."""
+    out = [PREAMBLE.format(title=string(title), date=string(date))]
+    for block in blocks:
+        out += [_block(block, folder), "\n"]
     return "".join(out)
 
 
@@ -302,32 +309,6 @@ def compile_pdf(typ_path: Path, pdf_path: Path) -> str | None:
     if not pdf_path.is_file() or pdf_path.stat().st_size == 0:
         return "no PDF: typst wrote nothing"
     return None
-
-
-def number_tables(markdown: str) -> str:
-    """Give every pipe table a numbered caption line (``*Table 3. Episodes to solve*``) just above it: the lead-in
-    of the paragraph before it (``**Episodes to solve.** ...``), else its section's heading. The Markdown, the HTML
-    and the PDF then number and name the tables alike."""
-    lines, out, number = markdown.splitlines(), [], 0
-    heading, lead = "", ""
-    for i, line in enumerate(lines):
-        starts = line.lstrip().startswith("|") and (i == 0 or not lines[i - 1].lstrip().startswith("|"))
-        if starts:
-            number += 1
-            caption = lead or heading or "Table"
-            while out and not out[-1].strip():
-                out.pop()
-            out += ["", f"*Table {number}. {caption}*", ""]
-            lead = ""
-        elif line.startswith("#"):
-            heading = re.sub(r"^#+\s*", "", line).strip()
-            heading = re.sub(r"^[A-Z]\.\s+|\s*\(generated\)$", "", heading)
-            lead = ""
-        elif line.strip() and not line.lstrip().startswith("|"):
-            found = re.match(r"^\*\*(.+?)\.?\*\*", line.strip())
-            lead = found.group(1).rstrip(".") if found else ""
-        out.append(line)
-    return "\n".join(out) + ("\n" if markdown.endswith("\n") else "")
 
 
 def page_counts(typ_path: Path) -> tuple[int | None, int]:

@@ -1,0 +1,165 @@
+"""Two of the report's renderers: the blocks (``blocks.py``) as Markdown (report.md) and as HTML (report.html's
+body). The third, Typst for the PDF, is ``typeset.typst``. Each writes every block type; none reads another's
+output."""
+
+from __future__ import annotations
+
+import html
+import re
+
+import markdown as markdown_lib
+
+from ablate.reporting.blocks import (
+    INLINE,
+    AppendixStart,
+    Authored,
+    Block,
+    Heading,
+    Items,
+    Note,
+    Paragraph,
+    Picture,
+    Table,
+    Videos,
+)
+from ablate.reporting.text import esc
+
+NO_VIDEOS = "No videos were recorded."
+
+
+def nested(text: str, levels: int) -> str:
+    """The student's Markdown with its headings moved ``levels`` deeper, under the report's own heading."""
+    return re.sub(r"^(#{1,4}) ", lambda m: "#" * (len(m.group(1)) + levels) + " ", text, flags=re.M)
+
+
+# --- Markdown ---------------------------------------------------------------------------------------------------
+def _md_table(table: Table) -> str:
+    rule = [":---" if a == "left" else "---:" for a in table.align]
+    lines = [f"*Table {table.number}. {table.caption}*", ""] if table.number else []
+    lines += ["| " + " | ".join(cells) + " |" for cells in (table.header, rule)]
+    lines += ["| " + " | ".join(row) + " |" for row in table.rows]
+    return "\n".join(lines)
+
+
+def _md_items(items: Items) -> str:
+    lines = []
+    for item in items.items:
+        lines.append(f"- {item.text}")
+        lines += [f"    - {sub}" for sub in item.sub]
+    return "\n".join(lines)
+
+
+def _md_block(block: Block) -> str:
+    if isinstance(block, Heading):
+        return f"{'#' * block.level} {block.text}"
+    if isinstance(block, AppendixStart):
+        return "## Appendix"
+    if isinstance(block, Paragraph):
+        return block.text
+    if isinstance(block, Note):
+        return f"> {block.text}"
+    if isinstance(block, Items):
+        return _md_items(block)
+    if isinstance(block, Table):
+        return _md_table(block)
+    if isinstance(block, Picture):
+        f = block.figure
+        return f"![{f.alt}]({f.path})\n\n*Figure {f.number}. {f.caption}*"
+    if isinstance(block, Videos):
+        return "\n".join(f"- [{esc(v['caption'])}]({v['path']})" for v in block.videos) or NO_VIDEOS
+    if isinstance(block, Authored):
+        return nested(block.text, 3)
+    raise TypeError(f"not a report block: {block!r}")
+
+
+def markdown(blocks: list[Block]) -> str:
+    """The blocks as Markdown, one blank line between blocks."""
+    return "\n\n".join(_md_block(b) for b in blocks) + "\n"
+
+
+# --- HTML -------------------------------------------------------------------------------------------------------
+def _text(text: str) -> str:
+    """Text as HTML: the entities ``esc`` wrote are decoded once and everything is escaped once."""
+    return html.escape(html.unescape(text), quote=False)
+
+
+def inline_html(text: str) -> str:
+    """One block's inline markup as HTML; everything else as text."""
+    out, at = [], 0
+    for match in INLINE.finditer(text):
+        out.append(_text(text[at : match.start()]))
+        if match.group("strong") is not None:
+            out.append(f"<strong>{inline_html(match.group('strong'))}</strong>")
+        elif match.group("emph") is not None:
+            out.append(f"<em>{inline_html(match.group('emph'))}</em>")
+        elif match.group("code") is not None or match.group("html_code") is not None:
+            code = match.group("code") if match.group("code") is not None else match.group("html_code")
+            out.append(f"<code>{_text(code)}</code>")
+        elif match.group("label") is not None:
+            url = html.escape(html.unescape(match.group("url")))
+            out.append(f'<a href="{url}">{inline_html(match.group("label"))}</a>')
+        else:
+            out.append("<br>")
+        at = match.end()
+    out.append(_text(text[at:]))
+    return "".join(out)
+
+
+def _html_table(table: Table) -> str:
+    def row(cells: list[str], tag: str) -> str:
+        return (
+            "<tr>"
+            + "".join(
+                f'<{tag} style="text-align: {a}">{inline_html(c)}</{tag}>'
+                for c, a in zip(cells, table.align, strict=True)
+            )
+            + "</tr>"
+        )
+
+    caption = f"<caption><strong>Table {table.number}.</strong> {inline_html(table.caption or '')}</caption>"
+    body = "\n".join(row(cells, "td") for cells in table.rows)
+    head = f"<thead>{row(table.header, 'th')}</thead>"
+    return f"<table>{caption if table.number else ''}\n{head}\n<tbody>\n{body}\n</tbody></table>"
+
+
+def _html_block(block: Block) -> str:
+    if isinstance(block, Heading):
+        anchor = f' id="appendix-{block.letter.lower()}"' if block.letter else ""
+        return f"<h{block.level}{anchor}>{inline_html(block.text)}</h{block.level}>"
+    if isinstance(block, AppendixStart):
+        return '<h2 id="appendix">Appendix</h2>'
+    if isinstance(block, Paragraph):
+        return f"<p>{inline_html(block.text)}</p>"
+    if isinstance(block, Note):
+        return f"<blockquote><p>{inline_html(block.text)}</p></blockquote>"
+    if isinstance(block, Items):
+        items = []
+        for item in block.items:
+            sub = "".join(f"<li>{inline_html(s)}</li>" for s in item.sub)
+            items.append(f"<li>{inline_html(item.text)}{f'<ul>{sub}</ul>' if sub else ''}</li>")
+        return "<ul>\n" + "\n".join(items) + "\n</ul>"
+    if isinstance(block, Table):
+        return _html_table(block)
+    if isinstance(block, Picture):
+        f = block.figure
+        return (
+            f'<figure id="figure-{f.number}"><img src="{html.escape(f.path)}" alt="{html.escape(f.alt)}">'
+            f"<figcaption><strong>Figure {f.number}.</strong> {inline_html(f.caption)}</figcaption></figure>"
+        )
+    if isinstance(block, Videos):
+        if not block.videos:
+            return f"<p>{NO_VIDEOS}</p>"
+        shown = "\n".join(
+            f'<figure class="video"><video controls muted loop preload="metadata" src="{html.escape(v["path"])}">'
+            f"</video><figcaption>{html.escape(v['caption'], quote=False)}</figcaption></figure>"
+            for v in block.videos
+        )
+        return f'<div class="videos">\n{shown}\n</div>'
+    if isinstance(block, Authored):
+        return markdown_lib.markdown(nested(block.text, 3), extensions=["tables"])
+    raise TypeError(f"not a report block: {block!r}")
+
+
+def html_body(blocks: list[Block]) -> str:
+    """The blocks as the body of an HTML page."""
+    return "\n".join(_html_block(b) for b in blocks)
