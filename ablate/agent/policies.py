@@ -247,6 +247,10 @@ class _TimeAsLength(nn.Module):
 _NUMPY_ACTIVATIONS[_TimeAsLength] = lambda x: np.swapaxes(x, -1, -2)  # CartPole's cnn acts in numpy too
 
 
+PONG_CONV = ((16, 7, 4, 3), (32, 5, 2, 2), (48, 3, 2, 1))
+"""The course's Pong CNN: (filters, kernel, stride, padding) of each conv layer (the report describes it from here)."""
+
+
 def create_pong_model(
     n_actions: int = 6,
     hidden_sizes: Sequence[int] = (64,),
@@ -256,8 +260,9 @@ def create_pong_model(
     observation_shape: Sequence[int] = (1, 80, 80),
 ) -> Policy:
     """Pong policy over the (1, 80, 80) difference of pre-processed frames (any (channels, H, W) image for other
-    Atari games). ``cnn`` is the course's: 16 filters 7x7 stride 4, 32 filters 5x5 stride 2, 48 filters 3x3
-    stride 2, then dense layers. ``mlp`` flattens the pixels straight into the dense layers (Karpathy's)."""
+    Atari games). ``cnn`` is the course's (``PONG_CONV``): 16 filters 7x7 stride 4, 32 filters 5x5 stride 2,
+    48 filters 3x3 stride 2, then dense layers. ``mlp`` flattens the pixels straight into the dense layers
+    (Karpathy's)."""
     act = _ACTIVATIONS[activation]
     channels, height, width = observation_shape
     if architecture == "mlp":
@@ -265,16 +270,12 @@ def create_pong_model(
             nn.Flatten(), *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout)
         )
         return Policy(body, tuple(observation_shape))
-    for kernel, stride, padding in ((7, 4, 3), (5, 2, 2), (3, 2, 1)):
+    convs = []
+    for filters, kernel, stride, padding in PONG_CONV:
+        convs += [nn.Conv2d(channels, filters, kernel, stride=stride, padding=padding), act()]
+        channels = filters
         height, width = ((n + 2 * padding - kernel) // stride + 1 for n in (height, width))
     body = nn.Sequential(
-        nn.Conv2d(channels, 16, 7, stride=4, padding=3),
-        act(),
-        nn.Conv2d(16, 32, 5, stride=2, padding=2),
-        act(),
-        nn.Conv2d(32, 48, 3, stride=2, padding=1),
-        act(),
-        nn.Flatten(),
-        *_dense_layers(48 * height * width, hidden_sizes, n_actions, activation, dropout),
+        *convs, nn.Flatten(), *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout)
     )
     return Policy(body, tuple(observation_shape))

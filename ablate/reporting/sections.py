@@ -46,10 +46,10 @@ def architecture(params: dict[str, str], env_id: str) -> str:
     dense = f"dense {' → '.join(map(str, hidden))} ({activation})" if hidden else "no hidden layer"
     if env_id.startswith("ALE/Pong"):
         if arch == "cnn":
-            text = (
-                f"2-D CNN over the 80×80 frame difference: conv 16@7×7 stride 4, 32@5×5 stride 2, "
-                f"48@3×3 stride 2 ({activation}), then {dense}"
-            )
+            from ablate.agent.policies import PONG_CONV
+
+            convs = ", ".join(f"{n}@{k}×{k} stride {s}" for n, k, s, _ in PONG_CONV)
+            text = f"2-D CNN over the 80×80 frame difference: conv {convs} ({activation}), then {dense}"
         elif hidden:
             text = f"MLP over the 6,400 pixels of the 80×80 frame difference: {dense}"
         else:
