@@ -602,3 +602,26 @@ def test_an_untuned_experiments_tuning_table_is_empty_with_its_columns(tmp_path)
     uri = make_store(tmp_path, "plain", {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 10)}})
     tuning = ablate.load("plain", tracking_uri=uri).tuning
     assert len(tuning) == 0 and list(tuning.columns) == ["variant", "seed", "auc", "status"]
+
+
+def test_a_file_edited_in_nothing_a_trial_ran_is_read_as_it_is_now(built_report, tmp_path):
+    """The student removed or added a line that no trial key holds (a description, a knob at its default): the
+    report reads the file as it is now and says so; an edit that changes a trial's settings is described from the
+    launch's copy, with the way to run the file as it is."""
+    report_folder, uri = built_report
+    path = report_folder.parent.parent / "reportable.toml"
+    edited = EXPERIMENT.replace('baseline = "small"\n', 'baseline = "small"\ndescription = "Depth and width."\n')
+    edited = edited.replace("hidden_sizes = [64, 64]\n", 'hidden_sizes = [64, 64]\nactivation = "relu"\n')
+    try:
+        path.write_text(edited)
+        text = (write_report("reportable", uri, tmp_path / "a", attach=False, pdf=False) / "report.md").read_text()
+        assert "Depth and width. Does each change" in text
+        (note,) = [line for line in text.splitlines() if "has changed since this launch ran it" in line]
+        assert "in nothing a trial ran (every trial key is the same): this report reads it as it is now" in note
+        path.write_text(edited.replace("hidden_sizes = [64, 64]", "hidden_sizes = [32]"))
+        text = (write_report("reportable", uri, tmp_path / "b", attach=False, pdf=False) / "report.md").read_text()
+        assert "Depth and width." not in text
+        (note,) = [line for line in text.splitlines() if "has changed since this launch ran it" in line]
+        assert "in the settings of its trials: this report describes the launch's copy" in note and "--fresh" in note
+    finally:
+        path.write_text(EXPERIMENT)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ablate.launch.secrets import Shown, shown
 from ablate.reporting.blocks import Block, Items, Paragraph
+from ablate.reporting.experiment_file import on_disk
 from ablate.reporting.results import Ablation
 from ablate.reporting.text import esc
 
@@ -93,22 +94,19 @@ def _reproducibility(ablation: Ablation, command: Shown) -> list[Block]:
 
 def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
     """One line where the experiment file the launch ran (its copy in the store) differs from the file at the
-    same path now: the report describes the launch's copy, so an edit since (a knob removed, a variant renamed)
-    is not in it. ``""`` where they match, or where either is missing."""
+    same path now. Where no trial key changed, the report reads the file as it is now (``experiment_file``);
+    otherwise it describes the launch's copy, and an edit since (a knob removed, a variant renamed) is not in
+    it. ``""`` where they match, or where either is missing."""
     path = ablation.launch["tags"].get("ablate.experiment_file", "")
-    ran = ablation.launch.get("experiment_text")
-    if not path or ran is None:
-        return ""
-    on_disk = Path(cwd or ".") / path
-    try:
-        now = on_disk.read_text()
-    except OSError:
-        return ""
-    if now.strip() == ran.strip():
+    changed = f"**The experiment file {esc(path)} has changed since this launch ran it**"
+    if ablation.launch.get("read_from_disk"):
+        return f"{changed}, in nothing a trial ran (every trial key is the same): this report reads it as it is now."
+    ran, found = ablation.launch.get("experiment_text"), on_disk(path, cwd)
+    if ran is None or found is None or found[1].strip() == ran.strip():
         return ""
     return (
-        f"**The experiment file {esc(path)} has changed since this launch ran it**: this report describes the "
-        f"launch's copy (stored with it); <code>ablate run {esc(path)} --fresh</code> runs the file as it is now."
+        f"{changed}, in the settings of its trials: this report describes the launch's copy (stored with it); "
+        f"<code>ablate run {esc(path)} --fresh</code> runs the file as it is now."
     )
 
 

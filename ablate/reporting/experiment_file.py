@@ -1,0 +1,47 @@
+"""The experiment file a launch ran (its copy in the store) against the file at the same path now. Where they differ
+only in what no trial key holds (the description, a comment, a knob written at its default value, the order of the
+variants), every trial the launch ran is the trial the file now describes: the report reads the file as it is now.
+Where a key differs, the report describes the launch's copy and says the file has changed (``provenance``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ablate.config import ConfigError
+from ablate.experiment import load_experiment
+from ablate.launch.grid import expand, tuning_trials
+from ablate.launch.records import grid_document
+
+
+def on_disk(path: str, cwd: str | Path | None = None) -> tuple[Path, str] | None:
+    """The file at ``path`` (relative to ``cwd``) and its text; None where it cannot be read."""
+    if not path:
+        return None
+    file = Path(cwd or ".") / path
+    try:
+        return file, file.read_text()
+    except OSError:
+        return None
+
+
+def read_from_disk(grid: dict[str, Any], path: str, ran: str | None, cwd: str | Path | None = None) -> dict | None:
+    """The launch's grid as the file at ``path`` now describes it, where that file differs from ``ran`` (the
+    launch's copy) and still gives every trial the launch ran the same key; None otherwise. The trials stay the
+    launch's (what ran, round after round); the variants, baseline, description and base come from the file."""
+    found = on_disk(path, cwd)
+    if found is None or ran is None or found[1].strip() == ran.strip():
+        return None
+    try:
+        experiment = load_experiment(found[0])
+        every_round = {t.key for t in expand(experiment, every_round=True)}
+        first = {t.key for t in expand(experiment)}
+        tuning = {t.key for t in tuning_trials(experiment)} if experiment.tune else set()
+    except (ConfigError, OSError, ValueError):
+        return None  # a file that no longer loads: the launch's copy it is
+    ran_keys = {t["key"] for t in grid["trials"]}
+    ran_tuning = {t["key"] for t in grid.get("tune_trials", [])}
+    if not (first <= ran_keys <= every_round) or tuning != ran_tuning:
+        return None
+    now = grid_document(experiment, [])
+    return now | {"trials": grid["trials"]} | ({"tune_trials": grid["tune_trials"]} if "tune_trials" in grid else {})
