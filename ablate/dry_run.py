@@ -20,7 +20,7 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     tuning) and the most the launch can take (every comparison to ``max`` seeds, round after round), from the
     store's earlier runs of these trials (and of their variants); without any, a guess in trial counts."""
     from ablate.launch.estimate import estimate
-    from ablate.launch.plan import plan_populations
+    from ablate.launch.plan import population_keys
     from ablate.launch.state import LaunchState
     from ablate.launch.tuning import StagePlan, unique
 
@@ -33,7 +33,7 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     slots = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
 
     def groups(ts: list[GridTrial]) -> list[list[str]]:
-        return [p.keys for p in plan_populations(ts, cap=DEFAULT_POPULATION, slots=slots)]
+        return population_keys(ts, cap=DEFAULT_POPULATION, slots=slots)
 
     possible: list[list[GridTrial]] = []
     if experiment.rounds is not None:

@@ -500,7 +500,7 @@ def test_the_next_launch_marks_runs_a_dead_launch_left_running_killed_and_remove
 
 def test_trial_params_hold_only_knobs_that_shaped_the_trial():
     from ablate.config import DEFAULT, apply_knobs
-    from ablate.launch.runner import tracked_params
+    from ablate.launch.records import tracked_params
 
     mlp = tracked_params("base", DEFAULT)
     assert mlp["variant"] == "base" and mlp["model.hidden_sizes"] == (32,) and "learning_rate" in mlp

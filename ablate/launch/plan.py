@@ -68,3 +68,8 @@ def plan_populations(trials: Sequence[GridTrial], cap: int = 1, slots: int = 1) 
             chosen = tuple(members[part::count])
             plan.append((min(order[t.key] for t in chosen), Population(chosen)))
     return [population for _, population in sorted(plan, key=lambda item: item[0])]
+
+
+def population_keys(trials: Sequence[GridTrial], cap: int = 1, slots: int = 1) -> list[list[str]]:
+    """The keys of each population ``plan_populations`` makes of ``trials``: how the estimate sees them."""
+    return [p.keys for p in plan_populations(trials, cap=cap, slots=slots)]

@@ -13,27 +13,22 @@ import signal
 import socket
 import time
 import uuid
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 
 from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment
-from ablate.launch.curve import CurvePoint
 from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
 from ablate.launch.mlflow_store import (
     TAG_HOST,
-    TAG_NODE,
     TAG_PID,
-    TAG_POPULATION,
-    TAG_POPULATION_SIZE,
     TAG_ROLE,
-    TAG_ROUND,
 )
-from ablate.launch.plan import Population, plan_populations
+from ablate.launch.plan import plan_populations, population_keys
 from ablate.launch.progress import ProgressView
-from ablate.launch.records import environment_document, git_commit, grid_document, tracked_params
+from ablate.launch.recorder import Recorder
+from ablate.launch.records import environment_document, git_commit, grid_document
 from ablate.launch.rounds import Judge, Rounds
 from ablate.launch.state import LaunchState
 from ablate.launch.tracking import Tracker
@@ -119,95 +114,6 @@ class RunOutcome:
         return f"{counts} (of {self.total - self.skipped} to run; {self.skipped} finished before)."
 
 
-class _Recorder:
-    """Scheduler events -> tracker writes and the launch's state, then the view redrawn (all on the driver: one
-    MLflow writer)."""
-
-    def __init__(
-        self,
-        tracker: Tracker,
-        launch: str,
-        generation: str,
-        trials: dict[str, GridTrial],
-        commit: str,
-        state: LaunchState,
-        view: ProgressView,
-        outcome: RunOutcome,
-    ) -> None:
-        self.tracker, self.launch, self.generation = tracker, launch, generation
-        self.trials, self.commit, self.state, self.view, self.outcome = trials, commit, state, view, outcome
-        self.closed = False
-        """Set once the launch stops: a late event from the scheduler then opens no run."""
-        self.summaries: dict[str, dict[str, float]] = {}
-        """Summary metrics of the trials this launch finished (tuning selection reads them)."""
-        self.members: dict[str, int] = {}
-        """Each trial's population size, from the plans handed to the scheduler (``planned``)."""
-        self.tuned: Callable[[], None] | None = None
-        """Asked after each tuning trial ends: the runner's stand-ins for stage 2, as the choice would be now."""
-
-    def planned(self, populations: list[Population]) -> list[Population]:
-        """``populations``, as the scheduler will run them: each member's size is kept for its run's tag."""
-        self.members |= {key: len(p.members) for p in populations for key in p.keys}
-        return populations
-
-    def _open(self, key: str) -> bool:
-        """Open the trial's run if needed; ``False`` once the launch has stopped (the event is dropped)."""
-        if self.closed:
-            return False
-        if key not in self.tracker.open_runs:
-            trial = self.trials[key]
-            params = tracked_params(trial.variant, trial.config)
-            self.tracker.start_trial(
-                self.launch, self.generation, key, trial.variant, trial.seed, params, self.commit, trial.stage
-            )
-        return True
-
-    def started(self, key: str) -> None:
-        if self._open(key):
-            self.state.started(key)
-            self.view.update()
-
-    def episodes(self, key: str, points: list[CurvePoint]) -> None:
-        if not self._open(key):
-            return
-        self.tracker.log_points(key, points)
-        self.state.episodes(key, points)
-        self.view.update()
-
-    def checkpoint(self, key: str, blob: bytes) -> None:
-        if not self._open(key):
-            return
-        self.tracker.log_checkpoint(key, blob)
-
-    def restarted(self, key: str, reason: str) -> None:
-        if not self.closed:
-            self.tracker.discard_trial(key, reason)
-
-    def finished(
-        self, key: str, summary: dict[str, float], artifacts: Path | None, node: str, population: str = ""
-    ) -> None:
-        if not self._open(key):
-            return
-        size = str(self.members.get(key, 1))
-        tags = {TAG_NODE: node, TAG_POPULATION: population or key, TAG_POPULATION_SIZE: size}
-        tags[TAG_ROUND] = str(self.state.round)  # what a run is, as tags: never parsed back out of its key
-        self.tracker.finish_trial(key, summary, artifacts, tags=tags)
-        self.outcome.finished.append(key)
-        self.summaries[key] = dict(summary)
-        self.state.finished(key, bool(summary.get("solved")), summary.get("wall_s"), summary)
-        if self.tuned is not None and self.trials[key].stage == "tune":
-            self.tuned()
-        self.view.update()
-
-    def failed(self, key: str, message: str) -> None:
-        if not self._open(key):
-            return
-        self.tracker.fail_trial(key, message)
-        self.outcome.failed[key] = message
-        self.state.failed(key)
-        self.view.update()
-
-
 def tune_run_name(experiment: str, launch_id: str) -> str:
     """Tune's folder for one launch, ``<storage_path>/<this>``: removed when the launch ends, or by the next
     launch if this one died. ``experiment``: its storage name (``experiment.storage_name``)."""
@@ -249,6 +155,23 @@ def reap_stale_runs(tracker: Tracker, storage_path: str) -> int:
     return len(trials) + len(stale)
 
 
+@dataclass(frozen=True)
+class LaunchOptions:
+    """How a launch runs (``ablate run``'s options); see ``run_experiment``."""
+
+    address: str | None = None
+    fresh: bool = False
+    max_concurrent: int | None = None
+    storage_path: str = "ray_results"
+    show_progress: bool = True
+    command: str = ""
+    only: Sequence[GridTrial] | None = None
+    started_at: float | None = None
+    log_estimates: bool = False
+    population: int = DEFAULT_POPULATION
+    judge: Judge | None = None
+
+
 def run_experiment(
     experiment: Experiment,
     tracking_uri: str | None = None,
@@ -273,216 +196,250 @@ def run_experiment(
 
     Every check that can fail without Ray (the grid, the CPUs, the store, another launch) fails first. Holds
     the experiment's launch lock throughout (``LaunchLocked`` if another launch has it)."""
+    options = LaunchOptions(
+        address, fresh, max_concurrent, storage_path, show_progress, command, only, started_at, log_estimates,
+        population, judge,
+    )  # fmt: skip
     trials = expand(experiment)
     check_resources(experiment, address)
     tracker = Tracker(tracking_uri, experiment.name)
     with tracker.hold_launch(f"experiment {experiment.name!r}", command):
         reaped = reap_stale_runs(tracker, storage_path)
-        outcome = _run_locked(
-            experiment, trials, tracker, address, fresh, max_concurrent, storage_path, show_progress, command,
-            only, started_at, log_estimates, population, judge,
-        )  # fmt: skip
+        outcome = _Launch(experiment, trials, tracker, options).run()
         outcome.reaped = reaped
         return outcome
 
 
-def _run_locked(
-    experiment: Experiment,
-    trials: list[GridTrial],
-    tracker: Tracker,
-    address: str | None,
-    fresh: bool,
-    max_concurrent: int | None,
-    storage_path: str,
-    show_progress: bool,
-    command: str,
-    only: Sequence[GridTrial] | None,
-    started_at: float | None,
-    log_estimates: bool = False,
-    population: int = DEFAULT_POPULATION,
-    judge: Judge | None = None,
-) -> RunOutcome:
-    generation = (None if fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
-    evaluation = trials if only is None else list(only)
-    wanted = {t.variant for t in evaluation}
-    plan = StagePlan(experiment, evaluation, [t for t in tuning_trials(experiment) if t.variant in wanted])
-    # Selection on resume reads the tuning trials finished by earlier launches back from the store.
-    finished_runs = {r.key: r.metrics for r in tracker.trial_runs(generation) if r.status == "FINISHED"}
-    finished_before = set(finished_runs)
-    choices = plan.choices(finished_runs)
-    known = unique([*plan.tuning, *evaluation, *plan.chosen(choices)], set())
-    todo = [t for t in known if t.key not in finished_before]
-    rounds = Rounds(experiment, wanted, judge, started_at) if experiment.rounds and judge else None
-    if rounds and not todo:  # round 1 is done: the next round open comparisons ask for (none: all decided)
-        todo = rounds.next_round(choices, finished_runs)
-        known += todo
-    outcome = RunOutcome(
-        experiment.name,
-        generation,
-        None,
-        skipped=len(known) - len(todo),
-        total=len(known),
-        ui_link=tracker.ui_link(ui_port()),
-    )
-    if not todo:
-        outcome.rounds = rounds.document() if rounds else None
-        return outcome
-    from ablate.launch.scheduler import ClusterOptions, ensure_ray, largest_node_cpus, run_trials, stop_ray
+class _Launch:
+    """One launch, with the experiment's lock held, as its plan runs: what is left to run (``todo``); Ray and
+    the launch's MLflow run (``start``); its state, view and recorder (``watch``); stage 1, stage 2 at the
+    chosen values, then rounds of seeds (``stages``), each a ``stage`` of populations; the launch closed with
+    what happened (``close``), whatever happened."""
 
-    if show_progress:
-        print(f"{len(todo)} trial(s) to run; starting Ray ...", flush=True)
-    started_ray = ensure_ray(address)  # an unreachable cluster fails here, in seconds, before a launch is recorded
-    biggest = largest_node_cpus()
-    if experiment.resources_per_trial > biggest:  # a joined cluster: no node could ever start a trial
-        if started_ray:
-            stop_ray()
-        raise ConfigError(
-            f"{experiment.path}: cpus_per_trial = {experiment.resources_per_trial:g} is more than the largest node "
-            f"of the Ray cluster has ({biggest:g} CPUs), so no trial could start; valid: at most {biggest:g}"
+    def __init__(self, experiment: Experiment, trials: list[GridTrial], tracker: Tracker, options: LaunchOptions):
+        self.experiment, self.trials, self.tracker, self.options = experiment, trials, tracker, options
+        self.generation = (None if options.fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
+        evaluation = trials if options.only is None else list(options.only)
+        self.wanted = {t.variant for t in evaluation}
+        tuning = [t for t in tuning_trials(experiment) if t.variant in self.wanted]
+        self.plan = StagePlan(experiment, evaluation, tuning)
+        # Selection on resume reads the tuning trials finished by earlier launches back from the store.
+        self.finished_runs = {r.key: r.metrics for r in tracker.trial_runs(self.generation) if r.status == "FINISHED"}
+        self.finished_before = set(self.finished_runs)
+        self.choices = self.plan.choices(self.finished_runs)
+        self.known = unique([*self.plan.tuning, *evaluation, *self.plan.chosen(self.choices)], set())
+        judge = options.judge
+        self.rounds = (
+            Rounds(experiment, self.wanted, judge, options.started_at) if experiment.rounds and judge else None
         )
-    # Trials a killed launch left with a checkpoint continue from it.
-    resume = tracker.latest_checkpoints(generation, (t.key for t in todo))
-    commit = git_commit()
-    extra = rounds.finished_trials(choices, finished_runs) if rounds else []  # later rounds' seeds
-    grid = grid_document(experiment, unique([*trials, *extra], set()))
-    launch = tracker.start_launch(
-        generation,
-        name=f"{experiment.name} {time.strftime('%Y-%m-%d %H:%M:%S')}",
-        tags={
-            "mlflow.source.git.commit": commit,
-            "ablate.command": command,
-            "ablate.experiment_file": experiment.path,
-            TAG_HOST: socket.gethostname(),
-            TAG_PID: str(os.getpid()),
-        },
-        files={
-            "experiment.toml": Path(experiment.path).read_text(encoding="utf-8-sig"),
-            "grid.json": json.dumps(grid, indent=1),
-            "environment.json": json.dumps(environment_document(), indent=1),
-        },
-    )
-    outcome.launch_run_id = launch
-    slots = max_concurrent or (None if address else max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1))
-    # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
-    prior, prior_episodes = tracker.earlier_runs(t.key for t in todo)
-    todo = schedule_order(todo, prior)
-    # Populations: each holds a slot until its last member ends, which the estimate sees through their groups.
-    cores = slots or max(int(biggest), 1)
-    populations = partial(plan_populations, cap=population, slots=cores)
 
-    def groups(trials: Sequence[GridTrial]) -> list[list[str]]:
-        return [p.keys for p in populations(trials)]
-
-    # Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
-    # choose now (each variant's best candidate so far), asked again as each one ends.
-    unchosen = {t.variant for t in plan.tuning} - set(choices)
-    known_keys = {t.key for t in known}
-
-    def provisional(summaries: Mapping[str, Mapping[str, float]]) -> list[GridTrial]:
-        trials = plan.provisional({**finished_runs, **summaries}, known_keys)
-        return [t for t in trials if t.variant in unchosen]
-
-    stand_ins = provisional({}) if unchosen else []
-    state = LaunchState(
-        experiment.name, todo, len(finished_before), slots, started_at, prior, prior_episodes, groups(todo),
-        stand_ins, groups(stand_ins), stage_coming=bool(unchosen),
-    )  # fmt: skip
-    view = ProgressView(state, show_progress, log_estimates)
-    outcome.view = view
-    recorder = _Recorder(tracker, launch, generation, {t.key: t for t in todo}, commit, state, view, outcome)
-
-    def may_follow() -> None:  # the rounds that may still follow: the most the launch can still run
-        if rounds is not None:
-            possible = rounds.possible(choices, set(state.trials) | finished_before)
-            state.set_possible(possible, groups([t for ts in possible for t in ts]))
-
-    def restage() -> None:  # a tuning trial ended: stage 2's stand-ins as the choice would be now
+    def run(self) -> RunOutcome:
+        todo = self.todo()
+        self.outcome = RunOutcome(
+            self.experiment.name,
+            self.generation,
+            None,
+            skipped=len(self.known) - len(todo),
+            total=len(self.known),
+            ui_link=self.tracker.ui_link(ui_port()),
+        )
+        if not todo:
+            self.outcome.rounds = self.rounds.document() if self.rounds else None
+            return self.outcome
+        self.start(todo)
         try:
-            later = provisional(recorder.summaries) if state.stage_coming else []
+            self.stages(self.watch(todo))
+        except KeyboardInterrupt as interrupt:
+            self.outcome.interrupted = True
+            received = signals_received[-1] if signals_received else signal.SIGINT
+            self.outcome.signal_name = signal.Signals(getattr(interrupt, "signum", None) or received).name
+        except Exception as error:  # noqa: BLE001 - any scheduler or Ray error: the launch is recorded FAILED
+            first = str(error).strip().splitlines()[0] if str(error).strip() else ""
+            self.outcome.error = f"{type(error).__name__}: {first}"
+        finally:
+            self.close()
+        return self.outcome
+
+    def todo(self) -> list[GridTrial]:
+        """What this launch runs first: every known trial without a finished run; on a resume after round 1,
+        the next round the open comparisons ask for (none: all decided)."""
+        todo = [t for t in self.known if t.key not in self.finished_before]
+        if self.rounds and not todo:
+            todo = self.rounds.next_round(self.choices, self.finished_runs)
+            self.known += todo
+        return todo
+
+    def start(self, todo: list[GridTrial]) -> None:
+        """Ray (an unreachable cluster fails here, in seconds, before a launch is recorded), then the launch's
+        MLflow run with the files the report reads: the experiment, the grid, the machine."""
+        from ablate.launch import scheduler
+
+        self.scheduler = scheduler
+        experiment, options = self.experiment, self.options
+        if options.show_progress:
+            print(f"{len(todo)} trial(s) to run; starting Ray ...", flush=True)
+        self.started_ray = scheduler.ensure_ray(options.address)
+        self.biggest = scheduler.largest_node_cpus()
+        if experiment.resources_per_trial > self.biggest:  # a joined cluster: no node could ever start a trial
+            if self.started_ray:
+                scheduler.stop_ray()
+            raise ConfigError(
+                f"{experiment.path}: cpus_per_trial = {experiment.resources_per_trial:g} is more than the largest "
+                f"node of the Ray cluster has ({self.biggest:g} CPUs), so no trial could start; valid: at most "
+                f"{self.biggest:g}"
+            )
+        self.commit = git_commit()
+        extra = self.rounds.finished_trials(self.choices, self.finished_runs) if self.rounds else []  # later rounds'
+        self.grid = grid_document(experiment, unique([*self.trials, *extra], set()))
+        self.launch = self.tracker.start_launch(
+            self.generation,
+            name=f"{experiment.name} {time.strftime('%Y-%m-%d %H:%M:%S')}",
+            tags={
+                "mlflow.source.git.commit": self.commit,
+                "ablate.command": options.command,
+                "ablate.experiment_file": experiment.path,
+                TAG_HOST: socket.gethostname(),
+                TAG_PID: str(os.getpid()),
+            },
+            files={
+                "experiment.toml": Path(experiment.path).read_text(encoding="utf-8-sig"),
+                "grid.json": json.dumps(self.grid, indent=1),
+                "environment.json": json.dumps(environment_document(), indent=1),
+            },
+        )
+        self.outcome.launch_run_id = self.launch
+        self.cluster = scheduler.ClusterOptions(
+            options.address,
+            options.max_concurrent,
+            experiment.resources_per_trial,
+            experiment.gpus_per_trial,
+            options.storage_path,
+        )
+        self.run_name = tune_run_name(self.tracker.experiment_name, self.launch)
+
+    def watch(self, todo: list[GridTrial]) -> list[GridTrial]:
+        """The launch's state (stage 2's stand-ins and later rounds counted from the start), its view and the
+        recorder that turns scheduler events into MLflow writes and state updates; ``todo`` in start order."""
+        experiment, options = self.experiment, self.options
+        cpus = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
+        slots = options.max_concurrent or (None if options.address else cpus)
+        # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
+        prior, prior_episodes = self.tracker.earlier_runs(t.key for t in todo)
+        todo = schedule_order(todo, prior)
+        # Populations: each holds a slot until its last member ends, which the estimate sees through their groups.
+        self.cores = slots or max(int(self.biggest), 1)
+        self.unchosen = {t.variant for t in self.plan.tuning} - set(self.choices)
+        stand_ins = self.provisional({}) if self.unchosen else []
+        self.state = LaunchState(
+            experiment.name, todo, len(self.finished_before), slots, options.started_at, prior, prior_episodes,
+            self.groups(todo), stand_ins, self.groups(stand_ins), stage_coming=bool(self.unchosen),
+        )  # fmt: skip
+        self.view = ProgressView(self.state, options.show_progress, options.log_estimates)
+        self.outcome.view = self.view
+        trials = {t.key: t for t in todo}
+        self.recorder = Recorder(
+            self.tracker, self.launch, self.generation, trials, self.commit, self.state, self.view, self.outcome
+        )
+        self.recorder.tuned = self.restage if self.unchosen else None
+        self.may_follow()
+        return todo
+
+    def groups(self, trials: Sequence[GridTrial]) -> list[list[str]]:
+        return population_keys(trials, self.options.population, self.cores)
+
+    def provisional(self, summaries: Mapping[str, Mapping[str, float]]) -> list[GridTrial]:
+        """Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
+        choose now (each variant's best candidate so far)."""
+        trials = self.plan.provisional({**self.finished_runs, **summaries}, {t.key for t in self.known})
+        return [t for t in trials if t.variant in self.unchosen]
+
+    def restage(self) -> None:
+        """A tuning trial ended: stage 2's stand-ins as the choice would be now."""
+        try:
+            later = self.provisional(self.recorder.summaries) if self.state.stage_coming else []
         except Exception:  # noqa: BLE001 - an estimate never stops a launch: keep the stand-ins
             return
-        state.set_later(later, groups(later))
+        self.state.set_later(later, self.groups(later))
 
-    recorder.tuned = restage if unchosen else None
-    may_follow()
-    options = ClusterOptions(
-        address,
-        max_concurrent,
-        experiment.resources_per_trial,
-        experiment.gpus_per_trial,
-        storage_path,
-    )
-    run_name = tune_run_name(tracker.experiment_name, launch)
-    try:
-        if plan.tuning and wanted <= set(choices):
-            tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
+    def may_follow(self) -> None:
+        """The rounds that may still follow: the most the launch can still run."""
+        if self.rounds is not None:
+            possible = self.rounds.possible(self.choices, set(self.state.trials) | self.finished_before)
+            self.state.set_possible(possible, self.groups([t for ts in possible for t in ts]))
+
+    def stages(self, todo: list[GridTrial]) -> None:
+        """Stage 1 (tuning, or the grid); stage 2 at each variant's chosen values; then rounds of seeds until the
+        primary comparisons are decided."""
+        plan, rounds, tracker, launch = self.plan, self.rounds, self.tracker, self.launch
+        if plan.tuning and self.wanted <= set(self.choices):
+            tracker.log_file(
+                launch, "tuning.json", json.dumps(tuning_document(self.experiment, self.choices), indent=1)
+            )
         if rounds and rounds.ran:  # a resumed launch starts in a later round
-            state.name, state.round = rounds.announce(show_progress), rounds.ran[-1]["round"]
-        with view:
-            run_trials(recorder.planned(populations(todo)), recorder, options, run_name=run_name, resume=resume)
-
-        def run_later(later: list[GridTrial]) -> None:  # stage 2, a round of seeds: after what ran before
-            todo_after = [t for t in later if t.key not in finished_before]
-            outcome.total += len(later)
-            outcome.skipped += len(later) - len(todo_after)
-            # Seeds interleaved, as in stage 1; the same state, so what stage 1 taught of costs carries over.
-            costs, episodes = tracker.earlier_runs(t.key for t in todo_after)  # earlier launches' runs of them
-            todo_after = schedule_order(todo_after, costs)
-            state.add_trials(todo_after, costs, episodes, groups(todo_after))
-            may_follow()
-            view.update()
-            if todo_after:
-                recorder.trials |= {t.key: t for t in todo_after}
-                with view:
-                    resume = tracker.latest_checkpoints(generation, (t.key for t in todo_after))
-                    run_trials(
-                        recorder.planned(populations(todo_after)), recorder, options, run_name=run_name, resume=resume
-                    )
-
-        if plan.tuning and not wanted <= set(choices):
+            self.state.name, self.state.round = rounds.announce(self.options.show_progress), rounds.ran[-1]["round"]
+        self.stage(todo)
+        if plan.tuning and not self.wanted <= set(self.choices):
             # Stage 2: every variant whose tuning trials all finished, at its chosen values.
-            choices = plan.choices(finished_runs | recorder.summaries)
-            tracker.log_file(launch, "tuning.json", json.dumps(tuning_document(experiment, choices), indent=1))
-            run_later(unique(plan.chosen(choices), {t.key for t in known}))
-        while rounds is not None:  # then rounds of seeds, until the primary comparisons are decided
-            later = rounds.next_round(choices, finished_runs | recorder.summaries)
+            self.choices = plan.choices(self.finished_runs | self.recorder.summaries)
+            tracker.log_file(
+                launch, "tuning.json", json.dumps(tuning_document(self.experiment, self.choices), indent=1)
+            )
+            self.later(unique(plan.chosen(self.choices), {t.key for t in self.known}))
+        while rounds is not None:
+            later = rounds.next_round(self.choices, self.finished_runs | self.recorder.summaries)
             tracker.log_file(launch, "rounds.json", json.dumps(rounds.document(), indent=1))
             if not later:
-                may_follow()  # none: the upper figure is the launch's end
+                self.may_follow()  # none: the upper figure is the launch's end
                 break
-            grid["trials"] += [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in later]
-            tracker.log_file(launch, "grid.json", json.dumps(grid, indent=1))
-            state.name, state.round = rounds.announce(show_progress), rounds.ran[-1]["round"]
-            run_later(later)
-        outcome.rounds = rounds.document() if rounds else None
-    except KeyboardInterrupt as interrupt:
-        outcome.interrupted = True
-        signum = getattr(interrupt, "signum", None) or (signals_received[-1] if signals_received else signal.SIGINT)
-        outcome.signal_name = signal.Signals(signum).name
-    except Exception as error:  # noqa: BLE001 - any scheduler or Ray error: the launch is recorded FAILED, with it
-        outcome.error = f"{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
-    finally:
+            self.grid["trials"] += [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in later]
+            tracker.log_file(launch, "grid.json", json.dumps(self.grid, indent=1))
+            self.state.name, self.state.round = rounds.announce(self.options.show_progress), rounds.ran[-1]["round"]
+            self.later(later)
+        self.outcome.rounds = rounds.document() if rounds else None
+
+    def stage(self, todo: list[GridTrial]) -> None:
+        """Run ``todo`` as populations; trials a killed launch left with a checkpoint continue from it."""
+        self.recorder.trials |= {t.key: t for t in todo}
+        resume = self.tracker.latest_checkpoints(self.generation, (t.key for t in todo))
+        populations = self.recorder.planned(plan_populations(todo, cap=self.options.population, slots=self.cores))
+        with self.view:
+            self.scheduler.run_trials(populations, self.recorder, self.cluster, run_name=self.run_name, resume=resume)
+
+    def later(self, trials: list[GridTrial]) -> None:
+        """Stage 2, or a round of seeds, after what ran before: seeds interleaved as in stage 1, in the same
+        state, so what stage 1 taught of costs carries over."""
+        todo = [t for t in trials if t.key not in self.finished_before]
+        self.outcome.total += len(trials)
+        self.outcome.skipped += len(trials) - len(todo)
+        costs, episodes = self.tracker.earlier_runs(t.key for t in todo)  # earlier launches' runs of them
+        todo = schedule_order(todo, costs)
+        self.state.add_trials(todo, costs, episodes, self.groups(todo))
+        self.may_follow()
+        self.view.update()
+        if todo:
+            self.stage(todo)
+
+    def close(self) -> None:
+        """Mark what did not finish, close the launch's run with what happened, stop the Ray this launch
+        started: uninterrupted by a second Ctrl-C."""
+        outcome, tracker = self.outcome, self.tracker
         with _signals_deferred():
-            recorder.closed = True
+            if self.recorder is not None:
+                self.recorder.closed = True
             if outcome.interrupted:
                 reason = f"interrupted ({outcome.signal_name}); a re-run starts it again"
             elif outcome.error:
                 reason = f"the launch failed ({outcome.error}); a re-run starts it again"
             else:
                 reason = "the scheduler ended without a result for this trial; a re-run starts it again"
-            outcome.killed = tracker.kill_running_trials(launch, reason)
+            outcome.killed = tracker.kill_running_trials(self.launch, reason)
             failed = outcome.error or outcome.failed or outcome.killed
             status = "KILLED" if outcome.interrupted else "FAILED" if failed else "FINISHED"
-            tracker.finish_launch(
-                launch,
-                status,
-                {
-                    "trials_finished": len(outcome.finished),
-                    "trials_failed": len(outcome.failed),
-                    "trials_killed": len(outcome.killed),
-                },
-                note=outcome.note(),
-            )
-            if started_ray:
-                stop_ray()
-    return outcome
+            counts = {
+                "trials_finished": len(outcome.finished),
+                "trials_failed": len(outcome.failed),
+                "trials_killed": len(outcome.killed),
+            }
+            tracker.finish_launch(self.launch, status, counts, note=outcome.note())
+            if self.started_ray:
+                self.scheduler.stop_ray()
