@@ -12,6 +12,7 @@ CSS = """
 body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222;
        line-height: 1.45; }
 table { border-collapse: collapse; font-size: 0.85em; margin: 1em 0; }
+caption { caption-side: top; text-align: left; font-size: 0.9em; color: #333; padding: 0.3em 0; }
 th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: left; vertical-align: top; }
 img { max-width: 100%; }
 figure { margin: 1.5em 0; break-inside: avoid; }
