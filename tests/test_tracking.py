@@ -106,23 +106,3 @@ def test_only_the_writer_and_the_reader_import_mlflow_and_run_never_imports_repo
     # launch/patches.py: MLflow's one private name changed, for the writer's process (test_patches).
     assert importers == {"launch/tracking.py", "launch/mlflow_store.py", "reporting/reader.py", "launch/patches.py"}
     assert not upward  # the report after a launch is written by ablate/commands.py, above both layers
-
-
-def test_a_runs_population_size_is_its_tag_and_older_runs_count_their_populations_members():
-    """Read off ``ablate.population_size``, never parsed out of the population's key; a run written before that
-    tag counts the trials that share its ``ablate.population`` (a variant named ``pop3`` is just a name)."""
-    from ablate.launch.mlflow_store import population_sizes
-
-    new = {
-        "a-s0": {"ablate.population": "pop2-a-s0-1234567890", "ablate.population_size": "2"},
-        "a-s1": {"ablate.population": "pop2-a-s0-1234567890", "ablate.population_size": "2"},
-        "pop3-s0": {"ablate.population": "pop3-s0", "ablate.population_size": "1"},
-    }
-    assert population_sizes(new) == {"a-s0": 2, "a-s1": 2, "pop3-s0": 1}
-    old = {
-        "b-s0": {"ablate.population": "pop9-b-s0-abcdef0123"},  # the key's "9" is not read: 2 members ran
-        "b-s1": {"ablate.population": "pop9-b-s0-abcdef0123"},
-        "pop3-s0": {"ablate.population": "pop3-s0"},  # alone, named by its own key
-        "c-s0": {},  # before populations were tagged at all: alone
-    }
-    assert population_sizes(old) == {"b-s0": 2, "b-s1": 2, "pop3-s0": 1, "c-s0": 1}

@@ -72,10 +72,6 @@ class Verdict:
     def decided(self) -> bool:
         return self.verdict != UNDETERMINED
 
-    @property
-    def needs_more_than_cap(self) -> bool:
-        return self.seeds_estimated and self.seeds_needed is None
-
 
 @dataclass(frozen=True)
 class Round:

@@ -275,10 +275,6 @@ class TimeLeft:
         now_stage = makespan(running_left, [c + gap for c in costs], slots)  # type: ignore[misc, operator]
         return now_stage + (makespan([], [c + gap for c in later], slots) if later else 0.0)  # type: ignore[misc, operator]
 
-    def most_left(self, now: float | None = None) -> float | None:
-        """Seconds until the launch's end if every comparison still open runs to its ``max`` seeds."""
-        return self.figures(now)[1]
-
     def figures(self, now: float | None = None) -> tuple[float | None, float | None]:
         """(``seconds_left``, the most the launch can still take): the time left now, then each round later
         rounds may still add (``LaunchState.possible``), one after another (a round starts once the one before

@@ -9,8 +9,6 @@ import contextlib
 import logging
 import os
 import unicodedata
-from collections import Counter
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,19 +47,6 @@ TAG_STAGE = "ablate.stage"
 """``tune`` (a tuning trial, stage 1 of a ``[tune]`` experiment) or ``eval``; runs without it are ``eval``."""
 TAG_ROUND = "ablate.round"
 """The round of seeds its launch ran it in (``1``: the first, its tuning stage included)."""
-
-
-def population_sizes(tags: Mapping[str, Mapping[str, str]]) -> dict[str, int]:
-    """Each trial's population size, from its run's tags (``tags``: by trial key, one run each): its
-    ``TAG_POPULATION_SIZE``; on a run written before that tag, the trials given whose ``TAG_POPULATION`` is
-    its own (1 without one), the population's key being a name, not a record to parse."""
-    population = {key: t.get(TAG_POPULATION) or key for key, t in tags.items()}
-    counted = Counter(population.values())
-    sizes = {}
-    for key, t in tags.items():
-        size = t.get(TAG_POPULATION_SIZE, "")
-        sizes[key] = int(size) if size.isdigit() else counted[population[key]]
-    return sizes
 
 
 def quiet_mlflow() -> None:

@@ -89,9 +89,6 @@ class Tracker(Store):
         )
         return runs[0] if runs else None
 
-    def finished_keys(self, generation: str) -> set[str]:
-        return {r.key for r in self.trial_runs(generation) if r.status == "FINISHED"}
-
     def earlier_runs(self, keys: Iterable[str]) -> tuple[dict[str, float], dict[str, int]]:
         """Seconds each of ``keys`` took (its run's start to end) and the episodes it ran, when an earlier
         launch, of any generation, finished it; the newest such run counts. A trial key fixes everything that

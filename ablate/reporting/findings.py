@@ -23,17 +23,6 @@ from ablate.reporting.statistics import (
 from ablate.reporting.text import _interval, _metric_name, _pct, _signed, _signed_pct, esc, fmt
 
 
-def _findings_intro(ablation: Ablation) -> str:
-    extends = _extends(ablation)
-    if not extends:
-        return f"Each variant against {esc(ablation.baseline)}"
-    pairs = ", ".join(f"{esc(v)} against {esc(ablation.reference(v))}" for v in extends)
-    return (
-        f"Each variant against its reference: {esc(ablation.baseline)}, or, for a variant that adds one change to "
-        f"another variant's, that variant, so each comparison isolates one change ({pairs})"
-    )
-
-
 def _no_claim_reason(n: int, m: int) -> str:
     if min(n, m) < 2:
         return f"{min(n, m)} seed{'s give' if min(n, m) != 1 else ' gives'} no interval"
