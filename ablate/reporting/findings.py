@@ -92,6 +92,22 @@ def _stability(row: pd.Series) -> str:
     return ""  # holding is the rule, said once before the list
 
 
+def _never_counts(row: pd.Series, table: pd.DataFrame, n: int, m: int) -> str:
+    """``3 of 5 a seeds and 5 of 5 b seeds never solved`` (or ``never reached -15``): the seeds an episodes IQM
+    counts as the budget, read from the convergence table."""
+    level = row.metric.removeprefix("episodes_to_")
+
+    def never(variant: str) -> int:
+        at = table.loc[table.variant == variant].iloc[0]
+        if row.metric == "episodes_to_solve":
+            return int(at.unsolved_censored)
+        return int(at.seeds_run - at[f"{row.metric}_reached"])
+
+    what = "never solved" if row.metric == "episodes_to_solve" else f"never reached {level}"
+    variant, reference = esc(row.variant), esc(row.reference)
+    return f"{never(row.variant)} of {n} {variant} seeds and {never(row.reference)} of {m} {reference} seeds {what}"
+
+
 def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     """One metric's comparison in words: what may be claimed, sized as an estimate or as a bound, with its
     interval and whether it survives leaving out any one seed."""
@@ -103,22 +119,12 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
         return f"{name}: *{TOO_FEW_SEEDS}*.{_estimate(row)}{reading}"
     if metric.startswith("episodes_to_"):
         x, y = fmt(row.variant_value), fmt(row.reference_value)
-        unsolved = (
-            (lambda v: int(table.loc[table.variant == v, "unsolved_censored"].iloc[0]))
-            if metric == "episodes_to_solve"
-            else None
-        )
-        counts = ""
-        if unsolved is not None:
-            counts = (
-                f"{unsolved(row.variant)} of {n} {esc(row.variant)} seeds and {unsolved(row.reference)} of {m} "
-                f"{base} seeds never solved"
-            )
+        counts = _never_counts(row, table, n, m)
         if row.bound == "censored":
+            never = "unsolved seeds" if metric == "episodes_to_solve" else "the seeds that never got there"
             return (
-                f"{name}: *{NOT_SEPARATED}*: episodes cannot separate them: both IQMs count unsolved seeds as the "
-                f"budget ({counts}), so both are "
-                "lower bounds; see the returns below."
+                f"{name}: *{NOT_SEPARATED}*: episodes cannot separate them: both IQMs count {never} as the budget "
+                f"({counts}), so both are lower bounds; see the returns below."
             )
         change = f"{stat} {'≥ ' if row.bound and row.verdict == EXPLORATORY_WORSE else ''}{x} vs {y}"
         if row.verdict == EXPLORATORY_BETTER and row.bound:
