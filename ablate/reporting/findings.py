@@ -358,5 +358,5 @@ def summary(
             f"alone (unadjusted: not a claim). A rank orders point estimates only; the last column repeats the "
             f"primary claim on {_metric_name(primary)}."
         ),
-        Table(pd.DataFrame(rows)),
+        Table(pd.DataFrame(rows), "The variants ranked (exploratory)"),
     ]
