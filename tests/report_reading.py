@@ -199,26 +199,44 @@ def check_claims(text: str, data: ReportData) -> list[str]:
     return problems
 
 
+def _table(block: str) -> list[dict[str, str]]:
+    """The first pipe table in ``block`` as rows of {header: cell}."""
+    lines = [line for line in block.splitlines() if line.startswith("|")]
+    if len(lines) < 2:
+        return []
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in lines]
+    return [dict(zip(cells[0], row, strict=True)) for row in cells[2:]]
+
+
 def check_rank_table(text: str, data: ReportData) -> list[str]:
-    """The Claims section's table: each variant's solved seeds, its IQM and interval, and the primary claim."""
+    """The Claims section's table: each variant's solved seeds (where there is a threshold), its IQM and interval
+    on each metric it shows (episodes to solve, AUC), and the primary claim."""
     problems = []
     claims = {} if data.claims is None else dict(zip(data.claims.variant, data.claims.verdict, strict=True))
     table = data.convergence.set_index("variant")
-    rows = re.findall(
-        r"^\| \d+ \| (\S+) \| (\d+)/(\d+) \| ([^|]+) \| [^|]+ \| ([^|]+) \|$", section(text, "Claims"), re.M
-    )
-    for variant, solved, ran, iqm, claim in rows:
+    rows = _table(section(text, "Claims"))
+    for entry in rows:
+        variant = entry["variant"]
         row = table.loc[variant]
         mine = data.trials[data.trials.variant == variant]
-        if (int(solved), int(ran)) != (int((mine.solved.astype(float) == 1).sum()), len(mine)):
-            problems.append(
-                f"rank table: {variant} {solved}/{ran}, the trials: {len(mine) - data.unsolved(variant)}/{len(mine)}"
-            )
-        values = [row.episodes_iqm, row.episodes_iqm_ci_low, row.episodes_iqm_ci_high]
-        if len(numbers(iqm)) != 3 or not all(shows(t, v) for t, v in zip(numbers(iqm), values, strict=True)):
-            problems.append(f"rank table: {variant} {iqm.strip()}, the data: {values}")
-        if claims and claim.strip() != claims.get(variant, "reference"):
-            problems.append(f"rank table: {variant} {claim.strip()!r}, the claims: {claims.get(variant)!r}")
+        if "solved" in entry:
+            solved, ran = (int(x) for x in entry["solved"].split("/"))
+            if (solved, ran) != (int((mine.solved.astype(float) == 1).sum()), len(mine)):
+                right = f"{len(mine) - data.unsolved(variant)}/{len(mine)}"
+                problems.append(f"rank table: {variant} {solved}/{ran}, the trials: {right}")
+        shown = {
+            "episodes to solve, IQM [95% CI]": [row.episodes_iqm, row.episodes_iqm_ci_low, row.episodes_iqm_ci_high],
+            "AUC, IQM [95% CI]": [row.auc_iqm, row.auc_ci_low, row.auc_ci_high],
+        }
+        for column, values in shown.items():
+            if column not in entry:
+                continue
+            found = numbers(entry[column])
+            if len(found) != 3 or not all(shows(t, v) for t, v in zip(found, values, strict=True)):
+                problems.append(f"rank table: {variant} {column} {entry[column]}, the data: {values}")
+        claim = entry["primary claim"]
+        if claims and claim != claims.get(variant, "reference"):
+            problems.append(f"rank table: {variant} {claim!r}, the claims: {claims.get(variant)!r}")
     if not rows:
         problems.append("rank table: no rows")
     return problems
@@ -226,7 +244,10 @@ def check_rank_table(text: str, data: ReportData) -> list[str]:
 
 def _metric(name: str) -> str | None:
     found = re.fullmatch(r"return after ([\d,]+) episodes", name)
-    return f"return_at_{found[1].replace(',', '')}" if found else METRICS.get(name)
+    if found:
+        return f"return_at_{found[1].replace(',', '')}"
+    level = re.fullmatch(r"episodes to reach a rolling return of (-?[\d.]+)", name)
+    return f"episodes_to_{level[1]}" if level else METRICS.get(name)
 
 
 def _check_sizes(line: str, row: pd.Series, where: str) -> list[str]:
@@ -295,6 +316,16 @@ def check_comparisons(text: str, data: ReportData) -> list[str]:
             elif primary:
                 problems.append(f"{where}: a primary claim on a row that is not primary")
             problems += _check_sizes(line, row, where)
+            reached = re.search(r"(\d+) of (\d+) \S+ seeds and (\d+) of (\d+) \S+ seeds never reached (-?[\d.]+)", line)
+            if reached:
+                counts = {v: len(s) for v, s in data.seeds.items()}
+                never_at = {
+                    v: int((g[f"reached_{reached[5]}"].astype(float) != 1).sum())
+                    for v, g in data.trials.groupby("variant")
+                }
+                want = (never_at[variant], counts[variant], never_at[reference], counts[reference])
+                if tuple(map(int, reached.groups()[:4])) != want:
+                    problems.append(f"{where}: {reached[0]!r}, the trials: {want}")
             never = re.search(r"(\d+) of (\d+) \S+ seeds and (\d+) of (\d+) \S+ seeds never solved", line)
             if never:
                 counts = {v: len(s) for v, s in data.seeds.items()}
@@ -330,6 +361,12 @@ def check_comparisons(text: str, data: ReportData) -> list[str]:
             )
             if metric and metric.startswith("return_at_"):
                 pool.append(float(metric.removeprefix("return_at_")))
+            if metric and metric.startswith("episodes_to_") and metric != "episodes_to_solve":
+                level = metric.removeprefix("episodes_to_")
+                pool.append(float(level))
+                pool += [
+                    int((g[f"reached_{level}"].astype(float) != 1).sum()) for _, g in data.trials.groupby("variant")
+                ]
             if claims is not None and str(row.primary) == "True":
                 pool += [claims.loc[variant].seeds_needed, claims.loc[variant].seeds_cap]
             stray = unexplained(line, pool)

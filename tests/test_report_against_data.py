@@ -58,6 +58,23 @@ def test_the_committed_pong_report_says_what_its_tables_say():
 
 
 @pytest.mark.parametrize(
+    "old, new",
+    [
+        ("| 1 | mlp | -19.1 [-19.6, -18.9] | better |", "| 1 | mlp | -19.2 [-19.6, -18.9] | better |"),
+        ("| 2 | cnn | -20.2 [-20.4, -20.1] | reference |", "| 2 | cnn | -20.2 [-20.4, -20.1] | worse |"),
+        (
+            "5 of 5 mlp seeds and 5 of 5 cnn seeds never reached -15",
+            "4 of 5 mlp seeds and 5 of 5 cnn seeds never reached -15",
+        ),
+    ],
+)
+def test_a_pong_sentence_other_than_its_tables_is_caught(old, new):
+    text, data = _committed("pong")
+    assert old in text and check_all(text, data) == []
+    assert len(check_all(text.replace(old, new), data)) == 1
+
+
+@pytest.mark.parametrize(
     "old, new, caught",
     [
         # the old Seeds sentence, written from the file's start rather than the seeds that ran
