@@ -66,7 +66,7 @@ train: $(STAMP) ## one CartPole trial: curve, video, weights in outputs/train/ (
 ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray (seeds in rounds up to 30, populations of 8), track in MLflow, write the report
 	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --population 8 --tracking-uri $(TRACKING_URI)
 
-ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, each at its tuned rate, 5 seeds x 400 episodes, every trial alone (1 h 42 min on a fresh clone of a 2-core machine; at most 2 h)
+ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, each at its tuned rate, 5 seeds x 400 episodes, every trial alone (49 min to 1 h 42 min on a fresh clone of a 2-core machine, as machines differ; at most 2 h)
 	$(BIN)/ablate run experiments/pong.toml --population 1 --tracking-uri $(TRACKING_URI)
 
 report: $(STAMP) ## rebuild reports/<name>/ from the MLflow store (EXPERIMENT=experiments/cartpole.toml by default)
