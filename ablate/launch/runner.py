@@ -14,6 +14,7 @@ import socket
 import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -278,7 +279,11 @@ class _Launch:
         experiment, options = self.experiment, self.options
         if options.show_progress:
             print(f"{len(todo)} trial(s) to run; starting Ray ...", flush=True)
-        self.started_ray = scheduler.ensure_ray(options.address)
+        # The machine's record imports torch (its CPU kernels) and asks git: while Ray starts, not after it.
+        with ThreadPoolExecutor(1, thread_name_prefix="ablate-record") as pool:
+            machine, commit = pool.submit(environment_document), pool.submit(git_commit)
+            self.started_ray = scheduler.ensure_ray(options.address)
+            self.environment, self.commit = machine.result(), commit.result()
         self.biggest = scheduler.largest_node_cpus()
         if experiment.resources_per_trial > self.biggest:  # a joined cluster: no node could ever start a trial
             if self.started_ray:
@@ -288,7 +293,6 @@ class _Launch:
                 f"node of the Ray cluster has ({self.biggest:g} CPUs), so no trial could start; valid: at most "
                 f"{self.biggest:g}"
             )
-        self.commit = git_commit()
         extra = self.rounds.finished_trials(self.choices, self.finished_runs) if self.rounds else []  # later rounds'
         self.grid = grid_document(experiment, unique([*self.trials, *extra], set()))
         self.launch = self.tracker.start_launch(
@@ -304,7 +308,7 @@ class _Launch:
             files={
                 "experiment.toml": Path(experiment.path).read_text(encoding="utf-8-sig"),
                 "grid.json": json.dumps(self.grid, indent=1),
-                "environment.json": json.dumps(environment_document(), indent=1),
+                "environment.json": json.dumps(self.environment, indent=1),
             },
         )
         self.outcome.launch_run_id = self.launch

@@ -38,7 +38,6 @@ import ray
 from ray import tune
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-from ablate.agent.trainer import run_population
 from ablate.launch.curve import CurvePoint, CurveReducer
 from ablate.launch.patches import ray_entrypoint_shown, ray_error_printer, ray_loopback_only
 from ablate.launch.plan import Population
@@ -152,6 +151,8 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
         if checkpoints is not None:
             blobs = ray.get([checkpoints.get.remote(k) for k in keys])
             resume = {"resume_from": blobs, "on_checkpoint": on_checkpoint}
+        from ablate.agent.trainer import run_population  # here, in the worker: the driver never imports torch for it
+
         try:
             run_population(
                 [t.config for t in population.members],
