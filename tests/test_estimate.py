@@ -48,6 +48,14 @@ def test_cost_is_learned_per_variant_from_finished_trials_else_from_the_budget(c
     assert view.seconds_left() == pytest.approx(300)
 
 
+def test_the_expected_longest_of_a_populations_members():
+    from ablate.launch.estimate import expected_max
+
+    assert expected_max([[7.0]]) == 7.0
+    assert expected_max([[10.0, 30.0]] * 3) == pytest.approx(27.5)  # the slowest of three seeds, not their mean
+    assert expected_max([[1.0, 1.0, 1.0, 1.0, 10.0]] * 8) > 8.0  # one seed in five never solves: 8 members wait
+
+
 def test_a_population_holds_its_slot_until_its_last_member_ends_and_costs_its_longest_member(clock):
     trials = _trials(budget=100, variants=("a",), seeds=(0, 1, 2, 3, 4, 5))
 
@@ -66,15 +74,17 @@ def test_a_population_holds_its_slot_until_its_last_member_ends_and_costs_its_lo
     view.finished("a-s1", solved=True)  # 30 s
     view.episodes("a-s2", [_row(50, 5.0), _row(60, 6.0)])
     # a-s2 ran past its peers' mean (20 s): it runs on at its own pace (30 s for 60 episodes: 20 s for the 40
-    # left); then the second population's three members start together, each costed as the finished members
-    # (20 s): its cost is its longest member's, not their sum (they run at once), and it waits for the slot.
-    assert view.seconds_left() == pytest.approx(20 + 20)
+    # left); then the second population's three members start together, each costing what a finished member
+    # did (10 s or 30 s, equally likely): the population costs its longest member's, not their sum (they run at
+    # once) and not their mean: the expected longest of three, 10 x 1/8 + 30 x 7/8 = 27.5 s; it waits for the slot.
+    assert view.seconds_left() == pytest.approx(20 + 27.5)
     clock.now += 5
     view.finished("a-s2", solved=False)  # the first population took 35 s; the second starts after its last
     view.started("a-s3")
     assert view.gaps == [0.0]  # one slot freed (at the last member's end) and taken
-    # a-s3 runs (its cost: the finished members' mean, 25 s); a-s4 and a-s5 start with it, in its slot.
-    assert view.seconds_left() == pytest.approx((10 + 30 + 35) / 3)
+    # a-s3 runs (its cost: the finished members' mean, 25 s); a-s4 and a-s5, not started, are the expected
+    # longest of two draws from 10, 30 and 35 s (10 x 1/9 + 30 x 3/9 + 35 x 5/9): the population's time left.
+    assert view.seconds_left() == pytest.approx((10 + 90 + 175) / 9)
     clock.now += 1
     view.started("a-s4")
     view.started("a-s5")

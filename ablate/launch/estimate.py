@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bisect
 import heapq
+import math
 import statistics
 import time
 from collections.abc import Mapping, Sequence
@@ -33,6 +34,16 @@ def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], s
     for cost in pending_cost_s:
         heapq.heappush(free_at, heapq.heappop(free_at) + cost)
     return max(free_at)
+
+
+def expected_max(samples: Sequence[Sequence[float]]) -> float:
+    """The expected longest of independent draws, one from each sample (its values equally likely): what a
+    population of members with these costs holds its slot for."""
+    total = below = 0.0
+    for x in sorted({v for sample in samples for v in sample}):
+        p = math.prod(sum(v <= x for v in sample) / len(sample) for sample in samples)  # P(every draw <= x)
+        total, below = total + x * (p - below), p
+    return total
 
 
 def at_budget(cost: float, ran: int, budget: int, rate: float | None, wanted: int) -> float:
@@ -152,6 +163,16 @@ class TimeLeft:
             return None
         return (s1 - s0) / (n1 - n0) / statistics.fmean(rates)
 
+    def _cost_sample(self, trial: TrialProgress, seen: CostsSeen) -> list[float] | None:
+        """The costs a trial that has not started may take, equally likely: its finished peers' (with the same
+        settings, at its budget), each at the launch's pace now; else the one figure ``_trial_cost`` gives."""
+        if trial.trial.key not in self.state.prior:
+            same = [cost for cost, _, budget, _ in seen.peers.get(trial.settings, []) if budget == trial.budget]
+            if same:
+                return [cost * seen.pace for cost in same]
+        cost = self._trial_cost(trial, seen)
+        return None if cost is None else [cost]
+
     def _peer_cost(self, trial: TrialProgress, seen: CostsSeen) -> float | None:
         """What finished trials say a trial costs: its earlier run's (scaled to this launch's pace); else the
         mean of its finished peers with the same settings, at its budget; else their cost carried over to its
@@ -242,12 +263,14 @@ class TimeLeft:
         return rate * max(left if climb is None else min(left, climb), 0)
 
     def _unit_left(self, unit: Sequence[TrialProgress], now: float, seen: CostsSeen) -> float | None:
-        """Seconds until a population (or a trial alone) frees its slot: its longest member's, each running
-        member's time left and each member not started yet (its mates may have) costed whole from now."""
-        left = [
-            self._left_of_running(t, now, seen) if t.state == "running" else self._trial_cost(t, seen) for t in unit
-        ]
-        return None if None in left else max(left)  # type: ignore[type-var]
+        """Seconds until a population (or a trial alone) frees its slot: its longest member's. Each running
+        member's time left; the members not started yet (their mates may have) costed whole from now, as the
+        expected longest of them: a population waits for its slowest seed, not for its mean one."""
+        running = [self._left_of_running(t, now, seen) for t in unit if t.state == "running"]
+        samples = [self._cost_sample(t, seen) for t in unit if t.state != "running"]
+        if None in running or None in samples:
+            return None
+        return max([*running, *([expected_max(samples)] if samples else [])])  # type: ignore[list-item, arg-type]
 
     def seconds_left(self, now: float | None = None, seen: CostsSeen | None = None) -> float | None:
         """Seconds until the last trial ends, or ``None`` while nothing is known of any trial's cost."""
