@@ -25,10 +25,13 @@ def on_disk(path: str, cwd: str | Path | None = None) -> tuple[Path, str] | None
         return None
 
 
-def read_from_disk(grid: dict[str, Any], path: str, ran: str | None, cwd: str | Path | None = None) -> dict | None:
-    """The launch's grid as the file at ``path`` now describes it, where that file differs from ``ran`` (the
-    launch's copy) and still gives every trial the launch ran the same key; None otherwise. The trials stay the
-    launch's (what ran, round after round); the variants, baseline, description and base come from the file."""
+def read_from_disk(
+    grid: dict[str, Any], path: str, ran: str | None, cwd: str | Path | None = None
+) -> tuple[dict, str] | None:
+    """The launch's grid as the file at ``path`` now describes it, and that file's text, where it differs from
+    ``ran`` (the launch's copy) and still gives every trial the launch ran the same key; None otherwise. The trials
+    stay the launch's (what ran, round after round); the variants, baseline, description and base come from the
+    file."""
     found = on_disk(path, cwd)
     if found is None or ran is None or found[1].strip() == ran.strip():
         return None
@@ -44,4 +47,5 @@ def read_from_disk(grid: dict[str, Any], path: str, ran: str | None, cwd: str | 
     if not (first <= ran_keys <= every_round) or tuning != ran_tuning:
         return None
     now = grid_document(experiment, [])
-    return now | {"trials": grid["trials"]} | ({"tune_trials": grid["tune_trials"]} if "tune_trials" in grid else {})
+    tune = {"tune_trials": grid["tune_trials"]} if "tune_trials" in grid else {}
+    return now | {"trials": grid["trials"]} | tune, found[1]

@@ -19,7 +19,7 @@ import pandas as pd
 from ablate.config import ConfigError
 from ablate.experiment import Experiment
 from ablate.reporting import settings
-from ablate.reporting.experiment_file import on_disk, read_from_disk
+from ablate.reporting.experiment_file import read_from_disk
 from ablate.reporting.networks import layers
 from ablate.reporting.reader import RunReader, TrackingError
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
@@ -297,7 +297,7 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
     path = launch.data.tags.get("ablate.experiment_file", "")
     edited = read_from_disk(grid, path, experiment_text)  # changed since, in no trial key: read as it is now
     if edited is not None:
-        grid, experiment_text = edited, on_disk(path)[1]
+        grid, experiment_text = edited
     generation = launch.data.tags.get("ablate.generation")
     runs = tracker.trial_runs(generation)
     # The answer for a key: its newest finished run, else its newest run of any status.
