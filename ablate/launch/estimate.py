@@ -163,13 +163,17 @@ class TimeLeft:
             return None
         return (s1 - s0) / (n1 - n0) / statistics.fmean(rates)
 
+    @staticmethod
+    def _same_budget(trial: TrialProgress, seen: CostsSeen) -> list[float]:
+        """What its finished peers with the same settings took, at its budget, at the launch's pace now."""
+        return [cost * seen.pace for cost, _, budget, _ in seen.peers.get(trial.settings, []) if budget == trial.budget]
+
     def _cost_sample(self, trial: TrialProgress, seen: CostsSeen) -> list[float] | None:
-        """The costs a trial that has not started may take, equally likely: its finished peers' (with the same
-        settings, at its budget), each at the launch's pace now; else the one figure ``_trial_cost`` gives."""
-        if trial.trial.key not in self.state.prior:
-            same = [cost for cost, _, budget, _ in seen.peers.get(trial.settings, []) if budget == trial.budget]
-            if same:
-                return [cost * seen.pace for cost in same]
+        """The costs a trial that has not started may take, equally likely: its finished peers' (``_same_budget``);
+        else the one figure ``_trial_cost`` gives (its earlier run's first)."""
+        same = [] if trial.trial.key in self.state.prior else self._same_budget(trial, seen)
+        if same:
+            return same
         cost = self._trial_cost(trial, seen)
         return None if cost is None else [cost]
 
@@ -183,10 +187,10 @@ class TimeLeft:
         if trial.trial.key in self.state.prior:
             return self.state.prior[trial.trial.key] * seen.prior_scale
         # At the launch's pace now: the finished trials ran on a machine that may have been busier or freer.
-        peers = seen.peers.get(trial.settings, [])
-        same = [cost for cost, _, budget, _ in peers if budget == trial.budget]
+        same = self._same_budget(trial, seen)
         if same:
-            return statistics.fmean(same) * seen.pace
+            return statistics.fmean(same)
+        peers = seen.peers.get(trial.settings, [])
         variant_mean = seen.means.get((trial.trial.variant, trial.budget))
         if peers:
             carried = statistics.fmean(at_budget(*peer, trial.budget) for peer in peers)
