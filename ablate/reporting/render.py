@@ -106,12 +106,13 @@ def inline_html(text: str) -> str:
 
 
 def _html_table(table: Table) -> str:
+    align = table.align  # read off every column's values: once per table, not once per row
+
     def row(cells: list[str], tag: str) -> str:
         return (
             "<tr>"
             + "".join(
-                f'<{tag} style="text-align: {a}">{inline_html(c)}</{tag}>'
-                for c, a in zip(cells, table.align, strict=True)
+                f'<{tag} style="text-align: {a}">{inline_html(c)}</{tag}>' for c, a in zip(cells, align, strict=True)
             )
             + "</tr>"
         )
