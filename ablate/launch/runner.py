@@ -333,6 +333,7 @@ class _Launch:
         # Populations: each holds a slot until its last member ends, which the estimate sees through their groups.
         self.cores = slots or max(int(self.biggest), 1)
         self.unchosen = {t.variant for t in self.plan.tuning} - set(self.choices)
+        self.known_keys = {t.key for t in self.known}  # what stage 2 adds is what is not among them
         stand_ins = self.provisional({}) if self.unchosen else []
         self.state = LaunchState(
             experiment.name, todo, len(self.finished_before), slots, options.started_at, prior, prior_episodes,
@@ -354,7 +355,7 @@ class _Launch:
     def provisional(self, summaries: Mapping[str, Mapping[str, float]]) -> list[GridTrial]:
         """Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
         choose now (each variant's best candidate so far)."""
-        trials = self.plan.provisional({**self.finished_runs, **summaries}, {t.key for t in self.known})
+        trials = self.plan.provisional({**self.finished_runs, **summaries}, self.known_keys)
         return [t for t in trials if t.variant in self.unchosen]
 
     def restage(self) -> None:
@@ -388,7 +389,7 @@ class _Launch:
             tracker.log_file(
                 launch, "tuning.json", json.dumps(tuning_document(self.experiment, self.choices), indent=1)
             )
-            self.later(unique(plan.chosen(self.choices), {t.key for t in self.known}))
+            self.later(unique(plan.chosen(self.choices), self.known_keys))
         while rounds is not None:
             later = rounds.next_round(self.choices, self.finished_runs | self.recorder.summaries)
             tracker.log_file(launch, "rounds.json", json.dumps(rounds.document(), indent=1))
