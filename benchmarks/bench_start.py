@@ -23,8 +23,8 @@ from bench_results import RESULTS
 from bench_trainer import _worktree
 
 ROOT = Path(__file__).resolve().parents[1]
-BEFORE_START = "47dacbe"
-"""The last commit before issue 37's launch work (stop 40)."""
+BEFORE_START = ("47dacbe", "96efcee")
+"""The last commit before issue 37's launch work (stop 40), and the end of stop 41 (before the lean Ray start)."""
 
 BASE = """baseline = "baseline"
 [base]
@@ -63,6 +63,23 @@ def _first_trial(checkout: Path, folder: Path, fresh: bool) -> float:
     return min(starts) - spawned
 
 
+def _first_trial_joined(folder: Path) -> float:
+    """Warm, joining a Ray head that already runs on this machine (``tools/local_cluster.py node``, as ``make
+    cluster-up`` keeps one): what the start costs when Ray is not started per launch."""
+    tool = str(ROOT / "tools" / "local_cluster.py")
+    command = [sys.executable, tool, "node", "--head", "--cpus", str(os.cpu_count())]
+    node = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        line = node.stdout.readline().split()  # ready <node id> <gcs address>: the head is up
+        assert line and line[0] == "ready", line
+        spawned = _ablate(ROOT, folder, "run", "one.toml", "--no-report", "--fresh", "--address", line[2])
+        starts = [r.info.start_time / 1000 for r in _runs(folder, "one") if r.info.start_time / 1000 >= spawned]
+        return min(starts) - spawned
+    finally:
+        node.terminate()
+        node.wait(timeout=60)
+
+
 def _launch_64(checkout: Path, folder: Path) -> tuple[float, float]:
     """(wall seconds, env steps) of 64 seeds through ``ablate run``."""
     spawned = _ablate(checkout, folder, "run", "s64.toml", "--no-report")
@@ -84,10 +101,11 @@ def _one_trial_steps_per_s(episodes: int) -> float:
     return result.env_steps / result.wall_s
 
 
-def bench_start(against: str = BEFORE_START, repeats: int = 3, episodes: int = 1500) -> None:
-    before = _worktree(against)
-    checkouts = {"this": ROOT, "before": before}
+def bench_start(against: tuple[str, ...] | str = BEFORE_START, repeats: int = 3, episodes: int = 1500) -> None:
+    against = (against,) if isinstance(against, str) else tuple(against)
+    checkouts = {"this": ROOT, **{ref: _worktree(ref) for ref in against}}
     figures: dict[str, dict[str, list[float]]] = {k: {"cold": [], "warm": [], "ratio": []} for k in checkouts}
+    figures["this"]["joined"] = []
     cores = os.cpu_count() or 1
     try:
         alone = statistics.median(_one_trial_steps_per_s(episodes) for _ in range(3))
@@ -101,23 +119,29 @@ def bench_start(against: str = BEFORE_START, repeats: int = 3, episodes: int = 1
                     cold = _first_trial(checkout, folder, fresh=False)
                     warm = _first_trial(checkout, folder, fresh=True)
                     wall, steps = _launch_64(checkout, folder)
+                    if name == "this":
+                        figures[name]["joined"].append(_first_trial_joined(folder))
                 finally:
                     shutil.rmtree(folder, ignore_errors=True)
                 ratio = steps / wall / cores / alone
                 figures[name]["cold"].append(cold)
                 figures[name]["warm"].append(warm)
                 figures[name]["ratio"].append(ratio)
-                print(f"  {name} {i}: first trial cold {cold:.1f} s, warm {warm:.1f} s; 64 seeds {wall:.1f} s, "
+                joined = f", joining a running head {figures[name]['joined'][-1]:.1f} s" if name == "this" else ""
+                print(f"  {name} {i}: first trial cold {cold:.1f} s, warm {warm:.1f} s{joined}; 64 seeds {wall:.1f} s, "
                       f"{steps / 1e6:.1f}M env steps: {ratio:.2f}x one trial per core", flush=True)  # fmt: skip
     finally:
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False,
-                       capture_output=True)  # fmt: skip
+        for ref in against:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(checkouts[ref])],
+                           check=False, capture_output=True)  # fmt: skip
     for name in checkouts:
         f = figures[name]
         print(
-            f"start ({name}{'' if name == 'this' else ' = ' + against}): time to first trial cold "
-            f"{statistics.median(f['cold']):.1f} s, warm {statistics.median(f['warm']):.1f} s (goal ~3 s); 64 seeds "
+            f"start ({name}): time to first trial cold "
+            f"{statistics.median(f['cold']):.1f} s, warm {statistics.median(f['warm']):.1f} s"
+            + (f", joining a running head {statistics.median(f['joined']):.1f} s" if f.get("joined") else "")
+            + " (goal ~3 s); 64 seeds "
             f"end to end {statistics.median(f['ratio']):.2f}x one trial's env steps/s per core (goal >= 2x); "
             f"medians of {repeats}"
         )
-    RESULTS["start"] = {"against": against, "alone_steps_per_s": alone, **figures}
+    RESULTS["start"] = {"against": list(against), "alone_steps_per_s": alone, **figures}

@@ -68,3 +68,34 @@ def test_no_other_module_names_a_private_library_internal():
         if ("ray._private" in line or "__defaults__ =" in line) and not line.strip().startswith(("#", "(", '"'))
     ]
     assert offenders == []
+
+
+def test_the_lean_start_names_have_the_shapes_it_sets():
+    import ray._private.node as node
+    import ray._private.parameter as parameter
+
+    params = parameter.RayParams()
+    assert params.no_monitor is False and params.include_log_monitor in (None, True)
+    assert set(inspect.signature(node.Node.start_api_server).parameters) == {
+        "self",
+        "include_dashboard",
+        "raise_on_failure",
+    }
+    source = inspect.getsource(node.Node)
+    # The node reads both settings and calls its API server from these places: the patch has its effect there.
+    assert "self._ray_params.no_monitor" in source and "self._ray_params.include_log_monitor" in source
+    assert "self.start_api_server(" in source
+
+
+def test_a_lean_local_ray_starts_without_the_monitor_the_log_monitor_or_the_dashboard_and_runs_a_task():
+    code = (
+        "import ray; from ablate.launch.scheduler import ensure_ray; ensure_ray(None); "
+        "node = ray._private.worker._global_node; "
+        "print(sorted(node.all_processes)); print(ray.get(ray.remote(lambda: 7).remote()))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120).stdout
+    kinds, answer = out.splitlines()[-2:]
+    assert answer == "7"
+    for absent in ("monitor", "log_monitor", "dashboard"):
+        assert f"'{absent}'" not in kinds, kinds
+    assert "'raylet'" in kinds and "'gcs_server'" in kinds, kinds

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from ablate.agent.envs import EnvError, describe
-from ablate.agent.models import ModelError, check_model
 from ablate.config import ConfigError, TrialConfig
 
 
@@ -21,6 +19,10 @@ def needs_check(config: TrialConfig) -> bool:
 def check_configs(named: Iterable[tuple[str, TrialConfig]], source: str) -> None:
     """Each distinct env described and each distinct network built and run on a sample observation; the first
     problem is a ``ConfigError`` naming the file, the variant and what is wrong."""
+    # Here, not at the top: torch and Gymnasium (~1 s to import) only where there is a network or env to try.
+    from ablate.agent.envs import EnvError, describe
+    from ablate.agent.models import ModelError, check_model
+
     seen: set = set()
     for variant, config in named:
         key = (config.env_id, config.env_args, config.env_module, config.action_set, config.model)

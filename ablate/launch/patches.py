@@ -18,6 +18,8 @@ RAY_TARGETS = (
     ("ray._private.utils", "get_entrypoint_name"),
     ("ray._private.ray_constants", "ENABLE_RAY_CLUSTER"),
     ("ray._private.worker", "print_to_stdstream"),
+    ("ray._private.parameter", "RayParams"),
+    ("ray._private.node", "Node"),
 )
 """(module, name) of each private Ray name a patch below replaces or sets."""
 
@@ -55,6 +57,35 @@ def ray_loopback_only(enabled: bool) -> None:
     if _CLUSTERS_DEFAULT is None:
         _CLUSTERS_DEFAULT = ray_constants.ENABLE_RAY_CLUSTER
     ray_constants.ENABLE_RAY_CLUSTER = False if enabled else _CLUSTERS_DEFAULT
+
+
+@contextlib.contextmanager
+def ray_lean_local_start() -> Iterator[None]:
+    """A local ``ray.init`` starts, beside the GCS, the raylet and its agents, three Python processes that a
+    launch on one machine never uses: the autoscaler's monitor (it scales clusters of cloud machines), the log
+    monitor (it streams workers' prints to the driver, which ``log_to_driver=False`` discards) and the
+    dashboard's head (started even with ``include_dashboard=False``, for job submission and the state API).
+    On 2 cores each costs ~1 s of CPU while the launch waits; without them ``ray.init`` took 1.8-2.0 s here
+    against 3.1-4.1 s (``docs/performance.md``). ``ray.init`` has no setting for any of them: while it runs, the
+    node's parameters say no monitor and no log monitor (``RayParams.no_monitor``, ``include_log_monitor``,
+    the settings ``ray start`` has) and the node skips its API server. Joined clusters are never touched."""
+    import ray._private.node as node
+    import ray._private.parameter as parameter
+
+    params_init, api_server = parameter.RayParams.__init__, node.Node.start_api_server
+
+    def lean_params(self, *args: Any, **kwargs: Any) -> None:
+        params_init(self, *args, **kwargs)
+        self.no_monitor, self.include_log_monitor = True, False
+
+    def no_api_server(self, *, include_dashboard: bool | None, raise_on_failure: bool) -> None:
+        self._webui_url = None
+
+    parameter.RayParams.__init__, node.Node.start_api_server = lean_params, no_api_server
+    try:
+        yield
+    finally:
+        parameter.RayParams.__init__, node.Node.start_api_server = params_init, api_server
 
 
 def ray_error_printer() -> Any:

@@ -39,7 +39,7 @@ from ray import tune
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from ablate.launch.curve import CurvePoint, CurveReducer
-from ablate.launch.patches import ray_entrypoint_shown, ray_error_printer, ray_loopback_only
+from ablate.launch.patches import ray_entrypoint_shown, ray_error_printer, ray_lean_local_start, ray_loopback_only
 from ablate.launch.plan import Population
 from ablate.launch.ray_logs import one_line, route_raylet_errors, tune_logs_to
 from ablate.launch.secrets import shown
@@ -267,7 +267,11 @@ def ensure_ray(address: str | None) -> bool:
     problem = None
     try:
         # Only a join is refused for a token; a local start's daemons would inherit the kept descriptor.
-        with _stderr_kept() if address else contextlib.nullcontext(_Kept()) as kept, ray_entrypoint_shown(shown):
+        with (
+            _stderr_kept() if address else contextlib.nullcontext(_Kept()) as kept,
+            ray_entrypoint_shown(shown),
+            contextlib.nullcontext() if address else ray_lean_local_start(),
+        ):
             ray.init(
                 address=address or "local",
                 num_cpus=None if address else os.cpu_count(),
