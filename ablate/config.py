@@ -116,7 +116,8 @@ class TrialConfig:
     seed: int = 0
     """Seeds torch, the action sampler and the environment."""
     record_video: bool = True
-    """Record one greedy episode of the trained agent."""
+    """A video of one greedy episode of the trained agent: ``ablate train`` writes it; in a launch the report
+    records it for the seeds it shows (from the run's ``weights.pt`` and ``config.json``)."""
     video_max_frames: int = 500
     """Cap on the video's length in frames (25 fps for CartPole: 500 frames show a whole 1,000-step episode)."""
     fault: str = ""
@@ -382,3 +383,21 @@ COURSE = TrialConfig(learning_rate=1e-3, episodes_per_update=1, gamma=0.95, mode
 # step size (tuned on CartPole-v1, seeds 0-4: all solve, median under 2 s; see `make bench`).
 DEFAULT = TrialConfig()
 PRESETS: dict[str, TrialConfig] = {"default": DEFAULT, "course": COURSE}
+
+
+def config_document(config: TrialConfig) -> dict[str, Any]:
+    """``config`` as JSON-safe data (tuples as lists), every field: what a trial leaves as ``config.json`` so that
+    its network can be rebuilt later (the report's videos, ``config_from_document``)."""
+    return dataclasses.asdict(config)
+
+
+def config_from_document(document: Mapping[str, Any]) -> TrialConfig:
+    """The ``TrialConfig`` of a ``config_document``: lists as tuples again; fields this version does not know are
+    dropped, fields the document lacks (an older trial's) take their defaults."""
+
+    def known(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
+        names = {f.name for f in fields(cls)}
+        return {k: freeze(v) if isinstance(v, list) else v for k, v in values.items() if k in names}
+
+    model = ModelConfig(**known(ModelConfig, document.get("model", {})))
+    return TrialConfig(**(known(TrialConfig, document) | {"model": model}))

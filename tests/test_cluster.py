@@ -286,7 +286,7 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     assert len(tracked) == 3 and _store_run_ids(cluster["store"], spread) == tracked  # in the server's database
     assert {r.tags["ablate.node"] for r in runs} == {cluster["head"], cluster["worker"]}  # one per node
     for run in runs:
-        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "video.mp4", "learning_curve.png", "model.py"}
+        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "config.json", "learning_curve.png", "model.py"}
         assert run.metrics["parameter_count"] == 4 * 6 + 6 + 2 * 6 + 6 * 2 + 2  # the user's LayerNorm net
         for metric in POINT_METRICS:
             steps = [s for s, _ in tracker.metric_history(run.run_id, metric)]

@@ -88,7 +88,7 @@ def test_pong_smoke_ablation_with_tune_through_ray_and_mlflow(run_quiet, tmp_pat
         assert set(run.artifacts) == {
             "episodes.csv",
             "weights.pt",
-            "video.mp4",
+            "config.json",
             "learning_curve.png",
             "observation.png",
             "videos",

@@ -115,7 +115,7 @@ def test_a_launch_of_populations_records_every_member_as_its_own_trial(run_quiet
             assert run.status == "FAILED"
             continue
         assert run.status == "FINISHED" and run.metrics["episodes_run"] == 20
-        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "learning_curve.png"}
+        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "config.json", "learning_curve.png"}
         returns = [v for _, v in reader.metric_history(run.run_id, "episode/return")]
         assert len(returns) == 20
         alone = run_trial(by_key[key].config)

@@ -1,10 +1,13 @@
-"""What a finished trial leaves in its folder: ``episodes.csv``, ``weights.pt``, the learning curve, a video of the
-trained policy, Pong's observation figure, and the videos of the sampling policy taken while it trained.
+"""What a finished trial leaves in its folder: ``episodes.csv``, ``weights.pt``, ``config.json``, the learning
+curve, a video of the trained policy, Pong's observation figure, and the videos of the sampling policy taken while
+it trained. ``replay_video`` records the trained policy's video later, from ``weights.pt`` and ``config.json``:
+a launch leaves each trial's video to the report, which records only the seeds it shows.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -13,9 +16,12 @@ import torch
 from torch import nn
 
 from ablate.agent.envs import describe, is_pong, make_trial_env
+from ablate.agent.models import build_model
+from ablate.agent.models import history as window_of
 from ablate.agent.records import EpisodeMetrics, TrialResult
 from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows
+from ablate.config import TrialConfig, config_document, config_from_document
 
 
 def video_writer(path: Path, fps: int):
@@ -121,9 +127,10 @@ def record_episode(
         env.close()
 
 
-def write_artifacts(result: TrialResult, model: nn.Module, history: int, folder: Path) -> None:
-    """Per-episode table, weights, learning curve and (``record_video``) a video of the agent into ``folder``;
-    for Pong also ``observation.png`` (one observation raw, pre-processed and as a frame difference)."""
+def write_artifacts(result: TrialResult, model: nn.Module, history: int, folder: Path, video: bool = True) -> None:
+    """Per-episode table, weights, config, learning curve and (``record_video`` and ``video``) a video of the agent
+    into ``folder``; for Pong also ``observation.png`` (one observation raw, pre-processed and as a frame
+    difference). ``video=False``: the video is left to ``replay_video`` (a launch's report records its picks')."""
     from ablate.agent.envs import sample_pong_frames
     from ablate.agent.plots import plot_pong_observation, plot_progress
 
@@ -138,6 +145,9 @@ def write_artifacts(result: TrialResult, model: nn.Module, history: int, folder:
     weights = folder / "weights.pt"
     torch.save(result.state_dict, weights)
     result.artifacts["weights"] = weights
+    settings = folder / "config.json"
+    settings.write_text(json.dumps(config_document(config), indent=1), encoding="utf-8")
+    result.artifacts["config"] = settings
     result.artifacts["learning_curve"] = plot_progress(
         result.returns,
         [m.rolling_mean for m in result.episodes],
@@ -152,10 +162,26 @@ def write_artifacts(result: TrialResult, model: nn.Module, history: int, folder:
         source = folder / "model.py"
         source.write_text(config.model.factory_source, encoding="utf-8")
         result.artifacts["model_source"] = source
-    if config.record_video:
-        video = folder / "video.mp4"
-        with video_writer(video, describe(config).video_fps) as writer:
-            played = record_episode(config, model, history, config.video_max_frames, writer.append_data)
+    if config.record_video and video:
+        path = folder / "video.mp4"
+        played = _write_video(config, model, history, path)
         if not is_pong(config.env_id):
             result.greedy_return = played
-        result.artifacts["video"] = video
+        result.artifacts["video"] = path
+
+
+def _write_video(config: TrialConfig, model: nn.Module, history: int, path: Path) -> float:
+    with video_writer(path, describe(config).video_fps) as writer:
+        return record_episode(config, model, history, config.video_max_frames, writer.append_data)
+
+
+def replay_video(config_json: Path, weights: Path, path: Path) -> float | None:
+    """The video ``write_artifacts`` would have recorded at the trial's end, from the ``config.json`` and
+    ``weights.pt`` it left: the same network, weights, env seed and frames. Returns the greedy return it played
+    (``None`` on Pong, whose video is of the sampling policy). Raises what building the network or the env
+    raises (a user's factory or env module that this machine cannot import)."""
+    config = config_from_document(json.loads(config_json.read_text(encoding="utf-8")))
+    model = build_model(config, describe(config))
+    model.load_state_dict(torch.load(weights, map_location="cpu", weights_only=True))
+    played = _write_video(config, model, window_of(config), path)
+    return None if is_pong(config.env_id) else played

@@ -73,6 +73,7 @@ def run_population(
     on_checkpoint: Callable[[int, bytes], None] | None = None,
     on_outcome: Callable[[int, MemberOutcome], None] | None = None,
     device: str | None = None,
+    videos: bool = True,
 ) -> list[MemberOutcome]:
     """Train ``configs`` (``sharing.can_share``) together; member i behaves as ``run_trial(configs[i], ...)``.
 
@@ -80,7 +81,9 @@ def run_population(
     in one call). ``artifacts_dirs[i]``: member i's folder. Every ``checkpoint_interval`` episodes,
     ``on_checkpoint(i, blob)`` gets member i's whole state, which ``resume_from[i]`` restores (the resumed run is
     the unbroken one). ``on_outcome(i, outcome)`` as each member ends. ``device``: where the networks act and
-    learn (``None``: CUDA whenever torch sees a device, else the CPU). Returns every member's outcome, in order."""
+    learn (``None``: CUDA whenever torch sees a device, else the CPU). ``videos=False``: no member records its
+    trained policy's video (``record_video``); its folder holds what ``artifacts.replay_video`` records it from.
+    Returns every member's outcome, in order."""
     if not can_share(configs):
         raise ValueError(
             "these configs cannot share a population: " + ", ".join(map(str, map(population_group, configs)))
@@ -109,7 +112,7 @@ def run_population(
                 population.start(position)
         while True:
             if population.leaving:
-                _finish(population, outcomes, folders, on_outcome)
+                _finish(population, outcomes, folders, on_outcome, videos)
                 population.leaving = False
             if not population.members:
                 break
@@ -166,7 +169,7 @@ def _maybe_checkpoint(population: Population, position: int, on_checkpoint) -> N
         os._exit(17)  # the process dies with a checkpoint taken: its retry must resume from it
 
 
-def _finish(population: Population, outcomes: dict, folders, on_outcome) -> None:
+def _finish(population: Population, outcomes: dict, folders, on_outcome, videos: bool) -> None:
     """Members that solved, spent their budget or failed leave: result, artifacts, ``on_outcome``."""
     staying = []
     for position, member in enumerate(population.members):
@@ -191,7 +194,7 @@ def _finish(population: Population, outcomes: dict, folders, on_outcome) -> None
             member.videos.close()  # the trial is over: its last video ends here
             result.artifacts.update({f"videos/{p.name}": p for p in member.videos.paths if p.exists()})
         if folder is not None:
-            write_artifacts(result, model, population.history, folder)
+            write_artifacts(result, model, population.history, folder, video=videos)
         outcomes[member.index] = result
         if on_outcome is not None:
             on_outcome(member.index, result)

@@ -5,7 +5,7 @@ through the ``TrialEvents`` it passes in. Nothing assumes a disk that two machin
 trial produces travels inside Ray's own results, through the object store, to the driver:
 
 - its curve, reduced in the worker to a bounded number of points (``ablate.launch.curve``), every few seconds;
-- its artifacts (``episodes.csv``, weights, curve, videos), as file bytes in its last result;
+- its artifacts (``episodes.csv``, weights, config, curve, training videos), as file bytes in its last result;
 - its checkpoints (an opaque blob from ``run_trial``'s ``on_checkpoint``), as they are taken. The driver
   keeps the latest one per trial in a small actor on its own node, where a retried trial fetches it.
 
@@ -159,6 +159,7 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
                 on_episodes=on_episodes,
                 artifacts_dirs=folders,
                 on_outcome=on_outcome,
+                videos=False,  # the report records the videos of the seeds it shows (``artifacts.replay_video``)
                 **resume,
             )
         except Exception as error:  # noqa: BLE001 - every error is recorded on the runs, with its type

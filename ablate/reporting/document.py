@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import html
+import json
 import re
 import shutil
 import sys
@@ -70,11 +71,9 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
         for row, why in _video_picks(ablation, done):
             safe = re.sub(r"[^A-Za-z0-9_.,=-]", "_", variant)
             target = folder / f"{safe}-seed{row.seed}.mp4"
-            try:
-                downloaded = tracker.download(row.run_id, "video.mp4")
-            except Exception:  # noqa: BLE001 - a run without a video (record_video = false)
+            played = _video(tracker, row.run_id, target, f"{variant}, seed {row.seed}")
+            if played is False:
                 continue
-            shutil.copyfile(downloaded, target)
             outcome = (
                 f"solved at episode {int(row.episodes_to_solve)}"
                 if row.solved == 1
@@ -82,9 +81,8 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
                 if ablation.threshold is not None
                 else f"{int(row.episodes_run)} episodes, final rolling return {row.final_rolling_mean:.1f}"
             )
-            greedy = (
-                f"; greedy return {row.greedy_return:.0f} in this one episode" if not pd.isna(row.greedy_return) else ""
-            )
+            played = row.greedy_return if played is None else played
+            greedy = f"; greedy return {played:.0f} in this one episode" if not pd.isna(played) else ""
             chosen.append(
                 {
                     "variant": variant,
@@ -93,6 +91,35 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
                 }
             )
     return chosen
+
+
+def _video(tracker: RunReader, run_id: str, target: Path, which: str) -> float | None | bool:
+    """The trained policy's video of a run into ``target``: the run's own ``video.mp4`` (``ablate train``, or a
+    launch before the report recorded them), else recorded now from its ``config.json`` and ``weights.pt``
+    (``artifacts.replay_video``: a launch leaves the video to the seeds the report shows). Returns the greedy
+    return it played when recorded now (NaN on Pong), ``None`` when copied, ``False`` when there is none:
+    ``record_video = false``, or a network or env this machine cannot build (said on stderr)."""
+    try:
+        shutil.copyfile(tracker.download(run_id, "video.mp4"), target)
+        return None
+    except Exception:  # noqa: BLE001 - no video in the run: recorded from its weights below
+        pass
+    try:
+        settings = Path(tracker.download(run_id, "config.json"))
+        if not json.loads(settings.read_text(encoding="utf-8")).get("record_video", True):
+            return False
+        weights = Path(tracker.download(run_id, "weights.pt"))
+    except Exception:  # noqa: BLE001 - an older run without its config, or record_video = false
+        return False
+    from ablate.agent.artifacts import replay_video  # torch, Gymnasium and ffmpeg: only where a video is recorded
+
+    try:
+        played = replay_video(settings, weights, target)
+    except Exception as error:  # noqa: BLE001 - a user's env or network this machine cannot build: no video
+        print(f"ablate report: no video of {which}: {type(error).__name__}: {error}", file=sys.stderr)
+        target.unlink(missing_ok=True)
+        return False
+    return float("nan") if played is None else played
 
 
 def report_folder(name: str, out_root: Path) -> Path:

@@ -115,9 +115,9 @@ class RunReader(Store):
         """A small text artifact of a run (a launch's ``grid.json``, say)."""
         return Path(self.download(run_id, filename)).read_text()
 
-    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ("videos",)) -> None:
-        """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables) as the ``report/``
-        artifacts of a launch run; ``skip`` leaves out folders already in the trial runs (the videos)."""
+    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ()) -> None:
+        """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables, the videos it recorded) as
+        the ``report/`` artifacts of a launch run; ``skip``: folders to leave out."""
         for path in sorted(Path(folder).iterdir()):
             if path.is_dir() and path.name not in skip:
                 self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
