@@ -512,6 +512,19 @@ def test_trial_params_hold_only_knobs_that_shaped_the_trial():
     assert faulty["fault"] == "raise" and "fault_marker" not in faulty
 
 
+def test_the_machine_record_asks_a_child_for_torchs_kernels_and_a_launch_that_runs_nothing_ends_it():
+    import torch
+
+    from ablate.launch.records import TorchKernels, environment_document
+
+    asked = TorchKernels()
+    assert environment_document(asked)["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert asked.process.returncode == 0
+    unused = TorchKernels()
+    unused.close()  # before it answered: killed and reaped, not left to run
+    assert unused.process.returncode < 0  # killed: a child importing torch answers after ~1 s, not at once
+
+
 def test_the_commit_is_not_dirty_because_the_committed_report_changed(tmp_path, monkeypatch):
     from ablate.launch.runner import git_commit
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import platform
 import subprocess
+import sys
 from pathlib import Path
 
 from ablate.config import flatten
@@ -73,8 +74,38 @@ def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
 PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", "scipy", "matplotlib", "imageio")
 
 
-def environment_document() -> dict:
-    """Where the launch ran: Python, package versions, machine, CPU model and the CPU kernels torch uses."""
+class TorchKernels:
+    """The CPU kernels torch picks here (``torch.backends.cpu.get_cpu_capability``), asked of a child Python
+    begun when the launch begins: importing torch takes ~1 s of CPU, which in the launch's own process held the
+    interpreter while Ray started (``ray.init`` 2.4-4.8 s against 1.9-2.3 s without it, ``docs/performance.md``);
+    a child runs it on a core the store's opening leaves idle. ``close`` ends it where nothing ran."""
+
+    CODE = "import torch; print(torch.backends.cpu.get_cpu_capability())"
+
+    def __init__(self) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", self.CODE], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+        )
+
+    def result(self) -> str:
+        try:
+            out, _ = self.process.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            self.close()
+            return "unknown"
+        return out.strip() or "unknown"
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+        self.process.wait()
+        if self.process.stdout is not None:
+            self.process.stdout.close()
+
+
+def environment_document(kernels: TorchKernels | None = None) -> dict:
+    """Where the launch ran: Python, package versions, machine, CPU model and the CPU kernels torch uses (asked of
+    ``kernels`` when given, else of torch in this process)."""
     from importlib.metadata import PackageNotFoundError, version
 
     packages = {}
@@ -83,8 +114,12 @@ def environment_document() -> dict:
             packages[name] = version(name)
         except PackageNotFoundError:
             packages[name] = "not installed"
-    import torch
+    if kernels is not None:
+        capability = kernels.result()
+    else:
+        import torch
 
+        capability = torch.backends.cpu.get_cpu_capability()
     # Float kernels differ by CPU: the model and the kernels torch picks say where the results were produced.
     cpuinfo = Path("/proc/cpuinfo")
     lines = cpuinfo.read_text().splitlines() if cpuinfo.is_file() else []
@@ -95,5 +130,5 @@ def environment_document() -> dict:
         "packages": packages,
         "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} CPUs ({platform.platform()})",
         "cpu_model": cpu_model,
-        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "torch_cpu_capability": capability,
     }

@@ -29,7 +29,7 @@ from ablate.launch.mlflow_store import (
 from ablate.launch.plan import plan_populations, population_keys
 from ablate.launch.progress import ProgressView
 from ablate.launch.recorder import Recorder
-from ablate.launch.records import environment_document, git_commit, grid_document
+from ablate.launch.records import TorchKernels, environment_document, git_commit, grid_document
 from ablate.launch.rounds import Judge, Rounds
 from ablate.launch.state import LaunchState
 from ablate.launch.tracking import Tracker
@@ -203,12 +203,16 @@ def run_experiment(
     )  # fmt: skip
     trials = expand(experiment)
     check_resources(experiment, address)
-    tracker = Tracker(tracking_uri, experiment.name)
-    with tracker.hold_launch(f"experiment {experiment.name!r}", command):
-        reaped = reap_stale_runs(tracker, storage_path)
-        outcome = _Launch(experiment, trials, tracker, options).run()
-        outcome.reaped = reaped
-        return outcome
+    kernels = TorchKernels()  # the machine record's one torch question, beside the store's opening
+    try:
+        tracker = Tracker(tracking_uri, experiment.name)
+        with tracker.hold_launch(f"experiment {experiment.name!r}", command):
+            reaped = reap_stale_runs(tracker, storage_path)
+            outcome = _Launch(experiment, trials, tracker, options, kernels).run()
+            outcome.reaped = reaped
+            return outcome
+    finally:
+        kernels.close()
 
 
 class _Launch:
@@ -217,8 +221,16 @@ class _Launch:
     chosen values, then rounds of seeds (``stages``), each a ``stage`` of populations; the launch closed with
     what happened (``close``), whatever happened."""
 
-    def __init__(self, experiment: Experiment, trials: list[GridTrial], tracker: Tracker, options: LaunchOptions):
+    def __init__(
+        self,
+        experiment: Experiment,
+        trials: list[GridTrial],
+        tracker: Tracker,
+        options: LaunchOptions,
+        kernels: TorchKernels | None = None,
+    ) -> None:
         self.experiment, self.trials, self.tracker, self.options = experiment, trials, tracker, options
+        self.kernels = kernels
         self.generation = (None if options.fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
         evaluation = trials if options.only is None else list(options.only)
         self.wanted = {t.variant for t in evaluation}
@@ -279,9 +291,9 @@ class _Launch:
         experiment, options = self.experiment, self.options
         if options.show_progress:
             print(f"{len(todo)} trial(s) to run; starting Ray ...", flush=True)
-        # The machine's record imports torch (its CPU kernels) and asks git: while Ray starts, not after it.
+        # The machine's record (its torch kernels asked of a child since the launch began) and git: while Ray starts.
         with ThreadPoolExecutor(1, thread_name_prefix="ablate-record") as pool:
-            machine, commit = pool.submit(environment_document), pool.submit(git_commit)
+            machine, commit = pool.submit(environment_document, self.kernels), pool.submit(git_commit)
             self.started_ray = scheduler.ensure_ray(options.address)
             self.environment, self.commit = machine.result(), commit.result()
         self.biggest = scheduler.largest_node_cpus()
