@@ -518,3 +518,19 @@ def test_the_summary_says_which_bound_the_trials_ended_near(clock):
     line = view.bounds_line()
     assert "at 0:10 the estimate said ~0:30 left in round 1, at most ~1:10 in all" in line
     assert line.endswith("the trials ended 0:30 later, nearer the round's estimate")
+
+
+def test_the_estimate_of_running_trials_imports_no_torch_in_the_driver():
+    """A trial's solve threshold is the env's (Gymnasium): asked of the launch's state while Tune's callbacks run,
+    it once imported the trainer, and so torch, there, where a SIGTERM landing mid-import left torch half
+    imported and the launch FAILED instead of KILLED (the e2e SIGTERM test)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from ablate.launch import runner, state, estimate, progress, recorder; "
+        "from ablate.launch.grid import GridTrial; from ablate.config import DEFAULT; "
+        "t = state.TrialProgress(GridTrial('k', 'v', 0, DEFAULT)); print(t.threshold, 'torch' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["475.0", "False"], out

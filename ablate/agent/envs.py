@@ -343,3 +343,12 @@ def describe(config) -> Described:
         env.close()
     _DESCRIBED[key] = described
     return described
+
+
+def solve_threshold(config) -> float | None:
+    """The rolling mean over ``solve_window`` episodes at which a trial counts as solved and stops: its own
+    ``solve_threshold``, else its env's ``reward_threshold`` (``None``: Pong has none). Here, beside the env, not
+    with the trainer: the launch's estimate asks it in the driver, which never imports torch."""
+    if config.solve_threshold is not None:
+        return config.solve_threshold
+    return describe(config).reward_threshold

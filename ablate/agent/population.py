@@ -15,7 +15,7 @@ import torch
 
 from ablate.agent.acting import stack
 from ablate.agent.artifacts import TrainingVideos
-from ablate.agent.envs import Described, describe, is_native_vector, make_trial_env
+from ablate.agent.envs import Described, describe, is_native_vector, make_trial_env, solve_threshold
 from ablate.agent.models import build_model, history
 from ablate.agent.optim import Adam
 from ablate.agent.records import Batch, EpisodeMetrics
@@ -68,14 +68,6 @@ class Member:
     @property
     def wanted(self) -> int:
         return min(self.config.episodes_per_update, self.config.max_episodes - len(self.history))
-
-
-def solve_threshold(config: TrialConfig) -> float | None:
-    """The rolling mean over ``solve_window`` episodes at which a trial counts as solved and stops: its own
-    ``solve_threshold``, else its env's ``reward_threshold`` (``None``: Pong has none)."""
-    if config.solve_threshold is not None:
-        return config.solve_threshold
-    return describe(config).reward_threshold
 
 
 class Population:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
+from ablate.agent.envs import solve_threshold  # the env's threshold: Gymnasium, never torch, in the driver
 from ablate.launch.grid import GridTrial, config_hash
 
 RATE_REPORTS = 4
@@ -89,8 +90,6 @@ class TrialProgress:
     @cached_property
     def threshold(self) -> float | None:
         """The rolling mean at which it stops, solved (``run_trial``'s own rule)."""
-        from ablate.agent.population import solve_threshold  # the driver has it loaded once trials run
-
         return solve_threshold(self.trial.config)
 
     @property
