@@ -103,9 +103,9 @@ class TorchKernels:
             self.process.stdout.close()
 
 
-def environment_document(kernels: TorchKernels | None = None) -> dict:
+def environment_document(kernels: TorchKernels) -> dict:
     """Where the launch ran: Python, package versions, machine, CPU model and the CPU kernels torch uses (asked of
-    ``kernels`` when given, else of torch in this process)."""
+    ``kernels``)."""
     from importlib.metadata import PackageNotFoundError, version
 
     packages = {}
@@ -114,12 +114,7 @@ def environment_document(kernels: TorchKernels | None = None) -> dict:
             packages[name] = version(name)
         except PackageNotFoundError:
             packages[name] = "not installed"
-    if kernels is not None:
-        capability = kernels.result()
-    else:
-        import torch
-
-        capability = torch.backends.cpu.get_cpu_capability()
+    capability = kernels.result()
     # Float kernels differ by CPU: the model and the kernels torch picks say where the results were produced.
     cpuinfo = Path("/proc/cpuinfo")
     lines = cpuinfo.read_text().splitlines() if cpuinfo.is_file() else []

@@ -227,7 +227,7 @@ class _Launch:
         trials: list[GridTrial],
         tracker: Tracker,
         options: LaunchOptions,
-        kernels: TorchKernels | None = None,
+        kernels: TorchKernels,
     ) -> None:
         self.experiment, self.trials, self.tracker, self.options = experiment, trials, tracker, options
         self.kernels = kernels

@@ -71,8 +71,8 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
         for row, why in _video_picks(ablation, done):
             safe = re.sub(r"[^A-Za-z0-9_.,=-]", "_", variant)
             target = folder / f"{safe}-seed{row.seed}.mp4"
-            played = _video(tracker, row.run_id, target, f"{variant}, seed {row.seed}")
-            if played is False:
+            played = _video(tracker, row.run_id, target, f"{variant}, seed {row.seed}", row.greedy_return)
+            if played is None:
                 continue
             outcome = (
                 f"solved at episode {int(row.episodes_to_solve)}"
@@ -81,7 +81,6 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
                 if ablation.threshold is not None
                 else f"{int(row.episodes_run)} episodes, final rolling return {row.final_rolling_mean:.1f}"
             )
-            played = row.greedy_return if played is None else played
             greedy = f"; greedy return {played:.0f} in this one episode" if not pd.isna(played) else ""
             chosen.append(
                 {
@@ -93,24 +92,25 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
     return chosen
 
 
-def _video(tracker: RunReader, run_id: str, target: Path, which: str) -> float | None | bool:
+def _video(tracker: RunReader, run_id: str, target: Path, which: str, recorded: float) -> float | None:
     """The trained policy's video of a run into ``target``: the run's own ``video.mp4`` (``ablate train``, or a
     launch before the report recorded them), else recorded now from its ``config.json`` and ``weights.pt``
     (``artifacts.replay_video``: a launch leaves the video to the seeds the report shows). Returns the greedy
-    return it played when recorded now (NaN on Pong), ``None`` when copied, ``False`` when there is none:
-    ``record_video = false``, or a network or env this machine cannot build (said on stderr)."""
+    return the video played (``recorded``, the run's own, for its own video; NaN: none, as on Pong), or ``None``
+    where there is no video: ``record_video = false``, or a network or env this machine cannot build (said on
+    stderr)."""
     try:
         shutil.copyfile(tracker.download(run_id, "video.mp4"), target)
-        return None
+        return recorded
     except Exception:  # noqa: BLE001 - no video in the run: recorded from its weights below
         pass
     try:
         settings = Path(tracker.download(run_id, "config.json"))
         if not json.loads(settings.read_text(encoding="utf-8")).get("record_video", True):
-            return False
+            return None
         weights = Path(tracker.download(run_id, "weights.pt"))
     except Exception:  # noqa: BLE001 - an older run without its config, or record_video = false
-        return False
+        return None
     from ablate.agent.artifacts import replay_video  # torch, Gymnasium and ffmpeg: only where a video is recorded
 
     try:
@@ -118,7 +118,7 @@ def _video(tracker: RunReader, run_id: str, target: Path, which: str) -> float |
     except Exception as error:  # noqa: BLE001 - a user's env or network this machine cannot build: no video
         print(f"ablate report: no video of {which}: {type(error).__name__}: {error}", file=sys.stderr)
         target.unlink(missing_ok=True)
-        return False
+        return None
     return float("nan") if played is None else played
 
 

@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -115,11 +114,11 @@ class RunReader(Store):
         """A small text artifact of a run (a launch's ``grid.json``, say)."""
         return Path(self.download(run_id, filename)).read_text()
 
-    def attach_report(self, run_id: str, folder: Path, skip: Sequence[str] = ()) -> None:
+    def attach_report(self, run_id: str, folder: Path) -> None:
         """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables, the videos it recorded) as
-        the ``report/`` artifacts of a launch run; ``skip``: folders to leave out."""
+        the ``report/`` artifacts of a launch run."""
         for path in sorted(Path(folder).iterdir()):
-            if path.is_dir() and path.name not in skip:
+            if path.is_dir():
                 self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
             elif path.is_file():
                 self.client.log_artifact(run_id, str(path), "report")
