@@ -6,11 +6,7 @@ Thin: parse, validate (one clear line and exit 2 on bad input), call the modules
 from __future__ import annotations
 
 import argparse
-import ast
 import contextlib
-import dataclasses
-import inspect
-import itertools
 import json
 import os
 import sys
@@ -20,6 +16,7 @@ from typing import Any, NoReturn
 
 from ablate import config as config_module
 from ablate import experiment as experiment_module
+from ablate import schema
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, ModelConfig, TrialConfig, apply_knobs
 from ablate.dry_run import dry_run
 from ablate.experiment import Experiment
@@ -51,9 +48,9 @@ examples:
 Every command has its own --help. MLflow store: sqlite:///mlflow.db in this folder unless --tracking-uri
 or MLFLOW_TRACKING_URI says otherwise."""
 
-TEST_ONLY_KNOBS = ("fault", "fault_marker")
+TEST_ONLY_KNOBS = tuple(name for name, k in KNOBS.items() if k.test_only)
 """Knobs for injecting faults in tests: no flag for them."""
-NOT_IN_KEY_KNOBS = ("record_video", "video_max_frames")
+NOT_IN_KEY_KNOBS = tuple(name for name, k in KNOBS.items() if k.key_since is None and not k.test_only)
 """Knobs that change what a trial records, not what it learns: allowed with ``train --from``."""
 
 
@@ -84,29 +81,16 @@ def _seed_list(text: str) -> list[int]:
 
 
 def field_docs(code_mark: str = "") -> dict[str, str]:
-    """The docstring under each field of ``TrialConfig`` and ``ModelConfig`` (the flags' help), one line each;
-    the docstrings' ````code```` marks become ``code_mark`` (```` ` ```` for Markdown)."""
-    docs: dict[str, str] = {}
-    for node in ast.parse(inspect.getsource(config_module)).body:
-        if not (isinstance(node, ast.ClassDef) and node.name in (TrialConfig.__name__, ModelConfig.__name__)):
-            continue
-        for field_node, doc in itertools.pairwise(node.body):
-            if (
-                isinstance(field_node, ast.AnnAssign)
-                and isinstance(field_node.target, ast.Name)
-                and isinstance(doc, ast.Expr)
-                and isinstance(doc.value, ast.Constant)
-                and isinstance(doc.value.value, str)
-            ):
-                docs[field_node.target.id] = " ".join(doc.value.value.replace("``", code_mark).split())
-    return docs
+    """The docstring under each field of ``TrialConfig`` and ``ModelConfig`` (the flags' help), one line each, by
+    the experiment file's key; the docstrings' ````code```` marks become ``code_mark`` (```` ` ```` for Markdown)."""
+    docs = schema.field_docs(config_module, (TrialConfig, ModelConfig), code_mark)
+    return {name: docs.get(k.attr, "") for name, k in KNOBS.items()}
 
 
 def knob_defaults() -> dict[str, Any]:
-    """Each knob of ``config.KNOBS`` at its typed default (``config.DEFAULT``): what an experiment file gets
-    for a knob it does not set."""
-    flat = {key.removeprefix("model."): value for key, value in config_module.flatten(config_module.DEFAULT).items()}
-    return {name: flat[KNOBS[name].attr or name] for name in KNOBS}
+    """Each knob of ``config.KNOBS`` at its typed default: what an experiment file gets for a knob it does not
+    set."""
+    return {name: k.default for name, k in KNOBS.items()}
 
 
 def format_value(value: Any) -> str:
@@ -143,46 +127,48 @@ def _knobs_epilog() -> str:
     )
 
 
-def _field_types() -> dict[str, str]:
-    return {f.name: str(f.type) for cls in (TrialConfig, ModelConfig) for f in dataclasses.fields(cls)}
+def _json_table(text: str) -> dict[str, Any]:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError:
+        value = None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a JSON object, e.g. '{{\"width\": 64}}'")
+    return value
 
 
-FILE_ONLY_KNOBS = ("model", "model_args", "env_args", "env_module")
-"""Knobs an experiment file sets (a factory's path is relative to it; tables): ``ablate train --from`` runs them."""
+# A flag's parser and metavar by the field's type, as the schema records it.
+_FLAG_TYPES = (
+    ("tuple[tuple", _json_table, "JSON"),
+    ("tuple", _sizes, "N,N"),
+    ("float", float, "X"),
+    ("int", int, "N"),
+    ("str", str, "NAME"),
+)
 
-TRAIN_KNOBS = tuple(k for k in KNOBS if k not in (*TEST_ONLY_KNOBS, *FILE_ONLY_KNOBS)) + tuple(SHORTHANDS)
-"""The knobs ``ablate train`` has a flag for (each flag's dest is the knob's name)."""
+TRAIN_KNOBS = tuple(k for k in KNOBS if k not in TEST_ONLY_KNOBS) + tuple(SHORTHANDS)
+"""The knobs ``ablate train`` has a flag for (each flag's dest is the knob's name): every knob but the tests'."""
 
 
 def add_knob_flags(parser: argparse.ArgumentParser) -> None:
-    """A flag per knob of ``config.KNOBS`` (and the depth/width shorthands), typed from the config dataclasses,
-    with the field's docstring and the valid values as help."""
-    docs, types = field_docs(), _field_types()
+    """A flag per knob of ``config.KNOBS`` (and the depth/width shorthands), typed from the schema, with the
+    field's docstring and the valid values as help."""
+    docs = field_docs()
     for name, knob in KNOBS.items():
-        if name in TEST_ONLY_KNOBS or name in FILE_ONLY_KNOBS:
+        if knob.test_only:
             continue
-        flags = [f"--{name.replace('_', '-')}"] + (["--env"] if name == "env_id" else [])
-        kind = types[name]
+        flags = [knob.flag, *knob.aliases]
         doc = docs.get(name, "")
-        help_text = doc if kind == "bool" else f"{doc} Valid: {knob.valid}."
+        help_text = doc if knob.type == "bool" else f"{doc} Valid: {knob.valid}."
         if name == "seed":
             help_text += " With --from: one of the experiment's seeds."
         help_text = help_text.replace("%", "%%")
-        if kind == "bool":
+        if knob.type == "bool":
             parser.add_argument(*flags, dest=name, action=argparse.BooleanOptionalAction, default=None, help=help_text)
             if name == "record_video":
                 parser.add_argument("--no-video", dest=name, action="store_false", help="same as --no-record-video")
         else:
-            convert = (
-                _sizes
-                if kind.startswith("tuple")
-                else float
-                if "float" in kind
-                else int
-                if kind.startswith("int")
-                else str
-            )
-            metavar = {_sizes: "N,N", float: "X", int: "N", str: "NAME"}[convert]
+            convert, metavar = next((c, m) for prefix, c, m in _FLAG_TYPES if knob.type.startswith(prefix))
             parser.add_argument(*flags, dest=name, type=convert, metavar=metavar, help=help_text)
     for name, (valid, _) in SHORTHANDS.items():
         other = "width" if name == "depth" else "depth"

@@ -1,4 +1,5 @@
-"""Typed, frozen configuration of one trial: the model and trial dataclasses, every knob with its check, presets.
+"""Typed, frozen configuration of one trial: the model and trial dataclasses, each field declared once with its
+check (``ablate.schema``), and the lists every other module reads off those declarations; presets.
 
 Standard library only. Every bad value raises ``ConfigError`` naming the key, the value and what is valid.
 """
@@ -10,10 +11,15 @@ import hashlib
 import importlib.util
 import math
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
+
+from ablate import schema
+from ablate.schema import Knob, boolean, derived, integer, is_int, is_number, knob, number, one_of
+
+__all__ = ["Knob", "is_int", "is_number"]  # re-exported: older callers import them from here
 
 BUILT_IN_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
 """The course's envs; ``env_id`` may name any registered Gymnasium env with discrete actions and a Box observation
@@ -36,10 +42,8 @@ MAX_TRIALS = 10_000
 intent, and expanding it would take minutes and gigabytes before the first trial starts."""
 # --- Pong env knobs (issue 9) ---
 PONG_ACTION_SETS = ("all", "move")
+"""``all``: Pong's 6 actions; ``move``: only UP and DOWN (ALE actions 2 and 3), as in Karpathy's pg-pong."""
 # --- tuning (issue 19) ---
-TUNABLE_KNOBS = ("learning_rate", "episodes_per_update")
-"""Optimisation knobs ``[tune]`` may search; architecture and regularisation knobs are what an ablation
-compares, so tuning them would tune away the effect being measured."""
 TUNE_METRICS = {"auc": "max", "episodes_to_solve": "min", "final_return": "max"}
 """What "best" means for a tuning candidate, and its direction: ``auc`` (mean rolling return over the budget),
 ``episodes_to_solve`` (censored at the budget when a seed never solves), ``final_return`` (the rolling mean
@@ -48,101 +52,174 @@ TUNE_SEED_START = 10_000
 """Tuning seeds are ``TUNE_SEED_START``, ``+1``, ...; evaluation seeds must stay below it, so the comparison
 never sees a seed its settings were chosen on."""
 MAX_TUNE_SEEDS = 100
-"""``all``: Pong's 6 actions; ``move``: only UP and DOWN (ALE actions 2 and 3), as in Karpathy's pg-pong."""
 
 
 class ConfigError(ValueError):
     """Bad user input: the message is one line a user can act on."""
 
 
+def freeze(value: Any) -> Any:
+    """A TOML value made hashable: tables as sorted ``(name, value)`` tuples, lists as tuples."""
+    if isinstance(value, Mapping):
+        return tuple(sorted((str(k), freeze(v)) for k, v in value.items()))
+    if isinstance(value, list | tuple):
+        return tuple(freeze(v) for v in value)
+    return value
+
+
+_FACTORY = re.compile(r"^(?P<target>[^:]+):(?P<function>[A-Za-z_][A-Za-z0-9_]*)$")
+_ENV_ID = re.compile(r"^[A-Za-z0-9_./-]+$")
+
+
+def _sizes(allow_empty: bool, valid: str) -> dict[str, Any]:
+    return {
+        "check": lambda v: (
+            isinstance(v, list | tuple) and (allow_empty or len(v) > 0) and all(is_int(x) and 1 <= x <= 4096 for x in v)
+        ),
+        "valid": valid,
+        "convert": tuple,
+    }
+
+
+def _table(valid: str) -> dict[str, Any]:
+    return {"check": lambda v: isinstance(v, dict), "valid": valid, "convert": freeze}
+
+
+# A built-in network's knob: it separates populations, and a user's own network does not read it.
+_NET = {"population": True, "built_in": True}
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """The architecture knobs an ablation varies."""
 
-    architecture: str = "mlp"
+    architecture: str = knob("mlp", **one_of(ARCHITECTURES), **_NET, architecture=True)
     """``mlp``: the current observation through dense layers. ``cnn``: for CartPole, a 1-D convolution over
     time across the last ``history`` observations (it can read velocities and trends off the window), then
     the dense layers; for Pong, the course's 2-D convolutions over the 80x80 frame difference."""
-    hidden_sizes: tuple[int, ...] = (32,)
+    hidden_sizes: tuple[int, ...] = knob(
+        (32,), **_sizes(True, "a list of layer widths in [1, 4096], e.g. [64, 64]"), **_NET, architecture=True
+    )
     """Width of each dense hidden layer; its length is the depth. ``()`` is a linear policy."""
-    activation: str = "relu"
+    activation: str = knob("relu", **one_of(ACTIVATIONS), **_NET)
     """Non-linearity after every hidden layer: one of ``ACTIVATIONS``."""
-    dropout: float = 0.0
+    dropout: float = knob(0.0, **number(0, 1, open_high=True), **_NET, words="dropout {}")
     """Dropout probability after every hidden layer, in [0, 1). Active in updates, off while acting."""
-    history: int = 4
+    history: int = knob(4, **integer(2, 64), **_NET, architecture=True)
     """``cnn`` on CartPole only: how many recent observations the convolution sees (>= 2)."""
-    conv_channels: tuple[int, ...] = (16,)
+    conv_channels: tuple[int, ...] = knob(
+        (16,), **_sizes(False, "a non-empty list of channel counts in [1, 4096]"), **_NET, architecture=True
+    )
     """``cnn`` on CartPole only: output channels of each 1-D convolution layer."""
-    kernel_size: int = 2
+    kernel_size: int = knob(2, **integer(1, 64), **_NET, architecture=True)
     """``cnn`` on CartPole only: temporal kernel size of each convolution, <= ``history``."""
-    factory: str = ""
+    factory: str = knob(
+        "",
+        check=lambda v: isinstance(v, str) and bool(_FACTORY.match(v)),
+        valid="'FILE.py:FUNCTION' (relative to the experiment file) or 'package.module:FUNCTION'",
+        name="model",
+        key_since=2,
+        population=True,
+    )
     """The user's own network (the experiment's ``model`` key): ``FILE.py:FUNCTION`` (a path relative to the
     experiment file) or ``package.module:FUNCTION``; "" for the built-in networks, whose knobs above then apply."""
-    factory_args: tuple[tuple[str, Any], ...] = ()
+    factory_args: tuple[tuple[str, Any], ...] = knob(
+        (),
+        **_table("a table of the model factory's keyword arguments"),
+        name="model_args",
+        key_since=2,
+        population=True,
+    )
     """``model_args``: keyword arguments of the factory, as sorted ``(name, value)`` pairs (lists as tuples)."""
-    factory_hash: str = ""
+    factory_hash: str = derived("", key_since=2, population=True)
     """SHA-1 (12 hex digits) of the factory's source file: in the trial key, so an edited network reruns."""
-    factory_source: str = field(default="", repr=False)
+    factory_source: str = derived("", key_since=None, tracked=False, population=True, repr=False)
     """The text of a ``FILE.py`` factory, shipped with the trial so a node without the file builds the same
     network (checked against ``factory_hash``); not a tracked parameter."""
+
+
+# A knob of the env a trial is built against: it separates populations and changes what ``describe`` finds.
+_ENV = {"population": True, "env": True}
 
 
 @dataclass(frozen=True)
 class TrialConfig:
     """Everything one training run depends on. Two equal configs give identical results."""
 
-    env_id: str = "CartPole-v1"
+    env_id: str = knob(
+        "CartPole-v1",
+        check=lambda v: isinstance(v, str) and bool(_ENV_ID.match(v)),
+        valid=f"a registered Gymnasium id such as {', '.join(BUILT_IN_ENVS)}, Acrobot-v1 or ALE/Breakout-v5",
+        aliases=("--env",),
+        **_ENV,
+    )
     """Gymnasium id: any registered env with ``Discrete`` actions and a ``Box`` observation (``BUILT_IN_ENVS``
     are the course's)."""
-    env_args: tuple[tuple[str, Any], ...] = ()
+    env_args: tuple[tuple[str, Any], ...] = knob(
+        (), **_table("a table of gym.make's keyword arguments"), key_since=2, **_ENV
+    )
     """Keyword arguments of ``gym.make`` (the experiment's ``env_args`` table), as sorted ``(name, value)`` pairs."""
-    env_module: str = ""
+    env_module: str = knob(
+        "",
+        check=lambda v: isinstance(v, str) and all(p.isidentifier() for p in v.split(".")),
+        valid="a module to import before gym.make, e.g. 'mypkg.envs'",
+        key_since=2,
+        **_ENV,
+    )
     """A module imported before ``gym.make`` (where a user's own env registers itself); "" for none."""
     model: ModelConfig = field(default_factory=ModelConfig)
-    learning_rate: float = 0.03
+    learning_rate: float = knob(0.03, **number(0, 1, open_low=True), tunable=True)
     """Adam step size, in (0, 1]."""
-    gamma: float = 0.95
+    gamma: float = knob(0.95, **number(0, 1, open_low=True))
     """Discount factor in (0, 1]. The course uses 0.95 for CartPole and 0.99 for Pong."""
-    l2: float = 0.0
+    l2: float = knob(0.0, **number(0, 1))
     """L2 penalty coefficient (a loss term over weight matrices, see ``reinforce.train_step``), >= 0."""
-    episodes_per_update: int = 32
+    episodes_per_update: int = knob(32, **integer(1, 256), tunable=True, population=True)
     """Complete episodes collected (in parallel, from a vectorised env) per Adam step, >= 1."""
-    max_episodes: int = 3000
+    max_episodes: int = knob(3000, **integer(1, 1_000_000))
     """Episode budget, >= 1: the trial stops here if it has not solved the task."""
-    solve_threshold: float | None = None
+    solve_threshold: float | None = knob(
+        None,
+        check=lambda v: v is None or (is_number(v) and math.isfinite(v)),
+        valid="a finite number (or leave it out for the env's threshold)",
+    )
     """Rolling mean return that counts as solved; ``None``: the env spec's ``reward_threshold``."""
-    solve_window: int = 100
+    solve_window: int = knob(100, **integer(1, 10_000))
     """Episodes in the rolling mean, >= 1."""
-    seed: int = 0
+    seed: int = knob(0, check=lambda v: is_int(v) and 0 <= v < 2**31, valid="an integer in [0, 2**31)")
     """Seeds torch, the action sampler and the environment."""
-    record_video: bool = True
+    record_video: bool = knob(True, **boolean(), key_since=None)
     """A video of one greedy episode of the trained agent: ``ablate train`` writes it; in a launch the report
     records it for the seeds it shows (from the run's ``weights.pt`` and ``config.json``)."""
-    video_max_frames: int = 500
+    video_max_frames: int = knob(500, **integer(1, 100_000), key_since=None)
     """Cap on the video's length in frames (25 fps for CartPole: 500 frames show a whole 1,000-step episode)."""
-    fault: str = ""
+    fault: str = knob(
+        "", **one_of(FAULTS, f"one of {', '.join(map(repr, FAULTS))} (tests only)"), key_since=None, test_only=True
+    )
     """Test-only: ``crash_once`` kills the trial's process the first time, ``crash_after_checkpoint`` the
     first time right after a checkpoint, ``raise`` raises after the first update, ``block`` waits until
     ``fault_marker`` exists. Never set it in a real experiment."""
-    fault_marker: str = ""
+    fault_marker: str = knob(
+        "", check=lambda v: isinstance(v, str), valid="a file path (tests only)", key_since=None, test_only=True
+    )
     """Test-only: a file path ``crash_once`` uses to remember it already crashed, ``block`` waits for."""
 
     # --- Pong env, collection, videos and checkpoints (issue 9); CartPole ignores the Pong-only ones ---
-    action_set: str = "all"
+    action_set: str = knob("all", **one_of(PONG_ACTION_SETS, "'all' (6 actions) or 'move' (UP and DOWN)"), **_ENV)
     """Pong only: ``all`` (the 6 actions) or ``move`` (UP and DOWN only, as in Karpathy's pg-pong)."""
-    frameskip: int = 4
+    frameskip: int = knob(4, **integer(1, 16), **_ENV)
     """Pong only: emulator frames per agent step (the action repeats), ALE/Pong-v5's default 4."""
-    repeat_action_probability: float = 0.25
+    repeat_action_probability: float = knob(0.25, **number(0, 1), **_ENV)
     """Pong only: sticky actions, the chance the emulator repeats the previous action in a frame (v5: 0.25)."""
-    max_episode_steps: int = 0
+    max_episode_steps: int = knob(0, **integer(0, 1_000_000, " (0: the env's limit)"), **_ENV)
     """Agent steps after which an episode is cut short (truncated); 0: the env's own limit. For smoke runs."""
-    num_envs: int = 0
+    num_envs: int = knob(0, **integer(0, 256, " (0: episodes_per_update)"), population=True)
     """Pong only: sub-envs stepped together, acting in one batched forward; finished ones start a new episode
     at once, so an update's episodes may begin under the previous weights. 0: ``episodes_per_update``."""
-    video_every: int = 0
+    video_every: int = knob(0, **integer(0, 1_000_000, " (0: off)"))
     """Pong only: every this many episodes, record the next episode of sub-env 0 as the *sampling* policy
     plays it during training (up to ``video_max_frames`` frames) into ``videos/``; 0: none."""
-    checkpoint_every: int | None = None
+    checkpoint_every: int | None = knob(None, **integer(0, 1_000_000, " (0: never)"))
     """Episodes between trial checkpoints (weights, optimizer, RNGs, envs, history); 0: never;
     ``None``: 50 for Pong, never for CartPole (its trials last seconds)."""
 
@@ -162,114 +239,20 @@ class TrialConfig:
         return self.env_id.startswith("ALE/Pong")
 
 
-def is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
+SCHEMA: dict[str, Knob] = schema.fields_of(TrialConfig)
+"""Every field of a trial's config by column (``model.hidden_sizes``), declared once above: the source of every
+list below and of the keys (``launch.grid``), populations (``agent.sharing``), flags (``cli``) and docs."""
+KNOBS: dict[str, Knob] = {k.key_name: k for k in SCHEMA.values() if k.user}
+"""The knobs a user writes, by the experiment file's key."""
+TUNABLE_KNOBS = tuple(name for name, k in KNOBS.items() if k.tunable)
+"""Optimisation knobs ``[tune]`` may search; architecture and regularisation knobs are what an ablation
+compares, so tuning them would tune away the effect being measured."""
+POPULATION_COLUMNS = tuple(column for column, k in SCHEMA.items() if k.population)
+"""The fields trials must share to train as one population."""
+ENV_COLUMNS = tuple(column for column, k in SCHEMA.items() if k.env)
+"""The fields that make a trial's env."""
 
 
-def is_number(v: Any) -> bool:
-    return (isinstance(v, int | float)) and not isinstance(v, bool)
-
-
-def _sizes(v: Any, allow_empty: bool) -> bool:
-    return isinstance(v, list | tuple) and (allow_empty or len(v) > 0) and all(is_int(x) and 1 <= x <= 4096 for x in v)
-
-
-@dataclass(frozen=True)
-class Knob:
-    """One user-settable value: where it lives, how it is checked, what is valid (for the error)."""
-
-    owner: str  # "trial" or "model"
-    check: Callable[[Any], bool]
-    valid: str
-    convert: Callable[[Any], Any] = lambda v: v
-    attr: str = ""
-    """The dataclass field it sets, where it is not the key's own name (``model`` sets ``factory``)."""
-
-
-def freeze(value: Any) -> Any:
-    """A TOML value made hashable: tables as sorted ``(name, value)`` tuples, lists as tuples."""
-    if isinstance(value, Mapping):
-        return tuple(sorted((str(k), freeze(v)) for k, v in value.items()))
-    if isinstance(value, list | tuple):
-        return tuple(freeze(v) for v in value)
-    return value
-
-
-_FACTORY = re.compile(r"^(?P<target>[^:]+):(?P<function>[A-Za-z_][A-Za-z0-9_]*)$")
-_ENV_ID = re.compile(r"^[A-Za-z0-9_./-]+$")
-
-
-KNOBS: dict[str, Knob] = {
-    "env_id": Knob(
-        "trial",
-        lambda v: isinstance(v, str) and bool(_ENV_ID.match(v)),
-        f"a registered Gymnasium id such as {', '.join(BUILT_IN_ENVS)}, Acrobot-v1 or ALE/Breakout-v5",
-    ),
-    "env_args": Knob("trial", lambda v: isinstance(v, dict), "a table of gym.make's keyword arguments", freeze),
-    "env_module": Knob(
-        "trial",
-        lambda v: isinstance(v, str) and all(p.isidentifier() for p in v.split(".")),
-        "a module to import before gym.make, e.g. 'mypkg.envs'",
-    ),
-    "model": Knob(
-        "model",
-        lambda v: isinstance(v, str) and bool(_FACTORY.match(v)),
-        "'FILE.py:FUNCTION' (relative to the experiment file) or 'package.module:FUNCTION'",
-        attr="factory",
-    ),
-    "model_args": Knob(
-        "model",
-        lambda v: isinstance(v, dict),
-        "a table of the model factory's keyword arguments",
-        freeze,
-        attr="factory_args",
-    ),
-    "learning_rate": Knob("trial", lambda v: is_number(v) and 0 < v <= 1, "a number in (0, 1]", float),
-    "gamma": Knob("trial", lambda v: is_number(v) and 0 < v <= 1, "a number in (0, 1]", float),
-    "l2": Knob("trial", lambda v: is_number(v) and 0 <= v <= 1, "a number in [0, 1]", float),
-    "episodes_per_update": Knob("trial", lambda v: is_int(v) and 1 <= v <= 256, "an integer in [1, 256]"),
-    "max_episodes": Knob("trial", lambda v: is_int(v) and 1 <= v <= 1_000_000, "an integer in [1, 1000000]"),
-    "solve_threshold": Knob(
-        "trial",
-        lambda v: v is None or (is_number(v) and math.isfinite(v)),
-        "a finite number (or leave it out for the env's threshold)",
-    ),
-    "solve_window": Knob("trial", lambda v: is_int(v) and 1 <= v <= 10_000, "an integer in [1, 10000]"),
-    "seed": Knob("trial", lambda v: is_int(v) and 0 <= v < 2**31, "an integer in [0, 2**31)"),
-    "record_video": Knob("trial", lambda v: isinstance(v, bool), "true or false"),
-    "video_max_frames": Knob("trial", lambda v: is_int(v) and 1 <= v <= 100_000, "an integer in [1, 100000]"),
-    "fault": Knob("trial", lambda v: v in FAULTS, f"one of {', '.join(map(repr, FAULTS))} (tests only)"),
-    "fault_marker": Knob("trial", lambda v: isinstance(v, str), "a file path (tests only)"),
-    # --- Pong env, collection, videos and checkpoints (issue 9) ---
-    "action_set": Knob("trial", lambda v: v in PONG_ACTION_SETS, "'all' (6 actions) or 'move' (UP and DOWN)"),
-    "frameskip": Knob("trial", lambda v: is_int(v) and 1 <= v <= 16, "an integer in [1, 16]"),
-    "repeat_action_probability": Knob("trial", lambda v: is_number(v) and 0 <= v <= 1, "a number in [0, 1]", float),
-    "max_episode_steps": Knob(
-        "trial", lambda v: is_int(v) and 0 <= v <= 1_000_000, "an integer in [0, 1000000] (0: the env's limit)"
-    ),
-    "num_envs": Knob("trial", lambda v: is_int(v) and 0 <= v <= 256, "an integer in [0, 256] (0: episodes_per_update)"),
-    "video_every": Knob("trial", lambda v: is_int(v) and 0 <= v <= 1_000_000, "an integer in [0, 1000000] (0: off)"),
-    "checkpoint_every": Knob(
-        "trial", lambda v: is_int(v) and 0 <= v <= 1_000_000, "an integer in [0, 1000000] (0: never)"
-    ),
-    "architecture": Knob("model", lambda v: v in ARCHITECTURES, f"one of {', '.join(ARCHITECTURES)}"),
-    "hidden_sizes": Knob(
-        "model",
-        lambda v: _sizes(v, allow_empty=True),
-        "a list of layer widths in [1, 4096], e.g. [64, 64]",
-        tuple,
-    ),
-    "activation": Knob("model", lambda v: v in ACTIVATIONS, f"one of {', '.join(ACTIVATIONS)}"),
-    "dropout": Knob("model", lambda v: is_number(v) and 0 <= v < 1, "a number in [0, 1)", float),
-    "history": Knob("model", lambda v: is_int(v) and 2 <= v <= 64, "an integer in [2, 64]"),
-    "conv_channels": Knob(
-        "model",
-        lambda v: _sizes(v, allow_empty=False),
-        "a non-empty list of channel counts in [1, 4096]",
-        tuple,
-    ),
-    "kernel_size": Knob("model", lambda v: is_int(v) and 1 <= v <= 64, "an integer in [1, 64]"),
-}
 # Shorthands an experiment may use instead of hidden_sizes: ``depth`` layers of ``width`` units.
 SHORTHANDS = {
     "depth": ("an integer in [0, 16]", lambda v: is_int(v) and 0 <= v <= 16),
@@ -294,11 +277,10 @@ def check_knob(key: str, value: Any, where: str = "") -> Any:
     return knob.convert(value)
 
 
-BUILT_IN_MODEL_KNOBS = (
-    "architecture", "hidden_sizes", "depth", "width", "activation", "dropout", "history", "conv_channels",
-    "kernel_size",
-)  # fmt: skip
+BUILT_IN_MODEL_KNOBS = (*(name for name, k in KNOBS.items() if k.built_in), *SHORTHANDS)
 """Knobs of the built-in networks, which a user's own ``model`` does not read."""
+ARCHITECTURE_KNOBS = frozenset(name for name, k in KNOBS.items() if k.architecture) | set(SHORTHANDS)
+"""Knobs that together make one architecture (``depth``/``width`` expand to ``hidden_sizes``)."""
 
 
 def resolve_factory(spec: str, base_dir: Path, where: str = "") -> tuple[str, str]:
@@ -359,22 +341,19 @@ def apply_knobs(
     return config
 
 
-NOT_FLAT = ("model.factory_source",)
-"""Fields that travel with a trial but are not knobs to track (a factory file's text: its hash is)."""
-
-
 def flatten(config: TrialConfig) -> dict[str, Any]:
-    """Every knob as a flat ``{name: value}`` (model knobs prefixed ``model.``), for tracking and tables."""
-    flat: dict[str, Any] = {}
-    for f in fields(config):
-        value = getattr(config, f.name)
-        if dataclasses.is_dataclass(value):
-            for g in fields(value):
-                if f"{f.name}.{g.name}" not in NOT_FLAT:
-                    flat[f"{f.name}.{g.name}"] = getattr(value, g.name)
-        else:
-            flat[f.name] = value
-    return flat
+    """Every tracked field as a flat ``{column: value}`` (model knobs prefixed ``model.``), for tracking and tables."""
+    return schema.flatten(config, SCHEMA)
+
+
+def env_facts(config: TrialConfig) -> tuple:
+    """The values of the fields that make ``config``'s env (``ENV_COLUMNS``): configs with equal facts share one."""
+    return tuple(schema.value_of(config, column) for column in ENV_COLUMNS)
+
+
+def key_fields(config: TrialConfig) -> dict[str, Any]:
+    """The fields of ``config`` its trial key is made of (``Knob.in_key``)."""
+    return {column: value for column, value in flatten(config).items() if SCHEMA[column].in_key(value)}
 
 
 # The MIT 6.S191 lab's own setting: one episode per Adam step at 1e-3, one hidden layer of 32 units.

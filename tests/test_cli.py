@@ -13,6 +13,8 @@ import pytest
 from ablate.cli import main
 from ablate.experiment import load_experiment
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 @pytest.mark.parametrize(
     ("argv", "message"),
@@ -168,25 +170,35 @@ def test_top_level_help_describes_the_tool_not_the_module():
 
 
 def test_train_has_a_flag_for_every_knob_and_each_reaches_the_config():
-    from ablate.cli import FILE_ONLY_KNOBS, TEST_ONLY_KNOBS, TRAIN_KNOBS, build_parser
+    from ablate.cli import TEST_ONLY_KNOBS, TRAIN_KNOBS, build_parser
     from ablate.config import DEFAULT, KNOBS, SHORTHANDS, apply_knobs, flatten
 
     train = _subparsers(build_parser())["train"]
     dests = {a.dest for a in train._actions}
-    assert set(KNOBS) - set(TEST_ONLY_KNOBS) - set(FILE_ONLY_KNOBS) | set(SHORTHANDS) <= dests
+    assert set(KNOBS) - set(TEST_ONLY_KNOBS) | set(SHORTHANDS) <= dests
+    own_network = {"model", "model_args"}  # a user's network: not beside the built-in network's knobs
     argv = shlex.split(
         "--env-id CartPole-v0 --learning-rate 0.5 --gamma 0.9 --l2 0.01 --episodes-per-update 4 --max-episodes 7 "
         "--solve-threshold 150 --solve-window 20 --seed 3 --no-record-video --video-max-frames 9 --architecture cnn "
         "--hidden-sizes 5,6 --activation tanh --dropout 0.25 --history 6 --conv-channels 3,4 --kernel-size 3 "
         "--action-set move --frameskip 2 --repeat-action-probability 0.1 --max-episode-steps 30 --num-envs 2 "
-        "--video-every 5 --checkpoint-every 7"
+        "--video-every 5 --checkpoint-every 7 --env-module gymnasium.envs --env-args '{\"sutton_barto_reward\": true}' "
     )
-    args = train.parse_args(argv)
-    knobs = {k: getattr(args, k) for k in TRAIN_KNOBS if getattr(args, k) is not None}
-    flat = flatten(apply_knobs(DEFAULT, knobs))
-    changed = {k.removeprefix("model."): v for k, v in flat.items() if v != flatten(DEFAULT)[k]}
-    assert set(changed) == set(KNOBS) - set(TEST_ONLY_KNOBS) - set(FILE_ONLY_KNOBS)  # every knob set by its flag
+    model = ROOT / "examples" / "models" / "layernorm.py"
+    argv_own = ["--model", f"{model}:create_model", "--model-args", '{"width": 8}']
+
+    def changed_knobs(argv: list[str]) -> dict:
+        args = train.parse_args(argv)
+        knobs = {k: getattr(args, k) for k in TRAIN_KNOBS if getattr(args, k) is not None}
+        flat = flatten(apply_knobs(DEFAULT, knobs))
+        by_column = {k.column: name for name, k in KNOBS.items()}
+        return {by_column[c]: v for c, v in flat.items() if v != flatten(DEFAULT)[c] and c in by_column}
+
+    changed = changed_knobs(argv)
+    assert set(changed) == set(KNOBS) - set(TEST_ONLY_KNOBS) - own_network  # every knob set by its flag
     assert changed["hidden_sizes"] == (5, 6) and changed["record_video"] is False and changed["gamma"] == 0.9
+    assert changed["env_args"] == (("sutton_barto_reward", True),)
+    assert changed_knobs(argv_own) == {"model": f"{model}:create_model", "model_args": (("width", 8),)}
     depth = train.parse_args(["--depth", "3", "--width", "7", "--env", "CartPole-v0"])
     assert apply_knobs(DEFAULT, {"depth": depth.depth, "width": depth.width}).model.hidden_sizes == (7, 7, 7)
     assert train.parse_args(["--hidden-sizes", "linear"]).hidden_sizes == []

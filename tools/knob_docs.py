@@ -1,8 +1,8 @@
 """The knob tables of docs/experiments.md, generated from ablate/config.py so that they cannot go stale.
 
 Each knob's default comes from the config's typed defaults, its meaning from the field's docstring, what is
-valid from ``KNOBS``; the top-level keys' defaults from parsing a minimal experiment. tests/test_docs.py fails
-when the page and this output differ.
+valid and whether the trial key holds it from its ``schema.Knob``; the top-level keys' defaults from parsing a
+minimal experiment. tests/test_docs.py fails when the page and this output differ.
 
     python tools/knob_docs.py            # print the generated block
     python tools/knob_docs.py --write    # rewrite it in docs/experiments.md (between the markers)
@@ -98,19 +98,28 @@ def top_level_defaults() -> dict[str, str]:
     }
 
 
-def knob_rows() -> dict[str, list[tuple[str, str, str, str]]]:
-    """The knob tables' rows (name, default, meaning, valid), one list per group."""
+def in_key(knob: config.Knob) -> str:
+    """The knob's "in the key" cell: whether a trial's key (what a rerun is matched by) holds it, from the schema."""
+    if knob.key_since is None:
+        return "no"
+    if knob.key_since == 1:
+        return "yes"
+    return f"where set (since key version {knob.key_since})"
+
+
+def knob_rows() -> dict[str, list[tuple[str, ...]]]:
+    """The knob tables' rows (name, default, meaning, valid, in the key), one list per group."""
     docs, defaults = field_docs(code_mark="`"), knob_defaults()
-    groups: dict[str, list[tuple[str, str, str, str]]] = {"model": [], "trial": []}
+    groups: dict[str, list[tuple[str, ...]]] = {"model": [], "trial": []}
     for name, knob in config.KNOBS.items():
         meaning = docs.get(name, "")
         if name == "seed":
             meaning += " Experiment files set `seeds` at the top level; `ablate train --seed`."
-        groups[knob.owner].append((name, _code(defaults[name]), meaning, knob.valid))
+        groups[knob.owner].append((name, _code(defaults[name]), meaning, knob.valid, in_key(knob)))
     width = config.DEFAULT.model.hidden_sizes
     derived = {"depth": f"`{len(width)}` (from `hidden_sizes`)", "width": f"`{width[0]}` (from `hidden_sizes`)"}
     for name, (valid, _) in config.SHORTHANDS.items():
-        groups["model"].append((name, derived[name], SHORTHAND_MEANINGS[name], valid))
+        groups["model"].append((name, derived[name], SHORTHAND_MEANINGS[name], valid, "as `hidden_sizes`"))
     return groups
 
 
@@ -147,13 +156,16 @@ def render() -> str:
         "",
         *_table(header, top),
         "",
-        "**Policy knobs** (in `[base]`, a `[[variants]]` table or a `[grid]` axis).",
+        "**Policy knobs** (in `[base]`, a `[[variants]]` table or a `[grid]` axis). *In the key*: whether the trial "
+        "key holds the knob, so that changing it reruns the trials it changes (*no*: it changes what a trial records, "
+        "not what it learns; *where set*: a knob added later, in the key only away from its default, so that every "
+        "earlier key stays as it was).",
         "",
-        *_table(("knob", *header[1:]), groups["model"]),
+        *_table(("knob", *header[1:], "in the key"), groups["model"]),
         "",
         f"**Training, environment and recording knobs** (same places; {test_only} are for the test suite only).",
         "",
-        *_table(("knob", *header[1:]), groups["trial"]),
+        *_table(("knob", *header[1:], "in the key"), groups["trial"]),
         "",
         END,
     ]

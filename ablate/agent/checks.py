@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from ablate.config import ConfigError, TrialConfig
+from ablate.config import ConfigError, TrialConfig, env_facts
 
 
 def needs_check(config: TrialConfig) -> bool:
@@ -25,7 +25,7 @@ def check_configs(named: Iterable[tuple[str, TrialConfig]], source: str) -> None
 
     seen: set = set()
     for variant, config in named:
-        key = (config.env_id, config.env_args, config.env_module, config.action_set, config.model)
+        key = (env_facts(config), config.model)
         if key in seen or not needs_check(config):
             continue
         seen.add(key)

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from ablate.config import env_facts
+
 # Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
 # display and prints "XDG_RUNTIME_DIR is invalid or not set" on a headless machine.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
@@ -312,7 +314,7 @@ _DESCRIBED: dict[tuple, Described] = {}
 def describe(config) -> Described:
     """``config``'s env, described once per process (an env is built to read its spaces); an env the trainer cannot
     run is an ``EnvError`` saying why."""
-    key = (config.env_id, config.env_args, config.env_module, config.action_set, config.max_episode_steps)
+    key = env_facts(config)
     if key in _DESCRIBED:
         return _DESCRIBED[key]
     register(config)

@@ -20,7 +20,7 @@ from torch import nn
 
 from ablate.agent.envs import Described
 from ablate.agent.policies import create_cartpole_model, create_pong_model
-from ablate.config import ModelConfig, TrialConfig
+from ablate.config import SCHEMA, ModelConfig, TrialConfig
 
 
 class ModelError(ValueError):
@@ -90,25 +90,13 @@ def build_model(config: TrialConfig, env: Described) -> nn.Module:
     if model.factory:
         return call_factory(model, env.observation_shape, env.n_actions)
     if len(env.observation_shape) == 3:  # an image (Pong's frame difference, another Atari game's)
-        return create_pong_model(
-            env.n_actions,
-            model.hidden_sizes,
-            model.activation,
-            model.dropout,
-            model.architecture,
-            env.observation_shape,
-        )
-    return create_cartpole_model(
-        math.prod(env.observation_shape),
-        env.n_actions,
-        model.hidden_sizes,
-        model.activation,
-        model.dropout,
-        model.architecture,
-        model.history,
-        model.conv_channels,
-        model.kernel_size,
-    )
+        factory, sizes = create_pong_model, {"observation_shape": env.observation_shape}
+    else:
+        factory, sizes = create_cartpole_model, {"observation_size": math.prod(env.observation_shape)}
+    # The built-in knobs by name, as the schema declares them; each factory takes those its signature names.
+    taken = inspect.signature(factory).parameters
+    knobs = {k.attr: getattr(model, k.attr) for k in SCHEMA.values() if k.built_in and k.attr in taken}
+    return factory(n_actions=env.n_actions, **sizes, **knobs)
 
 
 def history(config: TrialConfig) -> int:

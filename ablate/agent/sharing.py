@@ -8,23 +8,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ablate.config import TrialConfig
+from ablate.config import POPULATION_COLUMNS, TrialConfig
+from ablate.schema import value_of
 
 
 def population_group(config: TrialConfig) -> tuple:
-    """Configs with one group share a population: one env (and its settings), one network, one batch shape."""
-    return (
-        config.env_id,
-        config.env_args,
-        config.env_module,
-        config.model,
-        config.episodes_per_update,
-        config.num_envs,
-        config.action_set,
-        config.frameskip,
-        config.repeat_action_probability,
-        config.max_episode_steps,
-    )
+    """Configs with one group share a population: one env (and its settings), one network, one batch shape (the
+    fields the schema marks ``population``)."""
+    return tuple(value_of(config, column) for column in POPULATION_COLUMNS)
 
 
 def can_share(configs: Sequence[TrialConfig]) -> bool:

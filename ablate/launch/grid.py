@@ -12,20 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ablate.config import ConfigError, TrialConfig, flatten
+from ablate.config import ConfigError, TrialConfig, key_fields
 from ablate.experiment import Experiment
-
-# Knobs that change what is recorded, not what is learned: they stay out of the key.
-_NOT_IN_KEY = ("record_video", "video_max_frames", "fault", "fault_marker")
-# Knobs added after trials were first keyed: at their default they stay out of the key, so every earlier
-# file's keys (users' resume state) are unchanged; set, they are in it (the factory by its source's hash).
-_KEYED_WHEN_SET = {
-    "env_args": (),
-    "env_module": "",
-    "model.factory": "",
-    "model.factory_args": (),
-    "model.factory_hash": "",
-}
 
 
 @dataclass(frozen=True)
@@ -40,12 +28,8 @@ class GridTrial:
 
 
 def config_hash(config: TrialConfig) -> str:
-    flat = {
-        k: v
-        for k, v in flatten(config).items()
-        if k not in _NOT_IN_KEY and not (k in _KEYED_WHEN_SET and v == _KEYED_WHEN_SET[k])
-    }
-    return hashlib.sha1(json.dumps(flat, sort_keys=True, default=list).encode()).hexdigest()[:10]
+    """10 hex digits of the fields the schema puts in the key (``config.key_fields``)."""
+    return hashlib.sha1(json.dumps(key_fields(config), sort_keys=True, default=list).encode()).hexdigest()[:10]
 
 
 def variant_slug(variant: str) -> str:

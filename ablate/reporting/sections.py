@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from ablate.config import ARCHITECTURE_KNOBS, SCHEMA
 from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.figures import ablation_window
 from ablate.reporting.networks import factory_args
@@ -13,9 +14,6 @@ from ablate.reporting.results import INITIAL_EPISODES, Ablation
 from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
 from ablate.reporting.text import NO_REFS, Refs, _interval, esc, fmt, joined, setting_value
-
-# Knobs that together make one architecture: a variant changing several of them changes one thing.
-ARCHITECTURE_KNOBS = {"architecture", "hidden_sizes", "depth", "width", "history", "conv_channels", "kernel_size"}
 
 
 def _sizes(params: dict[str, str], key: str = "model.hidden_sizes") -> list[int]:
@@ -65,8 +63,10 @@ def architecture(params: dict[str, str], env_id: str) -> str:
         )
     else:
         text = f"MLP, {dense}" if hidden else "linear policy: observation → action logits, no hidden layer"
-    if float(params.get("model.dropout", 0) or 0) > 0:
-        text += f"; dropout {params['model.dropout']}"
+    for knob in SCHEMA.values():  # the built-in knobs the layers above do not show, as the schema names them
+        value = params.get(knob.column)
+        if knob.built_in and knob.words and value is not None and value != str(knob.default):
+            text += "; " + knob.words.format(value)
     if float(params.get("l2", 0) or 0) > 0:
         text += f"; L2 {params['l2']}"
     return text
