@@ -105,6 +105,8 @@ class ModelConfig:
     """Non-linearity after every hidden layer: one of ``ACTIVATIONS``."""
     dropout: float = knob(0.0, **number(0, 1, open_high=True), **_NET, words="dropout {}")
     """Dropout probability after every hidden layer, in [0, 1). Active in updates, off while acting."""
+    layer_norm: bool = knob(False, **boolean(), **_NET, key_since=3, words="LayerNorm before each hidden activation")
+    """A ``LayerNorm`` (with its scale and shift) after each dense hidden layer, before its activation."""
     history: int = knob(4, **integer(2, 64), **_NET, architecture=True)
     """``cnn`` on CartPole only: how many recent observations the convolution sees (>= 2)."""
     conv_channels: tuple[int, ...] = knob(

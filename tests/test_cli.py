@@ -183,6 +183,7 @@ def test_train_has_a_flag_for_every_knob_and_each_reaches_the_config():
         "--hidden-sizes 5,6 --activation tanh --dropout 0.25 --history 6 --conv-channels 3,4 --kernel-size 3 "
         "--action-set move --frameskip 2 --repeat-action-probability 0.1 --max-episode-steps 30 --num-envs 2 "
         "--video-every 5 --checkpoint-every 7 --env-module gymnasium.envs --env-args '{\"sutton_barto_reward\": true}' "
+        "--layer-norm"
     )
     model = ROOT / "examples" / "models" / "layernorm.py"
     argv_own = ["--model", f"{model}:create_model", "--model-args", '{"width": 8}']

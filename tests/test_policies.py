@@ -86,3 +86,33 @@ def test_numpy_conv1d_matches_torch_and_a_stack_is_each_member_alone_exactly():
         np.testing.assert_array_equal(stacked[i], alone)  # bit for bit: how a population acts as its trials
         expected = torch.nn.functional.conv1d(*(torch.from_numpy(a) for a in (x[i], weight[i], bias[i])))
         np.testing.assert_allclose(alone, expected.numpy(), rtol=1e-5, atol=1e-6)
+
+
+def test_layer_norm_knob_builds_a_layer_norm_before_each_hidden_activation_and_acts_in_the_dense_stack():
+    from dataclasses import replace
+
+    import numpy as np
+
+    from ablate.agent.acting import DenseStack
+    from ablate.agent.envs import describe
+    from ablate.agent.models import build_model
+    from ablate.config import DEFAULT, apply_knobs
+    from ablate.launch.grid import trial_key
+    from ablate.reporting.sections import architecture
+
+    config = apply_knobs(DEFAULT, {"hidden_sizes": [16, 8], "layer_norm": True})
+    torch.manual_seed(0)
+    model = build_model(config, describe(config))
+    kinds = [type(m).__name__ for m in model.body]
+    assert kinds == ["Linear", "LayerNorm", "ReLU", "Linear", "LayerNorm", "ReLU", "Linear"]
+    pong = create_pong_model(architecture="mlp", hidden_sizes=(8,), layer_norm=True)
+    assert sum(isinstance(m, nn.LayerNorm) for m in pong.modules()) == 1
+    assert DenseStack.fits(model)  # acts with the built-in networks' fast path, not a fallback
+    observations = torch.randn(2, 5, 4)
+    with torch.no_grad():
+        expected = model(observations.reshape(-1, 4)).reshape(2, 5, 2)
+    stacked = DenseStack([model, model])(observations.numpy())
+    np.testing.assert_allclose(stacked, expected.numpy(), rtol=1e-5, atol=1e-5)
+    assert trial_key("v", replace(config, model=replace(config.model, layer_norm=False))) != trial_key("v", config)
+    assert "LayerNorm" in architecture({"model.hidden_sizes": "(16, 8)", "model.layer_norm": "True"}, "CartPole-v1")
+    assert "LayerNorm" not in architecture({"model.hidden_sizes": "(16,)", "model.layer_norm": "False"}, "CartPole-v1")

@@ -196,11 +196,17 @@ def parameter_count(model: nn.Module) -> int:
 
 
 def _dense_layers(
-    in_features: int, hidden_sizes: Sequence[int], n_actions: int, activation: str, dropout: float
+    in_features: int,
+    hidden_sizes: Sequence[int],
+    n_actions: int,
+    activation: str,
+    dropout: float,
+    layer_norm: bool = False,
 ) -> list[nn.Module]:
     layers: list[nn.Module] = []
     for width in hidden_sizes:
-        layers += [nn.Linear(in_features, width), _ACTIVATIONS[activation]()]
+        layers += [nn.Linear(in_features, width), *([nn.LayerNorm(width)] if layer_norm else [])]
+        layers.append(_ACTIVATIONS[activation]())
         if dropout > 0:
             layers.append(nn.Dropout(dropout))
         in_features = width
@@ -218,12 +224,13 @@ def create_cartpole_model(
     history: int = 4,
     conv_channels: Sequence[int] = (16,),
     kernel_size: int = 2,
+    layer_norm: bool = False,
 ) -> Policy:
     """CartPole policy. ``mlp``: input (observation_size,). ``cnn``: input (history, observation_size), a
     window of recent observations, oldest first; 1-D convolutions run along time with the observation's
     components as channels, then the dense layers."""
     if architecture == "mlp":
-        body = nn.Sequential(*_dense_layers(observation_size, hidden_sizes, n_actions, activation, dropout))
+        body = nn.Sequential(*_dense_layers(observation_size, hidden_sizes, n_actions, activation, dropout, layer_norm))
         return Policy(body, (observation_size,))
     conv: list[nn.Module] = [_TimeAsLength()]
     channels, length = observation_size, history
@@ -233,7 +240,8 @@ def create_cartpole_model(
         if length < 1:
             raise ValueError(f"history {history} is too short for {len(conv_channels)} convolutions of {kernel_size}")
     conv.append(nn.Flatten())
-    body = nn.Sequential(*conv, *_dense_layers(channels * length, hidden_sizes, n_actions, activation, dropout))
+    dense = _dense_layers(channels * length, hidden_sizes, n_actions, activation, dropout, layer_norm)
+    body = nn.Sequential(*conv, *dense)
     return Policy(body, (history, observation_size))
 
 
@@ -258,6 +266,7 @@ def create_pong_model(
     dropout: float = 0.0,
     architecture: str = "cnn",
     observation_shape: Sequence[int] = (1, 80, 80),
+    layer_norm: bool = False,
 ) -> Policy:
     """Pong policy over the (1, 80, 80) difference of pre-processed frames (any (channels, H, W) image for other
     Atari games). ``cnn`` is the course's (``PONG_CONV``): 16 filters 7x7 stride 4, 32 filters 5x5 stride 2,
@@ -267,7 +276,8 @@ def create_pong_model(
     channels, height, width = observation_shape
     if architecture == "mlp":
         body = nn.Sequential(
-            nn.Flatten(), *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout)
+            nn.Flatten(),
+            *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout, layer_norm),
         )
         return Policy(body, tuple(observation_shape))
     convs = []
@@ -276,6 +286,8 @@ def create_pong_model(
         channels = filters
         height, width = ((n + 2 * padding - kernel) // stride + 1 for n in (height, width))
     body = nn.Sequential(
-        *convs, nn.Flatten(), *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout)
+        *convs,
+        nn.Flatten(),
+        *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout, layer_norm),
     )
     return Policy(body, tuple(observation_shape))
