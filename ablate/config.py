@@ -6,14 +6,14 @@ Standard library only. Every bad value raises ``ConfigError`` naming the key, th
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import importlib.util
 import math
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
+
+from ablate import sources
 
 BUILT_IN_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
 """The course's envs; ``env_id`` may name any registered Gymnasium env with discrete actions and a Box observation
@@ -81,10 +81,12 @@ class ModelConfig:
     factory_args: tuple[tuple[str, Any], ...] = ()
     """``model_args``: keyword arguments of the factory, as sorted ``(name, value)`` pairs (lists as tuples)."""
     factory_hash: str = ""
-    """SHA-1 (12 hex digits) of the factory's source file: in the trial key, so an edited network reruns."""
-    factory_source: str = field(default="", repr=False)
-    """The text of a ``FILE.py`` factory, shipped with the trial so a node without the file builds the same
-    network (checked against ``factory_hash``); not a tracked parameter."""
+    """SHA-1 (12 hex digits) of the factory's source file and the local files it imports (``sources``): in the
+    trial key, so an edited network or helper reruns."""
+    factory_source: sources.Bundle = field(default=(), repr=False)
+    """A ``FILE.py`` factory (or a module in the experiment's folder) and the local files it imports, as
+    ``(path, text)`` pairs, shipped with the trial so a node without them builds the same network (checked against
+    ``factory_hash``); not a tracked parameter."""
 
 
 @dataclass(frozen=True)
@@ -97,7 +99,13 @@ class TrialConfig:
     env_args: tuple[tuple[str, Any], ...] = ()
     """Keyword arguments of ``gym.make`` (the experiment's ``env_args`` table), as sorted ``(name, value)`` pairs."""
     env_module: str = ""
-    """A module imported before ``gym.make`` (where a user's own env registers itself); "" for none."""
+    """A module imported before ``gym.make`` (where a user's own env registers itself), ``module:function`` to call
+    a function of it too (``minatar.gym:register_envs``); "" for none."""
+    env_module_hash: str = ""
+    """SHA-1 (12 hex digits) of a local ``env_module`` (in the experiment's folder) and the local files it imports:
+    in the trial key; "" for an installed one."""
+    env_module_source: sources.Bundle = field(default=(), repr=False)
+    """A local ``env_module``'s files as ``(path, text)`` pairs, shipped with the trial like a factory's."""
     model: ModelConfig = field(default_factory=ModelConfig)
     learning_rate: float = 0.03
     """Adam step size, in (0, 1]."""
@@ -208,8 +216,9 @@ KNOBS: dict[str, Knob] = {
     "env_args": Knob("trial", lambda v: isinstance(v, dict), "a table of gym.make's keyword arguments", freeze),
     "env_module": Knob(
         "trial",
-        lambda v: isinstance(v, str) and all(p.isidentifier() for p in v.split(".")),
-        "a module to import before gym.make, e.g. 'mypkg.envs'",
+        sources.is_module_spec,
+        "a module to import before gym.make, e.g. 'mypkg.envs', or 'module:function' to call, e.g. "
+        "'minatar.gym:register_envs'",
     ),
     "model": Knob(
         "model",
@@ -301,24 +310,14 @@ BUILT_IN_MODEL_KNOBS = (
 """Knobs of the built-in networks, which a user's own ``model`` does not read."""
 
 
-def resolve_factory(spec: str, base_dir: Path, where: str = "") -> tuple[str, str]:
-    """``model = spec``'s (source, hash): a ``FILE.py`` is read relative to ``base_dir`` and its text travels with
-    the trial; a ``package.module`` is found on the path (its source is only hashed: each node imports its own).
-    A file or module that does not exist is a ``ConfigError``."""
-    target = _FACTORY.match(spec)["target"]
-    if target.endswith(".py"):
-        path = (base_dir / target).resolve()
-        if not path.is_file():
-            raise ConfigError(f"{where}model = {spec!r} is invalid: no such file {path}")
-        text = path.read_text(encoding="utf-8")
-        return text, hashlib.sha1(text.encode()).hexdigest()[:12]
+def resolve_factory(spec: str, base_dir: Path, where: str = "") -> tuple[sources.Bundle, str]:
+    """``model = spec``'s (files, hash): a ``FILE.py`` relative to ``base_dir``, or a ``package.module`` in it, travels
+    with the trial together with the local files it imports; another ``package.module`` is found on the path (only
+    hashed: each node imports its own). A file or module that does not exist is a ``ConfigError``."""
     try:
-        found = importlib.util.find_spec(target)
-    except (ImportError, ValueError) as error:
-        raise ConfigError(f"{where}model = {spec!r} is invalid: cannot import {target} ({error})") from None
-    if found is None or not found.origin or not Path(found.origin).is_file():
-        raise ConfigError(f"{where}model = {spec!r} is invalid: no module {target} on the Python path")
-    return "", hashlib.sha1(Path(found.origin).read_bytes()).hexdigest()[:12]
+        return sources.resolve_model(_FACTORY.match(spec)["target"], base_dir)
+    except sources.SourceError as error:
+        raise ConfigError(f"{where}model = {spec!r} is invalid: {error}") from None
 
 
 def apply_knobs(
@@ -343,6 +342,9 @@ def apply_knobs(
     if "model" in knobs:
         source, digest = resolve_factory(knobs["model"], base_dir or Path.cwd(), where)
         model_updates |= {"factory_source": source, "factory_hash": digest}
+    if "env_module" in knobs:
+        bundle, digest = sources.resolve_env_module(knobs["env_module"], base_dir or Path.cwd())
+        trial_updates |= {"env_module_source": bundle, "env_module_hash": digest}
     if "depth" in knobs or "width" in knobs:
         if "hidden_sizes" in knobs:
             raise ConfigError(f"{where}hidden_sizes: give either hidden_sizes or depth/width, not both")
@@ -359,8 +361,8 @@ def apply_knobs(
     return config
 
 
-NOT_FLAT = ("model.factory_source",)
-"""Fields that travel with a trial but are not knobs to track (a factory file's text: its hash is)."""
+NOT_FLAT = ("model.factory_source", "env_module_source")
+"""Fields that travel with a trial but are not knobs to track (a factory's or env module's files: their hash is)."""
 
 
 def flatten(config: TrialConfig) -> dict[str, Any]:
@@ -372,7 +374,7 @@ def flatten(config: TrialConfig) -> dict[str, Any]:
             for g in fields(value):
                 if f"{f.name}.{g.name}" not in NOT_FLAT:
                     flat[f"{f.name}.{g.name}"] = getattr(value, g.name)
-        else:
+        elif f.name not in NOT_FLAT:
             flat[f.name] = value
     return flat
 
@@ -399,5 +401,9 @@ def config_from_document(document: Mapping[str, Any]) -> TrialConfig:
         names = {f.name for f in fields(cls)}
         return {k: freeze(v) if isinstance(v, list) else v for k, v in values.items() if k in names}
 
-    model = ModelConfig(**known(ModelConfig, document.get("model", {})))
+    model_values = known(ModelConfig, document.get("model", {}))
+    if isinstance(model_values.get("factory_source"), str):  # an older trial's: the factory file's text alone
+        text, target = model_values["factory_source"], model_values.get("factory", ":").rsplit(":", 1)[0]
+        model_values["factory_source"] = ((Path(target).name, text),) if text else ()
+    model = ModelConfig(**model_values)
     return TrialConfig(**(known(TrialConfig, document) | {"model": model}))

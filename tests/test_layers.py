@@ -13,6 +13,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "ablate"
 # Lower number = lower layer. A module may import its own layer and any lower one, never a higher one.
 LAYERS = {
     "config": 0,
+    "sources": 0,
     "experiment": 0,
     "design": 0,
     "seeds": 0,

@@ -25,7 +25,14 @@ def check_configs(named: Iterable[tuple[str, TrialConfig]], source: str) -> None
 
     seen: set = set()
     for variant, config in named:
-        key = (config.env_id, config.env_args, config.env_module, config.action_set, config.model)
+        key = (
+            config.env_id,
+            config.env_args,
+            config.env_module,
+            config.env_module_hash,
+            config.action_set,
+            config.model,
+        )
         if key in seen or not needs_check(config):
             continue
         seen.add(key)

@@ -17,6 +17,7 @@ def population_group(config: TrialConfig) -> tuple:
         config.env_id,
         config.env_args,
         config.env_module,
+        config.env_module_hash,
         config.model,
         config.episodes_per_update,
         config.num_envs,

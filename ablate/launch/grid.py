@@ -22,6 +22,7 @@ _NOT_IN_KEY = ("record_video", "video_max_frames", "fault", "fault_marker")
 _KEYED_WHEN_SET = {
     "env_args": (),
     "env_module": "",
+    "env_module_hash": "",
     "model.factory": "",
     "model.factory_args": (),
     "model.factory_hash": "",
