@@ -286,3 +286,44 @@ def test_an_env_module_that_does_not_make_the_env_is_one_line_exit_2(tmp_path, c
 def test_a_bad_env_module_spec_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError, match="or 'module:function' to call"):
         load_experiment(_env_experiment(tmp_path, "myenvs.reg:"))
+
+
+MINATAR = """name = "minatar"
+seeds = 1
+[base]
+env_id = "MinAtar/Breakout-v1"
+env_module = "{env_module}"
+max_episodes = 2
+[[variants]]
+name = "{architecture}"
+architecture = "{architecture}"
+"""
+
+
+@pytest.mark.parametrize(
+    ("env_module", "architecture", "words"),
+    [
+        ("minatar", "mlp", "env_module = 'minatar' ran, but env_id = 'MinAtar/Breakout-v1' is still not a registered"),
+        ("minatar.gym:register_envs", "cnn", "observation (10, 10, 4) looks channels-last; valid: "),
+    ],
+)
+def test_minatar_registers_its_envs_only_in_its_function_and_its_image_is_channels_last(
+    tmp_path, capsys, env_module, architecture, words
+):
+    from ablate.cli import main
+
+    pytest.importorskip("minatar")
+    path = tmp_path / "minatar.toml"
+    path.write_text(MINATAR.format(env_module=env_module, architecture=architecture))
+    assert main(["run", str(path), "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and len(err.splitlines()) == 1, err
+
+
+def test_minatar_through_its_register_function_builds_an_mlp(tmp_path):
+    from ablate.agent.checks import check_experiment
+
+    pytest.importorskip("minatar")
+    path = tmp_path / "minatar.toml"
+    path.write_text(MINATAR.format(env_module="minatar.gym:register_envs", architecture="mlp"))
+    check_experiment(load_experiment(path))

@@ -90,6 +90,13 @@ def build_model(config: TrialConfig, env: Described) -> nn.Module:
     if model.factory:
         return call_factory(model, env.observation_shape, env.n_actions)
     if len(env.observation_shape) == 3:  # an image (Pong's frame difference, another Atari game's)
+        channels, *_, last = env.observation_shape
+        if model.architecture == "cnn" and last < channels:  # MinAtar's (10, 10, 4): its first axis is not channels
+            raise ModelError(
+                f"architecture = 'cnn' reads an image as (channels, height, width), but {config.env_id}'s "
+                f"observation {tuple(env.observation_shape)} looks channels-last; valid: architecture = 'mlp', "
+                "or your own model (model = 'FILE.py:FUNCTION') that permutes it"
+            )
         return create_pong_model(
             env.n_actions,
             model.hidden_sizes,
