@@ -39,10 +39,13 @@ def is_module_spec(value: object) -> bool:
 
 def bundle_hash(bundle: Bundle) -> str:
     """12 hex digits of SHA-1: of the one file's text where there is one (the hash keys had before helpers were
-    shipped, so such keys never change), of every path and text together where a file imports others."""
-    if len(bundle) == 1:
-        return hashlib.sha1(bundle[0][1].encode()).hexdigest()[:12]
-    return hashlib.sha1(json.dumps([list(pair) for pair in bundle]).encode()).hexdigest()[:12]
+    shipped, so such keys never change), of every path and text together where a file imports others. Empty files
+    (a package's bare ``__init__.py``) ship but do not count: they run nothing, and a module of a package keeps
+    the hash of its own text."""
+    counted = bundle[:1] + tuple(pair for pair in bundle[1:] if pair[1])
+    if len(counted) == 1:
+        return hashlib.sha1(counted[0][1].encode()).hexdigest()[:12]
+    return hashlib.sha1(json.dumps([list(pair) for pair in counted]).encode()).hexdigest()[:12]
 
 
 def _read(path: Path) -> str:

@@ -190,7 +190,12 @@ def test_a_package_in_the_experiments_folder_ships_with_its_relative_imports(tmp
         "nets/parts/__init__.py",
         "nets/parts/layers.py",
     ]
-    assert digest == sources.bundle_hash(bundle)
+    assert digest == sources.bundle_hash(bundle) != sources.bundle_hash(bundle[:1])
+    alone = "def create_model(n_actions):\n    import torch\n    return torch.nn.Linear(4, n_actions)\n"
+    (package / "mlp.py").write_text(alone)  # imports nothing local: its package's bare __init__.py does not count
+    bundle, digest = sources.resolve_model("nets.mlp", tmp_path)
+    assert [path for path, _ in bundle] == ["nets/mlp.py", "nets/__init__.py"]
+    assert digest == hashlib.sha1(alone.encode()).hexdigest()[:12]  # the hash this module had before
 
 
 def test_imports_of_the_standard_library_and_installed_packages_are_not_local(tmp_path):
@@ -327,3 +332,52 @@ def test_minatar_through_its_register_function_builds_an_mlp(tmp_path):
     path = tmp_path / "minatar.toml"
     path.write_text(MINATAR.format(env_module="minatar.gym:register_envs", architecture="mlp"))
     check_experiment(load_experiment(path))
+
+
+LOCAL_ENV = """import gymnasium as gym
+
+gym.register("Beside-v0", entry_point="gymnasium.envs.classic_control.cartpole:CartPoleEnv", max_episode_steps=30)
+"""
+NODE_ENV = """
+import json, sys
+from ablate.agent.envs import describe
+from ablate.config import config_from_document
+print(describe(config_from_document(json.load(open(sys.argv[1])))).max_episode_steps)
+"""
+
+
+def test_a_local_env_module_beside_the_experiment_ships_to_a_node_without_it(tmp_path):
+    experiment = tmp_path / "experiment"
+    experiment.mkdir()
+    (experiment / "besideenvs.py").write_text(LOCAL_ENV)
+    (experiment / "env.toml").write_text(
+        'name = "env"\nseeds = 1\n[base]\nenv_id = "Beside-v0"\nenv_module = "besideenvs"\n'
+        "max_episodes = 2\nsolve_threshold = 20\n[[variants]]\nname = 'a'\n"
+    )
+    config = load_experiment(experiment / "env.toml").variants[0].config
+    assert config.env_module_source == (("besideenvs.py", LOCAL_ENV),)
+    assert config.env_module_hash == hashlib.sha1(LOCAL_ENV.encode()).hexdigest()[:12]
+    (tmp_path / "config.json").write_text(json.dumps(config_document(config)))
+    shutil.rmtree(experiment)
+    proc = subprocess.run(
+        [sys.executable, "-c", NODE_ENV, "config.json"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=os.environ | {"PYTHONPATH": str(ROOT)},
+    )
+    assert proc.returncode == 0 and proc.stdout.strip() == "30", proc.stderr
+
+
+def test_on_a_node_whose_env_module_differs_the_trial_fails_before_training_with_the_pre_flights_line():
+    from dataclasses import replace
+
+    from ablate.agent.envs import EnvError
+    from ablate.agent.trainer import run_trial
+    from ablate.config import DEFAULT
+
+    config = replace(DEFAULT, env_module="no_such_env_package.envs:register", max_episodes=2, record_video=False)
+    with pytest.raises(EnvError) as error:
+        run_trial(config)
+    assert str(error.value).startswith("env_module = 'no_such_env_package.envs:register': cannot import it (")
+    assert "\n" not in str(error.value)
