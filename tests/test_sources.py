@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from ablate import sources
-from ablate.config import ConfigError, config_document, config_from_document
+from ablate.config import ConfigError, config_document, config_from_document, flatten
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand
 
@@ -225,6 +225,12 @@ def test_an_installed_package_is_recorded_by_its_version_not_keyed():
     assert params["env_module.package_version"] == f"gymnasium=={gymnasium.__version__}"
     assert "env_module_source" not in params
     assert config_hash(config) == config_hash(TrialConfig(env_module="gymnasium.envs.classic_control"))
+    import torch
+
+    installed = apply_knobs(DEFAULT, {"model": "torch.nn:Linear"})
+    assert installed.model.factory_source == () and "model.package_version" not in flatten(installed)
+    assert tracked_params("v", installed)["model.package_version"] == f"torch=={torch.__version__}"
+    assert "model.package_version" not in tracked_params("v", DEFAULT)  # a built-in network: no package
 
 
 REGISTER = """import gymnasium as gym
