@@ -7,8 +7,6 @@ Standard library only. Every bad value raises ``ConfigError`` naming the key, th
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import importlib.util
 import math
 import re
 from collections.abc import Mapping
@@ -16,7 +14,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from ablate import schema
+from ablate import schema, sources
 from ablate.schema import Knob, boolean, derived, integer, is_int, is_number, knob, number, one_of
 
 __all__ = ["Knob", "is_int", "is_number"]  # re-exported: older callers import them from here
@@ -134,10 +132,12 @@ class ModelConfig:
     )
     """``model_args``: keyword arguments of the factory, as sorted ``(name, value)`` pairs (lists as tuples)."""
     factory_hash: str = derived("", key_since=2, population=True)
-    """SHA-1 (12 hex digits) of the factory's source file: in the trial key, so an edited network reruns."""
-    factory_source: str = derived("", key_since=None, tracked=False, population=True, repr=False)
-    """The text of a ``FILE.py`` factory, shipped with the trial so a node without the file builds the same
-    network (checked against ``factory_hash``); not a tracked parameter."""
+    """SHA-1 (12 hex digits) of the factory's source file and the local files it imports (``sources``): in the
+    trial key, so an edited network or helper reruns."""
+    factory_source: sources.Bundle = derived((), key_since=None, tracked=False, population=True, repr=False)
+    """A ``FILE.py`` factory (or a module in the experiment's folder) and the local files it imports, as
+    ``(path, text)`` pairs, shipped with the trial so a node without them builds the same network (checked against
+    ``factory_hash``); not a tracked parameter."""
 
 
 # A knob of the env a trial is built against: it separates populations and changes what ``describe`` finds.
@@ -163,12 +163,19 @@ class TrialConfig:
     """Keyword arguments of ``gym.make`` (the experiment's ``env_args`` table), as sorted ``(name, value)`` pairs."""
     env_module: str = knob(
         "",
-        check=lambda v: isinstance(v, str) and all(p.isidentifier() for p in v.split(".")),
-        valid="a module to import before gym.make, e.g. 'mypkg.envs'",
+        check=sources.is_module_spec,
+        valid="a module to import before gym.make, e.g. 'mypkg.envs', or 'module:function' to call, e.g. "
+        "'minatar.gym:register_envs'",
         key_since=2,
         **_ENV,
     )
-    """A module imported before ``gym.make`` (where a user's own env registers itself); "" for none."""
+    """A module imported before ``gym.make`` (where a user's own env registers itself), ``module:function`` to call
+    a function of it too (``minatar.gym:register_envs``); "" for none."""
+    env_module_hash: str = derived("", key_since=3, **_ENV)
+    """SHA-1 (12 hex digits) of a local ``env_module`` (in the experiment's folder) and the local files it imports:
+    in the trial key; "" for an installed one."""
+    env_module_source: sources.Bundle = derived((), key_since=None, tracked=False, repr=False)
+    """A local ``env_module``'s files as ``(path, text)`` pairs, shipped with the trial like a factory's."""
     model: ModelConfig = field(default_factory=ModelConfig)
     learning_rate: float = knob(0.03, **number(0, 1, open_low=True), tunable=True)
     """Adam step size, in (0, 1]."""
@@ -285,24 +292,14 @@ ARCHITECTURE_KNOBS = frozenset(name for name, k in KNOBS.items() if k.architectu
 """Knobs that together make one architecture (``depth``/``width`` expand to ``hidden_sizes``)."""
 
 
-def resolve_factory(spec: str, base_dir: Path, where: str = "") -> tuple[str, str]:
-    """``model = spec``'s (source, hash): a ``FILE.py`` is read relative to ``base_dir`` and its text travels with
-    the trial; a ``package.module`` is found on the path (its source is only hashed: each node imports its own).
-    A file or module that does not exist is a ``ConfigError``."""
-    target = _FACTORY.match(spec)["target"]
-    if target.endswith(".py"):
-        path = (base_dir / target).resolve()
-        if not path.is_file():
-            raise ConfigError(f"{where}model = {spec!r} is invalid: no such file {path}")
-        text = path.read_text(encoding="utf-8")
-        return text, hashlib.sha1(text.encode()).hexdigest()[:12]
+def resolve_factory(spec: str, base_dir: Path, where: str = "") -> tuple[sources.Bundle, str]:
+    """``model = spec``'s (files, hash): a ``FILE.py`` relative to ``base_dir``, or a ``package.module`` in it, travels
+    with the trial together with the local files it imports; another ``package.module`` is found on the path (only
+    hashed: each node imports its own). A file or module that does not exist is a ``ConfigError``."""
     try:
-        found = importlib.util.find_spec(target)
-    except (ImportError, ValueError) as error:
-        raise ConfigError(f"{where}model = {spec!r} is invalid: cannot import {target} ({error})") from None
-    if found is None or not found.origin or not Path(found.origin).is_file():
-        raise ConfigError(f"{where}model = {spec!r} is invalid: no module {target} on the Python path")
-    return "", hashlib.sha1(Path(found.origin).read_bytes()).hexdigest()[:12]
+        return sources.resolve_model(_FACTORY.match(spec)["target"], base_dir)
+    except sources.SourceError as error:
+        raise ConfigError(f"{where}model = {spec!r} is invalid: {error}") from None
 
 
 def apply_knobs(
@@ -327,6 +324,9 @@ def apply_knobs(
     if "model" in knobs:
         source, digest = resolve_factory(knobs["model"], base_dir or Path.cwd(), where)
         model_updates |= {"factory_source": source, "factory_hash": digest}
+    if "env_module" in knobs:
+        bundle, digest = sources.resolve_env_module(knobs["env_module"], base_dir or Path.cwd())
+        trial_updates |= {"env_module_source": bundle, "env_module_hash": digest}
     if "depth" in knobs or "width" in knobs:
         if "hidden_sizes" in knobs:
             raise ConfigError(f"{where}hidden_sizes: give either hidden_sizes or depth/width, not both")
@@ -380,5 +380,9 @@ def config_from_document(document: Mapping[str, Any]) -> TrialConfig:
         names = {f.name for f in fields(cls)}
         return {k: freeze(v) if isinstance(v, list) else v for k, v in values.items() if k in names}
 
-    model = ModelConfig(**known(ModelConfig, document.get("model", {})))
+    model_values = known(ModelConfig, document.get("model", {}))
+    if isinstance(model_values.get("factory_source"), str):  # an older trial's: the factory file's text alone
+        text, target = model_values["factory_source"], model_values.get("factory", ":").rsplit(":", 1)[0]
+        model_values["factory_source"] = ((Path(target).name, text),) if text else ()
+    model = ModelConfig(**model_values)
     return TrialConfig(**(known(TrialConfig, document) | {"model": model}))

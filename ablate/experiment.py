@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ablate import sources
 from ablate.config import (
     BUILT_IN_ENVS,
     DEFAULT,
@@ -163,19 +164,17 @@ def has_solve_threshold(config: TrialConfig) -> bool:
         return True
     if config.env_id in BUILT_IN_ENVS:
         return False
-    import importlib
-
     import gymnasium  # a user's env: its spec knows its threshold (``agent.checks`` refuses unknown ones)
 
     try:
         if config.env_module:
-            importlib.import_module(config.env_module)
+            sources.run_env_module(config.env_module, config.env_module_source, config.env_module_hash)
         if config.env_id.startswith("ALE/"):
             import ale_py
 
             gymnasium.register_envs(ale_py)
         return gymnasium.spec(config.env_id).reward_threshold is not None
-    except (ImportError, gymnasium.error.Error):
+    except (ImportError, sources.SourceError, gymnasium.error.Error):
         return False
 
 

@@ -14,6 +14,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "ablate"
 LAYERS = {
     "config": 0,
     "schema": 0,
+    "sources": 0,
     "experiment": 0,
     "design": 0,
     "seeds": 0,

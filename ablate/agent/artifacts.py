@@ -160,7 +160,7 @@ def write_artifacts(result: TrialResult, model: nn.Module, history: int, folder:
         result.artifacts["observation"] = plot_pong_observation(previous, frame, folder / "observation.png")
     if config.model.factory_source:
         source = folder / "model.py"
-        source.write_text(config.model.factory_source, encoding="utf-8")
+        source.write_text(config.model.factory_source[0][1], encoding="utf-8")  # the factory's own file
         result.artifacts["model_source"] = source
     if config.record_video and video:
         path = folder / "video.mp4"

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from ablate import sources
 from ablate.config import env_facts
 
 # Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
@@ -195,16 +196,27 @@ class EnvError(ValueError):
 
 
 def register(config) -> None:
-    """Make ``config.env_id`` known to Gymnasium: the user's ``env_module`` imported, ale-py's games registered."""
+    """Make ``config.env_id`` known to Gymnasium: the user's ``env_module`` imported (from its shipped files where
+    it is local) and its function called where it names one, ale-py's games registered."""
     if config.env_module:
-        import importlib
-
+        before = set(gym.registry)
         try:
-            importlib.import_module(config.env_module)
-        except ImportError as error:
-            raise EnvError(f"env_module = {config.env_module!r}: cannot import it ({error})") from None
+            sources.run_env_module(config.env_module, config.env_module_source, config.env_module_hash)
+        except sources.SourceError as error:
+            raise EnvError(f"env_module = {config.env_module!r}: {error}") from None
+        added = _REGISTERED_BY.setdefault(config.env_module, sorted(set(gym.registry) - before))
     if config.env_id.startswith("ALE/"):
         _register_ale()
+    if config.env_module and config.env_id not in gym.registry:
+        named = ", ".join(added[:5]) + (", ..." if len(added) > 5 else "") or "none"
+        raise EnvError(
+            f"env_module = {config.env_module!r} ran, but env_id = {config.env_id!r} is still not a registered "
+            f"Gymnasium env; it registered {named}"
+        )
+
+
+_REGISTERED_BY: dict[str, list[str]] = {}
+"""The env ids each ``env_module`` registered the first time it ran in this process, for the message above."""
 
 
 def is_native_vector(config) -> bool:

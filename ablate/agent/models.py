@@ -7,7 +7,6 @@ accepts, and must return an ``nn.Module`` mapping a float32 batch of observation
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import inspect
 import math
@@ -18,6 +17,7 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
+from ablate import sources
 from ablate.agent.envs import Described
 from ablate.agent.policies import create_cartpole_model, create_pong_model
 from ablate.config import SCHEMA, ModelConfig, TrialConfig
@@ -28,22 +28,22 @@ class ModelError(ValueError):
 
 
 def load_factory(model: ModelConfig) -> Callable[..., nn.Module]:
-    """The factory function of ``model``: a ``FILE.py``'s shipped source run as a module of its own (no file
-    needed on this node; checked against ``factory_hash``), or ``package.module`` imported from the path."""
+    """The factory function of ``model``: its shipped files (checked against ``factory_hash``) put on the path, so
+    no file is needed on this node; a ``FILE.py`` run as a module of its own, a ``package.module`` imported."""
     target, function = model.factory.rsplit(":", 1)
+    if model.factory_source:
+        try:
+            sources.install(model.factory_source, model.factory_hash)
+        except sources.SourceError as error:
+            raise ModelError(f"model = {model.factory!r}: {error}") from None
     if target.endswith(".py"):
-        digest = hashlib.sha1(model.factory_source.encode()).hexdigest()[:12]
-        if digest != model.factory_hash:
-            raise ModelError(
-                f"model = {model.factory!r}: its source does not match the trial's hash {model.factory_hash}"
-            )
-        name = f"ablate_model_{digest}"
+        name = f"ablate_model_{model.factory_hash}"
         module = sys.modules.get(name)
         if module is None:
             module = types.ModuleType(name)
             module.__file__ = target
             try:
-                exec(compile(model.factory_source, target, "exec"), module.__dict__)
+                exec(compile(model.factory_source[0][1], target, "exec"), module.__dict__)
             except Exception as error:  # a user's file: any error is theirs to read, in one line
                 raise ModelError(
                     f"model = {model.factory!r}: {target} raised {type(error).__name__}: {error}"
@@ -90,6 +90,13 @@ def build_model(config: TrialConfig, env: Described) -> nn.Module:
     if model.factory:
         return call_factory(model, env.observation_shape, env.n_actions)
     if len(env.observation_shape) == 3:  # an image (Pong's frame difference, another Atari game's)
+        channels, *_, last = env.observation_shape
+        if model.architecture == "cnn" and last < channels:  # MinAtar's (10, 10, 4): its first axis is not channels
+            raise ModelError(
+                f"architecture = 'cnn' reads an image as (channels, height, width), but {config.env_id}'s "
+                f"observation {tuple(env.observation_shape)} looks channels-last; valid: architecture = 'mlp', "
+                "or your own model (model = 'FILE.py:FUNCTION') that permutes it"
+            )
         factory, sizes = create_pong_model, {"observation_shape": env.observation_shape}
     else:
         factory, sizes = create_cartpole_model, {"observation_size": math.prod(env.observation_shape)}

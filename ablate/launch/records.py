@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from ablate import sources
 from ablate.config import flatten
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, tuning_trials
@@ -46,7 +47,20 @@ def tracked_params(variant: str, config) -> dict:
             del params[key]
     if params["solve_threshold"] is None:
         del params["solve_threshold"]
-    return params
+    return params | package_versions(config)
+
+
+def package_versions(config) -> dict:
+    """The installed package a ``package.module`` factory or an ``env_module`` comes from, as ``name==version``
+    (``model.package_version``, ``env_module.package_version``): recorded, not keyed (a new version reruns
+    nothing). Local code has none: its hash is in the key."""
+    versions = {}
+    target = config.model.factory.rsplit(":", 1)[0]
+    if target and not target.endswith(".py") and not config.model.factory_source:
+        versions["model.package_version"] = sources.package_version(target) or "not installed"
+    if config.env_module and not config.env_module_source:
+        versions["env_module.package_version"] = sources.package_version(config.env_module) or "not installed"
+    return versions
 
 
 def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import json
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from ablate.reporting.reader import RunReader
@@ -27,19 +28,25 @@ def layers(tracker: RunReader, run_id: str, params: dict[str, str]) -> str | Non
     network cannot be built here."""
     from ablate.agent.envs import describe
     from ablate.agent.models import ModelError, build_model, summary
-    from ablate.config import DEFAULT, ModelConfig
+    from ablate.config import DEFAULT, ModelConfig, config_from_document
 
     factory = params.get("model.factory", "")
     if not factory:
         return None
-    try:
-        source = tracker.load_text(run_id, "model.py") if factory.split(":")[0].endswith(".py") else ""
-    except Exception:  # noqa: BLE001 - no such artifact (an older run): described by its factory only
-        return None
+    target = factory.rsplit(":", 1)[0]
+    try:  # the run's config.json ships the factory with its helpers; an older run left only model.py
+        bundle = config_from_document(json.loads(tracker.load_text(run_id, "config.json"))).model.factory_source
+    except Exception:  # noqa: BLE001 - no such artifact, or not one this version reads
+        bundle = ()
+    if not bundle and target.endswith(".py"):
+        try:
+            bundle = ((Path(target).name, tracker.load_text(run_id, "model.py")),)
+        except Exception:  # noqa: BLE001 - no such artifact (an older run): described by its factory only
+            return None
     model = ModelConfig(
         factory=factory,
         factory_hash=params.get("model.factory_hash", ""),
-        factory_source=source,
+        factory_source=bundle,
         factory_args=factory_args(params.get("model.factory_args", "")),
     )
     config = replace(DEFAULT, env_id=params.get("env_id", DEFAULT.env_id), model=model)
