@@ -158,8 +158,10 @@ class TrialConfig:
 
     @property
     def reset_on_score(self) -> bool:
-        """Pong's return restarts at every point scored."""
-        return self.env_id.startswith("ALE/Pong")
+        """Pong's return restarts at every point scored (``env_spec.resets_on_score``)."""
+        from ablate.env_spec import resets_on_score
+
+        return resets_on_score(self.env_id)
 
 
 def is_int(v: Any) -> bool:
