@@ -244,8 +244,10 @@ class TrialConfig:
 
     @property
     def reset_on_score(self) -> bool:
-        """Pong's return restarts at every point scored."""
-        return self.env_id.startswith("ALE/Pong")
+        """Pong's return restarts at every point scored (``env_spec.resets_on_score``)."""
+        from ablate.env_spec import resets_on_score
+
+        return resets_on_score(self.env_id)
 
 
 SCHEMA: dict[str, Knob] = schema.fields_of(TrialConfig)
@@ -336,7 +338,8 @@ def apply_knobs(
         model_updates["hidden_sizes"] = (width,) * depth
     model = replace(base.model, **model_updates)
     config = replace(base, model=model, **trial_updates)
-    if model.architecture == "cnn" and config.env_id.startswith("CartPole") and model.kernel_size > model.history:
+    # Judged for every cnn, not by the env's name: the window's knobs are unused over an image, whose default pass.
+    if model.architecture == "cnn" and model.kernel_size > model.history:
         raise ConfigError(
             f"{where}kernel_size = {model.kernel_size} is invalid; valid: at most history ({model.history})"
         )

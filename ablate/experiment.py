@@ -15,9 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ablate import sources
 from ablate.config import (
-    BUILT_IN_ENVS,
     DEFAULT,
     KNOBS,
     MAX_NAME_LENGTH,
@@ -34,6 +32,8 @@ from ablate.config import (
     is_int,
     is_number,
 )
+from ablate.env_spec import solve_threshold_or_none
+from ablate.measures import default_primary_metric
 from ablate.seeds import SeedRounds, parse_seeds
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9_-]{1,100}")
@@ -121,7 +121,7 @@ class Experiment:
         """``primary``, or its default for this experiment's env."""
         if self.primary is not None:
             return self.primary
-        return "episodes_to_solve" if all(has_solve_threshold(v.config) for v in self.variants) else "auc"
+        return default_primary_metric([solve_threshold_or_none(v.config) for v in self.variants])
 
     rounds: SeedRounds | None = None
     """``seeds = { start, step, max }``: seeds added in rounds (``seeds`` then holds round 1's); ``None``: the
@@ -154,28 +154,6 @@ PRIMARY_METRICS = {
     "return": "return after the whole budget",
 }
 """The metrics a report's claims can be made on, in words."""
-THRESHOLD_ENVS = ("CartPole-v0", "CartPole-v1")
-"""Envs whose spec has a reward threshold (solved at 195 and 475); Pong has none."""
-
-
-def has_solve_threshold(config: TrialConfig) -> bool:
-    """Can a trial of ``config`` solve (its own ``solve_threshold``, or its env spec's ``reward_threshold``)?"""
-    if config.solve_threshold is not None or config.env_id in THRESHOLD_ENVS:
-        return True
-    if config.env_id in BUILT_IN_ENVS:
-        return False
-    import gymnasium  # a user's env: its spec knows its threshold (``agent.checks`` refuses unknown ones)
-
-    try:
-        if config.env_module:
-            sources.run_env_module(config.env_module, config.env_module_source, config.env_module_hash)
-        if config.env_id.startswith("ALE/"):
-            import ale_py
-
-            gymnasium.register_envs(ale_py)
-        return gymnasium.spec(config.env_id).reward_threshold is not None
-    except (ImportError, sources.SourceError, gymnasium.error.Error):
-        return False
 
 
 EXPERIMENT_KEYS = (
@@ -316,7 +294,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             f"{source}: primary = {_clip(primary)} is invalid; valid: one of {', '.join(PRIMARY_METRICS)} (or leave "
             "it out: episodes_to_solve where the env has a solve threshold, else auc)"
         )
-    if primary == "episodes_to_solve" and not all(has_solve_threshold(v.config) for v in variants):
+    if primary == "episodes_to_solve" and any(solve_threshold_or_none(v.config) is None for v in variants):
         raise ConfigError(
             f"{source}: primary = 'episodes_to_solve' is invalid: {base.env_id} has no solve threshold; valid: auc or "
             "return, or set solve_threshold in [base]"

@@ -56,7 +56,7 @@ EXPERIMENT = """
 name = "{name}"
 seeds = 2
 [base]
-env_id = "CartPole-v1"
+env_id = "{env_id}"
 max_episodes = {episodes}
 episodes_per_update = 10
 video_max_frames = 30
@@ -68,14 +68,31 @@ hidden_sizes = [8]
 
 
 NETWORK = """
-from torch import nn
+from helpers import body
 
 
 def create_model(observation_shape, n_actions, width=8):
-    layers = [nn.Linear(observation_shape[0], width), nn.LayerNorm(width), nn.Tanh(), nn.Linear(width, n_actions)]
-    return nn.Sequential(*layers)
+    return body(observation_shape[0], width, n_actions)
 """
-"""A user's own network, in a file beside the experiment on the driver's disk only."""
+"""A user's own network, in a file beside the experiment on the driver's disk only, built by a helper beside it."""
+HELPERS = """
+from torch import nn
+
+
+def body(inputs, width, n_actions):
+    return nn.Sequential(nn.Linear(inputs, width), nn.LayerNorm(width), nn.Tanh(), nn.Linear(width, n_actions))
+"""
+ENV_MODULE = """
+import gymnasium as gym
+
+gym.register(
+    id="ClusterPole-v0",
+    entry_point="gymnasium.envs.classic_control:CartPoleEnv",
+    max_episode_steps=500,
+    reward_threshold=475.0,
+)
+"""
+"""A user's own env module beside the experiment (the driver's disk only): it registers ClusterPole-v0."""
 
 USER = "ablate-ci"
 
@@ -218,11 +235,13 @@ def _env(cluster, ray_token=True, login=True):
     return env
 
 
-def _ablate(cluster, name, episodes, extra="", env=None, uri=None, folder=None, **credentials):
+def _ablate(cluster, name, episodes, extra="", env=None, uri=None, folder=None, env_id="CartPole-v1", **credentials):
     folder = cluster["tmp"] / (folder or name)
     folder.mkdir()
-    (folder / "exp.toml").write_text(EXPERIMENT.format(name=name, episodes=episodes, extra=extra))
-    (folder / "net.py").write_text(NETWORK)  # the driver's file only: the worker node cannot see this folder
+    (folder / "exp.toml").write_text(EXPERIMENT.format(name=name, episodes=episodes, extra=extra, env_id=env_id))
+    # The driver's files only: the worker node cannot see this folder.
+    for file, text in (("net.py", NETWORK), ("helpers.py", HELPERS), ("myenvs.py", ENV_MODULE)):
+        (folder / file).write_text(text)
     command = [sys.executable, "-m", "ablate.cli", "run", "exp.toml", "--address", cluster["gcs"]]
     command += ["--tracking-uri", uri or cluster["uri"], "--no-report"]
     env = env or _env(cluster, **credentials)
@@ -273,8 +292,10 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     # Experiment names new to the store: a PostgreSQL store outlives the test and may hold an earlier run's.
     spread, lost_name = (f"{name}-{secrets.token_hex(4)}" for name in ("spread", "lost"))
     marker = cluster["control"] / "release"
-    custom = 'model = "net.py:create_model"\nmodel_args = { width = 6 }\n'  # trained on both nodes
-    launch = _ablate(cluster, spread, episodes=200, extra=f'{custom}fault = "block"\nfault_marker = "{marker}"')
+    # trained on both nodes: a network whose layers come from a helper beside it, an env a module beside it registers
+    custom = 'model = "net.py:create_model"\nmodel_args = { width = 6 }\nenv_module = "myenvs"\n'
+    extra = f'{custom}fault = "block"\nfault_marker = "{marker}"'
+    launch = _ablate(cluster, spread, episodes=200, extra=extra, env_id="ClusterPole-v0")
     _wait_running(Tracker(cluster["uri"], spread), 2, launch)
     marker.write_text("go\n")
     code, output = _finish(cluster, launch)
@@ -288,6 +309,7 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
     for run in runs:
         assert set(run.artifacts) == {"episodes.csv", "weights.pt", "config.json", "learning_curve.png", "model.py"}
         assert run.metrics["parameter_count"] == 4 * 6 + 6 + 2 * 6 + 6 * 2 + 2  # the user's LayerNorm net
+        assert (run.params["env_id"], run.params["env.reward_threshold"]) == ("ClusterPole-v0", "475.0")
         for metric in POINT_METRICS:
             steps = [s for s, _ in tracker.metric_history(run.run_id, metric)]
             assert steps == list(range(2, 201, 2)), metric  # 200 episodes -> 100 points

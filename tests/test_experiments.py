@@ -81,6 +81,12 @@ def test_pong_smoke_ablation_with_tune_through_ray_and_mlflow(run_quiet, tmp_pat
 
     for run in evaluation:
         assert run.params["action_set"] == "move"
+        # What it ran against, recorded (issue 44): the report and the rounds read these, not the env's name.
+        recorded = {k: v for k, v in run.params.items() if k.startswith("env.")}
+        assert recorded["env.id"] == "ALE/Pong-v5" and recorded["env.solve_threshold"] == "None"
+        assert recorded["env.obs_shape"] == "1x80x80" and recorded["env.obs_dtype"] == "int8"
+        assert recorded["env.n_actions"] == "2" and recorded["env.max_episode_steps"] == "50"
+        assert recorded["env.reward_threshold"] == "None" and recorded["env.ale_py_version"][0].isdigit()
         returns = tracker.metric_history(run.run_id, "episode/return")
         assert [step for step, _ in returns] == [1, 2, 3, 4]
         assert all(-50 <= value <= 1 for _, value in returns)  # at most a point or two in 50 steps

@@ -19,6 +19,8 @@ LAYERS = {
     "design": 0,
     "seeds": 0,
     "claims": 0,
+    "env_spec": 0,
+    "measures": 0,
     "agent": 1,
     "launch": 2,
     "reporting": 3,

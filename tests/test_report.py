@@ -240,8 +240,11 @@ def make_store(folder: Path, name: str, variants: dict[str, dict], seeds=(0, 1, 
     name to ``curve(seed) -> returns`` and optionally ``architecture``, ``hidden``, ``parameters``. Options:
     ``env_id``, ``threshold`` (None: no solve threshold), ``window``, ``description``, ``generation``, ``failed``
     (keys recorded FAILED), ``only`` (keys to run; the rest are not run), ``observation`` (log observation.png),
-    ``base`` (more of grid.json's base: ``{"model.activation": "relu"}``)."""
+    ``base`` (more of grid.json's base: ``{"model.activation": "relu"}``), ``stopped_at`` (the solve threshold
+    the trials stopped at and recorded as ``env.solve_threshold``, the file's ``threshold`` unset)."""
     env_id, threshold = options.get("env_id", "CartPole-v1"), options.get("threshold", 25.0)
+    stopped_at = options.get("stopped_at", threshold)
+    record = {"env.id": env_id, "env.solve_threshold": str(stopped_at)} if "stopped_at" in options else None
     window, generation = options.get("window", 8), options.get("generation", "gen1")
     db = folder / "mlflow.db"
     uri = f"sqlite:///{db}" if db.exists() else fresh_store(db)  # several experiments may share one store
@@ -262,28 +265,35 @@ def make_store(folder: Path, name: str, variants: dict[str, dict], seeds=(0, 1, 
         spec = variants[trial["variant"]]
         params = {"variant": trial["variant"], "model.architecture": spec.get("architecture", "mlp")}
         params |= {"model.hidden_sizes": json.dumps(spec.get("hidden", [8])), "model.activation": "relu"}
+        if record is not None:  # the file's threshold, unset: not tracked (``launch.records.tracked_params``)
+            params["solve_threshold"] = threshold
         write_trial(
             tracker,
             (launch, generation),
             trial,
             spec["curve"](trial["seed"]),
             params,
-            (budget, window, threshold),
+            (budget, window, stopped_at),
             parameters=spec.get("parameters", 58),
             failed=trial["key"] in options.get("failed", ()),
             observation=options.get("observation", False),
+            record=record,
         )
     tracker.finish_launch(launch, "FINISHED", {})
     return uri
 
 
-def write_trial(tracker, launch, trial, returns, params, budget, parameters=58, failed=False, observation=False):
+def write_trial(
+    tracker, launch, trial, returns, params, budget, parameters=58, failed=False, observation=False, record=None
+):
     """One finished (or failed) trial run as the driver writes it: curve points, summary metrics, episodes.csv.
-    ``launch``: (launch run id, generation); ``budget``: (episodes, solve window, threshold or None)."""
+    ``launch``: (launch run id, generation); ``budget``: (episodes, solve window, threshold or None); ``record``:
+    the ``env.*`` params a trial records of the env it ran against."""
     (launch_id, generation), (episodes, window, threshold) = launch, budget
     returns = np.asarray(returns, float)
     rolling = [returns[max(0, i - window + 1) : i + 1].mean() for i in range(len(returns))]
     params = {"max_episodes": episodes, "solve_window": window, "solve_threshold": threshold} | params
+    params = {k: v for k, v in params.items() if v is not None}
     run_id = tracker.start_trial(launch_id, generation, trial["key"], trial["variant"], trial["seed"], params, "abc123")
     if "stage" in trial:
         tracker.client.set_tag(run_id, "ablate.stage", trial["stage"])
@@ -316,7 +326,7 @@ def write_trial(tracker, launch, trial, returns, params, budget, parameters=58, 
     pd.DataFrame([vars(row) for row in rows]).to_csv(artifacts / "episodes.csv", index=False)  # what it reads
     if observation:
         (artifacts / "observation.png").write_bytes(ARTIFACT_PNG)
-    tracker.finish_trial(trial["key"], summary, artifacts)
+    tracker.finish_trial(trial["key"], summary, artifacts, params=record)
     shutil.rmtree(artifacts, ignore_errors=True)
 
 
@@ -427,6 +437,22 @@ def test_report_of_one_seed_with_a_threshold(store, tmp_path, monkeypatch):
     assert set(trials.solved) <= {"0", "1"} and set(trials.episodes_run) == {"40"}, trials
     assert set(trials.budget) == {"40"} and set(trials.parameter_count) == {"58"}
     assert trials.final_rolling_mean.str.contains(".").all()  # measures stay floats
+
+
+def test_the_report_names_the_threshold_a_registered_env_stopped_at(tmp_path, monkeypatch):
+    """Issue 44: trials of an env whose spec says ``reward_threshold=100`` stopped at 100; the report said "no
+    solve threshold" and made AUC primary. The threshold named is the one the trials recorded."""
+    monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
+    variants = {"a": {"curve": rising(40, 130)}, "b": {"curve": rising(40, 110)}}
+    options = {"env_id": "AblateReportThreshold100-v0", "threshold": None, "stopped_at": 100.0}
+    uri = make_store(tmp_path / "store", "threshold100", variants, seeds=(0, 1, 2, 3), **options)
+    folder = write_report("threshold100", tracking_uri=uri, out_root=tmp_path / "reports")
+    text = (folder / "report.md").read_text()
+    assert "reaches 100" in text and "no solve threshold" not in text.lower(), text[:3000]
+    from ablate.reporting.results import load_ablation
+
+    ablation = load_ablation("threshold100", uri)
+    assert ablation.threshold == 100.0 and ablation.primary_metric == "episodes_to_solve" and ablation.any_solved
 
 
 def test_the_record_shows_the_report_command_as_typed(store, tmp_path, monkeypatch):

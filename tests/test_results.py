@@ -5,12 +5,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from ablate.reporting.results import Ablation, area_under_curve, trial_measures
+from ablate.reporting.results import Ablation, trial_measures
 from ablate.reporting.tables import convergence_table
-
-
-def test_area_under_curve_carries_the_last_value_to_the_budget():
-    assert area_under_curve(np.array([0.0, 10.0]), budget=4) == pytest.approx((0 + 10 + 10 + 10) / 4)
 
 
 def _ablation(rows):

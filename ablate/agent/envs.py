@@ -10,24 +10,12 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from ablate import sources
 from ablate.config import env_facts
+from ablate.env_spec import EnvError, is_pong, register, versions  # noqa: F401 - EnvError: what describe raises
 
 # Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
 # display and prints "XDG_RUNTIME_DIR is invalid or not set" on a headless machine.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
-
-
-def is_pong(env_id: str) -> bool:
-    return env_id.startswith("ALE/Pong")
-
-
-def _register_ale() -> None:
-    if "ALE/Pong-v5" in gym.registry:
-        return  # registering again costs ~0.1 s (some 100 envs)
-    import ale_py  # imported lazily: CartPole-only users never pay for the emulator
-
-    gym.register_envs(ale_py)
 
 
 def pre_process(frame: np.ndarray) -> np.ndarray:
@@ -191,34 +179,6 @@ NATIVE_VECTOR = ("CartPole-v0", "CartPole-v1")
 """Envs whose Gymnasium vector form (``CartPoleVectorEnv``) steps a whole population in one call."""
 
 
-class EnvError(ValueError):
-    """An env the trainer cannot run (not registered, continuous actions, a non-Box observation, bad env_args)."""
-
-
-def register(config) -> None:
-    """Make ``config.env_id`` known to Gymnasium: the user's ``env_module`` imported (from its shipped files where
-    it is local) and its function called where it names one, ale-py's games registered."""
-    if config.env_module:
-        before = set(gym.registry)
-        try:
-            sources.run_env_module(config.env_module, config.env_module_source, config.env_module_hash)
-        except sources.SourceError as error:
-            raise EnvError(f"env_module = {config.env_module!r}: {error}") from None
-        added = _REGISTERED_BY.setdefault(config.env_module, sorted(set(gym.registry) - before))
-    if config.env_id.startswith("ALE/"):
-        _register_ale()
-    if config.env_module and config.env_id not in gym.registry:
-        named = ", ".join(added[:5]) + (", ..." if len(added) > 5 else "") or "none"
-        raise EnvError(
-            f"env_module = {config.env_module!r} ran, but env_id = {config.env_id!r} is still not a registered "
-            f"Gymnasium env; it registered {named}"
-        )
-
-
-_REGISTERED_BY: dict[str, list[str]] = {}
-"""The env ids each ``env_module`` registered the first time it ran in this process, for the message above."""
-
-
 def is_native_vector(config) -> bool:
     return config.env_id in NATIVE_VECTOR and not config.env_args
 
@@ -318,6 +278,7 @@ class Described:
     video_fps: int
     video_stride: int = 1
     video_downscale: int = 1
+    observation_dtype: str = "float32"
 
 
 _DESCRIBED: dict[tuple, Described] = {}
@@ -352,6 +313,7 @@ def describe(config) -> Described:
             int(env.metadata.get("render_fps", 30) or 30) if not cartpole else 25,
             video_stride=2 if cartpole else 1,
             video_downscale=2 if cartpole else 1,
+            observation_dtype=str(observations.dtype),
         )
     finally:
         env.close()
@@ -359,10 +321,20 @@ def describe(config) -> Described:
     return described
 
 
-def solve_threshold(config) -> float | None:
-    """The rolling mean over ``solve_window`` episodes at which a trial counts as solved and stops: its own
-    ``solve_threshold``, else its env's ``reward_threshold`` (``None``: Pong has none). Here, beside the env, not
-    with the trainer: the launch's estimate asks it in the driver, which never imports torch."""
-    if config.solve_threshold is not None:
-        return config.solve_threshold
-    return describe(config).reward_threshold
+def record(config, described: Described, threshold: float | None) -> dict[str, str]:
+    """What a trial ran against, as its run's ``env.*`` params: the env id, its spec's reward threshold and
+    episode limit, its observation's shape and dtype, its action count, the solve threshold the trial stopped
+    at (``None``: it ran its budget), and the env libraries' versions. The report and the launch read these, not
+    the env's name."""
+    libraries = versions()
+    return {
+        "env.id": config.env_id,
+        "env.reward_threshold": str(described.reward_threshold),
+        "env.max_episode_steps": str(described.max_episode_steps),
+        "env.obs_shape": "x".join(map(str, described.observation_shape)),
+        "env.obs_dtype": described.observation_dtype,
+        "env.n_actions": str(described.n_actions),
+        "env.solve_threshold": str(threshold),
+        "env.gymnasium_version": libraries["gymnasium"],
+        "env.ale_py_version": libraries["ale-py"],
+    }

@@ -15,13 +15,14 @@ import torch
 
 from ablate.agent.acting import stack
 from ablate.agent.artifacts import TrainingVideos
-from ablate.agent.envs import Described, describe, is_native_vector, make_trial_env, solve_threshold
+from ablate.agent.envs import Described, describe, is_native_vector, make_trial_env
 from ablate.agent.models import build_model, history
 from ablate.agent.optim import Adam
 from ablate.agent.records import Batch, EpisodeMetrics
 from ablate.agent.reinforce import choose_action, discount_rewards, normalize, train_step
 from ablate.agent.slots import CartPoleSlots, EnvSlots, Episode
 from ablate.config import TrialConfig
+from ablate.env_spec import solve_threshold
 
 UNIFORM_BLOCK = 64
 """Steps of action uniforms drawn from each member's stream at a time."""

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from ablate.config import TrialConfig
+from ablate.measures import area_under_curve
 
 
 class TrialFailed(RuntimeError):
@@ -53,6 +54,9 @@ class TrialResult:
     the sampling policy)."""
     state_dict: dict[str, torch.Tensor] = field(default_factory=dict)
     artifacts: dict[str, Path] = field(default_factory=dict)
+    env: dict[str, str] = field(default_factory=dict)
+    """What it ran against (``envs.record``: the env's spec, shapes, solve threshold, library versions): its
+    run's ``env.*`` params."""
 
     @property
     def returns(self) -> list[float]:
@@ -76,12 +80,8 @@ class TrialResult:
             "parameter_count": float(self.parameter_count),
         }
         if self.episodes:
-            # The area under the rolling-mean curve over the whole budget (as ``report.results`` computes it),
-            # here so that tuning selects from the summary alone: a trial that stopped when solved keeps its
-            # last rolling mean for the rest of the budget.
-            rolling = [m.rolling_mean for m in self.episodes][: self.config.max_episodes]
-            padding = max(self.config.max_episodes - len(rolling), 0)
-            summary["auc"] = (sum(rolling) + padding * rolling[-1]) / (len(rolling) + padding)
+            # Here, so that tuning selects from the summary alone; the report recomputes it from the same function.
+            summary["auc"] = area_under_curve([m.rolling_mean for m in self.episodes], self.config.max_episodes)
         if solve is not None:
             summary |= {
                 "episodes_to_solve": float(solve.episode),

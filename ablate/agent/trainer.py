@@ -21,11 +21,12 @@ from threadpoolctl import threadpool_limits
 
 from ablate.agent.artifacts import write_artifacts
 from ablate.agent.checkpoints import checkpoint, restore
-from ablate.agent.envs import is_pong
+from ablate.agent.envs import is_pong, record
 from ablate.agent.population import Member, Population
 from ablate.agent.records import Batch, EpisodeMetrics, TrialFailed, TrialResult
 from ablate.agent.sharing import can_share, population_group
 from ablate.config import TrialConfig
+from ablate.measures import reaches_threshold
 
 MemberOutcome = TrialResult | TrialFailed
 """What a member ends with: its result, or the error that stopped it alone."""
@@ -58,7 +59,7 @@ def _record(member: Member, batch: Batch, loss: float, entropy: float, wall_s: f
             )
         )  # fmt: skip
         full = len(member.window) == config.solve_window
-        if member.episodes_to_solve is None and member.threshold is not None and full and rolling >= member.threshold:
+        if member.episodes_to_solve is None and reaches_threshold(rolling, full, member.threshold):
             member.episodes_to_solve = episode
     member.history.extend(new)
     return new
@@ -188,6 +189,7 @@ def _finish(population: Population, outcomes: dict, folders, on_outcome, videos:
             wall_s=time.perf_counter() - member.started,
             parameter_count=sum(p.numel() for p in model.parameters()),
             state_dict={k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
+            env=record(member.config, population.env, member.threshold),
         )
         folder = folders[member.index]
         if member.videos is not None:

@@ -85,14 +85,21 @@ class Recorder:
             self.tracker.discard_trial(key, reason)
 
     def finished(
-        self, key: str, summary: dict[str, float], artifacts: Path | None, node: str, population: str = ""
+        self,
+        key: str,
+        summary: dict[str, float],
+        artifacts: Path | None,
+        node: str,
+        population: str = "",
+        env: dict[str, str] | None = None,
     ) -> None:
+        """``env``: what the trial ran against (``agent.envs.record``), kept as its run's ``env.*`` params."""
         if not self._open(key):
             return
         size = str(self.members.get(key, 1))
         tags = {TAG_NODE: node, TAG_POPULATION: population or key, TAG_POPULATION_SIZE: size}
         tags[TAG_ROUND] = str(self.state.round)  # what a run is, as tags: never parsed back out of its key
-        self.tracker.finish_trial(key, summary, artifacts, tags=tags)
+        self.tracker.finish_trial(key, summary, artifacts, tags=tags, params=env)
         self.outcome.finished.append(key)
         self.summaries[key] = dict(summary)
         self.state.finished(key, bool(summary.get("solved")), summary.get("wall_s"), summary)

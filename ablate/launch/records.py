@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from ablate import sources
-from ablate.config import flatten
+from ablate.config import KNOBS, flatten
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, tuning_trials
 
@@ -36,13 +36,13 @@ _CNN_ONLY = ("model.history", "model.conv_channels", "model.kernel_size")
 
 def tracked_params(variant: str, config) -> dict:
     """A trial's MLflow params: every knob that shaped it, and none that did not (the test-only fault knobs
-    unless set, the CartPole CNN's knobs on other runs, an unset ``solve_threshold``), so MLflow's params
+    unless set, the built-in CNN's window knobs on other networks, an unset ``solve_threshold``), so MLflow's params
     table and its "diff only" view show real differences."""
     params = {"variant": variant, **flatten(config)}
-    for key in ("fault", "fault_marker"):
+    for key in [name for name, knob in KNOBS.items() if knob.test_only]:
         if not params[key]:
             del params[key]
-    if config.model.architecture != "cnn" or not config.env_id.startswith("CartPole"):
+    if config.model.architecture != "cnn" or config.model.factory:
         for key in _CNN_ONLY:
             del params[key]
     if params["solve_threshold"] is None:

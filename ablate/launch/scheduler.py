@@ -64,7 +64,13 @@ class TrialEvents(Protocol):
     def checkpoint(self, key: str, blob: bytes) -> None: ...
     def restarted(self, key: str, reason: str) -> None: ...
     def finished(
-        self, key: str, summary: dict[str, float], artifacts: Path | None, node: str, population: str = ""
+        self,
+        key: str,
+        summary: dict[str, float],
+        artifacts: Path | None,
+        node: str,
+        population: str = "",
+        env: dict[str, str] | None = None,
     ) -> None: ...
     def failed(self, key: str, message: str) -> None: ...
 
@@ -144,7 +150,7 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
                 outcome_of[keys[i]] = {"failed": f"{type(outcome).__name__}: {outcome}"}
             else:
                 files = _read_folder(folders[i]) if folders[i].exists() else {}
-                outcome_of[keys[i]] = {"summary": outcome.summary(), "artifacts": files}
+                outcome_of[keys[i]] = {"summary": outcome.summary(), "artifacts": files, "env": outcome.env}
             report(ablate_outcomes={keys[i]: outcome_of[keys[i]]})
 
         resume = {}
@@ -409,11 +415,12 @@ class _Bridge(tune.Callback):
             if "failed" in outcome:
                 self.events.failed(key, outcome["failed"])
             elif not outcome["artifacts"]:
-                self.events.finished(key, dict(outcome["summary"]), None, node, population)
+                self.events.finished(key, dict(outcome["summary"]), None, node, population, outcome.get("env"))
             else:
                 with tempfile.TemporaryDirectory(prefix="ablate-artifacts-") as folder:
                     _write_folder(outcome["artifacts"], Path(folder))
-                    self.events.finished(key, dict(outcome["summary"]), Path(folder), node, population)
+                    summary = dict(outcome["summary"])
+                    self.events.finished(key, summary, Path(folder), node, population, outcome.get("env"))
 
     def on_trial_recover(self, iteration, trials, trial, **info):
         for key in self._running(trial):

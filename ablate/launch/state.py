@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
-from ablate.agent.envs import solve_threshold  # the env's threshold: Gymnasium, never torch, in the driver
+from ablate.env_spec import solve_threshold  # the env's threshold: Gymnasium, never torch, in the driver
 from ablate.launch.grid import GridTrial, config_hash
 
 RATE_REPORTS = 4

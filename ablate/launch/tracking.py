@@ -235,15 +235,23 @@ class Tracker(Store):
         return found
 
     def finish_trial(
-        self, key: str, summary: dict[str, float], artifacts: Path | None, tags: dict[str, str] | None = None
+        self,
+        key: str,
+        summary: dict[str, float],
+        artifacts: Path | None,
+        tags: dict[str, str] | None = None,
+        params: dict[str, str] | None = None,
     ) -> None:
-        from mlflow.entities import Metric, RunTag
+        """Close the trial's run: its summary metrics, ``tags``, and ``params`` known only once it ran (the env
+        it ran against)."""
+        from mlflow.entities import Metric, Param, RunTag
 
         run_id = self._close(key)
         now = int(time.time() * 1000)
         self.client.log_batch(
             run_id,
             metrics=[Metric(k, float(v), now, 0) for k, v in summary.items()],
+            params=[Param(k, _param_text(v)) for k, v in (params or {}).items()],
             tags=[RunTag(k, redact(v)) for k, v in (tags or {}).items()],
         )
         if artifacts is not None:

@@ -11,13 +11,16 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from ablate.config import ConfigError
+from ablate.env_spec import solve_threshold_or_none
 from ablate.experiment import Experiment
+from ablate.measures import area_under_curve, censored_episodes, default_primary_metric
 from ablate.reporting import settings
 from ablate.reporting.experiment_file import read_from_disk
 from ablate.reporting.networks import layers
@@ -119,17 +122,20 @@ class Ablation:
     def env_id(self) -> str:
         return str(self.grid.get("base", {}).get("env_id", ""))
 
-    @property
+    @cached_property
     def threshold(self) -> float | None:
-        """The solve threshold the trials used: the file's, else the env's; None (Pong) when there is none."""
+        """The solve threshold the trials stopped at, as they recorded it (``env.solve_threshold``); for trials
+        of a store from before that record, ``env_spec.solve_threshold`` of the launch's base config. None (Pong)
+        when there is none."""
         for params in self.params.values():
-            value = params.get("solve_threshold", "None")
-            if value not in ("None", ""):
-                return float(value)
-        value = self.grid.get("base", {}).get("solve_threshold")
-        if value is not None:
-            return float(value)
-        return {"CartPole-v0": 195.0, "CartPole-v1": 475.0}.get(self.env_id)
+            if "env.solve_threshold" in params:
+                value = params["env.solve_threshold"]
+                return None if value in ("None", "") else float(value)
+        base = self.grid.get("base", {})
+        own = [p["solve_threshold"] for p in self.params.values() if p.get("solve_threshold") not in (None, "None", "")]
+        threshold = float(own[0]) if own else base.get("solve_threshold")
+        config = SimpleNamespace(env_id=self.env_id, env_module=base.get("env_module", ""), solve_threshold=threshold)
+        return solve_threshold_or_none(config)
 
     @property
     def any_solved(self) -> bool:
@@ -162,7 +168,7 @@ class Ablation:
             return f"return_at_{self.budgets[-1]}"
         if value in ("episodes_to_solve", "auc") and not (value == "episodes_to_solve" and self.threshold is None):
             return value
-        return "episodes_to_solve" if self.threshold is not None else "auc"
+        return default_primary_metric([self.threshold])
 
     @property
     def levels(self) -> tuple[float, ...]:
@@ -171,16 +177,6 @@ class Ablation:
 
 def fixed_budgets(budget: int) -> list[int]:
     return sorted({max(1, budget // 4), max(1, budget // 2), budget})
-
-
-def area_under_curve(rolling_means: np.ndarray, budget: int) -> float:
-    """Mean rolling return over the whole budget; a trial that stopped when solved keeps its last value
-    (the stop rule assumes a solved agent stays solved). Higher is better; it rewards learning early."""
-    curve = np.asarray(rolling_means, float)
-    if len(curve) == 0:
-        return float("nan")
-    padded = np.concatenate([curve, np.full(max(budget - len(curve), 0), curve[-1])])[:budget]
-    return float(padded.mean())
 
 
 def trial_measures(curve: pd.DataFrame, budget: int, levels: tuple[float, ...], window: int) -> dict[str, float]:
@@ -429,7 +425,7 @@ def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.Dat
         if column not in trials:
             trials[column] = np.nan
     solved = trials["solved"] == 1
-    trials["censored_episodes"] = np.where(solved, trials["episodes_to_solve"], trials["budget"])
+    trials["censored_episodes"] = censored_episodes(solved, trials["episodes_to_solve"], trials["budget"])
     curves_frame = (
         pd.concat(curves, ignore_index=True)
         if curves

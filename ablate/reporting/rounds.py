@@ -11,19 +11,10 @@ from typing import Any
 from ablate.config import flatten
 from ablate.experiment import Experiment
 from ablate.launch.rounds import Primary
+from ablate.measures import censored_episodes
 
 SUMMARY_METRIC = {"episodes_to_solve": "episodes_to_solve", "auc": "auc", "return": "final_rolling_mean"}
 """Each primary metric's name among a trial's summary metrics."""
-
-
-def primary_metric(experiment: Experiment) -> str:
-    """The experiment's ``primary`` (once ``Experiment.primary_metric`` exists), else its default: episodes to
-    solve where the env has a solve threshold, AUC where it has none."""
-    metric = getattr(experiment, "primary_metric", None)
-    if metric:
-        return metric
-    solvable = experiment.base.solve_threshold is not None or experiment.base.env_id.startswith("CartPole")
-    return "episodes_to_solve" if solvable else "auc"
 
 
 def references(experiment: Experiment) -> dict[str, str]:
@@ -50,12 +41,9 @@ def sample(rows: Sequence[Primary], metric: str):
     from ablate.claims import Sample
 
     if metric == "episodes_to_solve":
-        solved = [
-            r.metrics.get("solved", 0.0) == 1.0 and np.isfinite(r.metrics.get("episodes_to_solve", np.nan))
-            for r in rows
-        ]
-        values = [r.metrics["episodes_to_solve"] if ok else float(r.budget) for r, ok in zip(rows, solved, strict=True)]
-        return Sample(np.asarray(values, float), ~np.asarray(solved, bool))
+        episodes = np.asarray([r.metrics.get("episodes_to_solve", np.nan) for r in rows], float)
+        solved = np.asarray([r.metrics.get("solved", 0.0) == 1.0 for r in rows], bool) & np.isfinite(episodes)
+        return Sample(censored_episodes(solved, episodes, [r.budget for r in rows]), ~solved)
     return Sample(np.asarray([r.metrics.get(SUMMARY_METRIC[metric], np.nan) for r in rows], float))
 
 
@@ -68,7 +56,7 @@ def judge_for(experiment: Experiment, seeds: Sequence[int] | None = None):
         return None
     from ablate.claims import Design, Question, decide
 
-    metric = primary_metric(experiment)
+    metric = experiment.primary_metric
     episodes = metric == "episodes_to_solve"
     question = Question(
         metric,

@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import ARCHITECTURE_KNOBS, SCHEMA
+from ablate.env_spec import is_pong, resets_on_score
 from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.figures import ablation_window
 from ablate.reporting.networks import factory_args
@@ -42,7 +43,7 @@ def architecture(params: dict[str, str], env_id: str) -> str:
     activation = params.get("model.activation", "relu")
     hidden = _sizes(params)
     dense = f"dense {' → '.join(map(str, hidden))} ({activation})" if hidden else "no hidden layer"
-    if env_id.startswith("ALE/Pong"):
+    if is_pong(env_id):
         if arch == "cnn":
             from ablate.agent.policies import PONG_CONV
 
@@ -80,7 +81,7 @@ def _setting_groups(overrides: dict) -> list[str]:
 
 def _sampling_videos(ablation: Ablation) -> bool:
     """Pong's end-of-trial videos are of the sampling policy (``collectors.record_pong_episode``), others greedy."""
-    return ablation.env_id.startswith("ALE/Pong")
+    return is_pong(ablation.env_id)
 
 
 def _extends(ablation: Ablation) -> list[str]:
@@ -145,9 +146,7 @@ def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS)
             f"{budget:,} episodes, and variants are compared on their returns (area under the curve, the return "
             "after fixed budgets, episodes to reach return levels, the improvement over the untrained policy)."
         )
-    reset = (
-        " Pong's discounted return restarts at every point scored." if ablation.env_id.startswith("ALE/Pong") else ""
-    )
+    reset = " Pong's discounted return restarts at every point scored." if resets_on_score(ablation.env_id) else ""
     blocks: list[Block] = [
         Paragraph(env),
         Paragraph(
@@ -180,7 +179,7 @@ def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS)
         )
     blocks += [Table(pd.DataFrame(rows), "Variants"), Paragraph("**Base hyper-parameters.**")]
     keep = ("learning_rate", "gamma", "episodes_per_update", "max_episodes", "solve_window", "l2")
-    if ablation.env_id.startswith("ALE/Pong"):
+    if is_pong(ablation.env_id):
         keep += ("action_set", "frameskip", "max_episode_steps")
     blocks.append(Table(pd.DataFrame([{k: base[k] for k in keep if k in base}]), "Base hyper-parameters"))
     if ablation.tuning:

@@ -1,0 +1,40 @@
+"""Each measure of a trial, defined once: the area under its learning curve, its episodes to solve (censored at
+the budget), and the primary metric an experiment's claims default to. Pure (numpy), below every layer.
+
+The trainer records them, the launch's rounds judge on them and the report recomputes them from the curve: all
+through these functions, so the three agree to the bit on the same curve.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def area_under_curve(rolling_means: Sequence[float] | np.ndarray, budget: int) -> float:
+    """Mean rolling return over the whole budget of ``budget`` episodes; a trial that stopped when solved keeps its
+    last value (the stop rule assumes a solved agent stays solved). Higher is better; it rewards learning early.
+    NaN for an empty curve."""
+    curve = np.asarray(rolling_means, float)
+    if len(curve) == 0:
+        return float("nan")
+    padded = np.concatenate([curve, np.full(max(budget - len(curve), 0), curve[-1])])[:budget]
+    return float(padded.mean())
+
+
+def reaches_threshold(rolling_mean: float, window_filled: bool, threshold: float | None) -> bool:
+    """The solve rule: the rolling mean over a full ``solve_window`` at or above the threshold (never without
+    one)."""
+    return threshold is not None and window_filled and rolling_mean >= threshold
+
+
+def censored_episodes(solved: np.ndarray, episodes_to_solve: np.ndarray, budget: np.ndarray) -> np.ndarray:
+    """Episodes to solve with an unsolved trial counted as its budget (censored): what claims and tables compare."""
+    return np.where(np.asarray(solved, bool), np.asarray(episodes_to_solve, float), np.asarray(budget, float))
+
+
+def default_primary_metric(solve_thresholds: Sequence[float | None]) -> str:
+    """The metric claims are made on when an experiment names none: episodes to solve where every trial has a solve
+    threshold, else the area under the learning curve (Pong has no threshold)."""
+    return "episodes_to_solve" if all(t is not None for t in solve_thresholds) else "auc"

@@ -1,0 +1,50 @@
+"""Each measure defined once: AUC by hand, censoring, the default primary metric, and the trainer's recorded AUC
+equal to the report's on the same curve."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ablate.agent.records import EpisodeMetrics, TrialResult
+from ablate.config import TrialConfig
+from ablate.measures import area_under_curve, censored_episodes, default_primary_metric, reaches_threshold
+from ablate.reporting.results import trial_measures
+
+
+def test_area_under_curve_carries_the_last_value_to_the_budget():
+    assert area_under_curve(np.array([0.0, 10.0]), budget=4) == pytest.approx((0 + 10 + 10 + 10) / 4)
+    assert area_under_curve([1.0, 2.0, 3.0], budget=2) == 1.5  # a curve past the budget is cut at it
+    assert np.isnan(area_under_curve([], budget=5))
+
+
+def test_unsolved_trials_count_as_their_budget():
+    episodes = censored_episodes([True, False], [120.0, np.nan], [400, 400])
+    assert episodes.tolist() == [120.0, 400.0]
+
+
+def test_the_solve_rule_needs_a_full_window_and_a_threshold():
+    assert reaches_threshold(100.0, True, 100.0)
+    assert not reaches_threshold(100.0, False, 100.0) and not reaches_threshold(99.9, True, 100.0)
+    assert not reaches_threshold(1e9, True, None)
+
+
+def test_the_default_primary_metric_is_episodes_only_where_every_trial_can_solve():
+    assert default_primary_metric([475.0, 100.0]) == "episodes_to_solve"
+    assert default_primary_metric([475.0, None]) == "auc"
+
+
+def test_the_trainers_recorded_auc_is_the_reports_on_the_same_curve():
+    window, budget = 4, 12
+    returns = [9.0, 14.0, 10.0, 31.0, 22.0, 40.0, 57.0]  # stopped early, as a solved trial does
+    rolling = [math.fsum(returns[max(0, i - window + 1) : i + 1]) / min(i + 1, window) for i in range(len(returns))]
+    episodes = [
+        EpisodeMetrics(i + 1, r, 10, 0.0, 0.0, m, 10 * (i + 1), 0.1, i + 1)
+        for i, (r, m) in enumerate(zip(returns, rolling, strict=True))
+    ]
+    config = TrialConfig(max_episodes=budget, solve_window=window)
+    recorded = TrialResult(config, episodes, None, None, 70, 1.0, 10).summary()["auc"]
+    curve = pd.DataFrame({"episode": range(1, len(returns) + 1), "return": returns})
+    curve["rolling_mean"] = curve["return"].rolling(window, min_periods=1).mean()  # as results._curve reads it
+    assert recorded == trial_measures(curve, budget, (), window)["auc"]
