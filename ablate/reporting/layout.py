@@ -25,6 +25,7 @@ from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
 from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
+from ablate.reporting.planned import earlier_note
 from ablate.reporting.provenance import (
     _generation_note,
     _reproducibility,
@@ -189,7 +190,8 @@ def build_document(
 
     author = esc(discussion.author) if discussion.author and discussion.text else "the student"
     doc: list[Block] = [Heading(f"Ablation report: {esc(ablation.name)}", 1)]
-    doc += [Note(n) for n in (_generation_note(ablation), changed_file_note(ablation)) if n]
+    notes = (_generation_note(ablation), changed_file_note(ablation), earlier_note(ablation.earlier))
+    doc += [Note(n) for n in notes if n]
     doc.append(
         Paragraph(
             f"*Every section marked {GENERATED} is written by ablate from the tracking store; the Discussion is "
