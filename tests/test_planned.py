@@ -2,7 +2,7 @@
 
 from types import SimpleNamespace
 
-from ablate.reporting.planned import earlier_note, earlier_trials, stage_two
+from ablate.reporting.planned import earlier_trials, stage_two
 
 TUNING = {"knobs": {"learning_rate": [0.01, 0.1]}, "seeds": [10_000], "base": {"learning_rate": 0.01}}
 GRID = {"trials": [{"key": "lab-s0-new", "variant": "lab", "seed": 0}], "tune_trials": []}
@@ -25,12 +25,7 @@ def test_stage_two_is_the_recorded_keys_else_the_runs_with_the_planned_settings_
     assert stage_two(TUNING | {"trials": recorded}, GRID, {}) == recorded
 
 
-def test_earlier_trials_are_counted_once_per_key_and_said_in_one_line():
+def test_earlier_trials_are_counted_once_per_key():
     runs = [_run("lab-s0-old", 0, 0.01, "old"), _run("lab-s0-old", 0, 0.01, "old"), _run("lab-s0-new", 0, 0.01, "new")]
     earlier = earlier_trials(runs, {"lab-s0-new"}, ["lab", "other"])
     assert earlier == {"lab": 1}
-    assert earlier_note(earlier).startswith(
-        "1 earlier trial of `lab` (an earlier version of its settings or code) is in the store and not counted"
-    )
-    assert earlier_note({"a": 2, "b": 3}).startswith("2 earlier trials of `a` and 3 earlier trials of `b` (an")
-    assert earlier_note({}) == ""

@@ -25,11 +25,11 @@ from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
 from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
-from ablate.reporting.planned import earlier_note
 from ablate.reporting.provenance import (
     _generation_note,
     _reproducibility,
     changed_file_note,
+    earlier_note,
     missing_artifacts_note,
 )
 from ablate.reporting.results import Ablation

@@ -8,8 +8,10 @@ from collections import Counter
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from ablate.reporting.text import esc
-from ablate.reporting.tuning import STAGE_TAG, TUNE, knobs
+from ablate.launch.mlflow_store import TAG_STAGE
+
+TUNE = "tune"
+"""A stage-1 run's ``TAG_STAGE`` (``GridTrial.stage``). This module stays free of pandas: ``ablate status`` reads it."""
 
 
 def planned_trials(grid: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -24,7 +26,7 @@ def stage_two(tuning: Mapping[str, Any], grid: Mapping[str, Any], runs: Mapping[
     evaluation runs but for the tuned knobs and the seed (another network's source hash, another gamma: not it)."""
     if "trials" in tuning:
         return list(tuning["trials"])
-    ignored = {"seed", *knobs(tuning)}
+    ignored = {"seed", *tuning.get("knobs", {})}
 
     def settings(run: Any) -> dict[str, str]:
         return {k: v for k, v in run.params.items() if k not in ignored}
@@ -33,13 +35,13 @@ def stage_two(tuning: Mapping[str, Any], grid: Mapping[str, Any], runs: Mapping[
     references: dict[str, list[dict[str, str]]] = {}
     for trial in grid["trials"]:
         run = runs.get(trial["key"])
-        if run is not None and run.tags.get(STAGE_TAG) != TUNE:
+        if run is not None and run.tags.get(TAG_STAGE) != TUNE:
             references.setdefault(trial["variant"], []).append(settings(run))
     return [
         {"key": run.key, "variant": run.variant, "seed": run.seed}
         for run in runs.values()
         if run.key not in planned
-        and run.tags.get(STAGE_TAG) != TUNE
+        and run.tags.get(TAG_STAGE) != TUNE
         and settings(run) in references.get(run.variant, [])
     ]
 
@@ -50,17 +52,3 @@ def earlier_trials(runs: Iterable[Any], counted: set[str], variants: list[str]) 
     keys = {run.key: run.variant for run in runs if run.key not in counted}
     per_variant = Counter(keys.values())
     return {variant: per_variant[variant] for variant in variants if per_variant[variant]}
-
-
-def earlier_note(earlier: Mapping[str, int]) -> str:
-    """The report's one line on them; ``""`` where there are none."""
-    if not earlier:
-        return ""
-    parts = [f"{n} earlier trial{'s' if n != 1 else ''} of `{esc(variant)}`" for variant, n in earlier.items()]
-    listed = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
-    many = sum(earlier.values()) != 1
-    return (
-        f"{listed} (an earlier version of {'their' if len(parts) > 1 else 'its'} settings or code) "
-        f"{'are' if many else 'is'} in the store and not counted: every number here is from the trials of the "
-        "current settings and code."
-    )
