@@ -1,5 +1,7 @@
 """Tidy frames from trial tables: censoring counted, a curve's measures by hand, each variant's reference."""
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -163,6 +165,7 @@ def test_an_edited_network_is_counted_by_its_current_keys_only(run_quiet, tmp_pa
     from ablate.experiment import load_experiment
     from ablate.reporting.document import write_report
     from ablate.reporting.results import load_ablation
+    from ablate.reporting.status import detail
 
     uri = fresh_store(tmp_path / "mlflow.db")
     (tmp_path / "lab.toml").write_text(TUNED_OWN)
@@ -188,3 +191,9 @@ def test_an_edited_network_is_counted_by_its_current_keys_only(run_quiet, tmp_pa
     assert "Linear(4→64)" in text and "Linear(4→32)" not in text
     n = ablation.earlier["mylab"]
     assert text.count(f"{n} earlier trials of `mylab`") == 1
+
+    # ablate status counts the same plan: 3 base-value trials, 2 tuning trials, 3 at a choice other than the base.
+    moved = ablation.tuning["choices"]["mylab"]["values"] != ablation.tuning["base"]
+    newest = detail(uri, "lab").split("\ngeneration ")[1]
+    assert re.search(rf"^  mylab\s+{3 + 2 + 3 * moved}$", newest, re.M), newest
+    assert f"not counted: {n} earlier trials ({n} of mylab)" in newest
