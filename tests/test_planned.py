@@ -29,3 +29,13 @@ def test_earlier_trials_are_counted_once_per_key():
     runs = [_run("lab-s0-old", 0, 0.01, "old"), _run("lab-s0-old", 0, 0.01, "old"), _run("lab-s0-new", 0, 0.01, "new")]
     earlier = earlier_trials(runs, {"lab-s0-new"}, ["lab", "other"])
     assert earlier == {"lab": 1}
+
+
+def test_a_tuned_launch_without_its_choice_yet_has_no_plan_to_call_a_run_earlier():
+    from ablate.reporting.planned import plan_keys
+
+    tuned = GRID | {"tune_trials": [{"key": "lab-s10000-new", "variant": "lab", "seed": 10_000, "stage": "tune"}]}
+    assert plan_keys(tuned, None, {}) is None  # interrupted in stage 1: stage 2 unknown
+    assert plan_keys(GRID, None, {}) == {"lab-s0-new"}  # untuned: the grid is the plan
+    recorded = TUNING | {"trials": [{"key": "lab-s1-new-lr", "variant": "lab", "seed": 1}]}
+    assert plan_keys(tuned, recorded, {}) == {"lab-s0-new", "lab-s10000-new", "lab-s1-new-lr"}

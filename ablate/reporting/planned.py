@@ -46,6 +46,15 @@ def stage_two(tuning: Mapping[str, Any], grid: Mapping[str, Any], runs: Mapping[
     ]
 
 
+def plan_keys(grid: Mapping[str, Any], tuning: Mapping[str, Any] | None, runs: Mapping[str, Any]) -> set[str] | None:
+    """Every key the plan holds: the grid's and stage 2's (``stage_two``); None where a tuned launch has not recorded
+    its choice yet (interrupted in stage 1): its stage 2 is unknown, so no run of the generation can be called
+    earlier."""
+    if tuning is None:
+        return None if grid.get("tune_trials") else {trial["key"] for trial in grid["trials"]}
+    return {trial["key"] for trial in [*planned_trials(grid), *stage_two(tuning, grid, runs)]}
+
+
 def earlier_trials(runs: Iterable[Any], counted: set[str], variants: list[str]) -> dict[str, int]:
     """Per variant (of ``variants``, in their order), how many trials of the generation have a key the plan does not
     hold (``counted``): ``runs`` may hold several runs of one key (a re-run), counted once."""

@@ -21,7 +21,7 @@ from ablate.experiment import Experiment
 from ablate.reporting import settings
 from ablate.reporting.experiment_file import read_from_disk
 from ablate.reporting.networks import layers
-from ablate.reporting.planned import earlier_trials, planned_trials, stage_two
+from ablate.reporting.planned import earlier_trials, plan_keys, planned_trials, stage_two
 from ablate.reporting.reader import RunReader, TrackingError
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.reporting.tuning import knobs as tuning_knobs
@@ -322,7 +322,8 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
         if tuning
         else []
     )
-    earlier = earlier_trials(runs, keys | {t["key"] for t in later}, [v["name"] for v in grid["variants"]])
+    counted = plan_keys(grid, tuning, best_run)
+    earlier = earlier_trials(runs, counted, [v["name"] for v in grid["variants"]]) if counted is not None else {}
     rows, tune_rows, curves, params, missing = [], [], {}, {}, []
     for trial in [*planned, *later]:
         run = best_run.get(trial["key"])

@@ -17,7 +17,7 @@ from ablate.experiment import Experiment, storage_name
 from ablate.launch.grid import chosen_trials, expand, tuning_trials
 from ablate.launch.secrets import shown_uri
 from ablate.launch.store import resolve_uri
-from ablate.reporting.planned import earlier_trials, planned_trials, stage_two
+from ablate.reporting.planned import earlier_trials, plan_keys
 from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
@@ -60,17 +60,14 @@ def current_plan(
 ) -> set[str] | None:
     """The keys the plan holds (``reporting.planned``): with ``experiment`` (its file), the file's trials, its
     tuning trials and stage 2 at the choices ``launch`` (the newest) recorded; else what ``launch`` recorded. None
-    where it recorded no grid: every run of the generation counts."""
+    where it recorded no grid, or a tuned launch no choice yet: every run of the generation counts."""
     tuning = _document(tracker, launch, "tuning.json")
-    if experiment is not None:
+    if experiment is not None and not (experiment.tune and tuning is None):
         choices = {n: c["values"] for n, c in (tuning or {}).get("choices", {}).items() if c.get("tuned")}
         trials = [*expand(experiment, every_round=True), *tuning_trials(experiment)]
         return {t.key for t in [*trials, *chosen_trials(experiment, choices, every_round=True)]}
     grid = _document(tracker, launch, "grid.json")
-    if grid is None:
-        return None
-    later = stage_two(tuning, grid, {r.key: r for r in runs}) if tuning else []
-    return {t["key"] for t in [*planned_trials(grid), *later]}
+    return None if grid is None else plan_keys(grid, tuning, {r.key: r for r in runs})
 
 
 def overview(tracking_uri: str | None) -> str:
