@@ -95,3 +95,18 @@ def test_tuning_trials_use_tuning_seeds_disjoint_from_evaluation_seeds():
     ]
     at_base = chosen_trials(experiment, {"a": {"learning_rate": 0.03}})
     assert [t.key for t in at_base] == [t.key for t in evaluation if t.variant == "a"]
+
+
+def test_chosen_trials_of_every_round_are_the_keys_later_rounds_run_at_the_choice():
+    from ablate.launch.grid import chosen_trials
+
+    experiment = parse_experiment(
+        {"seeds": {"start": 2, "step": 2, "max": 6}, "variants": [{"name": "a"}], "tune": {"learning_rate": [0.1]}},
+        "exp.toml",
+    )
+    first = chosen_trials(experiment, {"a": {"learning_rate": 0.1}})
+    every = chosen_trials(experiment, {"a": {"learning_rate": 0.1}}, every_round=True)
+    assert [t.seed for t in first] == [0, 1] and [t.seed for t in every] == list(range(6))
+    assert [t.key for t in every[:2]] == [t.key for t in first]
+    at_base = chosen_trials(experiment, {"a": {"learning_rate": experiment.base.learning_rate}}, every_round=True)
+    assert [t.key for t in at_base] == [t.key for t in expand(experiment, every_round=True)]

@@ -2,7 +2,7 @@
 
 import subprocess
 
-from ablate.reporting.provenance import experiment_file_state
+from ablate.reporting.provenance import earlier_note, experiment_file_state
 
 
 def _git(folder, *argv):
@@ -29,3 +29,11 @@ def test_the_record_says_whether_the_experiment_file_is_the_committed_one(tmp_pa
     assert "is the one committed at" in absolute
     assert "lacks it" in experiment_file_state("0" * 40, path, "", cwd=tmp_path)
     assert experiment_file_state("unknown", path, "", cwd=tmp_path) == ""
+
+
+def test_earlier_trials_are_said_in_one_line_with_their_number():
+    assert earlier_note({"lab": 1}).startswith(
+        "1 earlier trial of `lab` (an earlier version of its settings or code) is in the store and not counted"
+    )
+    assert earlier_note({"a": 2, "b": 3}).startswith("2 earlier trials of `a` and 3 earlier trials of `b` (an")
+    assert earlier_note({}) == ""

@@ -51,15 +51,20 @@ def make_tuned_store(folder: Path, eval_seeds: list[int] = EVAL_SEEDS) -> str:
     trials = [{"key": f"{v}-s{s}", "variant": v, "seed": s} for v in variants for s in eval_seeds]
     grid = {"experiment": "tuned", "description": "tuned", "seeds": eval_seeds, "baseline": "baseline"}
     grid |= {"base": base, "trials": trials, "variants": [{"name": v, "overrides": o} for v, o in variants.items()]}
+    tune_trials = [
+        {"key": f"{v}-lr{lr}-s{s}", "variant": v, "seed": s, "stage": "tune"}
+        for v in ("baseline", "deep")
+        for lr in CANDIDATES
+        for s in TUNE_SEEDS
+    ]
+    grid["tune_trials"] = tune_trials  # stage 1 is planned (grid.json); stage 2, at the choice, is recognised
     files = {"grid.json": json.dumps(grid), "environment.json": json.dumps({"machine": "m"})}
     files["tuning.json"] = json.dumps(TUNING)
     launch = (tracker.start_launch("g1", "tuned", {"ablate.command": "ablate run tuned.toml"}, files), "g1")
-    for variant in ("baseline", "deep"):
-        for lr in CANDIDATES:
-            for seed in TUNE_SEEDS:
-                trial = {"key": f"{variant}-lr{lr}-s{seed}", "variant": variant, "seed": seed, "stage": "tune"}
-                params = {"learning_rate": lr}
-                write_trial(tracker, launch, trial, curve(variant, lr, seed, 30), params, (30, 8, 1000.0))
+    for trial in tune_trials:
+        lr = float(trial["key"].split("-lr")[1].split("-s")[0])
+        params = {"learning_rate": lr}
+        write_trial(tracker, launch, trial, curve(trial["variant"], lr, trial["seed"], 30), params, (30, 8, 1000.0))
     for variant in variants:
         own = TUNING["choices"][variant]["values"]["learning_rate"]
         for lr in sorted({own, BASE_LR if variant != "course" else own}):

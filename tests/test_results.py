@@ -1,5 +1,7 @@
 """Tidy frames from trial tables: censoring counted, a curve's measures by hand, each variant's reference."""
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -118,3 +120,76 @@ def test_with_another_baseline_the_references_follow_it():
     ablation = _grid_ablation(variants, baseline="mlp")
     assert ablation.changes("cnn") == {"architecture": "cnn"} and ablation.reference("mlp-l2") == "mlp"
     assert ablation.reference("cnn") == "mlp"
+
+
+# --- issue 44, item 4: a tuned launch's results are read by key ---
+
+MYLAB = """from torch import nn
+
+
+def create_cartpole_model():
+    return nn.Sequential(nn.Linear(4, {width}), nn.ReLU(), nn.Linear({width}, 2))
+"""
+
+TUNED_OWN = """
+name = "lab"
+seeds = 3
+[base]
+env_id = "CartPole-v1"
+max_episodes = 20
+episodes_per_update = 10
+[[variants]]
+name = "baseline"
+hidden_sizes = [8]
+[[variants]]
+name = "mylab"
+model = "mylab.py:create_cartpole_model"
+[tune]
+learning_rate = [0.01, 0.1]
+seeds = 1
+max_episodes = 10
+"""
+
+
+def test_an_edited_network_is_counted_by_its_current_keys_only(run_quiet, tmp_path):
+    """The lab's own network, tuned; its width edited from 32 to 64 and the launch run again: the report and
+    ``.claims`` count the 3 seeds of the current network per variant (not 6 of ``mylab``: the first network's
+    trials stay in the store under their own keys), and say how many earlier trials they left out."""
+    from stores import fresh_store
+
+    import ablate
+    from ablate.experiment import load_experiment
+    from ablate.reporting.document import write_report
+    from ablate.reporting.results import load_ablation
+    from ablate.reporting.status import detail
+
+    uri = fresh_store(tmp_path / "mlflow.db")
+    (tmp_path / "lab.toml").write_text(TUNED_OWN)
+    for width in (32, 64):
+        (tmp_path / "mylab.py").write_text(MYLAB.format(width=width))
+        outcome = run_quiet(load_experiment(tmp_path / "lab.toml"), tmp_path, uri)
+        assert outcome.exit_code == 0 and not outcome.failed
+
+    ablation = load_ablation("lab", uri)
+    assert ablation.finished.groupby("variant").size().to_dict() == {"baseline": 3, "mylab": 3}
+    assert set(ablation.finished[ablation.finished.variant == "mylab"].parameter_count) == {4 * 64 + 64 + 64 * 2 + 2}
+    # The first network: 3 base-value trials, 2 tuning trials and up to 3 at its chosen value, none counted.
+    assert 5 <= ablation.earlier.get("mylab", 0) <= 8 and "baseline" not in ablation.earlier
+    assert set(ablation.tuning_trials[ablation.tuning_trials.variant == "mylab"].status) == {"FINISHED"}
+    assert len(ablation.tuning_trials[ablation.tuning_trials.variant == "mylab"]) == 2
+
+    claims = ablate.load("lab", tracking_uri=uri).claims
+    assert set(claims.n_variant) == {3} and set(claims.n_reference) == {3}
+
+    folder = write_report("lab", tracking_uri=uri, out_root=tmp_path / "reports", attach=False, pdf=False)
+    text = (folder / "report.md").read_text()
+    assert "3 per variant" in text and "6 seeds" not in text
+    assert "Linear(4→64)" in text and "Linear(4→32)" not in text
+    n = ablation.earlier["mylab"]
+    assert text.count(f"{n} earlier trials of `mylab`") == 1
+
+    # ablate status counts the same plan: 3 base-value trials, 2 tuning trials, 3 at a choice other than the base.
+    moved = ablation.tuning["choices"]["mylab"]["values"] != ablation.tuning["base"]
+    newest = detail(uri, "lab").split("\ngeneration ")[1]
+    assert re.search(rf"^  mylab\s+{3 + 2 + 3 * moved}$", newest, re.M), newest
+    assert f"not counted: {n} earlier trials ({n} of mylab)" in newest

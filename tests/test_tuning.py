@@ -3,6 +3,7 @@
 import pytest
 
 from ablate.experiment import parse_experiment
+from ablate.launch.grid import chosen_trials
 from ablate.launch.tuning import TuningResult, choose, choose_all, metric_value, tuning_document
 
 
@@ -119,6 +120,9 @@ def test_choose_all_waits_for_every_tuning_trial_and_keeps_a_variants_own_value(
     assert document["base"] == {"learning_rate": 0.03}
     assert document["choices"]["a"]["values"] == {"learning_rate": 0.1} and document["choices"]["a"]["tuned"]
     assert "best mean auc" in document["rule"]
+    # Stage 2 by key: the tuned variant on every evaluation seed at its choice (``own`` keeps its untuned trials).
+    wanted = chosen_trials(experiment, {"a": {"learning_rate": 0.1}})
+    assert document["trials"] == [{"key": t.key, "variant": "a", "seed": t.seed} for t in wanted] and wanted
 
 
 @pytest.mark.parametrize("metric", ["auc", "episodes_to_solve", "final_return"])

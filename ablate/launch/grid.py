@@ -100,14 +100,17 @@ def tuning_trials(experiment: Experiment) -> list[GridTrial]:
     return trials
 
 
-def chosen_trials(experiment: Experiment, choices: Mapping[str, Mapping[str, Any]]) -> list[GridTrial]:
-    """Stage 2 at the chosen values: each variant in ``choices`` on every evaluation seed with its chosen
-    knob values (a choice equal to the base value gives exactly the untuned trial, same key)."""
+def chosen_trials(
+    experiment: Experiment, choices: Mapping[str, Mapping[str, Any]], every_round: bool = False
+) -> list[GridTrial]:
+    """Stage 2 at the chosen values: each variant in ``choices`` on every evaluation seed (round 1's, or as in
+    ``expand`` every seed the rounds may add) with its chosen knob values (a choice equal to the base value gives
+    exactly the untuned trial, same key)."""
     trials = []
     for variant in experiment.variants:
         if variant.name not in choices:
             continue
-        for seed in experiment.seeds_of(variant):
+        for seed in experiment.max_seeds_of(variant) if every_round else experiment.seeds_of(variant):
             config = replace(variant.config, seed=seed, **choices[variant.name])
             trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
     return trials

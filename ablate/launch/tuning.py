@@ -162,9 +162,11 @@ def finished_results(
 
 def tuning_document(experiment: Experiment, choices: Mapping[str, Choice]) -> dict[str, Any]:
     """``tuning.json`` of a launch run (the contract other modules read): candidates, seeds, metric, rule,
-    base values and each variant's choice."""
+    base values, each variant's choice and ``trials``, stage 2 by key (each tuned variant on every evaluation seed
+    at its choice): what the report counts, where runs of earlier keys (an edited network) are not."""
     spec = experiment.tune
     assert spec is not None
+    stage_two = chosen_trials(experiment, {name: c.values for name, c in choices.items() if c.tuned})
     return {
         "knobs": {k: list(v) for k, v in spec.knobs},
         "seeds": list(spec.seeds),
@@ -177,6 +179,7 @@ def tuning_document(experiment: Experiment, choices: Mapping[str, Choice]) -> di
             name: {"values": c.values, "tuned": c.tuned, "reason": c.reason, "scores": c.scores}
             for name, c in choices.items()
         },
+        "trials": [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in stage_two],
     }
 
 

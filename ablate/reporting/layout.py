@@ -29,6 +29,7 @@ from ablate.reporting.provenance import (
     _generation_note,
     _reproducibility,
     changed_file_note,
+    earlier_note,
     missing_artifacts_note,
 )
 from ablate.reporting.results import Ablation
@@ -189,7 +190,8 @@ def build_document(
 
     author = esc(discussion.author) if discussion.author and discussion.text else "the student"
     doc: list[Block] = [Heading(f"Ablation report: {esc(ablation.name)}", 1)]
-    doc += [Note(n) for n in (_generation_note(ablation), changed_file_note(ablation)) if n]
+    notes = (_generation_note(ablation), changed_file_note(ablation), earlier_note(ablation.earlier))
+    doc += [Note(n) for n in notes if n]
     doc.append(
         Paragraph(
             f"*Every section marked {GENERATED} is written by ablate from the tracking store; the Discussion is "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 from ablate.launch.secrets import Shown, shown
@@ -107,6 +108,21 @@ def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
     return (
         f"{changed}, in the settings of its trials: this report describes the launch's copy (stored with it); "
         f"<code>ablate run {esc(path)} --fresh</code> runs the file as it is now."
+    )
+
+
+def earlier_note(earlier: Mapping[str, int]) -> str:
+    """The report's one line on ``Ablation.earlier`` (per variant, its trials under keys the plan no longer holds,
+    left out of every number); ``""`` where there are none."""
+    if not earlier:
+        return ""
+    parts = [f"{n} earlier trial{'s' if n != 1 else ''} of `{esc(variant)}`" for variant, n in earlier.items()]
+    listed = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
+    many = sum(earlier.values()) != 1
+    return (
+        f"{listed} (an earlier version of {'their' if len(parts) > 1 else 'its'} settings or code) "
+        f"{'are' if many else 'is'} in the store and not counted: every number here is from the trials of the "
+        "current settings and code."
     )
 
 

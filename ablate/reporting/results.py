@@ -24,6 +24,7 @@ from ablate.measures import area_under_curve, censored_episodes, default_primary
 from ablate.reporting import settings
 from ablate.reporting.experiment_file import read_from_disk
 from ablate.reporting.networks import layers
+from ablate.reporting.planned import earlier_trials, plan_keys, planned_trials, stage_two
 from ablate.reporting.reader import RunReader, TrackingError
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.reporting.tuning import knobs as tuning_knobs
@@ -65,6 +66,9 @@ class Ablation:
     missing: list[tuple[str, str]] = field(default_factory=list)
     """(variant, key) of finished trials whose ``episodes.csv`` the store could not give (their artifact folder moved or
     removed): their rows hold the tracked metrics and params, without the measures and curves of that file."""
+    earlier: dict[str, int] = field(default_factory=dict)
+    """Per variant, its trials in the generation under keys the plan no longer holds (an earlier version of its
+    settings or code: ``planned``): in the store, in none of the frames."""
 
     @property
     def seed_span(self) -> tuple[int, int]:
@@ -306,12 +310,18 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
 
     tuning = _tuning_document(tracker, launch_id)
     names = tuning_knobs(tuning) if tuning else []
-    planned_trials = [*grid["trials"], *grid.get("tune_trials", [])]
-    planned = {trial["key"] for trial in planned_trials}
+    planned = planned_trials(grid)
+    keys = {trial["key"] for trial in planned}
     # A tuned launch's evaluation trials at the chosen values are known only once tuning ends: not in grid.json.
-    later = [{"key": r.key, "variant": r.variant, "seed": r.seed} for r in best_run.values() if r.key not in planned]
+    later = (
+        [t for t in stage_two(tuning, grid, best_run) if t["key"] in best_run and t["key"] not in keys]
+        if tuning
+        else []
+    )
+    counted = plan_keys(grid, tuning, best_run)
+    earlier = earlier_trials(runs, counted, [v["name"] for v in grid["variants"]]) if counted is not None else {}
     rows, tune_rows, curves, params, missing = [], [], {}, {}, []
-    for trial in [*planned_trials, *later] if tuning else grid["trials"]:
+    for trial in [*planned, *later]:
         run = best_run.get(trial["key"])
         row = {"key": trial["key"], "variant": trial["variant"], "seed": trial["seed"]}
         if tuning:
@@ -354,7 +364,7 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
     }
     if not tuning:
         ablation = _ablation(name, grid, launch_info, pd.DataFrame(rows), list(curves.values()), params)
-        return replace(ablation, missing=missing)
+        return replace(ablation, missing=missing, earlier=earlier)
     trials = pd.DataFrame(rows)
     for knob in names:
         trials[knob] = pd.to_numeric(trials[knob], errors="coerce")
@@ -370,7 +380,7 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
     untuned = part(at_values(trials, lambda v: base_values(tuning, v, overrides.get(v, {}))))
     variants = [v["name"] for v in grid["variants"]]
     tuning_trials = tuning_table(tune_rows, tuning, variants)
-    return replace(tuned, tuning=tuning, tuning_trials=tuning_trials, untuned=untuned, missing=missing)
+    return replace(tuned, tuning=tuning, tuning_trials=tuning_trials, untuned=untuned, missing=missing, earlier=earlier)
 
 
 def _json_artifact(tracker: RunReader, launch_id: str, name: str) -> dict[str, Any] | None:
@@ -466,6 +476,7 @@ def select(ablation: Ablation, variants: list[str] | None = None, baseline: str 
         tuning_trials=tuning_trials,
         untuned=untuned,
         missing=[(variant, key) for variant, key in ablation.missing if variant in chosen],
+        earlier={variant: n for variant, n in ablation.earlier.items() if variant in chosen},
     )
 
 

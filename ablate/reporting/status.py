@@ -5,16 +5,19 @@ Reads through ``tracking`` and writes nothing (not even an empty SQLite file whe
 
 from __future__ import annotations
 
+import json
 import re
 import time
 from collections import Counter, defaultdict
 from collections.abc import Iterable
+from typing import Any
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment, storage_name
-from ablate.launch.grid import expand, tuning_trials
+from ablate.launch.grid import chosen_trials, expand, tuning_trials
 from ablate.launch.secrets import shown_uri
 from ablate.launch.store import resolve_uri
+from ablate.reporting.planned import earlier_trials, plan_keys
 from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
@@ -45,6 +48,28 @@ def _when(ms: int) -> str:
     return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ms / 1000))
 
 
+def _document(tracker: RunReader, launch: LaunchRun, name: str) -> dict[str, Any] | None:
+    try:
+        return json.loads(tracker.load_text(launch.run_id, name))
+    except Exception:  # noqa: BLE001 - no such artifact (a launch without [tune], or written by hand)
+        return None
+
+
+def current_plan(
+    tracker: RunReader, launch: LaunchRun, runs: list[TrialRun], experiment: Experiment | None = None
+) -> set[str] | None:
+    """The keys the plan holds (``reporting.planned``): with ``experiment`` (its file), the file's trials, its
+    tuning trials and stage 2 at the choices ``launch`` (the newest) recorded; else what ``launch`` recorded. None
+    where it recorded no grid, or a tuned launch no choice yet: every run of the generation counts."""
+    tuning = _document(tracker, launch, "tuning.json")
+    if experiment is not None and not (experiment.tune and tuning is None):
+        choices = {n: c["values"] for n, c in (tuning or {}).get("choices", {}).items() if c.get("tuned")}
+        trials = [*expand(experiment, every_round=True), *tuning_trials(experiment)]
+        return {t.key for t in [*trials, *chosen_trials(experiment, choices, every_round=True)]}
+    grid = _document(tracker, launch, "grid.json")
+    return None if grid is None else plan_keys(grid, tuning, {r.key: r for r in runs})
+
+
 def overview(tracking_uri: str | None) -> str:
     """One line per ablation in the store."""
     uri = shown_uri(resolve_uri(tracking_uri))
@@ -56,7 +81,9 @@ def overview(tracking_uri: str | None) -> str:
         tracker = RunReader(tracking_uri, name)
         launches = tracker.launch_runs()
         newest = launches[-1]
-        counts = Counter(s for _, s in trial_states(tracker.trial_runs(newest.generation)).values())
+        runs = tracker.trial_runs(newest.generation)
+        counted = current_plan(tracker, newest, runs)
+        counts = Counter(s for key, (_, s) in trial_states(runs).items() if counted is None or key in counted)
         generations = len({launch.generation for launch in launches})
         rows.append(
             (name, str(len(launches)), str(generations), _when(newest.start_time_ms), newest.status, describe(counts))
@@ -87,6 +114,13 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
         states = trial_states(in_generation)
         newest = generation == newest_generation
         tuning = {r.key for r in in_generation if r.tags.get("ablate.stage") == "tune"}
+        earlier: dict[str, int] = {}
+        counted = current_plan(tracker, launches[-1], in_generation, experiment) if newest else None
+        if counted is not None:  # an edited variant's earlier keys: in the store, not counted
+            names = list(dict.fromkeys(r.variant for r in in_generation))
+            earlier = earlier_trials(in_generation, counted, names)
+            states = {key: state for key, state in states.items() if key in counted}
+            tuning &= counted
         if newest and experiment is not None:
             # Stage 2's trials at the chosen values are known only after tuning: not counted until they run.
             for trial in [*tuning_trials(experiment), *expand(experiment)]:
@@ -99,6 +133,12 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
         if tuning:
             stage_counts = Counter(s for key, (_, s) in states.items() if key in tuning)
             lines.append(f"  of which tuning (stage 1): {describe(stage_counts)}")
+        if earlier:
+            listed = ", ".join(f"{n} of {variant}" for variant, n in earlier.items())
+            lines.append(
+                f"  not counted: {_count(sum(earlier.values()), 'earlier trial')} ({listed}): an earlier version "
+                "of the settings or code"
+            )
         for launch in by_generation[generation]:
             lines.append(f"  launch {_when(launch.start_time_ms)}  {launch.status:<8}  {launch.command}".rstrip())
         if newest:
