@@ -48,3 +48,18 @@ def test_the_trainers_recorded_auc_is_the_reports_on_the_same_curve():
     curve = pd.DataFrame({"episode": range(1, len(returns) + 1), "return": returns})
     curve["rolling_mean"] = curve["return"].rolling(window, min_periods=1).mean()  # as results._curve reads it
     assert recorded == trial_measures(curve, budget, (), window)["auc"]
+
+
+def test_seeds_needed_is_the_fewest_count_whose_power_reaches_the_target_and_none_past_the_largest():
+    from ablate.measures import POWER, SEED_COUNTS, seeds_needed
+
+    asked: list[int] = []
+
+    def power(n: int) -> float:
+        asked.append(n)
+        return 1.0 if n >= 12 else POWER - 0.01
+
+    assert seeds_needed(power, SEED_COUNTS) == 12
+    assert len(asked) < len(SEED_COUNTS)  # a bisection, not a scan
+    assert seeds_needed(lambda n: POWER, SEED_COUNTS) == SEED_COUNTS[0]
+    assert seeds_needed(lambda n: 0.0, SEED_COUNTS) is None and seeds_needed(power, []) is None

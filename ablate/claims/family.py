@@ -18,12 +18,11 @@ import numpy as np
 from ablate.claims.boundaries import ALPHA, Design, nominal_levels
 from ablate.claims.permutation import Question, Sample, effect_interval, iqm, p_values, permutations_for
 from ablate.design import smallest_permutation_p as smallest_p
+from ablate.measures import SEED_COUNTS
+from ablate.measures import seeds_needed as fewest_seeds
 
 BETTER, WORSE, EQUIVALENT, UNDETERMINED = "better", "worse", "equivalent", "undetermined"
 VERDICTS = (BETTER, WORSE, EQUIVALENT, UNDETERMINED)
-POWER = 0.8
-"""Share of resampled experiments that must decide a comparison for ``seeds_needed`` to count it enough."""
-SEED_COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 80, 100)
 SEEDS_CAP = SEED_COUNTS[-1]
 SEED = 20_251
 
@@ -309,17 +308,7 @@ def seeds_needed(x: Sample, y: Sample, question: Question, level: float, simulat
             hits += _claim(item, question, level, level) != UNDETERMINED
         return hits / simulations
 
-    counts = [n for n in SEED_COUNTS if smallest_p(n, n) <= level]
-    if not counts or power(counts[-1]) < POWER:
-        return None
-    lo, hi = 0, len(counts) - 1  # power grows with seeds: bisect for the first count that reaches POWER
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if power(counts[mid]) >= POWER:
-            hi = mid
-        else:
-            lo = mid + 1
-    return counts[lo]
+    return fewest_seeds(power, [n for n in SEED_COUNTS if smallest_p(n, n) <= level])
 
 
 def family_sentence(k: int, alpha: float = ALPHA, sequential: bool = False) -> str:

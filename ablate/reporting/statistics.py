@@ -14,6 +14,8 @@ from scipy import stats
 
 from ablate.claims.permutation import iqm
 from ablate.design import CONFIDENCE, smallest_p_value  # noqa: F401  (the rule --dry-run applies, one copy)
+from ablate.measures import SEED_COUNTS
+from ablate.measures import seeds_needed as fewest_seeds
 
 N_RESAMPLES = 2000
 SEED = 12345  # bootstrap resampling is seeded: the same runs give the same report
@@ -217,11 +219,7 @@ def curve_band(curves: pd.DataFrame, x: str, grid: np.ndarray) -> tuple[np.ndarr
 
 # --- seeds needed -------------------------------------------------------------------------------------------
 SEEDS_CAP = 50
-"""The most seeds per variant ``seeds_needed`` tries; past it the answer is "more than 50"."""
-SEED_COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50)
-"""Seeds per variant tried, smallest first (3 and 3 can never reach 95% with a rank test)."""
-POWER = 0.8
-"""The share of resampled experiments that must separate the difference: the usual 80% power."""
+"""The most seeds per variant ``seeds_needed`` tries for an exploratory row; past it the answer is "more than 50"."""
 SIMULATIONS, INNER_RESAMPLES = 100, 200
 
 
@@ -272,6 +270,6 @@ def seeds_needed(
             separated &= ~(x_bound if point > 0 else y_bound)
         return float(separated.mean())
 
-    if power(SEEDS_CAP) < POWER:
-        return SEEDS_CAP + 1
-    return next(n for n in SEED_COUNTS if smallest_p_value(n, n) <= 1 - CONFIDENCE and power(n) >= POWER)
+    counts = [n for n in SEED_COUNTS if n <= SEEDS_CAP and smallest_p_value(n, n) <= 1 - CONFIDENCE]
+    needed = fewest_seeds(power, counts)
+    return SEEDS_CAP + 1 if needed is None else needed
