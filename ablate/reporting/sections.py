@@ -43,16 +43,19 @@ def architecture(params: dict[str, str], env_id: str) -> str:
     activation = params.get("model.activation", "relu")
     hidden = _sizes(params)
     dense = f"dense {' → '.join(map(str, hidden))} ({activation})" if hidden else "no hidden layer"
-    if is_pong(env_id):
+    shape = _observation_shape(params, env_id)
+    if len(shape) == 3:  # an image, as the trial recorded its observation (Pong's frame difference, another game's)
+        channels, height, width = shape
+        pixels = f"{height}×{width} frame difference" if is_pong(env_id) else f"{height}×{width}×{channels} image"
         if arch == "cnn":
             from ablate.agent.policies import PONG_CONV
 
             convs = ", ".join(f"{n}@{k}×{k} stride {s}" for n, k, s, _ in PONG_CONV)
-            text = f"2-D CNN over the 80×80 frame difference: conv {convs} ({activation}), then {dense}"
+            text = f"2-D CNN over the {pixels}: conv {convs} ({activation}), then {dense}"
         elif hidden:
-            text = f"MLP over the 6,400 pixels of the 80×80 frame difference: {dense}"
+            text = f"MLP over the {channels * height * width:,} pixels of the {pixels}: {dense}"
         else:
-            text = "linear policy over the 6,400 pixels of the 80×80 frame difference (no hidden layer)"
+            text = f"linear policy over the {channels * height * width:,} pixels of the {pixels} (no hidden layer)"
         actions = {"all": "6 actions", "move": "2 actions (up, down)"}.get(params.get("action_set", ""), "")
         text += f"; {actions}" if actions else ""
     elif arch == "cnn":
@@ -71,6 +74,15 @@ def architecture(params: dict[str, str], env_id: str) -> str:
     if float(params.get("l2", 0) or 0) > 0:
         text += f"; L2 {params['l2']}"
     return text
+
+
+def _observation_shape(params: dict[str, str], env_id: str) -> tuple[int, ...]:
+    """The observation's shape as the trial recorded it (``env.obs_shape``, e.g. ``1x80x80``); a run from before
+    trials recorded it: Pong's frame difference, else a vector."""
+    recorded = params.get("env.obs_shape", "")
+    if recorded:
+        return tuple(int(n) for n in recorded.split("x"))
+    return (1, 80, 80) if is_pong(env_id) else (0,)
 
 
 def _setting_groups(overrides: dict) -> list[str]:
