@@ -64,7 +64,10 @@ def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantReco
     written: list[str] = []
     try:
         for record in records:
-            written.append(_log_one(store, launch_id, generation, record))
+            tags = {TAG_PARENT: launch_id, TAG_ROLE: ROLE, TAG_VARIANT: record.name, TAG_GENERATION: generation}
+            run = store.client.create_run(store.experiment_id(), run_name=record.name, tags=tags | record.tags)
+            written.append(run.info.run_id)
+            _fill(store, run.info.run_id, record)
     except BaseException:
         for run_id in written:
             with contextlib.suppress(Exception):  # the error that stopped the writes is the one to tell
@@ -75,12 +78,10 @@ def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantReco
     return written
 
 
-def _log_one(store: Store, launch_id: str, generation: str, record: VariantRecord) -> str:
+def _fill(store: Store, run_id: str, record: VariantRecord) -> None:
+    """Log ``record``'s params and metrics on its new run, in batches MLflow takes, and close it."""
     from mlflow.entities import Metric, Param
 
-    tags = {TAG_PARENT: launch_id, TAG_ROLE: ROLE, TAG_VARIANT: record.name, TAG_GENERATION: generation}
-    run = store.client.create_run(store.experiment_id(), run_name=record.name, tags=tags | record.tags)
-    run_id = run.info.run_id
     now = int(time.time() * 1000)
     metrics = [Metric(k, float(v), now, 0) for k, v in record.metrics.items()]
     metrics += [Metric(k, float(v), now, int(step)) for k, points in record.series.items() for step, v in points]
@@ -90,4 +91,3 @@ def _log_one(store: Store, launch_id: str, generation: str, record: VariantRecor
     for start in range(0, len(metrics), _METRICS_PER_CALL):
         store.client.log_batch(run_id, metrics=metrics[start : start + _METRICS_PER_CALL])
     store.client.set_terminated(run_id, "FINISHED")
-    return run_id
