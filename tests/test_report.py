@@ -455,6 +455,74 @@ def test_the_report_names_the_threshold_a_registered_env_stopped_at(tmp_path, mo
     assert ablation.threshold == 100.0 and ablation.primary_metric == "episodes_to_solve" and ablation.any_solved
 
 
+def test_each_variant_is_a_run_under_the_launch_holding_the_reports_curve_and_claim(tmp_path):
+    """Issue 46: MLflow's runs table and charts showed no variant. A report logs one run per variant under the
+    launch run: its curve is the report's IQM over seeds at each episode, its claim and convergence row are the
+    report's tables; a second report replaces them (one run per variant still), the trials untouched."""
+
+    def noisy(start, stop):
+        return lambda seed: np.linspace(start, stop, 40) + np.random.default_rng(seed).normal(0, 4, 40)
+
+    variants = {"a": {"curve": noisy(5, 30)}, "b": {"curve": noisy(5, 60)}, "c": {"curve": noisy(5, 12)}}
+    variants["b"]["overrides"] = {"hidden_sizes": [16]}
+    uri = make_store(tmp_path / "store", "inmlflow", variants, seeds=tuple(range(8)))
+    folder = write_report("inmlflow", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
+    reader = RunReader(uri, "inmlflow")
+    launch = reader.launches()[0].info.run_id
+    experiment = [reader.experiment_id()]
+
+    def variant_runs():
+        found = reader.client.search_runs(experiment, "tags.`ablate.role` = 'variant'")
+        return {r.data.tags["ablate.variant"]: r for r in found}
+
+    runs = variant_runs()
+    assert sorted(runs) == ["a", "b", "c"]
+    assert {r.info.run_name for r in runs.values()} == {"a", "b", "c"}  # the runs table names them
+    assert all(r.data.tags["mlflow.parentRunId"] == launch and r.info.status == "FINISHED" for r in runs.values())
+    # its settings as tables/trials.csv holds them: b's own hidden sizes, everyone's base learning rate
+    assert runs["b"].data.params["hidden_sizes"] == "[16]" and runs["b"].data.params["width"] == "16"
+    assert runs["a"].data.params["learning_rate"] == runs["b"].data.params["learning_rate"] == "0.03"
+    assert runs["b"].data.tags["ablate.changes"] == "hidden_sizes = [16]"
+    window = 8
+    for variant, run in runs.items():
+        curve = dict(reader.metric_history(run.info.run_id, "curve/iqm"))
+        assert sorted(curve) == list(range(1, 41))  # the report's episodes: 200 points over 40 episodes
+        for episode in (1, 10, 25, 40):  # the IQM over seeds of each seed's rolling mean, by hand
+            rolling = [np.mean(variants[variant]["curve"](s)[max(0, episode - window) : episode]) for s in range(8)]
+            assert curve[episode] == pytest.approx(stats.trim_mean(rolling, 0.25), rel=1e-9)
+        low = dict(reader.metric_history(run.info.run_id, "curve/low"))
+        high = dict(reader.metric_history(run.info.run_id, "curve/high"))
+        assert all(low[e] <= curve[e] <= high[e] for e in curve) and any(low[e] < high[e] for e in curve)
+    claims = pd.read_csv(folder / "tables" / "claims.csv").set_index("variant")
+    assert list(claims.verdict) == ["better", "worse"]  # b solves sooner; c never: its interval is "at least"
+    for variant, claim in claims.iterrows():
+        run = runs[variant]
+        assert run.data.tags["ablate.verdict"] == claim.verdict and run.data.tags["ablate.reference"] == "a"
+        metrics = run.data.metrics
+        assert metrics["claim/change"] == pytest.approx(claim.change, rel=1e-9)
+        for key, end in (("claim/low", claim.change_low), ("claim/high", claim.change_high)):
+            assert metrics[key] == pytest.approx(end, rel=1e-9) if np.isfinite(end) else key not in metrics
+        assert (metrics["claim/n_variant"], metrics["claim/n_reference"]) == (claim.n_variant, claim.n_reference)
+    assert np.isinf(claims.change_high["c"]) and runs["c"].data.tags["ablate.bound"] == "at least"
+    assert "ablate.verdict" not in runs["a"].data.tags  # the baseline claims nothing
+    convergence = pd.read_csv(folder / "tables" / "convergence.csv").set_index("variant")
+    for variant, row in convergence.iterrows():
+        metrics = runs[variant].data.metrics
+        for column in ("fraction_solved", "episodes_iqm", "auc_iqm", "seeds_run"):
+            assert metrics[f"convergence/{column}"] == pytest.approx(row[column], rel=1e-9), (variant, column)
+
+    trials_before = reader.trial_runs()
+    write_report("inmlflow", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
+    again = variant_runs()
+    assert (
+        sorted(again) == ["a", "b", "c"]
+        and len(reader.client.search_runs(experiment, "tags.`ablate.role` = 'variant'")) == 3
+    )
+    assert all(again[v].info.run_id != runs[v].info.run_id for v in again)  # replaced, not appended to
+    assert len(reader.metric_history(again["b"].info.run_id, "curve/iqm")) == 40
+    assert [(t.run_id, t.status) for t in reader.trial_runs()] == [(t.run_id, t.status) for t in trials_before]
+
+
 def test_the_record_shows_the_report_command_as_typed(store, tmp_path, monkeypatch):
     # issue 18 item 7: `ablate report experiments/activations.toml` was recorded as `ablate report activations`
     _, uri = store

@@ -5,6 +5,7 @@ from test_curve import rows
 
 from ablate.launch.curve import CurveReducer
 from ablate.launch.tracking import POINT_METRICS, Tracker
+from ablate.launch.variant_runs import VariantRecord, log_variant_runs, variant_runs
 from ablate.reporting.reader import RunReader
 
 
@@ -104,5 +105,36 @@ def test_only_the_writer_and_the_reader_import_mlflow_and_run_never_imports_repo
             if relative.startswith("launch/") and any(n.startswith("ablate.reporting") for n in names):
                 upward.add(relative)
     # launch/patches.py: MLflow's one private name changed, for the writer's process (test_patches).
-    assert importers == {"launch/tracking.py", "launch/mlflow_store.py", "reporting/reader.py", "launch/patches.py"}
+    # launch/variant_runs.py: the report's variant runs, written with MLflow's entities.
+    writers = {"launch/tracking.py", "launch/mlflow_store.py", "launch/variant_runs.py", "launch/patches.py"}
+    assert importers == writers | {"reporting/reader.py"}
     assert not upward  # the report after a launch is written by ablate/commands.py, above both layers
+
+
+def test_variant_runs_are_replaced_whole_and_a_failed_write_keeps_the_earlier_ones(tracking_uri):
+    tracker = Tracker(tracking_uri, "variants")
+    launch = tracker.start_launch("g", "launch", {}, {})
+    trial = tracker.start_trial(launch, "g", "a-s0-abc", "a", 0, {"seed": 0}, "commit")
+    records = [
+        VariantRecord("a", {"learning_rate": "0.03"}, {"ablate.verdict": "better"}, {"claim/change": -12.5}),
+        VariantRecord("b", series={"curve/iqm": [(1, 9.0), (2, 11.0)]}),
+    ]
+    first = log_variant_runs(tracker, launch, records)
+    run = tracker.client.get_run(first[0])
+    assert (run.info.run_name, run.data.params, run.data.metrics) == (
+        "a",
+        {"learning_rate": "0.03"},
+        {"claim/change": -12.5},
+    )
+    assert run.data.tags["ablate.role"] == "variant" and run.data.tags["mlflow.parentRunId"] == launch
+    assert [(m.step, m.value) for m in tracker.client.get_metric_history(first[1], "curve/iqm")] == [
+        (1, 9.0),
+        (2, 11.0),
+    ]
+    second = log_variant_runs(tracker, launch, records)
+    assert [r.info.run_id for r in variant_runs(tracker, launch)] == second and not set(first) & set(second)
+    refused = VariantRecord("c", metrics={"claim!": 1.0})  # a name MLflow refuses: the third write fails
+    with pytest.raises(Exception, match="claim!"):
+        log_variant_runs(tracker, launch, [*records, refused])
+    assert [r.info.run_id for r in variant_runs(tracker, launch)] == second  # the earlier runs, nothing added
+    assert tracker.client.get_run(trial).data.tags["ablate.role"] == "trial"

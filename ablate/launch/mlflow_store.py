@@ -1,6 +1,7 @@
 """The tracking layer's shared part: an MLflow store opened (every check that can fail, in one line), its
-experiment, its trial runs read back, and the tags both sides use. The writer (``ablate.launch.tracking``)
-and the reader (``ablate.reporting.reader``) build on it; the three are the only modules that import MLflow.
+experiment, its trial runs read back, and the tags both sides use. The writer (``ablate.launch.tracking``),
+the report's variant runs (``ablate.launch.variant_runs``) and the reader (``ablate.reporting.reader``) build on
+it; they are the only modules that import MLflow (with ``launch.patches``).
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
 """The driver's side of MLflow: write launches and trials as runs in a store ``mlflow_store.Store`` opened
-(``ablate.reporting.reader`` reads them back for the report; the three are the only modules that import MLflow).
+(``ablate.reporting.reader`` reads them back for the report, ``launch.variant_runs`` writes the report's variant runs;
+they and ``mlflow_store`` are the only modules that import MLflow).
 
 One writer: the driver process owns every write (trials run elsewhere and send their metrics through
 the scheduler), so an SQLite store never sees two writers; a tracking server works the same way.

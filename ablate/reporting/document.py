@@ -23,8 +23,9 @@ import pandas as pd
 from ablate.config import ConfigError
 from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
 from ablate.launch.secrets import Shown, shown_command
+from ablate.launch.variant_runs import log_variant_runs
 from ablate.reporting import discussion, render
-from ablate.reporting.data import report_data
+from ablate.reporting.data import ReportData, report_data
 from ablate.reporting.figures import (
     figure_improvement,
     figure_observation,
@@ -42,6 +43,7 @@ from ablate.reporting.results import Ablation, NoResults, load_ablation, select
 from ablate.reporting.text import fmt
 from ablate.reporting.typeset import compile_pdf as print_pdf
 from ablate.reporting.typeset import page_counts, typst
+from ablate.reporting.variant_records import variant_records
 from ablate.reporting.writers import CSS, _inline
 
 
@@ -209,18 +211,13 @@ def build_report(
     staging.chmod(0o755)  # mkdtemp's 0700 would make the swapped-in report readable by its owner only
     try:
         tracker = RunReader(tracking_uri, name)
-        pdf_note = _build(ablation, tracker, staging, pdf, command, discussion.read(folder), folder)
+        pdf_note, data = _build(ablation, tracker, staging, pdf, command, discussion.read(folder), folder)
         discussion.keep(folder, staging)
         _swap(staging, folder)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    attach_note = None
-    if attach:
-        try:
-            tracker.attach_report(ablation.launch["run_id"], folder)
-        except Exception as error:  # noqa: BLE001 - a read-only or remote store: the report on disk stands
-            attach_note = f"not attached to the launch run: {str(error).splitlines()[0][:200]}"
+    attach_note = _attach(tracker, ablation.launch["run_id"], folder, data) if attach else None
     pages = None
     if pdf_note is None:
         try:
@@ -231,6 +228,20 @@ def build_report(
     return ReportResult(
         folder, pdf_note, attach_note, _generation_note(ablation), pages, missing, changed_file_note(ablation)
     )
+
+
+def _attach(tracker: RunReader, launch_id: str, folder: Path, data: ReportData) -> str | None:
+    """Attach the written report to its launch's run and replace the launch's variant runs (one per variant,
+    ``launch.variant_runs``: MLflow's runs table and charts show the variants); why not, or None."""
+    try:
+        tracker.attach_report(launch_id, folder)
+    except Exception as error:  # noqa: BLE001 - a read-only or remote store: the report on disk stands
+        return f"not attached to the launch run: {str(error).splitlines()[0][:200]}"
+    try:
+        log_variant_runs(tracker, launch_id, variant_records(data))
+    except Exception as error:  # noqa: BLE001 - as above: the report on disk and on the launch run stands
+        return f"its variant runs were not written to the store: {str(error).splitlines()[0][:200]}"
+    return None
 
 
 def _swap(staging: Path, folder: Path) -> None:
@@ -252,8 +263,9 @@ def _build(
     command: Shown,
     written: discussion.Discussion,
     final: Path,
-) -> str | None:
-    """Write the report into ``folder`` (the staging folder that will become ``final``); why no PDF, or None."""
+) -> tuple[str | None, ReportData]:
+    """Write the report into ``folder`` (the staging folder that will become ``final``); why no PDF (or None),
+    and the data it was written from."""
     for sub in ("figures", "tables", "videos"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     data = report_data(ablation, command)  # every table the report writes and words, computed once
@@ -289,8 +301,8 @@ def _build(
     title, day = f"Ablation report: {ablation.name}", time.strftime("%Y-%m-%d")
     (folder / "report.typ").write_text(typst(blocks, folder, title, day))
     if not pdf:
-        return "no PDF (--no-pdf)"
-    return print_pdf(folder / "report.typ", folder / "report.pdf")
+        return "no PDF (--no-pdf)", data
+    return print_pdf(folder / "report.typ", folder / "report.pdf"), data
 
 
 def terminal_summary(folder: Path) -> str:

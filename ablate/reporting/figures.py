@@ -87,9 +87,17 @@ def _reference(ablation: Ablation) -> str:
     return "the baseline" if name == "baseline" else f"the baseline variant, {name}"
 
 
-def _episode_grid(ablation: Ablation) -> np.ndarray:
+def episode_grid(ablation: Ablation) -> np.ndarray:
+    """The episodes the learning curves are drawn at: ~200 over the budget, the report's resolution."""
     budget = int(ablation.finished.budget.max())
     return np.unique(np.linspace(1, budget, 200).astype(int)).astype(float)
+
+
+def variant_band(ablation: Ablation, variant: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``variant``'s learning curve at ``episode_grid``: the IQM over seeds and its 95% band (``curve_band``), as
+    Figure "each variant against its reference" draws it and its MLflow run holds it; None without curves."""
+    curves = ablation.curves[ablation.curves.variant == variant]
+    return curve_band(curves, "episode", episode_grid(ablation)) if len(curves) else None
 
 
 def _band_text(ablation: Ablation) -> str:
@@ -106,7 +114,7 @@ def ablation_window(ablation: Ablation) -> int:
 
 
 def figure_overview(ablation: Ablation, folder: Path) -> Figure:
-    grid = _episode_grid(ablation)
+    grid = episode_grid(ablation)
     fig, ax = plt.subplots(figsize=(10, 5))
     for variant in ablation.variants:
         curves = ablation.curves[ablation.curves.variant == variant]
@@ -138,7 +146,7 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     others = [v for v in ablation.variants if v != ablation.baseline]
     if not others:
         return None
-    grid = _episode_grid(ablation)
+    grid = episode_grid(ablation)
     columns = min(3, len(others))
     rows = int(np.ceil(len(others) / columns))
     fig, axes = plt.subplots(
@@ -148,15 +156,14 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     for ax, variant in zip(axes.flat, others, strict=False):
         reference = ablation.reference(variant)
         if reference not in bands:
-            ref_curves = ablation.curves[ablation.curves.variant == reference]
-            bands[reference] = curve_band(ref_curves, "episode", grid) if len(ref_curves) else None
+            bands[reference] = variant_band(ablation, reference)
         if bands[reference] is not None:
             centre, low, high = bands[reference]
             ax.plot(grid, centre, color=BASELINE_COLOUR, linewidth=1.6, label=reference)
             ax.fill_between(grid, low, high, color=BASELINE_COLOUR, alpha=0.18, linewidth=0)
-        curves = ablation.curves[ablation.curves.variant == variant]
-        if len(curves):
-            centre, low, high = curve_band(curves, "episode", grid)
+        band = variant_band(ablation, variant)
+        if band is not None:
+            centre, low, high = band
             colour = _colour(ablation, variant)
             ax.plot(grid, centre, color=colour, linewidth=1.8, label=variant)
             ax.fill_between(grid, low, high, color=colour, alpha=0.25, linewidth=0)

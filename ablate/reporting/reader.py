@@ -1,6 +1,7 @@
 """The report's side of MLflow: read an ablation's launches, trials, curves and artifacts back from a store.
 
-``ablate.launch.tracking`` writes them (the driver); this and it are the only modules that import MLflow.
+``ablate.launch.tracking`` writes them (the driver), ``ablate.launch.variant_runs`` the report's variant runs;
+these and ``mlflow_store`` are the only modules that import MLflow.
 """
 
 from __future__ import annotations

@@ -1,0 +1,93 @@
+"""The report's variants as MLflow runs: one run per variant, nested under its launch's run, so MLflow's runs
+table has a row per variant (its verdict) and its chart view a curve per variant (``curve/iqm``).
+
+The report computes each variant's ``VariantRecord`` (``ablate.reporting.variant_records``); this writes them. A
+report built again replaces the launch's variant runs: MLflow's params cannot change and a metric logged again
+at a step adds a second point there, so the runs are made anew rather than updated.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from ablate.launch.mlflow_store import TAG_GENERATION, TAG_PARENT, TAG_ROLE, TAG_VARIANT, Store
+
+ROLE = "variant"
+"""``ablate.role`` of a variant run (a launch's is ``launch``, a trial's ``trial``)."""
+TAG_VERDICT = "ablate.verdict"
+"""The verdict of the variant's primary claim against its reference; absent where it has none (the baseline)."""
+_METRICS_PER_CALL, _PARAMS_PER_CALL = 1000, 100  # MLflow's log_batch limits
+
+
+@dataclass(frozen=True)
+class VariantRecord:
+    """What one variant's run holds, as plain values: the reporting layer computes it, this layer writes it."""
+
+    name: str
+    """The variant's name: the run's name and its ``ablate.variant`` tag."""
+    params: dict[str, str] = field(default_factory=dict)
+    """Its settings, knob by knob, as the report's tables show them."""
+    tags: dict[str, str] = field(default_factory=dict)
+    metrics: dict[str, float] = field(default_factory=dict)
+    """Single values (its claim, its summary measures), logged at step 0."""
+    series: dict[str, list[tuple[int, float]]] = field(default_factory=dict)
+    """Metric series: per key, ``(episode, value)`` points (``curve/iqm``: its learning curve)."""
+
+
+def variant_runs(store: Store, launch_id: str) -> list[Any]:
+    """The variant runs nested under ``launch_id`` (MLflow ``Run`` objects), oldest first."""
+    experiment_id = store.experiment_id(create=False)
+    if experiment_id is None:
+        return []
+    query = f"tags.`{TAG_ROLE}` = '{ROLE}' and tags.`{TAG_PARENT}` = '{launch_id}'"
+    runs, token = [], None
+    while True:
+        page = store.client.search_runs(
+            [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
+        )
+        runs.extend(page)
+        token = page.token
+        if not token:
+            return runs
+
+
+def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantRecord]) -> list[str]:
+    """Replace the variant runs of ``launch_id`` by one run per record; their run ids, in the records' order.
+    The earlier runs are deleted only once every new one is written; a write that fails deletes what it wrote
+    and leaves the earlier runs as they were."""
+    earlier = [run.info.run_id for run in variant_runs(store, launch_id)]
+    generation = store.client.get_run(launch_id).data.tags.get(TAG_GENERATION, "")
+    written: list[str] = []
+    try:
+        for record in records:
+            tags = {TAG_PARENT: launch_id, TAG_ROLE: ROLE, TAG_VARIANT: record.name, TAG_GENERATION: generation}
+            run = store.client.create_run(store.experiment_id(), run_name=record.name, tags=tags | record.tags)
+            written.append(run.info.run_id)
+            _fill(store, run.info.run_id, record)
+    except BaseException:
+        for run_id in written:
+            with contextlib.suppress(Exception):  # the error that stopped the writes is the one to tell
+                store.client.delete_run(run_id)
+        raise
+    for run_id in earlier:
+        store.client.delete_run(run_id)
+    return written
+
+
+def _fill(store: Store, run_id: str, record: VariantRecord) -> None:
+    """Log ``record``'s params and metrics on its new run, in batches MLflow takes, and close it."""
+    from mlflow.entities import Metric, Param
+
+    now = int(time.time() * 1000)
+    metrics = [Metric(k, float(v), now, 0) for k, v in record.metrics.items()]
+    metrics += [Metric(k, float(v), now, int(step)) for k, points in record.series.items() for step, v in points]
+    params = [Param(k, v) for k, v in record.params.items()]
+    for start in range(0, len(params), _PARAMS_PER_CALL):
+        store.client.log_batch(run_id, params=params[start : start + _PARAMS_PER_CALL])
+    for start in range(0, len(metrics), _METRICS_PER_CALL):
+        store.client.log_batch(run_id, metrics=metrics[start : start + _METRICS_PER_CALL])
+    store.client.set_terminated(run_id, "FINISHED")
