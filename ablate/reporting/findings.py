@@ -260,7 +260,7 @@ def _effect_words(row: pd.Series, question: Question) -> str:
     if question.relative:  # the table's change is in percent
 
         def side(x: float) -> str:
-            return f"{_pct(abs(x) / 100)} {'fewer' if x < 0 else 'more'}" if x else "no change"
+            return f"{_pct(abs(x) / 100)} {'fewer' if x < 0 else 'more'}" if x else "0%"
 
         low, high = row.change_low, row.change_high
         if np.isnan(low) or np.isnan(high):
@@ -277,7 +277,8 @@ def _effect_words(row: pd.Series, question: Question) -> str:
             interval = f"interval {_pct(low / 100)} to {_pct(high / 100)} more"
         else:
             interval = f"interval {side(low)} to {side(high)}"
-        return f"{side(row.change)} {name} ({interval})"
+        change = f"no change in {name}" if row.change == 0 else f"{side(row.change)} {name}"
+        return f"{change} ({interval})"
     if np.isnan(row.change_low):
         return f"{name} {_signed(row.change)} (no interval)"
     low = "−∞" if not np.isfinite(row.change_low) else _signed(row.change_low)
