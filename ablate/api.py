@@ -221,16 +221,21 @@ class Results:
     ``claims``: the report's primary claims, one row per line of its Claims section, as ``tables/claims.csv``
     (docs/python.md has a table of its columns): ``variant``, ``reference``, ``metric``, ``verdict`` (better,
     worse, equivalent, undetermined), ``change``, ``change_low``, ``change_high`` (the simultaneous interval, in
-    ``change_unit``), ``bound``, ``n_variant``, ``n_reference``, ``level`` (Holm's), ``seeds_needed``, ...
+    ``change_unit``), ``bound``, ``n_variant``, ``n_reference``, ``level`` (Holm's), ``seeds_needed``,
+    ..., then each side's settings (``variant.learning_rate``, ``reference.hidden_sizes``, ...: the same settings
+    as ``trials``).
     ``trials``: every evaluation trial the report uses, as ``tables/trials.csv``: variant, seed, ``stage``
     (``eval``: the claims' trials; ``base``: a tuned ablation's trials at the shared base values only),
     ``at_base_values`` (tuned: in the "depends on the learning rate?" comparison), the trial's settings
     (``learning_rate``, ``episodes_per_update``, ``gamma``, ``l2``, each knob a variant writes: ``hidden_sizes``,
-    ``depth``, ``width``, ...), status, episodes to solve, AUC, ...
-    ``curves``: long form, one row per trial and episode (variant, seed, episode, return, rolling_mean, wall_s).
-    ``convergence``: one row per variant (solved seeds, episodes to solve with intervals, final return, ...),
-    as ``tables/convergence.csv``. ``comparisons``: each variant against its reference, per metric, each judged
-    on its own (exploratory, not claims), as ``tables/comparisons.csv``; its columns: ``variant``, ``reference``,
+    ``depth``, ``width``, ...; typed as the schema declares: ``hidden_sizes`` a tuple, a table knob one column per
+    key, ``model_args.width``), status, episodes to solve, AUC, ...
+    ``curves``: long form, one row per trial and episode (key, variant, seed, stage, episode, return, rolling_mean,
+    wall_s). ``convergence``: long form of ``tables/convergence.csv``: per variant (solved seeds, episodes to solve
+    with intervals, ``budget``, ...) one row per checkpoint, an ``episode`` (``return_iqm`` and its interval) or a
+    ``return_level`` (``episodes_to_level_median``, ``reached``); no budget in a column's name.
+    ``comparisons``: each variant against its reference, per metric, each judged on its own (exploratory, not
+    claims), as ``tables/comparisons.csv``; its columns: ``variant``, ``reference``,
     ``metric``; ``point``, ``low``, ``high`` (positive is better: episodes 1 - IQM ratio, returns the IQM
     difference); ``change``, ``change_low``, ``change_high`` in ``change_unit`` (the report's sign and units:
     episodes the % change of the IQM, + is more episodes; returns the difference); ``verdict`` (exploratory:
@@ -264,12 +269,21 @@ class Results:
 
         return trials_table(self.ablation)
 
-    @property
+    @cached_property
     def curves(self) -> pd.DataFrame:
-        return self.ablation.curves
+        from ablate.reporting.tables import curves_table
+
+        return curves_table(self.ablation)
 
     @cached_property
     def convergence(self) -> pd.DataFrame:
+        from ablate.reporting.tables import convergence_long
+
+        return convergence_long(self._convergence_by_variant)
+
+    @cached_property
+    def _convergence_by_variant(self) -> pd.DataFrame:
+        """``tables/convergence.csv``: one row per variant, budgets and levels in the column names."""
         from ablate.reporting.tables import convergence_table
 
         return convergence_table(self.ablation)
@@ -287,8 +301,9 @@ class Results:
     @cached_property
     def claims(self) -> pd.DataFrame:
         from ablate.reporting.comparisons import claims_table
+        from ablate.reporting.tables import side_settings
 
-        return claims_table(self.ablation)
+        return side_settings(claims_table(self.ablation), self.ablation)
 
     @cached_property
     def comparisons(self) -> pd.DataFrame:
@@ -306,7 +321,7 @@ class Results:
             "curves": lambda folder: figures.figure_overview(self.ablation, folder),
             "per_seed": lambda folder: figures.figure_per_seed(self.ablation, folder),
             "improvement": lambda folder: figures.figure_improvement(self.ablation, self.comparisons, folder),
-            "parameters": lambda folder: figures.figure_parameters(self.ablation, self.convergence, folder),
+            "parameters": lambda folder: figures.figure_parameters(self.ablation, self._convergence_by_variant, folder),
             "wallclock": lambda folder: figures.figure_wallclock(self.ablation, folder),
         }
         if name not in draw:

@@ -442,7 +442,7 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
             check_experiment(experiment)
             trials = select(expand(experiment), args.only, args.seeds)
             if args.dry_run:
-                code = dry_run(experiment, trials, args.tracking_uri)
+                code = dry_run(experiment, trials, args.tracking_uri, args.report)
                 warn_design(experiment)
                 return code
             warn_design(experiment)  # before any compute

@@ -1,5 +1,6 @@
 """``ablate run --dry-run``: the trials a run would start, listed with their keys; nothing started or written.
-With the two figures the progress line gives: round 1's time and the most the launch can take.
+Its cost comes first: the trials' (the two figures the progress line gives: round 1's time and the most the
+launch can take), the start's and the report's.
 """
 
 from __future__ import annotations
@@ -14,9 +15,33 @@ from ablate.launch.clock import clock
 from ablate.launch.grid import GridTrial, expand, tuning_trials
 from ablate.launch.rounds import Rounds, dry_run_lines
 
+START_S = 31.0
+"""Seconds a launch spends outside its trials (starting a local Ray and opening the store, then shutting Ray
+down): measured as ``ablate.run`` of experiments/quickstart.toml on 2 shared cores, 1:37 against the progress
+line's 1:06 of trials. Nothing in the store records it, so the dry run says it is a guess."""
+REPORT_S = 46.0
+"""Seconds ``ablate run`` spends writing the report at the end (Markdown, HTML, PDF): measured as ``ablate report``
+of the same quickstart store (PDF of 9 pages), on the same 2 cores while other work ran."""
 
-def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None) -> str:
-    """The two figures a launch's progress line gives, before anything runs: the time of round 1 (with its
+
+def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, report: bool = True) -> str:
+    """The whole command's time, first: the trials' (``trial_time``), the start's and the report's, each with
+    how it was estimated."""
+    overhead = START_S + (REPORT_S if report else 0.0)
+    parts = f"~{clock(START_S)} to start" + (f" and ~{clock(REPORT_S)} for the report" if report else "")
+    guess = f"{parts}: a guess, measured once on a quickstart on 2 cores"
+    trials_words, left, most = trial_time(experiment, trials, tracking_uri)
+    if left is None:
+        return f"time: {trials_words}; plus {guess}"
+    total = f"~{clock(left + overhead)}" + (f", at most ~{clock(most + overhead)}" if most is not None else "")
+    return f"time: {total} in all: {trials_words}; {guess}"
+
+
+def trial_time(
+    experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None
+) -> tuple[str, float | None, float | None]:
+    """The trials' time in words, with the two figures a launch's progress line gives, before anything runs (both
+    None without earlier runs to cost them from): the time of round 1 (with its
     tuning) and the most the launch can take (every comparison to ``max`` seeds, round after round), from the
     store's earlier runs of these trials (and of their variants); without any, a guess in trial counts."""
     from ablate.launch.estimate import estimate
@@ -47,8 +72,8 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     more = sum(len(r) for r in possible)
     rounds = f" and at most {more} more in later rounds" if more else ""
     if left is None or most is None:
-        return (
-            f"time: no earlier run of these trials in the store to cost them from; a guess in trials: round 1 runs "
+        words = (
+            f"no earlier run of these trials in the store to cost them from; a guess in trials: round 1 runs "
             f"{len(todo) + len(later)} trials{rounds} on {slots} slot(s)"
             + (
                 f", so at most ~{(len(todo) + len(later) + more) / (len(todo) + len(later)):.1f}x round 1's time"
@@ -56,10 +81,11 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
                 else ""
             )
         )
-    words = f"~{clock(left)} for round 1" if more else f"~{clock(left)}"
-    upper = f", at most ~{clock(most)} in all" if more else ""
+        return words, None, None
+    words = f"trials ~{clock(left)} for round 1" if more else f"trials ~{clock(left)}"
+    upper = f", at most ~{clock(most)}" if more else ""
     source = f"from the store's earlier runs, on {slots} slot(s)"
-    return f"time: {words}{upper} ({len(todo) + len(later)} trials{rounds}; {source})"
+    return f"{words}{upper} ({len(todo) + len(later)} trials{rounds}; {source})", left, most if more else None
 
 
 def costed(trials: list[GridTrial], earlier: dict[str, float]) -> dict[str, float]:
@@ -94,12 +120,15 @@ def earlier_costs(experiment: Experiment, tracking_uri: str | None, keys: list[s
         return {}
 
 
-def dry_run(experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None = None) -> int:
+def dry_run(
+    experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None = None, report: bool = True
+) -> int:
     """``ablate run --dry-run``: the trials a run would consider, and nothing started or written. With
     ``[tune]``: stage 1 (every candidate on the tuning seeds), then stage 2, whose chosen values are known only
     after tuning (listed "after tuning"; the base-value trials are the untuned ones, with their keys)."""
     overrides = {v.name: ", ".join(f"{k}={json.dumps(x)}" for k, x in v.overrides) for v in experiment.variants}
     total = len(expand(experiment))
+    print(time_line(experiment, trials, tracking_uri, report))  # first: `| head` keeps it
     rows = [("variant", "seed", "key", "overrides")]
     if experiment.tune is None:
         print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
@@ -138,6 +167,5 @@ def dry_run(experiment: Experiment, trials: list[GridTrial], tracking_uri: str |
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3])
-    print(time_line(experiment, trials, tracking_uri))
     print("a real run skips the trials already finished in the newest generation (see: ablate status)")
     return 0  # EXIT_OK

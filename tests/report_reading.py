@@ -213,7 +213,7 @@ def check_rank_table(text: str, data: ReportData) -> list[str]:
     on each metric it shows (episodes to solve, AUC), and the primary claim."""
     problems = []
     claims = {} if data.claims is None else dict(zip(data.claims.variant, data.claims.verdict, strict=True))
-    table = data.convergence.set_index("variant")
+    table = data.convergence.drop_duplicates("variant").set_index("variant")
     rows = _table(section(text, "Claims"))
     for entry in rows:
         variant = entry["variant"]
@@ -380,7 +380,7 @@ def check_comparisons(text: str, data: ReportData) -> list[str]:
 def check_results_table(text: str, data: ReportData) -> list[str]:
     """Appendix C's episodes table: seeds, solved and the IQM with its interval, against the convergence table."""
     problems = []
-    table = data.convergence.set_index("variant")
+    table = data.convergence.drop_duplicates("variant").set_index("variant")
     rows = re.findall(
         r"^\| (\S+) \| (\d+) \| (\d+)/(\d+) \| [^|]+ \| ([^|]+) \|", section(text, "Results (generated)"), re.M
     )

@@ -19,6 +19,7 @@ from stores import fresh_store
 import ablate
 from ablate.api import StoreNotFound
 from ablate.cli import main
+from ablate.reporting.tables import convergence_long
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -75,6 +76,12 @@ def test_quickstart_notebook_runs_and_shows_a_table_and_a_figure(notebook_run):
     # issue 27: a result, not the mechanics: a tuned ablation whose seeds all solve
     results = ablate.load("quickstart", tracking_uri=f"sqlite:///{folder / 'quickstart-mlflow.db'}")
     assert (results.convergence.solved == results.convergence.seeds_run).all() and len(results.tuning) == 6
+    # issue 46: tidy tables: each claim's sides' settings, real values, curves by trial and stage
+    claim = results.claims.iloc[0]
+    assert claim["variant.hidden_sizes"] == (32,) and claim["reference.hidden_sizes"] == (8,)
+    assert results.trials.hidden_sizes.map(type).eq(tuple).all()
+    assert set(results.curves.stage) == {"eval", "base"} and set(results.curves.key) == set(results.trials.key)
+    assert {"budget", "episode", "return_iqm"} <= set(results.convergence.columns)
     assert (
         results.ablation.tuning["choices"]["narrow"]["values"] != results.ablation.tuning["choices"]["wide"]["values"]
     )
@@ -108,6 +115,8 @@ def test_load_returns_the_tables_ablate_report_writes(notebook_run, tmp_path):
         (results.claims, "claims"),
     ):
         written = pd.read_csv(tmp_path / "quickstart" / "tables" / f"{name}.csv")
+        if name == "convergence":  # the file keeps one row per variant; the frame is its long form
+            written = pd.read_csv(io.StringIO(convergence_long(written).to_csv(index=False)))
         through_csv = pd.read_csv(io.StringIO(frame.to_csv(index=False)))  # the same text round trip
         pd.testing.assert_frame_equal(through_csv, written, check_exact=False, rtol=1e-12)
     assert (

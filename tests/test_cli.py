@@ -12,6 +12,7 @@ import pytest
 
 from ablate.cli import main
 from ablate.experiment import load_experiment
+from ablate.launch.clock import clock
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -237,11 +238,11 @@ def test_run_dry_run_lists_the_chosen_trials_and_starts_nothing(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
-    assert lines[0] == "tiny: 4 of 9 trials (dry run: nothing started or written)"
+    assert lines[0].startswith("time: ") and lines[1] == "tiny: 4 of 9 trials (dry run: nothing started or written)"
     from ablate.launch.grid import expand
 
     expected = [t for t in expand(load_experiment(path)) if t.variant != "narrow" and t.seed in (0, 2)]
-    rows = [line.split() for line in lines[2:6]]
+    rows = [line.split() for line in lines[3:7]]
     assert [(r[0], int(r[1]), r[2]) for r in rows] == [(t.variant, t.seed, t.key) for t in expected]
     assert rows[0][3:] == ["hidden_sizes=[8,", "8]"]
     assert lines[-1] == "NO RAY NO MLFLOW"
@@ -331,8 +332,8 @@ def test_run_dry_run_takes_a_name_in_any_script_and_shows_its_storage_name(tmp_p
     assert main(["run", str(path), "--dry-run"]) == 0
     lines = capsys.readouterr().out.splitlines()
     stored = storage_name("实验é")
-    assert lines[0] == "实验é: 2 of 2 trials (dry run: nothing started or written)"
-    assert lines[1].startswith(f"stored as {stored!r}: reports/{stored}/, the MLflow experiment")
+    assert lines[1] == "实验é: 2 of 2 trials (dry run: nothing started or written)"
+    assert lines[2].startswith(f"stored as {stored!r}: reports/{stored}/, the MLflow experiment")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["实验.toml"]  # nothing written
 
 
@@ -397,10 +398,10 @@ def test_dry_run_of_a_tuned_file_lists_stage_1_then_stage_2_after_tuning(tmp_pat
     assert main(["run", str(path), "--dry-run", "--seeds", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert (
-        lines[0] == "tuned: 4 tuning trials, then 2 at the base values and up to 1 at the chosen values (dry run: "
+        lines[1] == "tuned: 4 tuning trials, then 2 at the base values and up to 1 at the chosen values (dry run: "
         "nothing started or written)"
     )
-    rows = [line.split() for line in lines[2:-2]]
+    rows = [line.split() for line in lines[3:-1]]
     experiment = load_experiment(path)
     tuning = tuning_trials(experiment)  # --seeds never narrows the tuning seeds
     assert [(r[0], r[2], r[3]) for r in rows[:4]] == [(t.variant, str(t.seed), t.key) for t in tuning]
@@ -414,8 +415,8 @@ def test_dry_run_only_narrows_both_stages_to_the_variants_asked_for(tmp_path, ca
     path.write_text(TUNED.replace('name = "own"\nlearning_rate = 0.001', 'name = "b"\nhidden_sizes = [8]'))
     assert main(["run", str(path), "--dry-run", "--only", "b"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0].startswith("tuned: 4 tuning trials, then 2 at the base values and up to 2 at the chosen values")
-    assert {line.split()[0] for line in lines[2:-3]} == {"b"} and lines[-3].startswith("time: ")
+    assert lines[1].startswith("tuned: 4 tuning trials, then 2 at the base values and up to 2 at the chosen values")
+    assert {line.split()[0] for line in lines[3:-2]} == {"b"} and lines[0].startswith("time: ")
 
 
 @pytest.mark.parametrize("seeds", [2, 1000])
@@ -435,6 +436,21 @@ def test_dry_run_into_a_pipe_its_reader_closed_exits_quietly(tmp_path, seeds):
     os.close(write)
     if seeds != 2:
         with os.fdopen(read) as reader:
-            assert reader.readline().startswith(f"smoke: {2 * seeds} of {2 * seeds} trials")
+            assert reader.readline().startswith("time: ")  # the cost first, where `| head -1` keeps it
     _, err = proc.communicate(timeout=120)
     assert (proc.returncode, err) == (128 + 13, "")
+
+
+def test_dry_run_prints_its_cost_first_with_the_start_and_the_report(tmp_path, capsys):
+    # issue 46: the cost came last (`| head` lost it) and left out the start and the report (~0:44 said, 1:18 taken)
+    from ablate.dry_run import REPORT_S, START_S
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    assert main(["run", str(path), "--dry-run"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.startswith("time: ") and "a guess" in first, first
+    assert f"~{clock(START_S)} to start" in first and f"~{clock(REPORT_S)} for the report" in first, first
+    assert main(["run", str(path), "--dry-run", "--no-report"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "to start" in first and "report" not in first, first

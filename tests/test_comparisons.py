@@ -272,3 +272,22 @@ def test_every_claims_column_is_documented_in_python_md_and_help():
         assert f"`{column}`" in section, column
     for column in ("variant", "verdict", "change_low", "level", "seeds_needed"):
         assert f"``{column}``" in Results.__doc__.split("``trials``")[0], column
+
+
+def test_the_lower_bound_mark_goes_on_the_side_that_counts_unsolved_seeds():
+    # issue 46: "mean ≥ 492 vs 916 episodes" marked the variant that solved every seed; the reference's mean
+    # counts its unsolved seeds as the budget, so it is the bound
+    from ablate.reporting.findings import finding
+
+    ablation = _frame({"base": [None, 850, None], "solver": [480, 490, 505]}, budget=950)
+    table = convergence_table(ablation)
+    compare = comparisons(ablation)
+    row = compare[compare.metric == "episodes_to_solve"].iloc[0]
+    assert row.bound == "at least" and row.verdict == "exploratory: too few seeds"
+    text = finding(row, ablation, table)
+    assert "mean 492 vs ≥ 917 episodes" in text, text
+    assert "≥ 492" not in text
+    # the other way round: the variant that left seeds unsolved is the bound
+    slow = _frame({"base": [480, 490, 505], "slow": [None, 850, None]}, budget=950)
+    row = comparisons(slow).iloc[0]
+    assert "mean ≥ 917 vs 492 episodes" in finding(row, slow, convergence_table(slow))

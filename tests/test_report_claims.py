@@ -132,3 +132,33 @@ def test_an_unsolved_variant_keeps_its_row_and_an_empty_table_its_columns(claime
     assert alone.claims.empty and list(alone.claims.columns) == list(results.claims.columns)
     assert alone.comparisons.empty and list(alone.comparisons.columns) == list(results.comparisons.columns)
     assert alone.tuning.empty and list(alone.tuning.columns) == ["variant", "seed", "auc", "status"]
+
+
+def test_a_claim_marks_the_censored_side_as_the_bound():
+    # issue 46: the ≥ went on the variant whatever the verdict; a "better" bound is the reference's IQM, which
+    # counts its unsolved seeds as the budget (a "worse" one the variant's)
+    from ablate.claims import Question
+    from ablate.reporting.findings import claim_line
+
+    question = Question("episodes_to_solve", relative=True, lower_is_better=True, smallest_effect=0.1, budget=950)
+    row = dict(variant="v", reference="base", metric="episodes_to_solve", change=-46.0, bound="at least")
+    row |= dict(variant_value=492.0, reference_value=917.0, n_variant=6, n_reference=6, level=0.05, seeds_cap=100)
+    row |= dict(seeds_needed=np.nan, reason="", change_low=-49.0, change_high=-42.0)
+    assert "IQM 492 vs ≥ 917" in claim_line(pd.Series(row | {"verdict": "better"}), question)
+    slower = row | dict(variant_value=917.0, reference_value=492.0, change=85.0, change_low=70.0, change_high=95.0)
+    assert "IQM ≥ 917 vs 492" in claim_line(pd.Series(slower | {"verdict": "worse"}), question)
+
+
+def test_a_claim_with_no_change_reads_as_a_sentence():
+    # issue 46: a zero change read "no change episodes to solve (interval no change to 20% more)"
+    from ablate.claims import Question
+    from ablate.reporting.findings import claim_line
+
+    question = Question("episodes_to_solve", relative=True, lower_is_better=True, smallest_effect=0.1, budget=950)
+    row = dict(variant="v", reference="base", metric="episodes_to_solve", change=0.0, bound="", verdict="undetermined")
+    row |= dict(variant_value=500.0, reference_value=500.0, n_variant=6, n_reference=6, level=0.05, seeds_cap=100)
+    row |= dict(seeds_needed=np.nan, reason="too few seeds", change_low=0.0, change_high=20.0)
+    line = claim_line(pd.Series(row), question)
+    assert "no change in episodes to solve (interval 0% to 20% more)" in line, line
+    line = claim_line(pd.Series(row | dict(change_low=-20.0, change_high=0.0)), question)
+    assert "(interval 20% fewer to 0%)" in line and "no change episodes" not in line, line

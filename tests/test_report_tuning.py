@@ -168,8 +168,8 @@ def test_every_trial_the_report_uses_is_in_load_trials_with_its_stage_and_settin
     }
     assert set(trials[trials.at_base_values].key) == set(ablation.untuned.trials.key)
     deep, baseline = trials[trials.variant == "deep"].iloc[0], trials[trials.variant == "baseline"].iloc[0]
-    assert (deep.hidden_sizes, deep.depth, deep.width) == ("[8, 8]", 2, 8)
-    assert (baseline.hidden_sizes, baseline.depth, baseline.width) == ("[32]", 1, 32)
+    assert (deep.hidden_sizes, deep.depth, deep.width) == ((8, 8), 2, 8)  # issue 46: a tuple, not "[8, 8]"
+    assert (baseline.hidden_sizes, baseline.depth, baseline.width) == ((32,), 1, 32)
     assert set(trials.episodes_per_update) == {4} and set(trials.gamma) == {0.95}
     folder = write_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False, pdf=False)
     written = pd.read_csv(folder / "tables" / "trials.csv")

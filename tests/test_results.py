@@ -193,3 +193,47 @@ def test_an_edited_network_is_counted_by_its_current_keys_only(run_quiet, tmp_pa
     newest = detail(uri, "lab").split("\ngeneration ")[1]
     assert re.search(rf"^  mylab\s+{3 + 2 + 3 * moved}$", newest, re.M), newest
     assert f"not counted: {n} earlier trials ({n} of mylab)" in newest
+
+
+# tidy tables (issue 46) ---------------------------------------------------------------------------------------
+def _tidy_ablation(budget: int, overrides: dict[str, dict]) -> Ablation:
+    rows = [_row(v, s, True, 10 + s, budget=budget) for v in overrides for s in range(2)]
+    trials = pd.DataFrame(rows)
+    trials["censored_episodes"] = trials.episodes_to_solve
+    for episodes in (budget // 4, budget // 2, budget):
+        trials[f"return_at_{episodes}"] = 1.0
+    grid = {"variants": [{"name": n, "overrides": o} for n, o in overrides.items()], "baseline": next(iter(overrides))}
+    grid["base"] = {"model.hidden_sizes": [32], "learning_rate": 0.03, "episodes_per_update": 4, "gamma": 0.99}
+    grid["base"] |= {"l2": 0.0, "model.factory_args": []}
+    curve = [{"key": r["key"], "variant": r["variant"], "seed": r["seed"], "episode": 1, "return": 1.0} for r in rows]
+    return Ablation("t", grid, {}, trials, pd.DataFrame(curve))
+
+
+def test_settings_are_typed_by_the_schema_in_trials_and_claims():
+    from ablate.reporting.tables import side_settings, trials_table
+
+    overrides = {"narrow": {"hidden_sizes": [8, 8]}, "wide": {"width": 64, "model_args": {"width": 64, "act": "tanh"}}}
+    ablation = _tidy_ablation(100, overrides)
+    trials = trials_table(ablation).set_index("key")
+    assert trials.loc["narrow-0", "hidden_sizes"] == (8, 8) and trials.loc["wide-0", "hidden_sizes"] == (64,)
+    assert trials.loc["wide-0", "model_args.width"] == 64 and trials.loc["wide-0", "model_args.act"] == "tanh"
+    assert "model_args" not in trials and trials.loc["narrow-0", "depth"] == 2
+    claims = side_settings(pd.DataFrame({"variant": ["wide"], "reference": ["narrow"]}), ablation).iloc[0]
+    assert claims["variant.hidden_sizes"] == (64,) and claims["reference.hidden_sizes"] == (8, 8)
+    assert claims["variant.model_args.width"] == 64 and claims["variant.learning_rate"] == 0.03
+    setting_columns = [c for c in trials.columns if f"variant.{c}" in claims]
+    assert {"learning_rate", "hidden_sizes", "width", "model_args.act"} <= set(setting_columns)
+
+
+def test_convergence_and_curves_concatenate_across_budgets():
+    from ablate.reporting.tables import convergence_long, convergence_table, curves_table
+
+    short, long = _tidy_ablation(100, {"a": {}, "b": {}}), _tidy_ablation(400, {"a": {}, "b": {}})
+    tables = [convergence_long(convergence_table(a)) for a in (short, long)]
+    assert list(tables[0].columns) == list(tables[1].columns)
+    assert not [c for c in tables[0].columns if any(ch.isdigit() for ch in c)]  # no budget in a column's name
+    both = pd.concat(tables, ignore_index=True)
+    assert sorted(both[both.variant == "a"].episode) == [25, 50, 100, 100, 200, 400]
+    assert set(both.budget) == {100, 400} and (both.return_iqm == 1.0).all()
+    curves = curves_table(short)
+    assert list(curves.columns[:4]) == ["key", "variant", "seed", "stage"] and set(curves.stage) == {"eval"}

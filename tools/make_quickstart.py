@@ -58,14 +58,27 @@ CELLS = [
     ),
     (
         "code",
-        "results.convergence[['variant', 'seeds_run', 'solved', 'episodes_median', 'episodes_iqm', "
-        "'final_rolling_mean_iqm']]",
+        "# long form: a row per variant and episode budget; here, at the full budget\n"
+        "results.convergence.query('episode == budget')[['variant', 'seeds_run', 'solved', 'episodes_median', "
+        "'episodes_iqm', 'return_iqm']]",
     ),
     (
         "markdown",
-        "Each variant against its reference, in the report's sign and units (`change`: + is more episodes). "
-        "With 3 seeds against 3 no rank test can reach 95%, so the verdict is *no claim* whatever the data: "
-        "the estimate is a pointer for a larger run, and `seeds_needed` says how many seeds would separate it.",
+        "The claim, as the report's Claims section makes it, with each side's settings beside it "
+        "(`variant.*`, `reference.*`: the learning rate each one ran at, its layers as a tuple). With 3 seeds "
+        "against 3 no ordering of the seeds can reach 95%, so the verdict is *undetermined* whatever the data: "
+        "`seeds_needed` says how many seeds per variant would decide it.",
+    ),
+    (
+        "code",
+        "results.claims[['variant', 'reference', 'verdict', 'change', 'seeds_needed', 'variant.hidden_sizes', "
+        "'reference.hidden_sizes', 'variant.learning_rate', 'reference.learning_rate']]",
+    ),
+    (
+        "markdown",
+        "Every metric, each variant against its reference on its own, in the report's sign and units (`change`: + "
+        "is more episodes): exploratory, not claims, so each verdict says so (`exploratory: too few seeds` here); "
+        "the estimate is a pointer for a larger run.",
     ),
     (
         "code",

@@ -78,11 +78,10 @@ class ProgressView:
         else:
             left, most = TimeLeft(state).figures(now)
             status = time_left_words(left, most, state.round if state.possible or state.round > 1 else None)
-        total = len(state.trials) + len(state.later)
-        more = f", at most {state.at_most_more} more in later rounds" if state.at_most_more else ""
+        total = total_words(len(state.trials), state.later_most if state.stage_coming else 0, state.at_most_more)
         return (
             f"{state.name}: {counts['done']} done, {counts['running']} running, {counts['pending']} pending, "
-            f"{counts['failed']} failed (of {total}{more}; {state.already_done} finished before) | "
+            f"{counts['failed']} failed (of {total}; {state.already_done} finished before) | "
             f"{clock(now - state.start)} elapsed, {status}"
         )
 
@@ -197,4 +196,15 @@ def time_left_words(left: float | None, most: float | None, round_number: int | 
     words = f"~{clock(left)} left in round {round_number}"
     if most is not None and most > left:
         return f"{words}, at most ~{clock(most)} in all"
+    return words
+
+
+def total_words(known: int, stage_most: int, rounds_most: int) -> str:
+    """The trials a launch may run, from its first line to its last: those known now, and as "at most" what the
+    stage at the chosen values and later rounds can add, so the figure never moves up past what it said."""
+    words = f"{known}"
+    if stage_most:
+        words += f", at most {known + stage_most} with the chosen values' trials"
+    if rounds_most:
+        words += f", at most {rounds_most} more in later rounds"
     return words

@@ -27,7 +27,7 @@ from ablate.launch.mlflow_store import (
     TAG_ROLE,
 )
 from ablate.launch.plan import plan_populations, population_keys
-from ablate.launch.progress import ProgressView
+from ablate.launch.progress import ProgressView, total_words
 from ablate.launch.recorder import Recorder
 from ablate.launch.records import TorchKernels, environment_document, git_commit, grid_document
 from ablate.launch.rounds import Judge, Rounds
@@ -290,7 +290,7 @@ class _Launch:
         self.scheduler = scheduler
         experiment, options = self.experiment, self.options
         if options.show_progress:
-            print(f"{len(todo)} trial(s) to run; starting Ray ...", flush=True)
+            print(f"trials to run: {total_words(len(todo), *self.most(todo))}; starting Ray ...", flush=True)
         # The machine's record (its torch kernels asked of a child since the launch began) and git: while Ray starts.
         with ThreadPoolExecutor(1, thread_name_prefix="ablate-record") as pool:
             machine, commit = pool.submit(environment_document, self.kernels), pool.submit(git_commit)
@@ -350,6 +350,7 @@ class _Launch:
         self.state = LaunchState(
             experiment.name, todo, len(self.finished_before), slots, options.started_at, prior, prior_episodes,
             self.groups(todo), stand_ins, self.groups(stand_ins), stage_coming=bool(self.unchosen),
+            later_most=self.most(todo)[0],
         )  # fmt: skip
         self.view = ProgressView(self.state, options.show_progress, options.log_estimates)
         self.outcome.view = self.view
@@ -360,6 +361,17 @@ class _Launch:
         self.recorder.tuned = self.restage if self.unchosen else None
         self.may_follow()
         return todo
+
+    def most(self, todo: list[GridTrial]) -> tuple[int, int]:
+        """The most trials stage 2 and later rounds can add to ``todo``: a tuned variant not chosen yet runs at
+        most one trial per evaluation seed at its chosen values; rounds, every open comparison to ``max`` seeds."""
+        unchosen = {t.variant for t in self.plan.tuning} - set(self.choices)
+        stage = sum(t.variant in unchosen for t in self.plan.evaluation)
+        rounds = 0
+        if self.rounds is not None:
+            seen = {t.key for t in todo} | self.finished_before
+            rounds = sum(len(ts) for ts in self.rounds.possible(self.choices, seen))
+        return stage, rounds
 
     def groups(self, trials: Sequence[GridTrial]) -> list[list[str]]:
         return population_keys(trials, self.options.population, self.cores)

@@ -143,6 +143,7 @@ class LaunchState:
         later: Sequence[GridTrial] = (),
         later_groups: Groups | None = None,
         stage_coming: bool = False,
+        later_most: int | None = None,
     ) -> None:
         """``trials`` in the order they will start. ``slots``: populations that can run at once (``None``: the
         most seen running at once). ``start``: the ``time.monotonic()`` the command started at, so the clock
@@ -151,7 +152,8 @@ class LaunchState:
         (a population holds a slot until its last member ends). ``later``: stand-ins for the trials of a stage
         not known yet, which start once every trial here has ended (a tuned ablation's trials at the chosen
         values), in ``later_groups``; ``stage_coming``: such a stage comes even while no stand-in stands for
-        it (``set_later`` replaces them as tuning trials end, ``add_trials`` puts the real ones in)."""
+        it (``set_later`` replaces them as tuning trials end, ``add_trials`` puts the real ones in);
+        ``later_most``: the most trials that stage can add (default: as many as ``later``)."""
         self.name = name
         self.trials = {t.key: TrialProgress(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
@@ -174,6 +176,8 @@ class LaunchState:
         self.set_later(later, later_groups)
         self.summaries: dict[str, Mapping[str, float]] = {}
         self.stage_coming = stage_coming or bool(later)
+        self.later_most = len(later) if later_most is None else later_most
+        """The most trials the later stage can add: the progress line's bound, which stand-ins never move."""
         """A later stage stands in ``later`` (or will): its trials join this phase."""
         self.phases: list[list[str]] = [[t.key for t in trials]]
         """The keys of each set of trials known together: the launch's, with the later stage that replaces its

@@ -11,7 +11,7 @@ import pandas as pd
 from ablate.launch.secrets import Shown
 from ablate.reporting.comparisons import claims_table, comparisons
 from ablate.reporting.results import Ablation
-from ablate.reporting.tables import convergence_table, trials_table
+from ablate.reporting.tables import convergence_table, side_settings, trials_table
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class ReportData:
 
 def report_data(ablation: Ablation, command: Shown) -> ReportData:
     """Compute the report's tables once: the claims first, the comparisons' ``claim`` column from them."""
-    claimed = claims_table(ablation)
+    claimed = side_settings(claims_table(ablation), ablation)
     untuned = comparisons(ablation.untuned, power=False) if ablation.untuned is not None else None
     return ReportData(
         ablation,

@@ -18,6 +18,7 @@ from ablate.reporting.statistics import (
     SEEDS_CAP,
     SEPARATED,
     TOO_FEW_SEEDS,
+    is_censored_statistic,
     smallest_p_value,
 )
 from ablate.reporting.text import _interval, _metric_name, _pct, _signed, _signed_pct, esc, fmt
@@ -40,7 +41,27 @@ def stat_name(n: int, m: int) -> str:
     return "mean" if max(n, m) < 4 else "IQM (the mean where fewer than 4 seeds)"
 
 
-def _estimate(row: pd.Series) -> str:
+def _never(table: pd.DataFrame, variant: str, metric: str) -> int:
+    """How many of ``variant``'s seeds never got there on an episodes metric: counted as the budget."""
+    at = table.loc[table.variant == variant].iloc[0]
+    if metric == "episodes_to_solve":
+        return int(at.unsolved_censored)
+    return int(at.seeds_run - at[f"{metric}_reached"])
+
+
+def _pair(row: pd.Series, table: pd.DataFrame, stat: str) -> str:
+    """``mean 492 vs ≥ 917``: the two sides' episodes, ≥ on each side whose statistic counts unsolved seeds as
+    the budget (``statistics.is_censored_statistic``, the rule that made the row's ``bound``)."""
+
+    def side(variant: str, value: float, n: int) -> str:
+        bounded = row.bound and is_censored_statistic(_never(table, variant, row.metric), n, "iqm")
+        return f"{'≥ ' if bounded else ''}{fmt(value)}"
+
+    x = side(row.variant, row.variant_value, int(row.n_variant))
+    return f"{stat} {x} vs {side(row.reference, row.reference_value, int(row.n_reference))}"
+
+
+def _estimate(row: pd.Series, table: pd.DataFrame) -> str:
     """The estimate and its bootstrap interval for a comparison the seeds cannot decide, with no direction
     words: a percentile bootstrap over 3 seeds runs narrow, so it is a pointer for a larger run."""
     if any(np.isnan(v) for v in (row.point, row.low, row.high)):
@@ -49,9 +70,8 @@ def _estimate(row: pd.Series) -> str:
         return " Both sides count seeds that never got there as the budget: episodes cannot separate them."
     stat = stat_name(int(row.n_variant), int(row.n_reference))
     if row.metric.startswith("episodes_to_"):
-        bound = "≥ " if row.bound else ""
         return (
-            f" {stat} {bound}{fmt(row.variant_value)} vs {fmt(row.reference_value)} episodes, change "
+            f" {_pair(row, table, stat)} episodes, change "
             f"{_signed_pct(-row.point)} (95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})."
         )
     return (
@@ -98,10 +118,7 @@ def _never_counts(row: pd.Series, table: pd.DataFrame, n: int, m: int) -> str:
     level = row.metric.removeprefix("episodes_to_")
 
     def never(variant: str) -> int:
-        at = table.loc[table.variant == variant].iloc[0]
-        if row.metric == "episodes_to_solve":
-            return int(at.unsolved_censored)
-        return int(at.seeds_run - at[f"{row.metric}_reached"])
+        return _never(table, variant, row.metric)
 
     what = "never solved" if row.metric == "episodes_to_solve" else f"never reached {level}"
     variant, reference = esc(row.variant), esc(row.reference)
@@ -116,9 +133,8 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     stat = stat_name(n, m)
     reading = seeds_reading(row, ablation.smallest_effect)
     if row.verdict == TOO_FEW_SEEDS:
-        return f"{name}: *{TOO_FEW_SEEDS}*.{_estimate(row)}{reading}"
+        return f"{name}: *{TOO_FEW_SEEDS}*.{_estimate(row, table)}{reading}"
     if metric.startswith("episodes_to_"):
-        x, y = fmt(row.variant_value), fmt(row.reference_value)
         counts = _never_counts(row, table, n, m)
         if row.bound == "censored":
             never = "unsolved seeds" if metric == "episodes_to_solve" else "the seeds that never got there"
@@ -126,7 +142,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
                 f"{name}: *{NOT_SEPARATED}*: episodes cannot separate them: both IQMs count {never} as the budget "
                 f"({counts}), so both are lower bounds; see the returns below."
             )
-        change = f"{stat} {'≥ ' if row.bound and row.verdict == EXPLORATORY_WORSE else ''}{x} vs {y}"
+        change = _pair(row, table, stat)
         if row.verdict == EXPLORATORY_BETTER and row.bound:
             return (
                 f"{name}: *{row.verdict}*, **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: "
@@ -153,7 +169,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
                 f"{_pct(-row.high)} to "
                 f"{_pct(-row.low)} more).{_stability(row)}"
             )
-        bound = f", the variant's {stat} a lower bound" if row.bound else ""
+        bound = ", ≥: a lower bound" if row.bound else ""
         return (
             f"{name}: *{NOT_SEPARATED}* ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
             f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''}).{reading}"
@@ -244,7 +260,7 @@ def _effect_words(row: pd.Series, question: Question) -> str:
     if question.relative:  # the table's change is in percent
 
         def side(x: float) -> str:
-            return f"{_pct(abs(x) / 100)} {'fewer' if x < 0 else 'more'}" if x else "no change"
+            return f"{_pct(abs(x) / 100)} {'fewer' if x < 0 else 'more'}" if x else "0%"
 
         low, high = row.change_low, row.change_high
         if np.isnan(low) or np.isnan(high):
@@ -261,7 +277,8 @@ def _effect_words(row: pd.Series, question: Question) -> str:
             interval = f"interval {_pct(low / 100)} to {_pct(high / 100)} more"
         else:
             interval = f"interval {side(low)} to {side(high)}"
-        return f"{side(row.change)} {name} ({interval})"
+        change = f"no change in {name}" if row.change == 0 else f"{side(row.change)} {name}"
+        return f"{change} ({interval})"
     if np.isnan(row.change_low):
         return f"{name} {_signed(row.change)} (no interval)"
     low = "−∞" if not np.isfinite(row.change_low) else _signed(row.change_low)
@@ -280,8 +297,11 @@ def claim_line(row: pd.Series, question: Question) -> str:
     variant, reference = esc(row.variant), esc(row.reference)
     stat = stat_name(int(row.n_variant), int(row.n_reference))
     digits = 0 if question.relative else 1
-    at_least = "≥ " if row.bound and row.verdict == WORSE else ""
-    iqms = f"{stat} {at_least}{fmt(row.variant_value, digits)} vs {fmt(row.reference_value, digits)}"
+    # a one-sided bound supports only the claim it leans towards: worse when the variant's IQM is the bound,
+    # better when the reference's is (statistics: _episodes_comparison)
+    x_bound = "≥ " if row.bound and row.verdict == WORSE else ""
+    y_bound = "≥ " if row.bound and row.verdict == BETTER else ""
+    iqms = f"{stat} {x_bound}{fmt(row.variant_value, digits)} vs {y_bound}{fmt(row.reference_value, digits)}"
     seeds = f"{int(row.n_variant)} and {int(row.n_reference)} seeds"
     effect = _effect_words(row, question)
     if row.verdict in (BETTER, WORSE):

@@ -416,6 +416,7 @@ def _curve(tracker: RunReader, run: Any, trial: dict[str, Any], grid: dict[str, 
     window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
     curve = pd.DataFrame(
         {
+            "key": trial["key"],
             "variant": trial["variant"],
             "seed": trial["seed"],
             "solved": run.metrics.get("solved", 0.0) == 1.0,
@@ -439,7 +440,7 @@ def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.Dat
     curves_frame = (
         pd.concat(curves, ignore_index=True)
         if curves
-        else pd.DataFrame(columns=["variant", "seed", "solved", "episode", "return", "rolling_mean", "wall_s"])
+        else pd.DataFrame(columns=["key", "variant", "seed", "solved", "episode", "return", "rolling_mean", "wall_s"])
     )
     # The name as written in the experiment file, whichever form (it or its storage name) asked for it.
     return Ablation(grid.get("experiment", name), grid, launch_info, trials, curves_frame, params)

@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ablate.config import KNOBS, freeze
 from ablate.reporting.results import Ablation
-from ablate.reporting.settings import setting
+from ablate.reporting.settings import DERIVED, setting
 from ablate.reporting.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
 from ablate.reporting.tuning import EVAL
 
@@ -53,25 +54,56 @@ SETTINGS = ("learning_rate", "episodes_per_update", "gamma", "l2")
 
 def settings_of(ablation: Ablation, trials: pd.DataFrame) -> pd.DataFrame:
     """Each trial's settings as columns: ``SETTINGS`` and every knob a variant writes (``hidden_sizes`` with its
-    ``depth`` and ``width``), each the variant's value or the base's (``settings.setting``); a tuned knob keeps
-    the trial's own column. A knob the grid holds for no variant (an older store) is left out."""
-    written = sorted({k for v in ablation.grid["variants"] for k in v.get("overrides", {})})
-    knobs = [*SETTINGS, *(k for k in written if k not in SETTINGS)]
-    if any(knob in ("hidden_sizes", "depth", "width") for knob in knobs):
-        knobs += [k for k in ("hidden_sizes", "depth", "width") if k not in knobs]
-    columns = {}
-    for knob in knobs:
-        if knob in trials:
-            continue
-        values = {v: _cell(setting(ablation.grid, v, knob)) for v in ablation.variants}
-        if any(value is not None for value in values.values()):
-            columns[knob] = trials.variant.map(values)
+    ``depth`` and ``width``), each the variant's value or the base's (``settings.setting``), typed as the schema
+    declares it (``cells``); a tuned knob keeps the trial's own column. A knob the grid holds for no variant (an
+    older store) is left out."""
+    per_variant = variant_settings(ablation)
+    columns = {c: trials.variant.map(per_variant[c]) for c in per_variant if c not in trials}
     return pd.DataFrame(columns, index=trials.index)
 
 
-def _cell(value: Any) -> Any:
-    """A setting in one cell: a list as its text (``[32, 32]``), so that a column holds one type."""
-    return str(value) if isinstance(value, list | dict) else value
+def variant_settings(ablation: Ablation) -> pd.DataFrame:
+    """One row per variant (the index), one column per setting ``settings_of`` gives a trial: the grid's values,
+    and a tuned knob at the value the variant's evaluation trials ran (its choice)."""
+    written = sorted({k for v in ablation.grid["variants"] for k in v.get("overrides", {})})
+    knobs = [*SETTINGS, *(k for k in written if k not in SETTINGS)]
+    if any(knob in ("hidden_sizes", *DERIVED) for knob in knobs):
+        knobs += [k for k in ("hidden_sizes", *DERIVED) if k not in knobs]
+    rows: dict[str, dict[str, Any]] = {v: {} for v in ablation.variants}
+    for knob in knobs:
+        values = {v: setting(ablation.grid, v, knob) for v in ablation.variants}
+        if knob in ablation.trials:  # tuned: the trials ran the chosen value, not the grid's
+            ran = ablation.trials.dropna(subset=[knob]).groupby("variant")[knob].first()
+            values |= {v: ran[v] for v in ablation.variants if v in ran}
+        if all(value is None for value in values.values()):
+            continue
+        for variant, value in values.items():
+            rows[variant] |= cells(knob, value)
+    frame = pd.DataFrame.from_dict(rows, orient="index")
+    return frame.reindex(ablation.variants)
+
+
+def cells(knob: str, value: Any) -> dict[str, Any]:
+    """A knob's value as table cells, typed by its schema entry (``config.KNOBS``): a list as a tuple
+    (``(32, 32)``, as ``TrialConfig`` holds it), a table (``model_args``) as one column per key
+    (``model_args.width``), anything else as it is; a knob the schema lacks (``depth``, ``width``) as it is."""
+    knob_entry = KNOBS.get(knob)
+    if knob_entry is not None and knob_entry.type.startswith("tuple[tuple[str"):  # a table: (name, value) pairs
+        return {f"{knob}.{name}": item for name, item in freeze(dict(knob_entry.convert(value or ())))}
+    if knob_entry is None or value is None:
+        return {knob: value}
+    return {knob: knob_entry.convert(value)}
+
+
+def side_settings(claims: pd.DataFrame, ablation: Ablation) -> pd.DataFrame:
+    """``claims`` (or any table of ``variant`` against ``reference``) with each side's settings beside it:
+    ``variant.<setting>`` and ``reference.<setting>``, the same settings ``trials`` carries."""
+    per_variant = variant_settings(ablation)
+    sides = [
+        pd.DataFrame({f"{side}.{c}": claims[side].map(per_variant[c]) for c in per_variant.columns}, index=claims.index)
+        for side in ("variant", "reference")
+    ]
+    return pd.concat([claims, *sides], axis=1)
 
 
 def _with_interval(row: dict[str, Any], prefix: str, values: np.ndarray) -> None:
@@ -139,3 +171,62 @@ def convergence_table(ablation: Ablation) -> pd.DataFrame:
 def _values(frame: pd.DataFrame, column: str) -> np.ndarray:
     """A column as floats; NaNs where the frame lacks it (a trial table built by hand, an older store)."""
     return frame[column].to_numpy(float) if column in frame else np.full(len(frame), np.nan)
+
+
+CHECKPOINTS = ("return_at_", "episodes_to_")
+"""The wide table's columns named by a budget or a level (``return_at_75_iqm``, ``episodes_to_100_median``)."""
+
+
+def convergence_long(table: pd.DataFrame) -> pd.DataFrame:
+    """``convergence_table`` in long form, as ``ablate.load(...).convergence`` gives it: the per-variant columns
+    repeated on one row per checkpoint, a fixed episode budget (``episode``, with ``return_iqm`` and its interval)
+    or a return level (``return_level``, with ``episodes_to_level_median``, ``reached``,
+    ``episodes_to_level_median_censored``), the other's columns empty; a variant with neither keeps one row. No
+    column is named by a budget or a level, so ablations with different budgets concatenate."""
+    fixed = [c for c in table.columns if not c.startswith(CHECKPOINTS)]
+    rows = []
+    for _, row in table.iterrows():
+        base = {c: row[c] for c in fixed}
+        points = []
+        for column in table.columns:
+            if column.startswith("return_at_") and column.endswith("_iqm"):
+                prefix = column
+                points.append(
+                    {
+                        "episode": int(column.removeprefix("return_at_").removesuffix("_iqm")),
+                        "return_iqm": row[prefix],
+                        "return_iqm_ci_low": row[f"{prefix}_ci_low"],
+                        "return_iqm_ci_high": row[f"{prefix}_ci_high"],
+                    }
+                )
+            elif column.startswith("episodes_to_") and column.endswith("_median"):
+                key = column.removesuffix("_median")
+                points.append(
+                    {
+                        "return_level": float(key.removeprefix("episodes_to_")),
+                        "episodes_to_level_median": row[column],
+                        "reached": row[f"{key}_reached"],
+                        "episodes_to_level_median_censored": row[f"{key}_median_censored"],
+                    }
+                )
+        rows += [base | point for point in points] or [base]
+    columns = [*fixed, "episode", "return_iqm", "return_iqm_ci_low", "return_iqm_ci_high", "return_level"]
+    columns += ["episodes_to_level_median", "reached", "episodes_to_level_median_censored"]
+    frame = pd.DataFrame(rows).reindex(columns=columns)
+    for column in ("episode", "reached"):
+        frame[column] = frame[column].astype("Int64")
+    return frame
+
+
+def curves_table(ablation: Ablation) -> pd.DataFrame:
+    """Every trial's learning curve, long form, as ``ablate.load(...).curves``: one row per trial and episode,
+    with the trial's ``key`` and ``stage`` (as in ``trials_table``: a tuned ablation's ``base`` trials too)."""
+    curves = ablation.curves.copy()
+    trials = ablation.trials
+    stages = dict(zip(trials.key, trials.stage, strict=True)) if "stage" in trials else {}
+    curves.insert(3, "stage", curves.key.map(stages).fillna(EVAL) if len(curves) else pd.Series(dtype=object))
+    if ablation.untuned is not None and len(ablation.untuned.curves):
+        extra = ablation.untuned.curves[~ablation.untuned.curves.key.isin(set(curves.key))]
+        if len(extra):
+            curves = pd.concat([curves, extra.assign(stage=BASE)[curves.columns]], ignore_index=True)
+    return curves
