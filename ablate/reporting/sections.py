@@ -6,83 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ablate.config import ARCHITECTURE_KNOBS, SCHEMA
+from ablate.config import ARCHITECTURE_KNOBS
 from ablate.env_spec import is_pong, resets_on_score
 from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.figures import ablation_window
-from ablate.reporting.networks import factory_args
+from ablate.reporting.networks import architecture
 from ablate.reporting.results import INITIAL_EPISODES, Ablation
 from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
 from ablate.reporting.text import NO_REFS, Refs, _interval, esc, fmt, joined, setting_value
-
-
-def _sizes(params: dict[str, str], key: str = "model.hidden_sizes") -> list[int]:
-    text = params.get(key, "[]").strip("[]() ")
-    return [int(x) for x in text.replace(",", " ").split()]
-
-
-def _factory_args(text: str) -> str:
-    """A tracked ``model_args`` (pairs, as MLflow holds them) as ``width=32, depth=2``."""
-    return ", ".join(f"{k}={v}" for k, v in factory_args(text)) or text.strip("()[]")
-
-
-def architecture(params: dict[str, str], env_id: str) -> str:
-    """The policy in words, as ``policies.py`` builds it for ``env_id``; a user's own network by its factory and,
-    where its run recorded the source, its layers (``networks.layers``)."""
-    factory = params.get("model.factory", "")
-    if factory:
-        target, function = factory.rsplit(":", 1)
-        text = f"the user's own network: {function} of {target.rsplit('/', 1)[-1]}"
-        text += f" (source {params.get('model.factory_hash', '?')})"
-        text += f": {params['model.layers']}" if params.get("model.layers") else ""
-        args = _factory_args(params.get("model.factory_args", ""))
-        text += f", {args}" if args else ""
-        return text + (f"; L2 {params['l2']}" if float(params.get("l2", 0) or 0) > 0 else "")
-    arch = params.get("model.architecture", "mlp")
-    activation = params.get("model.activation", "relu")
-    hidden = _sizes(params)
-    dense = f"dense {' → '.join(map(str, hidden))} ({activation})" if hidden else "no hidden layer"
-    shape = _observation_shape(params, env_id)
-    if len(shape) == 3:  # an image, as the trial recorded its observation (Pong's frame difference, another game's)
-        channels, height, width = shape
-        pixels = f"{height}×{width} frame difference" if is_pong(env_id) else f"{height}×{width}×{channels} image"
-        if arch == "cnn":
-            from ablate.agent.policies import PONG_CONV
-
-            convs = ", ".join(f"{n}@{k}×{k} stride {s}" for n, k, s, _ in PONG_CONV)
-            text = f"2-D CNN over the {pixels}: conv {convs} ({activation}), then {dense}"
-        elif hidden:
-            text = f"MLP over the {channels * height * width:,} pixels of the {pixels}: {dense}"
-        else:
-            text = f"linear policy over the {channels * height * width:,} pixels of the {pixels} (no hidden layer)"
-        actions = {"all": "6 actions", "move": "2 actions (up, down)"}.get(params.get("action_set", ""), "")
-        text += f"; {actions}" if actions else ""
-    elif arch == "cnn":
-        conv = _sizes(params, "model.conv_channels")
-        text = (
-            f"1-D CNN over the last {params.get('model.history')} observations: conv "
-            f"{', '.join(map(str, conv))} channels, kernel {params.get('model.kernel_size')} along time "
-            f"({activation}), then {dense}"
-        )
-    else:
-        text = f"MLP, {dense}" if hidden else "linear policy: observation → action logits, no hidden layer"
-    for knob in SCHEMA.values():  # the built-in knobs the layers above do not show, as the schema names them
-        value = params.get(knob.column)
-        if knob.built_in and knob.words and value is not None and value != str(knob.default):
-            text += "; " + knob.words.format(value)
-    if float(params.get("l2", 0) or 0) > 0:
-        text += f"; L2 {params['l2']}"
-    return text
-
-
-def _observation_shape(params: dict[str, str], env_id: str) -> tuple[int, ...]:
-    """The observation's shape as the trial recorded it (``env.obs_shape``, e.g. ``1x80x80``); a run from before
-    trials recorded it: Pong's frame difference, else a vector."""
-    recorded = params.get("env.obs_shape", "")
-    if recorded:
-        return tuple(int(n) for n in recorded.split("x"))
-    return (1, 80, 80) if is_pong(env_id) else (0,)
 
 
 def _setting_groups(overrides: dict) -> list[str]:
