@@ -347,9 +347,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         config = apply_knobs(PRESETS[args.preset], knobs)  # ConfigError before anything is written
     from ablate.agent.checks import check_configs
 
-    check_configs(
-        [(trial.variant if trial else "--preset " + args.preset, config)], str(args.from_experiment or "ablate train")
-    )
+    # Flags name no file and no variant: the error is the problem alone (the command prefixes its name).
+    check_configs([(trial.variant if trial else "", config)], str(args.from_experiment or ""))
     name = trial.key if trial else f"{config.env_id.replace('/', '_')}-s{config.seed}"
     out = args.out or Path("outputs/train") / name
     if trial:

@@ -454,3 +454,20 @@ def test_dry_run_prints_its_cost_first_with_the_start_and_the_report(tmp_path, c
     assert main(["run", str(path), "--dry-run", "--no-report"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert "to start" in first and "report" not in first, first
+
+
+def test_train_flags_for_a_users_env_module_refuse_one_that_registers_nothing_in_one_line(
+    tmp_path, monkeypatch, capsys
+):
+    from ablate.cli import main
+
+    (tmp_path / "emptyenvs.py").write_text("def register():\n    pass\n")
+    monkeypatch.chdir(tmp_path)
+    code = main(["train", "--env-module", "emptyenvs:register", "--env", "NowhereCartPole-v0", "--max-episodes", "2"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0] == (
+        "ablate train: env_module = 'emptyenvs:register' ran, but env_id = 'NowhereCartPole-v0' is still not a "
+        "registered Gymnasium env; it registered none"
+    )
+    assert not (tmp_path / "outputs").exists()  # nothing written

@@ -32,7 +32,9 @@ def check_configs(named: Iterable[tuple[str, TrialConfig]], source: str) -> None
         try:
             check_model(config, describe(config))
         except (EnvError, ModelError) as error:
-            raise ConfigError(f"{source}: variant {variant!r}: {error}") from None
+            where = [source] if source else []
+            where += [f"variant {variant!r}"] if variant else []
+            raise ConfigError(": ".join([*where, str(error)])) from None
 
 
 def check_experiment(experiment) -> None:
