@@ -7,11 +7,13 @@ it; they are the only modules that import MLflow (with ``launch.patches``).
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ablate.experiment import storage_name
 from ablate.launch.lock import held_launch
@@ -154,23 +156,28 @@ class Store:
         return None
 
     # --- reading back (the writer resumes from what it wrote) -----------------------------------------
-    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
-        """Trial runs of this experiment (of one generation, if given), oldest first."""
+    def all_runs(self, query: str, order_by: str = "attributes.start_time ASC") -> list[Any]:
+        """Every run of this experiment that ``query`` matches, page by page (MLflow returns at most 1,000 a call);
+        none where the experiment does not exist yet."""
         experiment_id = self.experiment_id(create=False)
         if experiment_id is None:
             return []
-        query = f"tags.`{TAG_ROLE}` = 'trial'"
-        if generation is not None:
-            query += f" and tags.`{TAG_GENERATION}` = '{generation}'"
         runs, token = [], None
         while True:
             page = self.client.search_runs(
-                [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
+                [experiment_id], query, order_by=[order_by], max_results=1000, page_token=token
             )
             runs.extend(page)
             token = page.token
             if not token:
-                break
+                return runs
+
+    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
+        """Trial runs of this experiment (of one generation, if given), oldest first."""
+        query = f"tags.`{TAG_ROLE}` = 'trial'"
+        if generation is not None:
+            query += f" and tags.`{TAG_GENERATION}` = '{generation}'"
+        runs = self.all_runs(query)
         return [
             TrialRun(
                 run_id=r.info.run_id,
@@ -197,3 +204,10 @@ class Store:
             problem = f"MLflow store {self.shown_uri}: artifact {path!r} of run {run_id} cannot be read"
             problem += f" ({redact(first_line(error))}); was its artifact folder moved or removed?"
         raise TrackingError(problem)
+
+
+def param_text(value: Any) -> str:
+    """A knob's value as an MLflow param: a list or tuple as JSON (``[16]``, as the experiment file writes it)."""
+    if isinstance(value, tuple | list):
+        return json.dumps(list(value))
+    return str(value)

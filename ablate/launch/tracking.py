@@ -9,7 +9,6 @@ the scheduler), so an SQLite store never sees two writers; a tracking server wor
 from __future__ import annotations
 
 import contextlib
-import json
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -28,6 +27,7 @@ from ablate.launch.mlflow_store import (
     TAG_STAGE,
     TAG_VARIANT,
     Store,
+    param_text,
 )
 from ablate.launch.patches import mlflow_answers_kept
 from ablate.launch.secrets import shown as redact
@@ -103,23 +103,15 @@ class Tracker(Store):
 
     def _newest_finished(self, keys: Iterable[str]) -> dict[str, Any]:
         wanted = set(keys)
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None or not wanted:
+        if not wanted:
             return {}
         query = f"tags.`{TAG_ROLE}` = 'trial' and attributes.status = 'FINISHED'"
         runs: dict[str, Any] = {}
-        token = None
-        while True:
-            page = self.client.search_runs(
-                [experiment_id], query, order_by=["attributes.start_time DESC"], max_results=1000, page_token=token
-            )
-            for r in page:
-                key = r.data.tags.get(TAG_KEY, "")
-                if key in wanted and key not in runs and r.info.end_time and r.info.start_time:
-                    runs[key] = r
-            token = page.token
-            if not token:
-                return runs
+        for r in self.all_runs(query, order_by="attributes.start_time DESC"):
+            key = r.data.tags.get(TAG_KEY, "")
+            if key in wanted and key not in runs and r.info.end_time and r.info.start_time:
+                runs[key] = r
+        return runs
 
     def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
         """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid).
@@ -185,7 +177,7 @@ class Tracker(Store):
         )
         run_id = run.info.run_id
         self._artifact_uris[run_id] = run.info.artifact_uri
-        self.client.log_batch(run_id, params=[Param(k, _param_text(v)) for k, v in params.items()])
+        self.client.log_batch(run_id, params=[Param(k, param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
         self._points[key] = ([], time.monotonic(), run.info.start_time)
         return run_id
@@ -252,7 +244,7 @@ class Tracker(Store):
         self.client.log_batch(
             run_id,
             metrics=[Metric(k, float(v), now, 0) for k, v in summary.items()],
-            params=[Param(k, _param_text(v)) for k, v in (params or {}).items()],
+            params=[Param(k, param_text(v)) for k, v in (params or {}).items()],
             tags=[RunTag(k, redact(v)) for k, v in (tags or {}).items()],
         )
         if artifacts is not None:
@@ -313,18 +305,7 @@ class Tracker(Store):
 
     def running_runs(self, query: str = "") -> list[Any]:
         """Runs of this experiment MLflow has as RUNNING (``query``: more of a filter, `` and ...``)."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        runs, token = [], None
-        while True:
-            page = self.client.search_runs(
-                [experiment_id], "attributes.status = 'RUNNING'" + query, max_results=1000, page_token=token
-            )
-            runs.extend(page)
-            token = page.token
-            if not token:
-                return runs
+        return self.all_runs("attributes.status = 'RUNNING'" + query, order_by="attributes.start_time DESC")
 
     def kill_runs(self, run_ids: Iterable[str], reason: str) -> None:
         reason = redact(reason)
@@ -346,9 +327,3 @@ class Tracker(Store):
                 batch = []
         if batch:
             self.client.log_batch(run_id, metrics=batch)
-
-
-def _param_text(value: Any) -> str:
-    if isinstance(value, tuple | list):
-        return json.dumps(list(value))
-    return str(value)

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from ablate.launch.mlflow_store import TAG_GENERATION, TAG_PARENT, TAG_ROLE, TAG_VARIANT, Store
+from ablate.launch.mlflow_store import TAG_GENERATION, TAG_PARENT, TAG_ROLE, TAG_VARIANT, Store, param_text
 
 ROLE = "variant"
 """``ablate.role`` of a variant run (a launch's is ``launch``, a trial's ``trial``)."""
@@ -29,7 +29,7 @@ class VariantRecord:
 
     name: str
     """The variant's name: the run's name and its ``ablate.variant`` tag."""
-    params: dict[str, str] = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)
     """Its settings, knob by knob, as the report's tables show them."""
     tags: dict[str, str] = field(default_factory=dict)
     metrics: dict[str, float] = field(default_factory=dict)
@@ -40,19 +40,7 @@ class VariantRecord:
 
 def variant_runs(store: Store, launch_id: str) -> list[Any]:
     """The variant runs nested under ``launch_id`` (MLflow ``Run`` objects), oldest first."""
-    experiment_id = store.experiment_id(create=False)
-    if experiment_id is None:
-        return []
-    query = f"tags.`{TAG_ROLE}` = '{ROLE}' and tags.`{TAG_PARENT}` = '{launch_id}'"
-    runs, token = [], None
-    while True:
-        page = store.client.search_runs(
-            [experiment_id], query, order_by=["attributes.start_time ASC"], max_results=1000, page_token=token
-        )
-        runs.extend(page)
-        token = page.token
-        if not token:
-            return runs
+    return store.all_runs(f"tags.`{TAG_ROLE}` = '{ROLE}' and tags.`{TAG_PARENT}` = '{launch_id}'")
 
 
 def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantRecord]) -> list[str]:
@@ -85,7 +73,7 @@ def _fill(store: Store, run_id: str, record: VariantRecord) -> None:
     now = int(time.time() * 1000)
     metrics = [Metric(k, float(v), now, 0) for k, v in record.metrics.items()]
     metrics += [Metric(k, float(v), now, int(step)) for k, points in record.series.items() for step, v in points]
-    params = [Param(k, v) for k, v in record.params.items()]
+    params = [Param(k, param_text(v)) for k, v in record.params.items()]
     for start in range(0, len(params), _PARAMS_PER_CALL):
         store.client.log_batch(run_id, params=params[start : start + _PARAMS_PER_CALL])
     for start in range(0, len(metrics), _METRICS_PER_CALL):

@@ -224,7 +224,7 @@ def curves_table(ablation: Ablation) -> pd.DataFrame:
     curves = ablation.curves.copy()
     trials = ablation.trials
     stages = dict(zip(trials.key, trials.stage, strict=True)) if "stage" in trials else {}
-    curves.insert(3, "stage", curves.key.map(stages).fillna(EVAL) if len(curves) else pd.Series(dtype=object))
+    curves.insert(3, "stage", [stages.get(k, EVAL) for k in curves.key])
     if ablation.untuned is not None and len(ablation.untuned.curves):
         extra = ablation.untuned.curves[~ablation.untuned.curves.key.isin(set(curves.key))]
         if len(extra):

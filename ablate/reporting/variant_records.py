@@ -91,7 +91,7 @@ def variant_records(data: ReportData) -> list[VariantRecord]:
     return records
 
 
-def _settings(data: ReportData) -> dict[str, dict[str, str]]:
+def _settings(data: ReportData) -> dict[str, dict[str, Any]]:
     """Per variant, its settings as ``tables/trials.csv`` holds them for its evaluation trials: the knobs
     ``tables.settings_of`` picks and a tuned knob's chosen value (its trials' own column), one value each."""
     ablation, table = data.ablation, data.trials
@@ -101,12 +101,12 @@ def _settings(data: ReportData) -> dict[str, dict[str, str]]:
     found = {}
     for variant, group in rows.groupby("variant", sort=False):
         first = group.iloc[0]
-        found[str(variant)] = {k: _text(first[k]) for k in knobs if not _empty(first[k])}
+        found[str(variant)] = {k: _value(first[k]) for k in knobs if not _empty(first[k])}
     return found
 
 
-def _text(value: Any) -> str:
-    return str(value.item() if hasattr(value, "item") else value)
+def _value(value: Any) -> Any:
+    return value.item() if hasattr(value, "item") else value
 
 
 def _empty(value: Any) -> bool:
