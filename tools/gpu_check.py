@@ -67,9 +67,9 @@ def _raw_steps_per_s(steps: int = 8000) -> float:
     import gymnasium as gym
     import numpy as np
 
-    from ablate.agent.envs import _register_ale
+    import ale_py
 
-    _register_ale()
+    gym.register_envs(ale_py)
     env = gym.make("ALE/Pong-v5")
     env.reset(seed=0)
     actions = np.random.default_rng(0).integers(0, 6, steps)
