@@ -26,7 +26,8 @@ The population part (``--members``, default 1,024 default CartPole trials at ``-
 ``agent.trainer.run_population`` with the members' networks on CUDA (acting by one ``vmap`` over their stacked
 parameters, each member's update on its own module; the envs stay on the CPU), then on the CPU, both as env steps
 per second. Pong populations (32 CNN members) are the same trainer; this script does not measure them yet.
-Unmeasured so far: no GPU on the project's machines; it runs (slowly) on a CPU-only machine.
+Measured once on a lent H200 (2026-12-04; docs/pong.md, docs/performance.md); tests/test_tools.py runs its short
+form on the CPU.
 """
 
 from __future__ import annotations
@@ -64,10 +65,9 @@ def _ensure_emulator(wheels: Path | None) -> None:
 
 def _raw_steps_per_s(steps: int = 8000) -> float:
     """Agent steps per wall second of ``gym.make("ALE/Pong-v5")`` with random actions, nothing else."""
+    import ale_py
     import gymnasium as gym
     import numpy as np
-
-    import ale_py
 
     gym.register_envs(ale_py)
     env = gym.make("ALE/Pong-v5")
