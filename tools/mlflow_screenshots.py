@@ -118,9 +118,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def _choose_view(browser: DevTools, port: int, experiment_id: str) -> None:
     """What a reader does once in the UI, stored where the UI keeps it (this browser profile's localStorage): the
-    columns of ``COLUMNS`` shown, the assistant's panel closed."""
+    columns of ``COLUMNS`` shown, every run drawn in the chart view (the UI draws the first 10 by default, and the
+    launch run counts as one, which hid the tenth variant), the assistant's panel closed."""
     browser.open(f"http://127.0.0.1:{port}/")
-    state = {"searchFilter": VARIANTS_FILTER, "selectedColumns": COLUMNS}
+    state = {"searchFilter": VARIANTS_FILTER, "selectedColumns": COLUMNS, "runsHiddenMode": "SHOW_ALL"}
     stored = {
         f'MLflowLocalStorage-1.1-ExperimentPage-["{experiment_id}"]-ReactComponentState': json.dumps(state),
         "mlflow.assistant.fab.autoOpenedOnFirstLoad_v1": "true",
