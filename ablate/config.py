@@ -177,15 +177,15 @@ class TrialConfig:
     env_module_source: sources.Bundle = derived((), key_since=None, tracked=False, repr=False)
     """A local ``env_module``'s files as ``(path, text)`` pairs, shipped with the trial like a factory's."""
     model: ModelConfig = field(default_factory=ModelConfig)
-    learning_rate: float = knob(0.03, **number(0, 1, open_low=True), tunable=True)
+    learning_rate: float = knob(0.03, **number(0, 1, open_low=True), tunable=True, setting=True)
     """Adam step size, in (0, 1]."""
-    gamma: float = knob(0.95, **number(0, 1, open_low=True))
+    gamma: float = knob(0.95, **number(0, 1, open_low=True), setting=True)
     """Discount factor in (0, 1]. The course uses 0.95 for CartPole and 0.99 for Pong."""
-    l2: float = knob(0.0, **number(0, 1))
+    l2: float = knob(0.0, **number(0, 1), setting=True)
     """L2 penalty coefficient (a loss term over weight matrices, see ``reinforce.train_step``), >= 0."""
-    episodes_per_update: int = knob(32, **integer(1, 256), tunable=True, population=True)
+    episodes_per_update: int = knob(32, **integer(1, 256), tunable=True, population=True, setting=True)
     """Complete episodes collected (in parallel, from a vectorised env) per Adam step, >= 1."""
-    max_episodes: int = knob(3000, **integer(1, 1_000_000))
+    max_episodes: int = knob(3000, **integer(1, 1_000_000), setting=True)
     """Episode budget, >= 1: the trial stops here if it has not solved the task."""
     solve_threshold: float | None = knob(
         None,
@@ -193,7 +193,7 @@ class TrialConfig:
         valid="a finite number (or leave it out for the env's threshold)",
     )
     """Rolling mean return that counts as solved; ``None``: the env spec's ``reward_threshold``."""
-    solve_window: int = knob(100, **integer(1, 10_000))
+    solve_window: int = knob(100, **integer(1, 10_000), setting=True)
     """Episodes in the rolling mean, >= 1."""
     seed: int = knob(0, check=lambda v: is_int(v) and 0 <= v < 2**31, valid="an integer in [0, 2**31)")
     """Seeds torch, the action sampler and the environment."""
@@ -258,6 +258,8 @@ KNOBS: dict[str, Knob] = {k.key_name: k for k in SCHEMA.values() if k.user}
 TUNABLE_KNOBS = tuple(name for name, k in KNOBS.items() if k.tunable)
 """Optimisation knobs ``[tune]`` may search; architecture and regularisation knobs are what an ablation
 compares, so tuning them would tune away the effect being measured."""
+SETTING_KNOBS = tuple(name for name, k in KNOBS.items() if k.setting)
+"""Training settings every network reads: columns of every trial's row and of the report's base values."""
 POPULATION_COLUMNS = tuple(column for column, k in SCHEMA.items() if k.population)
 """The fields trials must share to train as one population."""
 ENV_COLUMNS = tuple(column for column, k in SCHEMA.items() if k.env)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ablate.config import ARCHITECTURE_KNOBS
+from ablate.config import ARCHITECTURE_KNOBS, KNOBS, SETTING_KNOBS, TUNABLE_KNOBS, freeze
 from ablate.env_spec import is_pong, resets_on_score
 from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.figures import ablation_window
@@ -21,6 +21,11 @@ def _setting_groups(overrides: dict) -> list[str]:
     """The separate settings a variant changes (an architecture's knobs count as one)."""
     groups = sorted({"architecture" if k in ARCHITECTURE_KNOBS else k for k in overrides})
     return groups
+
+
+def _set_away(base: dict, knob: str, default: object) -> bool:
+    """Whether the base sets ``knob`` to other than its declared default (an env's own knobs are shown then)."""
+    return knob in base and freeze(base[knob]) != freeze(default)
 
 
 def _sampling_videos(ablation: Ablation) -> bool:
@@ -122,9 +127,7 @@ def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS)
             }
         )
     blocks += [Table(pd.DataFrame(rows), "Variants"), Paragraph("**Base hyper-parameters.**")]
-    keep = ("learning_rate", "gamma", "episodes_per_update", "max_episodes", "solve_window", "l2")
-    if is_pong(ablation.env_id):
-        keep += ("action_set", "frameskip", "max_episode_steps")
+    keep = [*SETTING_KNOBS, *(k for k, knob in KNOBS.items() if knob.env and _set_away(base, k, knob.default))]
     blocks.append(Table(pd.DataFrame([{k: base[k] for k in keep if k in base}]), "Base hyper-parameters"))
     if ablation.tuning:
         tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
@@ -335,7 +338,7 @@ def limitations(
             + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else ""),
         )
     )
-    tuned = [k for k in ("learning_rate", "episodes_per_update", "gamma") if k in base]
+    tuned = [k for k in TUNABLE_KNOBS if k in base]
     touched = [v["name"] for v in variants if any(k in v["overrides"] for k in tuned)]
     architectures = [v for v in variants if "architecture" in _setting_groups(v["overrides"])]
     if ablation.tuning:

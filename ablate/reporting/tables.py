@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ablate.config import KNOBS, freeze
+from ablate.config import KNOBS, SETTING_KNOBS, freeze
 from ablate.reporting.results import Ablation
 from ablate.reporting.settings import DERIVED, setting
 from ablate.reporting.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
@@ -48,8 +48,8 @@ def trials_table(ablation: Ablation) -> pd.DataFrame:
     return table
 
 
-SETTINGS = ("learning_rate", "episodes_per_update", "gamma", "l2")
-"""Settings every trial's row carries, whether or not a variant changes them."""
+SETTINGS = SETTING_KNOBS
+"""Settings every trial's row carries, whether or not a variant changes them (the schema's ``setting`` knobs)."""
 
 
 def settings_of(ablation: Ablation, trials: pd.DataFrame) -> pd.DataFrame:
