@@ -105,13 +105,17 @@ class ModelConfig:
     """Dropout probability after every hidden layer, in [0, 1). Active in updates, off while acting."""
     layer_norm: bool = knob(False, **boolean(), **_NET, key_since=3, words="LayerNorm before each hidden activation")
     """A ``LayerNorm`` (with its scale and shift) after each dense hidden layer, before its activation."""
-    history: int = knob(4, **integer(2, 64), **_NET, architecture=True)
+    history: int = knob(4, **integer(2, 64), **_NET, architecture=True, only_for="cnn")
     """``cnn`` on CartPole only: how many recent observations the convolution sees (>= 2)."""
     conv_channels: tuple[int, ...] = knob(
-        (16,), **_sizes(False, "a non-empty list of channel counts in [1, 4096]"), **_NET, architecture=True
+        (16,),
+        **_sizes(False, "a non-empty list of channel counts in [1, 4096]"),
+        **_NET,
+        architecture=True,
+        only_for="cnn",
     )
     """``cnn`` on CartPole only: output channels of each 1-D convolution layer."""
-    kernel_size: int = knob(2, **integer(1, 64), **_NET, architecture=True)
+    kernel_size: int = knob(2, **integer(1, 64), **_NET, architecture=True, only_for="cnn")
     """``cnn`` on CartPole only: temporal kernel size of each convolution, <= ``history``."""
     factory: str = knob(
         "",

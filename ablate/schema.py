@@ -51,6 +51,8 @@ class Knob:
     """With the other architecture knobs, it makes one architecture: a variant changing several changes one thing."""
     tunable: bool = False
     """``[tune]`` may search it: an optimisation knob, not what an ablation compares."""
+    only_for: str = ""
+    """The one built-in architecture that reads it (``cnn``): other networks' runs leave its param out."""
     setting: bool = False
     """A training setting every network reads: every trial's row in the tables and the report's table of base
     values carry it, whether or not a variant changes it."""

@@ -80,3 +80,15 @@ def test_keys_and_populations_follow_the_declarations():
 def test_every_config_field_is_declared():
     for cls in (TrialConfig, config.ModelConfig):
         schema.fields_of(cls)  # raises on a field without a Knob
+
+
+def test_a_knob_of_one_built_in_network_is_tracked_only_where_that_network_runs():
+    from dataclasses import replace
+
+    from ablate.launch.records import tracked_params
+
+    cnn_only = [column for column, knob in SCHEMA.items() if knob.only_for == "cnn"]
+    assert "model.kernel_size" in cnn_only and "model.hidden_sizes" not in cnn_only
+    mlp = tracked_params("v", config.DEFAULT)
+    cnn = tracked_params("v", replace(config.DEFAULT, model=replace(config.DEFAULT.model, architecture="cnn")))
+    assert not set(cnn_only) & set(mlp) and set(cnn_only) <= set(cnn)

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from ablate import sources
-from ablate.config import KNOBS, flatten
+from ablate.config import KNOBS, SCHEMA, flatten
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, tuning_trials
 
@@ -31,9 +31,6 @@ def git_commit() -> str:
         return "unknown"
 
 
-_CNN_ONLY = ("model.history", "model.conv_channels", "model.kernel_size")
-
-
 def tracked_params(variant: str, config) -> dict:
     """A trial's MLflow params: every knob that shaped it, and none that did not (the test-only fault knobs
     unless set, the built-in CNN's window knobs on other networks, an unset ``solve_threshold``), so MLflow's params
@@ -42,9 +39,9 @@ def tracked_params(variant: str, config) -> dict:
     for key in [name for name, knob in KNOBS.items() if knob.test_only]:
         if not params[key]:
             del params[key]
-    if config.model.architecture != "cnn" or config.model.factory:
-        for key in _CNN_ONLY:
-            del params[key]
+    for column, knob in SCHEMA.items():
+        if knob.only_for and (config.model.architecture != knob.only_for or config.model.factory):
+            del params[column]  # a knob of one built-in network, which this trial does not run
     if params["solve_threshold"] is None:
         del params["solve_threshold"]
     return params | package_versions(config)
