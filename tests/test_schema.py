@@ -92,3 +92,20 @@ def test_a_knob_of_one_built_in_network_is_tracked_only_where_that_network_runs(
     mlp = tracked_params("v", config.DEFAULT)
     cnn = tracked_params("v", replace(config.DEFAULT, model=replace(config.DEFAULT.model, architecture="cnn")))
     assert not set(cnn_only) & set(mlp) and set(cnn_only) <= set(cnn)
+
+
+def test_no_module_keeps_its_own_list_of_knob_names():
+    """A tuple, list or set literal naming two or more knobs is a list kept by hand beside the schema: it drifts
+    when a knob is added. Each such list is derived from the declarations instead (``config.SETTING_KNOBS``, ...)."""
+    import ast
+    from pathlib import Path
+
+    names = set(config.KNOBS) | set(SCHEMA) | {knob.attr for knob in SCHEMA.values()}
+    found = []
+    for path in sorted((Path(config.__file__).parent).rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Tuple | ast.List | ast.Set):
+                named = [e.value for e in node.elts if isinstance(e, ast.Constant) and e.value in names]
+                if len(named) >= 2:
+                    found.append(f"{path.name}:{node.lineno} {named}")
+    assert not found, found
