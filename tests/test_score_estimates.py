@@ -29,3 +29,9 @@ def test_a_launch_that_did_not_finish_has_nothing_to_score(tmp_path, capsys):
     (tmp_path / "b.log").write_text(LOG.rsplit("\n", 2)[0])
     assert main([str(tmp_path / "b.log")]) == 1
     assert "did not finish" in capsys.readouterr().err
+
+
+def test_help_and_a_missing_log_are_one_line_not_a_traceback(tmp_path, capsys):
+    assert main(["--help"]) == 0 and "usage: score_estimates.py LOG" in capsys.readouterr().err
+    assert main([str(tmp_path / "none.log")]) == 2
+    assert capsys.readouterr().err == f"score_estimates: {tmp_path / 'none.log'}: no such file\n"

@@ -50,8 +50,11 @@ def score(text: str) -> tuple[int, list[tuple[int, int, int, int]], int | None]:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 1:
-        sys.stderr.write("usage: score_estimates.py LOG\n")
+    if len(argv) != 1 or argv[0] in ("-h", "--help"):
+        sys.stderr.write("usage: score_estimates.py LOG\n" + (__doc__ or ""))
+        return 0 if argv in (["-h"], ["--help"]) else 2
+    if not Path(argv[0]).is_file():
+        sys.stderr.write(f"score_estimates: {argv[0]}: no such file\n")
         return 2
     held, outside, end = score(Path(argv[0]).read_text())
     if end is None:
