@@ -233,6 +233,26 @@ def test_a_store_answering_errors_is_named_at_once_or_after_the_bound_and_can_st
     assert answering.calls > 2 and client.set_terminated() == "closed"  # retried, and the store still usable
 
 
+def test_a_store_answering_errors_is_never_called_lost_when_its_deadline_passes_between_two_looks(monkeypatch):
+    """The retry loop read the clock twice: a deadline passing between the reads called a store that answers 500
+    'stopped answering' (seen once in CI). A clock that ticks on every read makes that moment certain."""
+    import itertools
+
+    from ablate.launch import store_writes as store
+
+    monkeypatch.setattr(store, "STORE_RETRY_S", 1.5)
+    monkeypatch.setattr(store.time, "sleep", lambda s: None)
+    monkeypatch.setattr(store.time, "monotonic", itertools.count().__next__)
+
+    class Answering:
+        def log_text(self, error):
+            raise RuntimeError(error)
+
+    client = store.RetryingClient(Answering(), "http://h:5000")
+    with pytest.raises(TrackingError, match="answered every try of a write with a server error"):
+        client.log_text("500 Server Error: Internal Server Error for url: http://h/x")
+
+
 def test_a_password_in_a_database_uris_query_is_masked_in_the_refusal(tmp_path, monkeypatch, capsys):
     from ablate.cli import main
 

@@ -92,14 +92,15 @@ class RetryingClient:
                         raise TrackingError(
                             f"MLflow store {self._shown_uri} refused a write: {advice} ({shown(first_line(error))})"
                         ) from None
-                    deadline = deadline or time.monotonic() + STORE_RETRY_S
-                    if time.monotonic() >= deadline and kind == "5xx":  # it answers: the launch can be closed
+                    now = time.monotonic()  # read once: the two outcomes below must see the same moment
+                    deadline = deadline or now + STORE_RETRY_S
+                    if now >= deadline and kind == "5xx":  # it answers: the launch can be closed
                         raise TrackingError(
                             f"MLflow store {self._shown_uri} answered every try of a write with a server error for "
                             f"{STORE_RETRY_S:.0f} s ({shown(first_line(error))}); its log says why (an artifact "
                             "folder it may not write, a full disk, ...): fix it and run the same command again"
                         ) from None
-                    if time.monotonic() >= deadline:
+                    if now >= deadline:
                         self._lost = (
                             f"MLflow store {self._shown_uri} stopped answering ({shown(first_line(error))}); "
                             f"retried for {STORE_RETRY_S:.0f} s, the launch stops: run the same command again "
