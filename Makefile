@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP) ## build .venv from pyproject.toml (every target does this first when needed)
 
-test: $(STAMP) ## the test suite on 2 pytest-xdist workers (TEST_WORKERS), all but the e2e tests (4 min 4 s to 4 min 53 s on fresh clones of an idle 2-core machine, after the venv)
+test: $(STAMP) ## the test suite on 2 pytest-xdist workers (TEST_WORKERS), all but the e2e tests (4 min 4 s to 7 min 33 s on fresh clones of idle 2-core machines, as machines differ, after the venv)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal -m "not e2e"
 
 test-e2e: $(STAMP) ## processes that die or are stopped: ablate run on its own Ray under Ctrl-C and SIGTERM, the live view in tmux, trial workers that die mid-trial; one at a time (CI runs it after make test)
