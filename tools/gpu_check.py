@@ -63,14 +63,16 @@ def _ensure_emulator(wheels: Path | None) -> None:
     sys.path.insert(0, str(target))
 
 
-def _raw_steps_per_s(steps: int = 8000) -> float:
-    """Agent steps per wall second of ``gym.make("ALE/Pong-v5")`` with random actions, nothing else."""
-    import ale_py
+def _raw_steps_per_s(config, steps: int = 8000) -> float:
+    """Agent steps per wall second of ``gym.make(config.env_id)`` (``ALE/Pong-v5``) with random actions, nothing
+    else; the env registered as a trial registers it (``env_spec.register``)."""
     import gymnasium as gym
     import numpy as np
 
-    gym.register_envs(ale_py)
-    env = gym.make("ALE/Pong-v5")
+    from ablate.env_spec import register
+
+    register(config)
+    env = gym.make(config.env_id)
     env.reset(seed=0)
     actions = np.random.default_rng(0).integers(0, 6, steps)
     started = time.perf_counter()
@@ -115,7 +117,7 @@ def main() -> int:
     else:
         print(f"no CUDA device: the CPU path (torch {torch.__version__})", flush=True)
     variants = {v.name: v.config for v in load_experiment(args.experiment).variants}
-    raw = _raw_steps_per_s()
+    raw = _raw_steps_per_s(variants["cnn"])
     print(f"raw ALE/Pong-v5: {raw:,.0f} agent steps/s (one process, wall clock)", flush=True)
     for name in ("cnn", "mlp"):
         config = replace(

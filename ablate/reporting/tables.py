@@ -48,15 +48,11 @@ def trials_table(ablation: Ablation) -> pd.DataFrame:
     return table
 
 
-SETTINGS = SETTING_KNOBS
-"""Settings every trial's row carries, whether or not a variant changes them (the schema's ``setting`` knobs)."""
-
-
 def settings_of(ablation: Ablation, trials: pd.DataFrame) -> pd.DataFrame:
-    """Each trial's settings as columns: ``SETTINGS`` and every knob a variant writes (``hidden_sizes`` with its
-    ``depth`` and ``width``), each the variant's value or the base's (``settings.setting``), typed as the schema
-    declares it (``cells``); a tuned knob keeps the trial's own column. A knob the grid holds for no variant (an
-    older store) is left out."""
+    """Each trial's settings as columns: ``config.SETTING_KNOBS`` (whether or not a variant changes them) and
+    every knob a variant writes (``hidden_sizes`` with its ``depth`` and ``width``), each the variant's value or
+    the base's (``settings.setting``), typed as the schema declares it (``cells``); a tuned knob keeps the trial's
+    own column. A knob the grid holds for no variant (an older store) is left out."""
     per_variant = variant_settings(ablation)
     columns = {c: trials.variant.map(per_variant[c]) for c in per_variant if c not in trials}
     return pd.DataFrame(columns, index=trials.index)
@@ -66,7 +62,7 @@ def variant_settings(ablation: Ablation) -> pd.DataFrame:
     """One row per variant (the index), one column per setting ``settings_of`` gives a trial: the grid's values,
     and a tuned knob at the value the variant's evaluation trials ran (its choice)."""
     written = sorted({k for v in ablation.grid["variants"] for k in v.get("overrides", {})})
-    knobs = [*SETTINGS, *(k for k in written if k not in SETTINGS)]
+    knobs = [*SETTING_KNOBS, *(k for k in written if k not in SETTING_KNOBS)]
     if any(knob in ("hidden_sizes", *DERIVED) for knob in knobs):
         knobs += [k for k in ("hidden_sizes", *DERIVED) if k not in knobs]
     rows: dict[str, dict[str, Any]] = {v: {} for v in ablation.variants}
