@@ -1,0 +1,337 @@
+"""A population's networks as one: every member's parameters stacked member-first, one batched forward for all
+members (or any subset), whatever the network; what acting and the update (``reinforce``) run on.
+
+The user's module keeps its own ``forward``: its standard layers (``Linear``, ``LayerNorm``, ``Conv1d``,
+``Conv2d``, ``Dropout``) are swapped for versions that read every member's parameters at once, the members folded
+into the batch dimension member-major (a ``Linear`` becomes one ``baddbmm``; a convolution one grouped
+convolution, a group per member), so elementwise code and ``flatten(1)`` run as written. A module whose forward
+mixes batch rows, or that holds other parameters or buffers, goes through ``torch.func.vmap(functional_call)``
+instead; both read the same stacked parameters, so the update is one either way. Checked once per population
+against each member's own forward (``Members.check``).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+def dropout_seed(seed: int) -> int:
+    """A member's dropout stream's seed: its own, apart from the stream its initial weights came from."""
+    return int(np.random.SeedSequence([seed, 1]).generate_state(1)[0])
+
+
+class _Stack:
+    """Every member's parameters as one (M, P) leaf tensor (a member's row: its parameters one after another), the
+    rows a forward serves, and each member's dropout stream."""
+
+    def __init__(self, models: Sequence[nn.Module], device: torch.device, generators: list[torch.Generator]) -> None:
+        self.layout: dict[str, tuple[int, int, tuple[int, ...]]] = {}
+        """name -> (start, end, shape) of the parameter in a row."""
+        start = 0
+        for name, p in models[0].named_parameters():
+            self.layout[name] = (start, start + p.numel(), tuple(p.shape))
+            start += p.numel()
+        rows = [torch.cat([p.detach().reshape(-1) for p in m.parameters()]) for m in models] if start else []
+        self.flat = (torch.stack(rows) if rows else torch.zeros(len(models), 0)).to(device).requires_grad_(True)
+        self.generators = generators
+        self._acting: tuple[torch.Tensor, dict[str, torch.Tensor]] | None = None
+        self.rows = self.flat
+        self.index: torch.Tensor | None = None
+        """The members a forward serves (rows of ``flat``); ``None``: all."""
+
+    def serve(self, index: torch.Tensor | None) -> None:
+        self.index = index
+        self.rows = self.flat if index is None else self.flat[index]
+
+    def get(self, name: str) -> torch.Tensor:
+        if self.index is None and not torch.is_grad_enabled():  # acting: views made once, as Adam steps in place
+            if self._acting is None or self._acting[0] is not self.flat:
+                with torch.no_grad():
+                    self._acting = (self.flat, {n: self._view(self.flat, n) for n in self.layout})
+            return self._acting[1][name]
+        return self._view(self.rows, name)
+
+    def _view(self, rows: torch.Tensor, name: str) -> torch.Tensor:
+        start, end, shape = self.layout[name]
+        return rows[:, start:end].view(len(rows), *shape)
+
+    def members(self) -> list[int]:
+        return list(range(len(self.flat))) if self.index is None else self.index.tolist()
+
+    def weight_mask(self) -> torch.Tensor:
+        """(P,): 1 at the entries of weight tensors (what L2 penalises), 0 at biases and norms' shifts."""
+        mask = torch.zeros(self.flat.shape[1], device=self.flat.device)
+        for name, (start, end, _) in self.layout.items():
+            if name.endswith("weight"):
+                mask[start:end] = 1
+        return mask
+
+
+class _StackedLayer(nn.Module):
+    def __init__(self, stack: _Stack, prefix: str, layer: nn.Module) -> None:
+        super().__init__()
+        self._stack = stack  # plain attribute: not a submodule
+        self._weight = prefix + "weight" if getattr(layer, "weight", None) is not None else None
+        self._bias = prefix + "bias" if getattr(layer, "bias", None) is not None else None
+
+    def _params(self) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        stack = self._stack
+        weight = stack.get(self._weight) if self._weight else None
+        return weight, stack.get(self._bias) if self._bias else None
+
+
+class StackedLinear(_StackedLayer):
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        weight, bias = self._params()
+        rows = x.reshape(len(weight), -1, x.shape[-1])
+        if bias is None:
+            out = torch.bmm(rows, weight.transpose(1, 2))
+        else:
+            out = torch.baddbmm(bias.unsqueeze(1), rows, weight.transpose(1, 2))
+        return out.reshape(*x.shape[:-1], weight.shape[1])
+
+
+class StackedLayerNorm(_StackedLayer):
+    def __init__(self, stack: _Stack, prefix: str, layer: nn.LayerNorm) -> None:
+        super().__init__(stack, prefix, layer)
+        self.normalized_shape, self.eps = tuple(layer.normalized_shape), layer.eps
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out = F.layer_norm(x, self.normalized_shape, eps=self.eps)
+        weight, bias = self._params()
+        if weight is None and bias is None:
+            return out
+        members = len(weight if weight is not None else bias)
+        grouped = out.reshape(members, -1, *self.normalized_shape)
+        if weight is not None:
+            grouped = grouped * weight.unsqueeze(1)
+        if bias is not None:
+            grouped = grouped + bias.unsqueeze(1)
+        return grouped.reshape(x.shape)
+
+
+class StackedConv(_StackedLayer):
+    """``Conv1d``/``Conv2d`` for every member as one grouped convolution (a group per member)."""
+
+    def __init__(self, stack: _Stack, prefix: str, layer: nn.Conv1d | nn.Conv2d) -> None:
+        super().__init__(stack, prefix, layer)
+        self.dims = 1 if isinstance(layer, nn.Conv1d) else 2
+        self.stride, self.padding, self.dilation = layer.stride, layer.padding, layer.dilation
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        weight, bias = self._params()
+        members, out_channels = weight.shape[:2]
+        spatial = x.shape[-self.dims :]
+        grouped = x.reshape(members, -1, x.shape[-self.dims - 1], *spatial).transpose(0, 1)
+        batch = grouped.shape[0]
+        grouped = grouped.reshape(batch, -1, *spatial)  # (batch, members * channels, ...)
+        convolve = F.conv1d if self.dims == 1 else F.conv2d
+        out = convolve(
+            grouped,
+            weight.reshape(members * out_channels, *weight.shape[2:]),
+            None if bias is None else bias.reshape(-1),
+            self.stride,
+            self.padding,
+            self.dilation,
+            members,
+        )
+        out = out.reshape(batch, members, out_channels, *out.shape[2:]).transpose(0, 1)
+        return out.reshape(-1, out_channels, *out.shape[3:])
+
+
+class StackedDropout(nn.Module):
+    """Dropout whose mask each member draws from its own stream (``_Stack.generators``)."""
+
+    def __init__(self, stack: _Stack, p: float) -> None:
+        super().__init__()
+        self._stack, self.p = stack, p
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.training or self.p == 0:
+            return x
+        members = self._stack.members()
+        grouped = x.reshape(len(members), -1, *x.shape[1:])
+        keep = torch.stack(
+            [
+                torch.rand(grouped.shape[1:], generator=self._stack.generators[m], device=x.device) >= self.p
+                for m in members
+            ]
+        )
+        return (grouped * keep / (1 - self.p)).reshape(x.shape)
+
+
+_PARAMETRIC = (nn.Linear, nn.LayerNorm, nn.Conv1d, nn.Conv2d)
+
+
+def _swappable(model: nn.Module) -> bool:
+    """Whether every parameter sits in a layer ``_swap`` knows and nothing holds a buffer."""
+    if any(True for _ in model.buffers()):
+        return False
+    for module in model.modules():
+        own = list(module.parameters(recurse=False))
+        if not own:
+            continue
+        if not isinstance(module, _PARAMETRIC):
+            return False
+        if isinstance(module, nn.Conv1d | nn.Conv2d) and (module.groups != 1 or module.padding_mode != "zeros"):
+            return False
+        if isinstance(module, nn.Conv1d | nn.Conv2d) and isinstance(module.padding, str):
+            return False
+    return True
+
+
+def _replacement(layer: nn.Module, stack: _Stack, path: str) -> nn.Module | None:
+    """``layer``'s stacked version, reading ``stack`` under ``path``; ``None`` for a layer kept as it is."""
+    if isinstance(layer, nn.Linear):
+        return StackedLinear(stack, path, layer)
+    if isinstance(layer, nn.LayerNorm):
+        return StackedLayerNorm(stack, path, layer)
+    if isinstance(layer, nn.Conv1d | nn.Conv2d):
+        return StackedConv(stack, path, layer)
+    if type(layer) is nn.Dropout:
+        return StackedDropout(stack, layer.p)
+    return None
+
+
+def _swap(model: nn.Module, stack: _Stack, prefix: str = "") -> nn.Module:
+    """``model`` with its layers replaced (in place) by their stacked versions, reading ``stack`` by their names."""
+    replacement = _replacement(model, stack, prefix)
+    if replacement is not None:
+        return replacement
+    for name, child in list(model.named_children()):
+        setattr(model, name, _swap(child, stack, f"{prefix}{name}."))
+    return model
+
+
+class Members:
+    """M members of one architecture as one network: ``members(x)`` maps (A, B, *obs) to (A, B, actions) logits for
+    the A members of ``serving`` (all by default). ``flat``: every member's parameters, what Adam steps."""
+
+    def __init__(self, models: Sequence[nn.Module], device: torch.device, seeds: Sequence[int]) -> None:
+        self.device = device
+        self.template = copy.deepcopy(models[0]).cpu()
+        """Member 0's module as built (a member's own module is this with its row loaded: ``module``)."""
+        self.buffers = {
+            name: torch.stack([dict(m.named_buffers())[name] for m in models]).to(device)
+            for name, _ in models[0].named_buffers()
+        }
+        generators = []
+        for seed in seeds:
+            generator = torch.Generator(device=device)
+            generator.manual_seed(int(seed))
+            generators.append(generator)
+        self.stack = _Stack(models, device, generators)
+        self.weight_mask = self.stack.weight_mask()
+        self.network = _swap(copy.deepcopy(self.template), self.stack).to(device) if _swappable(models[0]) else None
+        self._vmapped = None if self.network is not None else self._vmap_forward()
+        self.training = True
+        self.eval()
+
+    @property
+    def flat(self) -> torch.Tensor:
+        return self.stack.flat
+
+    def _vmap_forward(self):
+        from torch.func import functional_call
+
+        base = copy.deepcopy(self.template).to("meta")
+
+        def one(params, buffers, x):
+            return functional_call(base, (params, buffers), (x,))
+
+        return torch.vmap(one, randomness="different")
+
+    def train(self, mode: bool = True) -> Members:
+        if mode == self.training:  # acting calls eval() every step: walking the modules costs more than the forward
+            return self
+        self.training = mode
+        if self.network is not None:
+            self.network.train(mode)
+        return self
+
+    def eval(self) -> Members:
+        return self.train(False)
+
+    def __call__(self, x: torch.Tensor, serving: torch.Tensor | None = None) -> torch.Tensor:
+        """Logits (A, B, actions) of the members ``serving`` (indices into the stack; ``None``: all) on x
+        (A, B, *observation)."""
+        x = x.to(self.device, torch.float32)
+        if serving is None and self.network is not None:  # acting: every member, the stack already serves them all
+            members, batch = x.shape[:2]
+            return self.network(x.reshape(members * batch, *x.shape[2:])).reshape(members, batch, -1)
+        self.stack.serve(serving)
+        try:
+            if self.network is not None:
+                members, batch = x.shape[:2]
+                return self.network(x.reshape(members * batch, *x.shape[2:])).reshape(members, batch, -1)
+            params = {name: self.stack.get(name) for name in self.stack.layout}
+            buffers = {k: (v if serving is None else v[serving]) for k, v in self.buffers.items()}
+            return self._vmapped(params, buffers, x)
+        finally:
+            self.stack.serve(None)
+
+    def l2_penalty(self, l2: torch.Tensor, serving: torch.Tensor | None = None) -> torch.Tensor:
+        """Each member's ``l2 * sum(w**2)`` over its weight tensors (biases excluded), summed over the members."""
+        rows = self.flat if serving is None else self.flat[serving]
+        return (l2 * (rows.pow(2) * self.weight_mask).sum(1)).sum()
+
+    def module(self, member: int) -> nn.Module:
+        """Member ``member``'s own ``nn.Module`` (on the CPU), its current weights loaded."""
+        model = copy.deepcopy(self.template)
+        model.load_state_dict(self.state_dict(member))
+        return model
+
+    def state_dict(self, member: int) -> dict[str, torch.Tensor]:
+        row = self.flat[member].detach().cpu()
+        state = {name: row[start:end].reshape(shape).clone() for name, (start, end, shape) in self.stack.layout.items()}
+        state.update({name: b[member].cpu().clone() for name, b in self.buffers.items()})
+        return self.template.state_dict() | state
+
+    def load_state_dict(self, member: int, state: dict[str, torch.Tensor]) -> None:
+        with torch.no_grad():
+            for name, (start, end, _) in self.stack.layout.items():
+                self.flat[member, start:end] = state[name].reshape(-1).to(self.device)
+            for name, b in self.buffers.items():
+                b[member].copy_(state[name])
+
+    def generator_state(self, member: int) -> torch.Tensor:
+        return self.stack.generators[member].get_state()
+
+    def set_generator_state(self, member: int, state: torch.Tensor) -> None:
+        self.stack.generators[member].set_state(state)
+
+    def keep(self, members: list[int]) -> None:
+        """Only ``members`` (in this order) go on."""
+        index = torch.tensor(members, device=self.device)
+        self.stack.flat = self.flat.detach()[index].requires_grad_(True)
+        self.stack.serve(None)
+        self.buffers = {k: v[index] for k, v in self.buffers.items()}
+        self.stack.generators[:] = [self.stack.generators[m] for m in members]
+
+    def check(self, models: Sequence[nn.Module], observation_shape: Sequence[int]) -> None:
+        """Falls back to ``vmap`` unless the swapped network gives each member its own module's logits on a sample
+        (a forward that mixes batch rows, reshapes by the batch size it was given, or fails stacked)."""
+        if self.network is None:
+            return
+        sample = torch.randn(len(models), 3, *observation_shape, generator=torch.Generator().manual_seed(0))
+        try:
+            with torch.no_grad():
+                got = self(sample).cpu()
+                expected = torch.stack([m.eval()(sample[i]).detach().cpu() for i, m in enumerate(models)])
+            fits = got.shape == expected.shape and torch.allclose(got, expected, rtol=1e-4, atol=1e-5)
+        except Exception:  # any failure of the swapped forward: the user's module is not written for it
+            fits = False
+        if not fits:
+            self.network = None
+            self._vmapped = self._vmap_forward()
+
+    @property
+    def swapped(self) -> bool:
+        """Whether the members run through the user's module with stacked layers (else through ``vmap``)."""
+        return self.network is not None

@@ -1,0 +1,113 @@
+"""Stacked members: each member's logits and gradients are its own module's, whatever the network (stacked layers,
+or ``vmap`` for a module they cannot serve), and a member's dropout never depends on who shares the stack."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+import torch
+from torch import nn
+
+from ablate.agent.policies import create_cartpole_model, create_pong_model
+from ablate.agent.stacking import Members
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "models"
+
+
+def _example(name: str):
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.create_model
+
+
+class _MixesRows(nn.Module):
+    """A forward that normalises over the batch: stacked members would share statistics, so it must go to vmap."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.linear = nn.Linear(4, 2)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.linear(x - x.mean(0))
+
+
+class _OwnParameter(nn.Module):
+    """A parameter outside the layers the stack knows (a learnt temperature)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.linear = nn.Linear(4, 2)
+        self.temperature = nn.Parameter(torch.ones(()))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.linear(x) / self.temperature
+
+
+NETWORKS = {
+    "mlp": (lambda: create_cartpole_model(hidden_sizes=(16, 8), activation="tanh"), (4,), True),
+    "cnn-1d": (lambda: create_cartpole_model(architecture="cnn", history=4, conv_channels=(6, 5)), (4, 4), True),
+    "layernorm": (lambda: _example("layernorm")((4,), 2, width=16), (4,), True),
+    "residual": (lambda: _example("residual")((4,), 2, width=16), (4,), True),
+    "pong-cnn": (lambda: create_pong_model(n_actions=3), (1, 80, 80), True),
+    "mixes-rows": (_MixesRows, (4,), False),
+    "own-parameter": (_OwnParameter, (4,), False),
+}
+
+
+def _models(name: str, count: int = 3) -> tuple[list[nn.Module], tuple[int, ...], bool]:
+    build, shape, swapped = NETWORKS[name]
+    models = []
+    for seed in range(count):
+        torch.manual_seed(seed)
+        models.append(build())
+    return models, shape, swapped
+
+
+@pytest.mark.parametrize("name", list(NETWORKS))
+def test_each_member_gets_its_own_modules_logits_and_gradients(name):
+    models, shape, swapped = _models(name)
+    members = Members(models, torch.device("cpu"), range(len(models)))
+    members.check(models, shape)
+    assert members.swapped == swapped  # stacked layers where they serve, vmap where they cannot
+    x = torch.randn(len(models), 5, *shape, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        logits = members(x)
+    for m, model in enumerate(models):
+        torch.testing.assert_close(logits[m], model.eval()(x[m]), rtol=1e-4, atol=1e-5)
+    # The members served (2 and 0, in that order) get their own module's gradients, the one not served none.
+    serving = torch.tensor([2, 0])
+    members.train()
+    members(x[[2, 0]], serving).pow(2).sum().backward()
+    grads = members.flat.grad
+    assert torch.count_nonzero(grads[1]) == 0
+    for m in (2, 0):
+        models[m].zero_grad()
+        models[m].train()(x[m]).pow(2).sum().backward()
+        expected = torch.cat([p.grad.reshape(-1) for p in models[m].parameters()])
+        torch.testing.assert_close(grads[m], expected, rtol=1e-4, atol=1e-5)
+
+
+def test_a_members_dropout_is_its_own_stream_whoever_shares_the_stack():
+    build = lambda: create_cartpole_model(hidden_sizes=(32,), dropout=0.5)  # noqa: E731
+    torch.manual_seed(0)
+    models = [build() for _ in range(3)]
+    together = Members(models, torch.device("cpu"), [10, 11, 12]).train()
+    alone = Members([models[1]], torch.device("cpu"), [11]).train()
+    x = torch.randn(1, 64, 4).expand(3, 64, 4)
+    for _ in range(3):  # draw after draw, the streams stay in step
+        torch.testing.assert_close(together(x)[1], alone(x[1:2])[0])
+    masks = together(x)
+    assert not torch.equal(masks[0], masks[2])  # members draw different masks
+
+
+def test_a_member_leaves_and_the_others_keep_their_weights_and_streams():
+    models, shape, _ = _models("mlp", 4)
+    members = Members(models, torch.device("cpu"), range(4))
+    state = members.state_dict(3)
+    members.keep([3, 1])
+    assert all(torch.equal(state[k], v) for k, v in members.state_dict(0).items())
+    assert isinstance(members.module(1), type(models[1]))
+    torch.testing.assert_close(members.module(1)(torch.ones(2, 4)), models[1](torch.ones(2, 4)))
