@@ -1,15 +1,17 @@
 """Every change ablate makes to an env's internals lives here: Gymnasium's ``CartPoleVectorEnv``'s ``state``,
-``steps``, ``prev_done`` and ``action_space``, which no public API lets a caller set.
+``steps``, ``prev_done`` and ``action_space``, and ``TimeLimit``'s step count, which no public API lets one set.
 
 Why: a vector env resets all its envs from one stream, so a member's start states would depend on which other
 members share its process; ablate draws each member's start states from that member's own stream and writes
 them in (``set_start_states``). A population that drops members goes on with a smaller vector env holding the
-survivors' episodes exactly as they were (``copy_slots``). ``tests/test_env_internals.py`` fails when Gymnasium
-changes any of what these functions assume.
+survivors' episodes exactly as they were (``copy_slots``). A checkpoint taken mid-episode resumes exactly only
+if the episode's step count, which ``TimeLimit`` truncates at, comes back with it (``set_episode_steps``).
+``tests/test_env_internals.py`` fails when Gymnasium changes any of what these functions assume.
 """
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 
 
@@ -58,3 +60,25 @@ def skip_action_check(env):
     """``env`` (a ``CartPoleVectorEnv``) checks its actions' shape only, not each value; returns it."""
     env.action_space = _SampledActions(env.action_space)
     return env
+
+
+def _time_limit(env) -> gym.wrappers.TimeLimit | None:
+    """The ``TimeLimit`` among ``env``'s wrappers, if any."""
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, gym.wrappers.TimeLimit):
+            return env
+        env = env.env
+    return None
+
+
+def episode_steps(env) -> int | None:
+    """Steps of ``env``'s episode so far as its ``TimeLimit`` counts them (``None``: no limit, or no reset yet)."""
+    limit = _time_limit(env)
+    return None if limit is None else limit._elapsed_steps
+
+
+def set_episode_steps(env, steps: int | None) -> None:
+    """``env``'s ``TimeLimit`` counts ``steps`` steps of its episode so far (``episode_steps``'s value)."""
+    limit = _time_limit(env)
+    if limit is not None:
+        limit._elapsed_steps = steps
