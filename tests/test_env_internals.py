@@ -103,3 +103,18 @@ def test_skipping_the_action_check_still_refuses_a_wrong_shape():
     env.step(np.array([0, 1, 1]))
     with pytest.raises(AssertionError):  # the vector env's step still asks its action space: the check is ours
         env.step(np.array([0, 1]))
+
+
+def test_a_time_limits_step_count_is_read_and_written_back():
+    import gymnasium as gym
+
+    env = gym.make("CartPole-v1", max_episode_steps=5)
+    assert env_internals.episode_steps(env) is None  # no reset yet
+    env.reset(seed=0)
+    env.step(0)
+    env.step(1)
+    assert env_internals.episode_steps(env) == 2
+    env_internals.set_episode_steps(env, 4)
+    assert env.step(0)[3]  # the 5th step counted: truncated
+    unlimited = gym.make("CartPole-v1", max_episode_steps=None).env  # below its TimeLimit: none to count
+    assert env_internals.episode_steps(unlimited) is None
