@@ -26,7 +26,7 @@ class EnvConfig(Protocol):
 
 
 def is_pong(env_id: str) -> bool:
-    """The course's Pong (``ALE/Pong-*``): its lean emulator env, its sampling-policy videos, its return rule."""
+    """The course's Pong (``ALE/Pong-*``): its frame-difference env, its sampling-policy videos, its return rule."""
     return env_id.startswith("ALE/Pong")
 
 

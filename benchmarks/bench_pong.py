@@ -35,9 +35,10 @@ def _raw_pong_steps_per_cpu_s(steps: int = 8000) -> float:
     import gymnasium as gym
     import numpy as np
 
-    from ablate.agent.envs import _register_ale
+    from ablate.config import TrialConfig
+    from ablate.env_spec import register
 
-    _register_ale()
+    register(TrialConfig(env_id="ALE/Pong-v5"))
     env = gym.make("ALE/Pong-v5")
     env.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -58,12 +59,12 @@ def _cnn_compute_ms_per_step(batch: int = 1024, acting_batch: int = 4) -> float:
     backward of a training chunk of ``batch`` frames divided by the chunk (real frame differences)."""
     import numpy as np
 
-    from ablate.agent.envs import PongEnv
+    from ablate.agent.envs import make_pong
     from ablate.agent.policies import create_pong_model
 
-    env = PongEnv(action_set="move")
+    env = make_pong(action_set="move")
     env.reset(seed=0)
-    frames = np.stack([env.step(i % 2)[0] for i in range(batch)])[:, None]
+    frames = np.stack([env.step(i % 2)[0] for i in range(batch)])
     model = create_pong_model(2, (64,), architecture="cnn")
     x = torch.from_numpy(frames)
     acting = frames[:acting_batch]

@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 import torch
 
-from ablate.agent.envs import PongEnv
+from ablate.agent.envs import PongFrameDifference
 from ablate.agent.records import TrialFailed
 from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT, ModelConfig
@@ -147,8 +147,8 @@ def test_pong_trial_spends_no_steps_on_episodes_past_its_budget(monkeypatch):
     """Sub-envs that finish once the trial's remaining episodes are finished or under way stop, instead of
     starting episodes nobody trains on: every emulator step taken belongs to an episode of the result."""
     taken = []
-    step = PongEnv.step
-    monkeypatch.setattr(PongEnv, "step", lambda self, action: (taken.append(1), step(self, action))[1])
+    step = PongFrameDifference.step
+    monkeypatch.setattr(PongFrameDifference, "step", lambda self, action: (taken.append(1), step(self, action))[1])
     result = run_trial(replace(PONG, max_episodes=5, checkpoint_every=0))
     assert len(result.episodes) == 5
     assert len(taken) == result.env_steps == 5 * 40  # 3 sub-envs: without the budget, 6 episodes were played

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from ablate.config import env_facts
+from ablate.config import TrialConfig, env_facts
 from ablate.env_spec import EnvError, is_pong, register, versions  # noqa: F401 - EnvError: what describe raises
 
 # Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
@@ -63,113 +63,98 @@ def frame_difference(frame: np.ndarray, previous: np.ndarray | None) -> np.ndarr
     return current - (current if previous is None else pre_process(previous))
 
 
-# --- Pong for trials (issue 9): a lean env with the experiment's knobs, int8 frame differences ---
+# --- Pong for trials (issue 9): ale-py's own env through Gymnasium, with the course's observation and actions ---
 PONG_ACTIONS = {"all": (0, 1, 2, 3, 4, 5), "move": (2, 3)}
-"""Policy action index -> ALE action. ``move``: 2 (RIGHT, the paddle goes up) and 3 (LEFT, down)."""
+"""Policy action index -> index into Pong's minimal action set (NOOP, FIRE, RIGHT, LEFT, RIGHTFIRE, LEFTFIRE).
+``move``: 2 (RIGHT, the paddle goes up) and 3 (LEFT, down)."""
 
 
-class PongEnv:
-    """One Pong emulator (ALE itself, without Gymnasium's env and wrappers) giving int8 (80, 80) frame
-    differences of ``pre_process``-ed frames; actions are indices into ``PONG_ACTIONS[action_set]``;
-    ``max_episode_steps`` (0: none) truncates. Same emulator settings and seeding as ``ALE/Pong-v5``
-    (``ale_py.env.AtariEnv``), but the ROM is loaded once (AtariEnv loads it at construction and again at a
-    seeded reset: 0.15 s each) and a step skips AtariEnv's extras (an info dict, a second game-over query).
-    ``frame`` is the last raw RGB screen (for videos). ``state``/``set_state``: the whole state, emulator
-    RNG included (for checkpoints)."""
+class PongActions(gym.ActionWrapper):
+    """The policy's actions, ``range(len(PONG_ACTIONS[action_set]))``, as Pong's minimal-set actions."""
 
-    def __init__(
-        self,
-        env_id: str = "ALE/Pong-v5",
-        action_set: str = "all",
-        frameskip: int = 4,
-        repeat_action_probability: float = 0.25,
-        max_episode_steps: int = 0,
-    ) -> None:
-        import ale_py
-
-        if not is_pong(env_id):
-            raise ValueError(f"PongEnv plays ALE/Pong only, not {env_id}")
-        self.ale = ale_py.ALEInterface()
-        self.ale.setLoggerMode(ale_py.LoggerMode.Error)
-        self.ale.setFloat("repeat_action_probability", repeat_action_probability)
-        self.ale.setInt("max_num_frames_per_episode", 108_000)  # v5's limit (30 min of play)
-        # One act() emulates frameskip frames (sticky actions drawn per frame, rewards summed), as AtariEnv's
-        # Python loop of frameskip act() calls does.
-        self.ale.setInt("frame_skip", frameskip)
-        self._rom = ale_py.roms.get_rom_path("pong")
-        self._loaded = False
+    def __init__(self, env: gym.Env, action_set: str = "all") -> None:
+        super().__init__(env)
         self.actions = PONG_ACTIONS[action_set]
-        self.ale_actions: list = []
-        self.frameskip = frameskip
-        self.max_episode_steps = max_episode_steps
-        self.steps = 0
-        self._frame: np.ndarray | None = None
-        self._previous: np.ndarray | None = None
+        self.action_space = gym.spaces.Discrete(len(self.actions))
+
+    def action(self, action: int) -> int:
+        return self.actions[action]
+
+
+class PongFrameDifference(gym.Wrapper):
+    """int8 (1, 80, 80) frame differences of ``pre_process``-ed frames (zeros at a reset: no motion yet), read
+    from the emulator's screen of palette indices (``_PaletteForeground``) through ale-py's public ``ALEInterface``
+    (``env.unwrapped.ale``). ``state``/``set_state``: the previous frame, which a checkpoint needs beside the
+    emulator's state to resume an episode exactly."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.observation_space = gym.spaces.Box(-1, 1, (1, 80, 80), np.int8)
+        self._ale = env.unwrapped.ale
         self._screen = np.zeros((210, 160), np.uint8)
         self._foreground = _PaletteForeground()
+        self._previous = np.zeros((80, 80), np.int8)
 
-    @property
-    def frame(self) -> np.ndarray:
-        """The last raw RGB screen, read from the emulator only when asked for (videos, figures)."""
-        if self._frame is None:
-            self._frame = self.ale.getScreenRGB()
-        return self._frame
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        _, info = self.env.reset(seed=seed, options=options)
+        self._previous = self._foreground(self._ale, self._screen)
+        return np.zeros((1, 80, 80), np.int8), info
 
-    def reset(self, seed: int | None = None) -> np.ndarray:
-        if seed is not None or not self._loaded:
-            # As AtariEnv.seed_game: the emulator's seed is the second word drawn from SeedSequence(seed).
-            _, ale_seed = np.random.SeedSequence(seed).generate_state(n_words=2)
-            self.ale.setInt("random_seed", np.int32(ale_seed))
-            self.ale.loadROM(self._rom)
-            minimal = self.ale.getMinimalActionSet()
-            self.ale_actions = [minimal[a] for a in self.actions]
-            self._loaded = True
-        self.ale.reset_game()
-        self._frame = None
-        self.steps = 0
-        self._previous = self._foreground(self.ale, self._screen)
-        return np.zeros((80, 80), np.int8)
-
-    def step(self, action: int) -> tuple[np.ndarray, float, bool]:
-        """(observation, reward, episode over)."""
-        ale = self.ale
-        reward = ale.act(self.ale_actions[action])
-        self._frame = None
-        self.steps += 1
-        current = self._foreground(ale, self._screen)
-        observation = current - self._previous
+    def step(self, action: int):
+        _, reward, terminated, truncated, info = self.env.step(action)
+        current = self._foreground(self._ale, self._screen)
+        difference = current - self._previous
         self._previous = current
-        done = ale.game_over() or (self.max_episode_steps > 0 and self.steps >= self.max_episode_steps)
-        return observation, float(reward), bool(done)
+        return difference[None], reward, terminated, truncated, info
 
     def state(self) -> dict:
-        return {
-            "ale": self.ale.cloneState(include_rng=True),
-            "steps": self.steps,
-            "frame": self.frame,
-            "previous": self._previous,
-        }
+        """What the next observation depends on beside the emulator: the last ``pre_process``-ed frame."""
+        return {"previous": self._previous.copy()}
 
     def set_state(self, state: dict) -> None:
-        self.ale.restoreState(state["ale"])
-        self.steps = state["steps"]
-        self._frame = state["frame"]
-        self._previous = state["previous"]
+        self._previous = state["previous"].copy()
 
-    def close(self) -> None:
-        pass
+
+def make_pong(
+    env_id: str = "ALE/Pong-v5",
+    action_set: str = "all",
+    frameskip: int = 4,
+    repeat_action_probability: float = 0.25,
+    max_episode_steps: int = 0,
+    render: bool = False,
+) -> gym.Env:
+    """ale-py's ``AtariEnv`` made by Gymnasium (``frameskip`` frames a step, sticky actions at
+    ``repeat_action_probability``, Pong's minimal action set, truncated by ``TimeLimit`` after
+    ``max_episode_steps`` steps, 0: never) giving ``PongFrameDifference``'s observations; its actions
+    ``PONG_ACTIONS[action_set]``. ``render``: ``env.render()`` gives the RGB screen (videos)."""
+    if not is_pong(env_id):
+        raise ValueError(f"make_pong plays ALE/Pong only, not {env_id}")
+    register(TrialConfig(env_id=env_id))
+    kwargs = {"max_episode_steps": max_episode_steps} if max_episode_steps > 0 else {}
+    env = gym.make(
+        env_id,
+        # The observation is read from the palette screen: RAM is the cheapest one for AtariEnv to copy out.
+        obs_type="ram",
+        frameskip=frameskip,
+        repeat_action_probability=repeat_action_probability,
+        full_action_space=False,
+        render_mode="rgb_array" if render else None,
+        **kwargs,
+    )
+    return PongFrameDifference(PongActions(env, action_set))
 
 
 def sample_pong_frames(env_id: str = "ALE/Pong-v5", seed: int = 0, steps: int = 60) -> tuple[np.ndarray, np.ndarray]:
     """Two consecutive raw RGB frames of a Pong game ``steps`` agent steps in (the ball in play), for figures."""
-    env = PongEnv(env_id, repeat_action_probability=0.0)
+    env = make_pong(env_id, repeat_action_probability=0.0, render=True)
     try:
         env.reset(seed=seed)
-        previous = env.frame
+        previous = frame = env.render()
         for _ in range(steps):
-            previous = env.frame
+            previous = frame
             env.step(0)
-        return previous, env.frame
+            frame = env.render()
+        return previous, frame
     finally:
         env.close()
 
@@ -185,35 +170,6 @@ def is_native_vector(config) -> bool:
 
 def is_atari(env_id: str) -> bool:
     return env_id.startswith("ALE/") and not is_pong(env_id)
-
-
-class PongGymEnv(PongEnv):
-    """``PongEnv`` with Gymnasium's API (``reset`` -> (obs, info), ``step`` -> 5-tuple, spaces, state cloning)."""
-
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self.observation_space = gym.spaces.Box(-1, 1, (1, 80, 80), np.int8)
-        self.action_space = gym.spaces.Discrete(len(self.actions))
-        self.metadata = {"render_fps": 30}
-        self.unwrapped = self
-
-    def reset(self, seed: int | None = None, options=None):  # type: ignore[override]
-        return super().reset(seed=seed)[None], {}
-
-    def step(self, action: int):  # type: ignore[override]
-        observation, reward, done = super().step(action)
-        return observation[None], reward, done, False, {}
-
-    def render(self) -> np.ndarray:
-        return self.frame
-
-    def clone_state(self, include_rng: bool = True) -> dict:
-        return self.state()
-
-    def restore_state(self, state: dict) -> None:
-        if not self._loaded:  # the emulator needs its ROM before a state (RNG included) can be put back
-            super().reset(seed=0)
-        self.set_state(state)
 
 
 class AtariFrameDifference(gym.ObservationWrapper):
@@ -242,12 +198,13 @@ def make_trial_env(config, render: bool = False) -> gym.Env:
     step, sticky actions at ``repeat_action_probability``); any other env as ``gym.make(env_id, **env_args)``."""
     register(config)
     if is_pong(config.env_id) and not config.env_args:
-        return PongGymEnv(
+        return make_pong(
             config.env_id,
             config.action_set,
             config.frameskip,
             config.repeat_action_probability,
             config.max_episode_steps,
+            render,
         )
     kwargs = dict(config.env_args)
     if config.max_episode_steps:

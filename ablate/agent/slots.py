@@ -13,6 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ablate.agent import env_internals
 from ablate.agent.reinforce import Memory
 
 
@@ -51,7 +52,8 @@ class CartPoleSlots:
     """Every slot in one ``CartPoleVectorEnv`` (Gymnasium's physics, next-step autoreset). Resets draw each
     member's start states from that member's own stream, as its own vector env would: one stream seeded with
     the member's seed (``CartPoleVectorEnv``, 3 envs or more a member), or one per env seeded ``seed + j``
-    (a ``SyncVectorEnv`` of ``CartPoleEnv``, below 3). The vector env's own draws are overwritten."""
+    (a ``SyncVectorEnv`` of ``CartPoleEnv``, below 3). The vector env's own draws are overwritten, through
+    ``env_internals`` (the one module that touches a vector env's internals)."""
 
     low, high = -0.05, 0.05
 
@@ -65,7 +67,9 @@ class CartPoleSlots:
             [np.random.default_rng(s)] if self.shared else [np.random.default_rng(s + j) for j in range(per_member)]
             for s in seeds
         ]
-        self._make = lambda n: _checked_by_shape(CartPoleVectorEnv(num_envs=n, max_episode_steps=max_episode_steps))
+        self._make = lambda n: env_internals.skip_action_check(
+            CartPoleVectorEnv(num_envs=n, max_episode_steps=max_episode_steps)
+        )
         self.env = self._make(len(seeds) * per_member)
         self.env.reset(seed=0)  # allocates its state; every slot's start state is drawn again by start()
         self.windows = _Windows(self.env.num_envs, (4,), history) if history else None
@@ -88,26 +92,26 @@ class CartPoleSlots:
     def _draw(self, slots: np.ndarray) -> None:
         """Fresh start states for ``slots`` (ascending), each from its member's stream, written into the env."""
         n = self.per_member
-        state = self.env.state
+        states = np.empty((4, len(slots)))
         listed = slots.tolist()  # a few slots a step: Python integers beat a dozen small array operations
         first = 0
         for i in range(1, len(listed) + 1):
             if i < len(listed) and listed[i] // n == listed[first] // n:
                 continue
-            member, mine = listed[first] // n, listed[first:i]
+            member = listed[first] // n
             if self.shared:
-                state[:, mine] = self.streams[member][0].uniform(self.low, self.high, size=(4, len(mine)))
+                states[:, first:i] = self.streams[member][0].uniform(self.low, self.high, size=(4, i - first))
             else:
-                for slot in mine:
-                    state[:, slot] = self.streams[member][slot % n].uniform(self.low, self.high, size=(4,))
+                for k in range(first, i):
+                    states[:, k] = self.streams[member][listed[k] % n].uniform(self.low, self.high, size=(4,))
             first = i
-        self.raw[slots] = state[:, slots].T
+        env_internals.set_start_states(self.env, slots, states)
+        self.raw[slots] = states.T
 
     def start(self, slots: np.ndarray) -> None:
         """``slots`` begin an episode now, as their member's ``VectorEnv.reset()`` begins them."""
         self._draw(slots)
-        self.env.steps[slots] = 0
-        self.env.prev_done[slots] = False
+        env_internals.reset_counters(self.env, slots)
         self.started[slots] = self.iteration
         if self.windows is not None:
             self.windows.start(slots, self.raw[slots])
@@ -115,7 +119,7 @@ class CartPoleSlots:
     def step(self, actions: np.ndarray, stepping: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every slot steps (the vector env steps all); returns (rewards, episode ended) per slot."""
         self.actions[self.iteration % self.capacity] = actions
-        resetting = np.flatnonzero(self.env.prev_done) if self.env.prev_done.any() else None
+        resetting = env_internals.autoresetting(self.env)
         observations, rewards, terminated, truncated, _ = self.env.step(actions)
         self.iteration += 1
         self.raw = self.ring[self.iteration % self.capacity]  # the next step's row: its observations are kept there
@@ -162,8 +166,7 @@ class CartPoleSlots:
         old = self.env
         self.env = self._make(len(slots))
         self.env.reset(seed=0)
-        self.env.state = np.ascontiguousarray(old.state[:, slots])
-        self.env.steps, self.env.prev_done = old.steps[slots].copy(), old.prev_done[slots].copy()
+        env_internals.copy_slots(old, self.env, slots)
         self.streams = [self.streams[m] for m in members]
         self.ring = np.ascontiguousarray(self.ring[:, slots])
         self.raw = self.ring[self.iteration % self.capacity]
@@ -174,26 +177,6 @@ class CartPoleSlots:
 
     def close(self) -> None:
         self.env.close()
-
-
-class _SampledActions:
-    """A vector env's action space whose ``contains`` checks the shape only. ``CartPoleVectorEnv.step`` asserts
-    that its actions lie in its space, which cost a fifth of its step; the trainer's actions are sampled in
-    ``range(n_actions)`` by construction (``reinforce.sample_actions``), so only their shape can be wrong."""
-
-    def __init__(self, space) -> None:
-        self.space = space
-
-    def contains(self, actions) -> bool:
-        return isinstance(actions, np.ndarray) and actions.shape == self.space.shape
-
-    def __getattr__(self, name: str):
-        return getattr(self.space, name)
-
-
-def _checked_by_shape(env):
-    env.action_space = _SampledActions(env.action_space)
-    return env
 
 
 class EnvSlots:
@@ -292,16 +275,37 @@ class EnvSlots:
 
 
 def _env_state(env) -> dict:
-    """What a slot's next reset draws from: the emulator's state where it has one (ALE), else its np_random."""
+    """What a slot's next steps and reset draw from: the emulator's state, RNG included, where it has one (ALE), its
+    wrappers' own (``state()``: Pong's previous frame) and its ``TimeLimit``'s step count; else its np_random."""
     base = env.unwrapped
     if hasattr(base, "clone_state"):
-        return {"emulator": base.clone_state(include_rng=True)}
+        return {
+            "emulator": base.clone_state(include_rng=True),
+            "wrappers": [w.state() for w in _stateful_wrappers(env)],
+            "episode_steps": env_internals.episode_steps(env),
+        }
     return {"np_random": base.np_random.bit_generator.state}
 
 
 def _set_env_state(env, saved: dict) -> None:
     base = env.unwrapped
     if "emulator" in saved:
+        env.reset()  # Gymnasium's OrderEnforcing refuses a step before a reset; the state below replaces its effects
         base.restore_state(saved["emulator"])
+        for wrapper, state in zip(_stateful_wrappers(env), saved["wrappers"], strict=True):
+            wrapper.set_state(state)
+        env_internals.set_episode_steps(env, saved["episode_steps"])
     else:
         base.np_random.bit_generator.state = saved["np_random"]
+
+
+def _stateful_wrappers(env) -> list:
+    """``env``'s wrappers, outermost first, that hold state of their own (a ``state``/``set_state`` pair)."""
+    import gymnasium as gym
+
+    found = []
+    while isinstance(env, gym.Wrapper):
+        if callable(getattr(type(env), "set_state", None)):
+            found.append(env)
+        env = env.env
+    return found
