@@ -9,8 +9,9 @@ one at a time and in populations: the same runs and distribution), `tuning` (tun
 default ablation; each launch's time-left estimate scored), `eta` (the time-left estimate against the time that
 actually remained), `population` (CartPole populations against one trial; the same results), `seeds` (the
 tuned default ablation at 4x its seeds in populations against today's launch), `trainer` (this checkout's
-trainer against an earlier commit's, alternating in one run: CartPole and a user's network in populations of 16,
-one Pong trial per arm; the same runs or not), `start` (time to the first trial, cold and warm, and 64 seeds end
+trainer against an earlier commit's, alternating in one run: CartPole populations of 16 of the built-in network
+and of users' networks, a Breakout trial of the built-in and of a user's CNN, one Pong trial per arm; the same
+runs or not), `start` (time to the first trial, cold and warm, and 64 seeds end
 to end against one trial's pace, this checkout against an earlier commit's).
 `python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
 """
@@ -33,7 +34,7 @@ from bench_pong import bench_pong, bench_pong_memory, bench_pong_population, ben
 from bench_population import bench_population, bench_seeds  # noqa: E402
 from bench_results import RESULTS  # noqa: E402
 from bench_start import bench_start  # noqa: E402
-from bench_trainer import BEFORE_ONE_TRAINER, bench_trainer  # noqa: E402
+from bench_trainer import BEFORE_STACKED, bench_trainer  # noqa: E402
 from bench_trial import bench_core  # noqa: E402
 
 SECTIONS = {
@@ -94,7 +95,7 @@ def main() -> int:
         "--population-seeds", type=int, default=32, help="population: seeds of the same-science check (0: none)"
     )
     parser.add_argument(
-        "--trainer-against", default=BEFORE_ONE_TRAINER, help="trainer: the commit to measure against (a git ref)"
+        "--trainer-against", default=BEFORE_STACKED, help="trainer: the commit to measure against (a git ref)"
     )
     parser.add_argument("--trainer-pairs", type=int, default=5, help="trainer: alternating pairs of runs per case")
     args = parser.parse_args()

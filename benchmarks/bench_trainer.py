@@ -2,13 +2,14 @@
 
 Machines of one kind differ 2-3x in speed, so a figure only means something against another measured in the same
 run: each case runs in a fresh process pinned to one core, alternating this checkout and the earlier one (a git
-worktree of ``--trainer-against``, by default the last commit before the one trainer), pair after pair. Each pair
-also compares what the two computed (a digest of every episode's return, length, loss and entropy).
+worktree of ``--trainer-against``, by default the last commit before the stacked trainer), pair after pair. Each
+pair also compares what the two computed (a digest of every episode's return, length, loss and entropy).
 
-Cases: a population of 16 default CartPole members (issue 35's goal: >= 0.9x the earlier trainer); a population
-of 16 of a user's network (``examples/models/layernorm.py``, a plain stack that acts in numpy, and ``residual.py``,
-which acts through ``vmap``: >= 0.5x this checkout's default population); one
-Pong trial of each arm of ``pong.toml`` (no slower than the earlier trainer).
+Cases (issue 45's goals): populations of 16 CartPole members of the built-in default (>= 0.8x the earlier
+trainer), of a user's MLP of the default's shape written as its own class (``examples/models/mlp_class.py``,
+>= 0.8x the built-in default), of ``examples/models/layernorm.py`` (>= 0.8x the default) and of ``residual.py``
+(>= 1.5x its own speed before); one Breakout trial of the built-in ``cnn`` and of a user's CNN
+(``examples/models/atari_cnn.py``); one Pong trial of each arm of ``pong.toml`` (>= 0.8x the earlier trainer).
 """
 
 from __future__ import annotations
@@ -28,19 +29,25 @@ from pathlib import Path
 from bench_results import RESULTS
 
 ROOT = Path(__file__).resolve().parent.parent
-BEFORE_ONE_TRAINER = "ba1e889"
-"""The last commit with the bespoke CartPole and Pong populations (issue 35 replaced them by the one trainer)."""
+BEFORE_STACKED = "16a33d5"
+"""The last commit before the stacked trainer (issue 45): numpy acting stacks, each member's own module and Adam."""
+MODELS = ROOT / "examples" / "models"
 
 CASES = {
-    "cartpole-16": ("experiments/cartpole.toml", "baseline", 16, 1024),
-    "layernorm-16": ("experiments/your-model.toml", "layernorm", 16, 1024),
-    "residual-16": ("experiments/your-model.toml", "baseline", 16, 1024),
-    "pong-cnn": ("experiments/pong.toml", "cnn", 1, 3),
-    "pong-mlp": ("experiments/pong.toml", "mlp", 1, 3),
+    "cartpole-16": ("experiments/cartpole.toml", "baseline", 16, 1024, None),
+    "mlp-class-16": ("experiments/cartpole.toml", "baseline", 16, 1024, "mlp_class.py"),
+    "layernorm-16": ("experiments/your-model.toml", "layernorm", 16, 1024, None),
+    "residual-16": ("experiments/cartpole.toml", "baseline", 16, 1024, "residual.py"),
+    "breakout-cnn": ("experiments/pong.toml", "cnn", 1, 8, "ALE/Breakout-v5"),
+    "breakout-user-cnn": ("experiments/pong.toml", "cnn", 1, 8, "ALE/Breakout-v5 atari_cnn.py"),
+    "pong-cnn": ("experiments/pong.toml", "cnn", 1, 3, None),
+    "pong-mlp": ("experiments/pong.toml", "mlp", 1, 3, None),
 }
-"""name: (experiment file, variant, members, episodes per member)."""
-CUSTOM = ("layernorm-16", "residual-16")
-"""Cases the earlier trainer cannot run (a user's network): measured against this checkout's default."""
+"""name: (experiment file, variant, members, episodes per member, what replaces the variant's network or env:
+a file in examples/models, an Atari env id, or both)."""
+OVER_DEFAULT = {"mlp-class-16": "cartpole-16", "layernorm-16": "cartpole-16", "residual-16": "cartpole-16",
+                "breakout-user-cnn": "breakout-cnn"}  # fmt: skip
+"""Cases also measured against another case of this checkout (a user's network against the built-in one)."""
 
 
 def _child(case: str) -> None:
@@ -54,13 +61,16 @@ def _child(case: str) -> None:
     except ImportError:  # before the one trainer
         from ablate.agent.population import run_population
 
-    torch.set_num_threads(1)
-    path, variant, members, episodes = CASES[case]
-    config = {v.name: v for v in load_experiment(ROOT / path).variants}[variant].config
-    if case == "residual-16":  # the baseline's settings with a user's network that is not a plain stack
-        from ablate.config import apply_knobs
+    from ablate.config import apply_knobs
 
-        config = apply_knobs(config, {"model": f"{ROOT}/examples/models/residual.py:create_model"})
+    torch.set_num_threads(1)
+    path, variant, members, episodes, changes = CASES[case]
+    config = {v.name: v for v in load_experiment(ROOT / path).variants}[variant].config
+    for change in (changes or "").split():
+        if change.endswith(".py"):  # the variant's settings with a user's network
+            config = apply_knobs(config, {"model": f"{MODELS / change}:create_model"})
+        else:
+            config = apply_knobs(config, {"env_id": change})
     config = replace(config, record_video=False, video_every=0, max_episodes=episodes, checkpoint_every=0)
     configs = [replace(config, seed=seed) for seed in range(members)]
     started = time.perf_counter()
@@ -97,19 +107,20 @@ def _worktree(ref: str) -> Path:
     return folder
 
 
-def bench_trainer(against: str = BEFORE_ONE_TRAINER, pairs: int = 5, cases: tuple[str, ...] = tuple(CASES)) -> None:
+def bench_trainer(against: str = BEFORE_STACKED, pairs: int = 5, cases: tuple[str, ...] = tuple(CASES)) -> None:
     """Each case ``pairs`` times here and at ``against``, alternating; medians of steps/s and of the ratios."""
     before = _worktree(against)
     figures: dict[str, object] = {"against": against, "pairs": pairs}
     try:
         for case in cases:
-            trees = [("now", ROOT)] + ([("before", before)] if case not in CUSTOM else [])
+            trees = [("now", ROOT), ("before", before)]
             runs: dict[str, list[dict]] = {name: [] for name, _ in trees}
             for pair in range(pairs):
                 for name, tree in trees if pair % 2 == 0 else trees[::-1]:  # alternate who goes first
                     runs[name].append(_run(case, tree))
             now = [r["steps_per_s"] for r in runs["now"]]
             figure = {"now_steps_per_s": now, "now_median": statistics.median(now)}
+            figure["before_median"] = statistics.median(r["steps_per_s"] for r in runs["before"])
             line = f"trainer: {case}: now median {statistics.median(now):,.0f} env steps/s"
             if "before" in runs:
                 then = [r["steps_per_s"] for r in runs["before"]]
@@ -124,10 +135,12 @@ def bench_trainer(against: str = BEFORE_ONE_TRAINER, pairs: int = 5, cases: tupl
                 )
             figures[case] = figure
             print(line, flush=True)
-        for case in (c for c in CUSTOM if c in figures and "cartpole-16" in figures):
-            ratio = figures[case]["now_median"] / figures["cartpole-16"]["now_median"]
-            figures[f"{case}_over_default"] = ratio
-            print(f"trainer: {case} (a user's network) runs {ratio:.2f}x the default population's env steps/s")
+        for case, default in OVER_DEFAULT.items():
+            if case in figures and default in figures:
+                for when in ("now", "before"):
+                    ratio = figures[case][f"{when}_median"] / figures[default][f"{when}_median"]
+                    figures[case][f"{when}_over_{default}"] = ratio
+                    print(f"trainer: {case} (a user's network) {when}: {ratio:.2f}x {default}'s env steps/s")
     finally:
         subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False,
                        capture_output=True)  # fmt: skip
