@@ -34,7 +34,7 @@ def _torch_logits(model, frames: np.ndarray) -> np.ndarray:
 
 def test_pongs_cnn_acts_in_numpy_as_its_network_and_follows_an_update():
     models = [_pong("cnn", seed) for seed in range(3)]
-    acting = stack(models, torch.device("cpu"), built_in=True)
+    acting = stack(models, torch.device("cpu"), built_in=True, shape=models[0].observation_shape)
     assert isinstance(acting, StemStack)
     # Sparse frames (the numpy path), a dense one (the dense layers) and an empty one, for each member.
     frames = np.stack([np.concatenate([_frames(3, 0.01, m), _frames(1, 0.9, 9), np.zeros((1, 1, 80, 80), np.int8)])
@@ -42,7 +42,7 @@ def test_pongs_cnn_acts_in_numpy_as_its_network_and_follows_an_update():
     logits = acting(frames)
     for m, model in enumerate(models):
         np.testing.assert_allclose(logits[m], _torch_logits(model, frames[m]), rtol=1e-5, atol=1e-5)
-        alone = stack([model], torch.device("cpu"), built_in=True)
+        alone = stack([model], torch.device("cpu"), built_in=True, shape=model.observation_shape)
         np.testing.assert_array_equal(alone(frames[m : m + 1])[0], logits[m])  # whoever shares the stack
     with torch.no_grad():
         models[1].body[0].bias.add_(0.25)  # the background changes: the member's numpy copy must follow
@@ -53,7 +53,7 @@ def test_pongs_cnn_acts_in_numpy_as_its_network_and_follows_an_update():
 
 def test_pongs_mlp_acts_on_int8_frames_as_sparse_products_equal_to_its_network():
     models = [_pong("mlp", seed) for seed in range(2)]
-    acting = stack(models, torch.device("cpu"), built_in=True)
+    acting = stack(models, torch.device("cpu"), built_in=True, shape=models[0].observation_shape)
     assert isinstance(acting, DenseStack)
     frames = np.stack([np.concatenate([_frames(3, 0.01, m), _frames(1, 0.9, 5)]) for m in range(2)])
     logits = acting(frames)
@@ -65,7 +65,7 @@ def test_pongs_mlp_acts_on_int8_frames_as_sparse_products_equal_to_its_network()
 def test_a_users_layernorm_mlp_acts_in_numpy_to_float_tolerance_and_a_member_as_alone():
     from pathlib import Path
 
-    from ablate.agent.acting import VmapStack
+    from ablate.agent.acting import MembersStack
 
     source = Path(__file__).parent.parent / "examples" / "models"
     namespace: dict = {}
@@ -78,7 +78,7 @@ def test_a_users_layernorm_mlp_acts_in_numpy_to_float_tolerance_and_a_member_as_
             model[2].weight.uniform_(0.5, 1.5)
             model[2].bias.uniform_(-0.5, 0.5)
         models.append(model)
-    acting = stack(models, torch.device("cpu"), built_in=False)
+    acting = stack(models, torch.device("cpu"), built_in=False, shape=(4,))
     assert isinstance(acting, DenseStack)
     observations = np.random.default_rng(0).normal(size=(3, 5, 4)).astype(np.float32)
     logits = acting(observations)
@@ -90,7 +90,17 @@ def test_a_users_layernorm_mlp_acts_in_numpy_to_float_tolerance_and_a_member_as_
     namespace = {}
     exec((source / "residual.py").read_text(), namespace)
     residual = [namespace["create_model"]((4,), 2) for _ in range(2)]
-    assert isinstance(stack(residual, torch.device("cpu"), built_in=False), VmapStack)  # not a plain stack
+    acting = stack(residual, torch.device("cpu"), built_in=False, shape=(4,))
+    assert isinstance(acting, MembersStack) and acting.members.swapped  # its own forward, stacked layers
+    logits = acting(observations[:2])
+    for m, model in enumerate(residual):
+        with torch.no_grad():
+            expected = model.eval()(torch.from_numpy(observations[m])).numpy()
+        np.testing.assert_allclose(logits[m], expected, rtol=1e-5, atol=1e-5)
+    with torch.no_grad():
+        residual[1].head.bias.add_(0.5)  # an update: the member's stacked row must follow
+    acting.refresh(1)
+    np.testing.assert_allclose(acting(observations[:2])[1], logits[1] + 0.5, rtol=1e-5, atol=1e-5)
 
 
 def test_another_atari_games_frames_act_through_the_cnns_own_forward():
@@ -100,7 +110,7 @@ def test_another_atari_games_frames_act_through_the_cnns_own_forward():
 
     torch.manual_seed(0)
     models = [create_pong_model(4, observation_shape=(1, 84, 84)).eval() for _ in range(2)]
-    acting = stack(models, torch.device("cpu"), built_in=True)
+    acting = stack(models, torch.device("cpu"), built_in=True, shape=models[0].observation_shape)
     frames = np.random.default_rng(0).normal(size=(2, 3, 1, 84, 84)).astype(np.float32)
     logits = acting(frames)
     for m, model in enumerate(models):

@@ -39,7 +39,7 @@ CUSTOM = Path(__file__).parent.parent / "examples" / "models" / "residual.py"
 
 
 def _custom(**overrides):
-    """A user's network (an MLP with a residual block, from a file): no dense stack acts for it, a ``vmap`` does."""
+    """A user's network (an MLP with a residual block, from a file): it acts through stacked layers, not numpy."""
     config = apply_knobs(SHORT, {"model": f"{CUSTOM}:create_model", "model_args": {"width": 16}})
     return replace(config, **overrides)
 
@@ -56,7 +56,7 @@ def test_a_population_of_one_is_its_single_trial_bit_for_bit(base):
 
 
 def test_a_custom_member_equals_its_population_of_one_to_float_tolerance_in_its_first_update():
-    """A user's network acts through vmap in a population and through its own forward alone: the same episodes
+    """A user's network acts through stacked layers in a population and its own forward alone: the same episodes
     (their actions differ only if a float difference flips a sampled action) and the same first update."""
     configs = [_custom(seed=s, max_episodes=8) for s in range(4)]
     together = run_population(configs)

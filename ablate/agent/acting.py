@@ -4,9 +4,9 @@
 sparse products): the members' weights stacked member-first, one numpy matrix product per layer for all of them;
 each member's slice is the product it computes alone, so a member acts bit for bit as its population of one.
 ``StemStack``: Pong's built-in CNN, each member's whole network in numpy over the frame difference's non-zero
-pixels. ``VmapStack``: any ``nn.Module``, through ``torch.func.stack_module_state`` + ``vmap(functional_call)``
-(equal to float tolerance). ``LoopStack``: each member's own forward in turn (a built-in network on a GPU, exactly; a
-population of one). No gradients: acting is eval mode.
+pixels. ``MembersStack``: any ``nn.Module``, its own forward over the members' stacked parameters
+(``stacking.Members``; equal to float tolerance). ``LoopStack``: each member's own forward in turn (a built-in
+network on a GPU, exactly; a population of one). No gradients: acting is eval mode.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from ablate.agent.policies import NUMPY_LAYERS, Policy, conv1d, conv1d_weight, nonzero, plain_conv1d, sparse_matmul
+from ablate.agent.stacking import Members
 
 
 class DenseStack:
@@ -148,48 +149,32 @@ class LoopStack:
         self.models = [self.models[m] for m in members]
 
 
-class VmapStack:
-    """Any module: the members' parameters and buffers stacked (``stack_module_state``), one ``vmap`` of
-    ``functional_call`` over them; a member's slice is refreshed in place after its update."""
+class MembersStack:
+    """Any module (a user's): the members' parameters stacked as one (``stacking.Members``), acting through the
+    module's own ``forward`` with stacked layers (``vmap`` where those cannot serve); a member's row is refreshed
+    after its update (equal to each member's own forward to float tolerance)."""
 
-    def __init__(self, models: Sequence[nn.Module], device: torch.device) -> None:
-        from torch.func import functional_call, stack_module_state
-
+    def __init__(self, models: Sequence[nn.Module], device: torch.device, shape: Sequence[int]) -> None:
         self.models = list(models)
-        self.device = device
-        self.params, self.buffers = stack_module_state(self.models)
-        base = _template(self.models[0])
-
-        def one(params, buffers, x):
-            return functional_call(base, (params, buffers), (x,))
-
-        self._forward = torch.vmap(one)
+        self.members = Members(self.models, device, range(len(self.models)))
+        self.members.check(self.models, shape)
 
     def refresh(self, member: int) -> None:
-        model = self.models[member]
-        with torch.no_grad():
-            for name, p in model.named_parameters():
-                self.params[name][member].copy_(p)
-            for name, b in model.named_buffers():
-                self.buffers[name][member].copy_(b)
+        self.members.load_state_dict(member, self.models[member].state_dict())
 
     def __call__(self, observations: np.ndarray) -> np.ndarray:
-        x = torch.from_numpy(np.ascontiguousarray(observations)).to(self.device)
-        if x.dtype != torch.float32:
-            x = x.float()
-        with torch.no_grad():
-            return self._forward(self.params, self.buffers, x).float().cpu().numpy()
+        x = torch.from_numpy(np.require(observations, requirements="CW"))
+        with torch.inference_mode():
+            return self.members(x).cpu().numpy()
 
     def keep(self, members: list[int]) -> None:
         self.models = [self.models[m] for m in members]
-        index = torch.tensor(members, device=self.device)
-        self.params = {k: v[index] for k, v in self.params.items()}
-        self.buffers = {k: v[index] for k, v in self.buffers.items()}
+        self.members.keep(members)
 
 
-def stack(models: Sequence[nn.Module], device: torch.device, built_in: bool):
-    """The fastest exact stack for ``models`` (one architecture): dense in numpy on a CPU, each member's own
-    forward for a built-in CNN or a single member, else ``vmap``."""
+def stack(models: Sequence[nn.Module], device: torch.device, built_in: bool, shape: Sequence[int]):
+    """The fastest exact stack for ``models`` (one architecture) whose observations have ``shape``: dense in numpy
+    on a CPU, each member's own forward for a built-in CNN or a single member, else stacked members."""
     for model in models:
         model.eval()
     if device.type == "cpu" and DenseStack.fits(models[0]):
@@ -198,7 +183,7 @@ def stack(models: Sequence[nn.Module], device: torch.device, built_in: bool):
         return StemStack(models)
     if built_in or len(models) == 1:
         return LoopStack(models, device)
-    return VmapStack(models, device)
+    return MembersStack(models, device, shape)
 
 
 def _plain_layer_norm(module: nn.Module) -> bool:
@@ -210,12 +195,6 @@ def _body(model: nn.Module) -> nn.Sequential | None:
     """The ``nn.Sequential`` that maps observations to logits: the module itself, or a built-in ``Policy``'s body."""
     body = getattr(model, "body", model)
     return body if isinstance(body, nn.Sequential) and model.forward.__func__ in _PLAIN_FORWARDS else None
-
-
-def _template(model: nn.Module) -> nn.Module:
-    import copy
-
-    return copy.deepcopy(model).to("meta")
 
 
 _PLAIN_FORWARDS = {nn.Sequential.forward, Policy.forward}

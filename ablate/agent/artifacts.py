@@ -90,7 +90,7 @@ def record_episode(
     info = describe(config)
     env = make_trial_env(config, render=True)
     # The network acts as it did in training (numpy for the built-in stacks), one observation at a time.
-    acting = stack([model], next(model.parameters()).device, built_in=not config.model.factory)
+    acting = stack([model], next(model.parameters()).device, not config.model.factory, info.observation_shape)
     greedy = not is_pong(config.env_id)
     rng = np.random.default_rng(config.seed + 1_000_003)
     scale = info.video_downscale

@@ -115,7 +115,8 @@ class Population:
 
             self.slots = EnvSlots(seeds, self.per_member, make, self.history)
             self.slots.on_frame = self._frame
-        self.acting = stack([m.model for m in self.members], device, built_in=not first.model.factory)
+        shape = (self.history, *self.env.observation_shape) if self.history else self.env.observation_shape
+        self.acting = stack([m.model for m in self.members], device, built_in=not first.model.factory, shape=shape)
         self.chunk = IMAGE_TRAIN_CHUNK if len(self.env.observation_shape) == 3 else None
         self.stepping = np.zeros(len(self.members) * self.per_member, bool)
         """Every member's counting slots, as one mask (what ``step`` steps)."""

@@ -1,6 +1,7 @@
 """A user's own policy network for ``ablate`` that is not a plain stack of layers: an MLP with a residual block.
 
-Populations act for it through ``torch.func.vmap`` (any module); used by the trainer's tests.
+A population acts for it through its own ``forward`` with stacked layers (``ablate.agent.stacking``); used by the
+trainer's tests.
 """
 
 import torch
