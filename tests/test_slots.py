@@ -39,3 +39,20 @@ def test_cartpole_slots_take_every_episode_as_played_even_across_the_rings_end(h
         if history:  # the windows are the raw observations' last `history`, zeros before the episode's first
             raw = [np.stack(seen[s])[:, -1] for s in order.tolist()]
             np.testing.assert_array_equal(taken.observations, np.concatenate([windows(r, history) for r in raw]))
+
+
+def test_cartpole_slots_come_from_gym_make_vec_and_refuse_another_autoreset_mode(monkeypatch):
+    import gymnasium as gym
+
+    slots = CartPoleSlots([7], per_member=3, max_episode_steps=20, env_id="CartPole-v0")
+    assert type(slots.env).__name__ == "CartPoleVectorEnv" and slots.env.num_envs == 3
+    made = gym.make_vec
+
+    def same_step(*args, **kwargs):
+        env = made(*args, **kwargs)
+        env.metadata = {**env.metadata, "autoreset_mode": gym.vector.AutoresetMode.SAME_STEP}
+        return env
+
+    monkeypatch.setattr(gym, "make_vec", same_step)
+    with pytest.raises(RuntimeError, match="need NEXT_STEP"):
+        CartPoleSlots([7], per_member=3, max_episode_steps=20)
