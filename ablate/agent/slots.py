@@ -70,7 +70,12 @@ class CartPoleSlots:
     low, high = -0.05, 0.05
 
     def __init__(
-        self, seeds: Sequence[int], per_member: int, max_episode_steps: int, history: int = 0, env_id: str = "CartPole-v1"
+        self,
+        seeds: Sequence[int],
+        per_member: int,
+        max_episode_steps: int,
+        history: int = 0,
+        env_id: str = "CartPole-v1",
     ) -> None:
         self.per_member = per_member
         self.max_episode_steps = max_episode_steps
