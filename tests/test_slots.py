@@ -11,7 +11,7 @@ from ablate.agent.slots import CartPoleSlots, windows
 @pytest.mark.parametrize("history", [0, 3])
 def test_cartpole_slots_take_every_episode_as_played_even_across_the_rings_end(history):
     # A short episode limit makes the ring (max_episode_steps + 1 rows) come round within the test.
-    slots = CartPoleSlots([7, 8], per_member=3, max_episode_steps=20, history=history)
+    slots = CartPoleSlots([7, 8], per_member=3, max_episode_steps=20, history=history, env_id="CartPole-v1")
     rng = np.random.default_rng(0)
     for _ in range(3):  # three collections: the later ones start past the ring's end
         playing = np.arange(slots.size)
@@ -55,4 +55,4 @@ def test_cartpole_slots_come_from_gym_make_vec_and_refuse_another_autoreset_mode
 
     monkeypatch.setattr(gym, "make_vec", same_step)
     with pytest.raises(RuntimeError, match="need NEXT_STEP"):
-        CartPoleSlots([7], per_member=3, max_episode_steps=20)
+        CartPoleSlots([7], per_member=3, max_episode_steps=20, env_id="CartPole-v1")

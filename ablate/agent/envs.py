@@ -164,6 +164,17 @@ NATIVE_VECTOR = ("CartPole-v0", "CartPole-v1")
 """Envs whose Gymnasium vector form (``CartPoleVectorEnv``) steps a whole population in one call."""
 
 
+def make_native_vector(env_id: str, num_envs: int, max_episode_steps: int) -> gym.vector.VectorEnv:
+    """Gymnasium's own vector form of ``env_id`` (one of ``NATIVE_VECTOR``), through ``gym.make_vec``. CartPole's
+    slots read an episode's end as its next step's autoreset, so another autoreset mode is an error, not a wrong
+    result."""
+    env = gym.make_vec(env_id, num_envs, vectorization_mode="vector_entry_point", max_episode_steps=max_episode_steps)
+    mode = env.metadata.get("autoreset_mode")
+    if mode != gym.vector.AutoresetMode.NEXT_STEP:
+        raise RuntimeError(f"{env_id}'s vector env autoresets {mode}; ablate's CartPole slots need NEXT_STEP")
+    return env
+
+
 def is_native_vector(config) -> bool:
     return config.env_id in NATIVE_VECTOR and not config.env_args
 

@@ -14,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ablate.agent import env_internals
+from ablate.agent.envs import make_native_vector
 from ablate.agent.reinforce import Memory
 
 
@@ -48,18 +49,6 @@ class _Windows:
         self.values[slots, -1] = observations
 
 
-def _vector_env(env_id: str, num_envs: int, max_episode_steps: int):
-    """Gymnasium's own vector form of ``env_id`` (``CartPoleVectorEnv``), through ``gym.make_vec``; the slots read
-    an episode's end as its next step's autoreset, so another autoreset mode is an error, not a wrong result."""
-    import gymnasium as gym
-
-    env = gym.make_vec(env_id, num_envs, vectorization_mode="vector_entry_point", max_episode_steps=max_episode_steps)
-    mode = env.metadata.get("autoreset_mode")
-    if mode != gym.vector.AutoresetMode.NEXT_STEP:
-        raise RuntimeError(f"{env_id}'s vector env autoresets {mode}; ablate's CartPole slots need NEXT_STEP")
-    return env
-
-
 class CartPoleSlots:
     """Every slot in one ``CartPoleVectorEnv`` (Gymnasium's physics, next-step autoreset). Resets draw each
     member's start states from that member's own stream, as its own vector env would: one stream seeded with
@@ -75,7 +64,8 @@ class CartPoleSlots:
         per_member: int,
         max_episode_steps: int,
         history: int = 0,
-        env_id: str = "CartPole-v1",
+        *,
+        env_id: str,
     ) -> None:
         self.per_member = per_member
         self.max_episode_steps = max_episode_steps
@@ -84,7 +74,7 @@ class CartPoleSlots:
             [np.random.default_rng(s)] if self.shared else [np.random.default_rng(s + j) for j in range(per_member)]
             for s in seeds
         ]
-        self._make = lambda n: env_internals.skip_action_check(_vector_env(env_id, n, max_episode_steps))
+        self._make = lambda n: env_internals.skip_action_check(make_native_vector(env_id, n, max_episode_steps))
         self.env = self._make(len(seeds) * per_member)
         self.env.reset(seed=0)  # allocates its state; every slot's start state is drawn again by start()
         self.windows = _Windows(self.env.num_envs, (4,), history) if history else None
