@@ -22,6 +22,12 @@ KEY_VERSION = 3
 so every key an earlier version made (users' resume state) stays as it was."""
 
 
+RESULTS_VERSION = 2
+"""What the trainer computes, in every key from 2 on: 1, every trainer up to the numpy acting paths (each bit for
+bit the one before); 2, the stacked members (issue 45), whose results equal 1's only to float rounding. A store's
+trials of an earlier version are never counted as this code's: their keys differ."""
+
+
 def _same(value: Any) -> Any:
     return value
 

@@ -1,4 +1,5 @@
-"""ablate.agent.optim.Adam against torch.optim.Adam, and the import it exists to avoid."""
+"""ablate.agent.optim.Adam (each member's own Adam on the stacked parameters) against torch.optim.Adam, and the
+import it exists to avoid."""
 
 import subprocess
 import sys
@@ -8,43 +9,59 @@ import torch
 
 from ablate.agent.optim import Adam
 from ablate.agent.policies import create_cartpole_model
+from ablate.agent.stacking import Members
 
 
 def _loss(model: torch.nn.Module, batch: torch.Tensor) -> torch.Tensor:
     return model(batch).log_softmax(dim=1)[:, 0].mean() + 0.01 * model(batch).pow(2).sum()
 
 
-@pytest.mark.parametrize("lr", [1e-3, 3e-2])
-def test_adam_matches_torch_step_for_step(lr):
-    torch.manual_seed(0)
-    ours_model = create_cartpole_model(hidden_sizes=(16, 16))
-    torch_model = create_cartpole_model(hidden_sizes=(16, 16))
-    torch_model.load_state_dict(ours_model.state_dict())
-    ours, reference = Adam(ours_model.parameters(), lr=lr), torch.optim.Adam(torch_model.parameters(), lr=lr)
+def _members(count: int) -> tuple[list[torch.nn.Module], Members]:
+    models = []
+    for seed in range(count):
+        torch.manual_seed(seed)
+        models.append(create_cartpole_model(hidden_sizes=(16, 16)))
+    return models, Members(models, torch.device("cpu"), range(count))
+
+
+def test_each_member_steps_as_torch_adam_at_its_own_rate_and_only_when_served():
+    """Three members at three learning rates; member 1 sits out every third step. Each member's weights follow
+    torch.optim.Adam on its own module (to float tolerance), and a member not served is not touched at all."""
+    rates = [1e-3, 3e-2, 1e-2]
+    models, members = _members(3)
+    references = [torch.optim.Adam(m.parameters(), lr=r) for m, r in zip(models, rates, strict=True)]
+    ours = Adam(members.flat, lr=rates)
     for step in range(25):
         batch = torch.randn(32, 4, generator=torch.Generator().manual_seed(step))
-        for model, optimizer in ((ours_model, ours), (torch_model, reference)):
-            optimizer.zero_grad(set_to_none=True)
-            _loss(model, batch).backward()
-            optimizer.step()
-    for (name, a), b in zip(ours_model.state_dict().items(), torch_model.state_dict().values(), strict=True):
-        assert torch.equal(a, b), name  # the same float operations in the same order: bit for bit
-    assert ours.steps == 25
+        serving = [0, 2] if step % 3 == 0 else [0, 1, 2]
+        before = members.state_dict(1)
+        ours.zero_grad()
+        index = torch.tensor(serving)
+        logits = members(batch.expand(len(serving), *batch.shape), index)  # one forward for the members served
+        (logits.log_softmax(dim=2)[..., 0].mean(1) + 0.01 * logits.pow(2).sum((1, 2))).sum().backward()
+        ours.step(index)
+        for m in serving:
+            references[m].zero_grad()
+            _loss(models[m], batch).backward()
+            references[m].step()
+        if 1 not in serving:
+            after = members.state_dict(1)
+            assert all(torch.equal(before[k], after[k]) for k in before)
+    for m, model in enumerate(models):
+        for name, expected in model.state_dict().items():
+            torch.testing.assert_close(members.state_dict(m)[name], expected, rtol=1e-5, atol=1e-6, msg=name)
+    assert ours.steps.tolist() == [25, 16, 25]
 
 
-def test_adam_skips_parameters_without_gradients_and_zero_grad_modes():
-    used, unused = torch.nn.Parameter(torch.ones(3)), torch.nn.Parameter(torch.ones(2))
-    optimizer = Adam([used, unused], lr=0.1)
-    (used * torch.tensor([1.0, -1.0, 0.0])).sum().backward()
-    optimizer.step()
-    assert torch.allclose(used.detach(), torch.tensor([0.9, 1.1, 1.0]))  # first Adam step: lr * sign(grad)
-    assert torch.equal(unused.detach(), torch.ones(2))
-    optimizer.zero_grad(set_to_none=False)
-    assert torch.equal(used.grad, torch.zeros(3))
-    optimizer.zero_grad()
-    assert used.grad is None
+def test_adam_refuses_a_rate_that_is_not_positive_and_keeps_only_the_members_that_stay():
+    models, members = _members(3)
     with pytest.raises(ValueError, match="learning rate"):
-        Adam([used], lr=0.0)
+        Adam(members.flat, lr=[1e-3, 0.0, 1e-3])
+    optimizer = Adam(members.flat, lr=[1e-3, 2e-3, 3e-3])
+    members.keep([2, 0])
+    optimizer.keep([2, 0], members.flat)
+    assert optimizer.lr.tolist() == [3e-3, 1e-3]
+    assert torch.equal(members.state_dict(0)["body.0.weight"], models[2].state_dict()["body.0.weight"])
 
 
 def test_a_trial_never_imports_torch_dynamo():

@@ -39,63 +39,14 @@ def test_pong_models():
     assert parameter_count(mlp) == 6400 * 200 + 200 + 200 * 6 + 6
 
 
-def test_pong_mlp_sparse_forward_matches_dense_in_value_and_gradient():
-    import numpy as np
-
-    torch.manual_seed(0)
-    mlp = create_pong_model(n_actions=2, architecture="mlp", hidden_sizes=(16, 8))
-    x = np.zeros((5, 1, 80, 80), np.int8)
-    rng = np.random.default_rng(1)
-    for i in (0, 1, 3, 4):  # observation 2 stays all zeros: an empty bag
-        x[i].reshape(-1)[rng.integers(0, 6400, 40)] = rng.choice(np.array([-1, 1], np.int8), 40)
-    weights = torch.linspace(-1, 1, 10).reshape(5, 2)
-    grads = []
-    for inputs in (torch.from_numpy(x), torch.from_numpy(x.astype(np.float32))):
-        mlp.zero_grad()
-        logits = mlp(inputs)
-        (logits * weights).sum().backward()
-        grads.append((logits.detach(), [p.grad.clone() for p in mlp.parameters()]))
-    torch.testing.assert_close(grads[0][0], grads[1][0])
-    for sparse, dense in zip(grads[0][1], grads[1][1], strict=True):
-        torch.testing.assert_close(sparse, dense)
-
-
-def test_word_scan_nonzero_equals_torch_nonzero_in_order():
-    from ablate.agent.policies import _nonzero_rows_columns
-
-    x = torch.zeros(4, 64, dtype=torch.int8)
-    x[0, [0, 7, 8, 63]] = torch.tensor([1, -1, 1, -1], dtype=torch.int8)  # both ends of words and of the row
-    x[2, 9:20] = 1  # several bytes of one word, spilling into the next; rows 1 and 3 stay empty
-    for got, expected in zip(_nonzero_rows_columns(x), x.nonzero(as_tuple=True), strict=True):
-        assert torch.equal(got, expected)
-
-
-def test_numpy_conv1d_matches_torch_and_a_stack_is_each_member_alone_exactly():
-    import numpy as np
-
-    from ablate.agent.policies import conv1d, conv1d_weight
-
-    rng = np.random.default_rng(0)
-    x = rng.normal(size=(3, 7, 4, 5)).astype(np.float32)  # 3 members, 7 envs, 4 channels, 5 steps
-    weight = rng.normal(size=(3, 6, 4, 2)).astype(np.float32)
-    bias = rng.normal(size=(3, 6)).astype(np.float32)
-    stacked = conv1d(x, conv1d_weight(weight), bias[:, None, :])
-    assert stacked.shape == (3, 7, 6, 4) and stacked.flags.c_contiguous
-    for i in range(3):
-        alone = conv1d(x[i], conv1d_weight(weight[i]), bias[i])
-        np.testing.assert_array_equal(stacked[i], alone)  # bit for bit: how a population acts as its trials
-        expected = torch.nn.functional.conv1d(*(torch.from_numpy(a) for a in (x[i], weight[i], bias[i])))
-        np.testing.assert_allclose(alone, expected.numpy(), rtol=1e-5, atol=1e-6)
-
-
-def test_layer_norm_knob_builds_a_layer_norm_before_each_hidden_activation_and_acts_in_the_dense_stack():
+def test_layer_norm_knob_builds_a_layer_norm_before_each_hidden_activation_and_acts_through_stacked_layers():
     from dataclasses import replace
 
     import numpy as np
 
-    from ablate.agent.acting import DenseStack
     from ablate.agent.envs import describe
     from ablate.agent.models import build_model
+    from ablate.agent.stacking import Members
     from ablate.config import DEFAULT, apply_knobs
     from ablate.launch.grid import trial_key
     from ablate.reporting.sections import architecture
@@ -107,12 +58,14 @@ def test_layer_norm_knob_builds_a_layer_norm_before_each_hidden_activation_and_a
     assert kinds == ["Linear", "LayerNorm", "ReLU", "Linear", "LayerNorm", "ReLU", "Linear"]
     pong = create_pong_model(architecture="mlp", hidden_sizes=(8,), layer_norm=True)
     assert sum(isinstance(m, nn.LayerNorm) for m in pong.modules()) == 1
-    assert DenseStack.fits(model)  # acts with the built-in networks' fast path, not a fallback
+    members = Members([model, model], torch.device("cpu"), [0, 1])
+    members.check([model, model], (4,))
+    assert members.swapped  # its LayerNorm is stacked like its Linear layers, not a fallback
     observations = torch.randn(2, 5, 4)
     with torch.no_grad():
         expected = model(observations.reshape(-1, 4)).reshape(2, 5, 2)
-    stacked = DenseStack([model, model])(observations.numpy())
-    np.testing.assert_allclose(stacked, expected.numpy(), rtol=1e-5, atol=1e-5)
+        stacked = members(observations)
+    np.testing.assert_allclose(stacked.numpy(), expected.numpy(), rtol=1e-5, atol=1e-5)
     assert trial_key("v", replace(config, model=replace(config.model, layer_norm=False))) != trial_key("v", config)
     assert "LayerNorm" in architecture({"model.hidden_sizes": "(16, 8)", "model.layer_norm": "True"}, "CartPole-v1")
     assert "LayerNorm" not in architecture({"model.hidden_sizes": "(16,)", "model.layer_norm": "False"}, "CartPole-v1")

@@ -111,3 +111,48 @@ def test_a_member_leaves_and_the_others_keep_their_weights_and_streams():
     assert all(torch.equal(state[k], v) for k, v in members.state_dict(0).items())
     assert isinstance(members.module(1), type(models[1]))
     torch.testing.assert_close(members.module(1)(torch.ones(2, 4)), models[1](torch.ones(2, 4)))
+
+
+class _BranchesOnValues(nn.Module):
+    """A forward fx cannot trace (Python control flow on a tensor's value): acting runs it as a module."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.linear = nn.Linear(4, 2)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out = self.linear(x)
+        return out if bool(out.sum() > -1e9) else -out
+
+
+USERS_NETWORKS = {
+    "mlp-class": (lambda: _example("mlp_class")((4,), 2, width=16), (4,)),
+    "layernorm": (lambda: _example("layernorm")((4,), 2, width=16), (4,)),
+    "residual": (lambda: _example("residual")((4,), 2, width=16), (4,)),
+    "atari-cnn": (lambda: _example("atari_cnn")((2, 44, 44), 3, width=8), (2, 44, 44)),
+    "branches": (_BranchesOnValues, (4,)),
+}
+
+
+@pytest.mark.parametrize("name", list(USERS_NETWORKS))
+def test_acting_is_the_modules_forward_bit_for_bit_after_steps_in_place_and_a_member_leaving(name):
+    build, shape = USERS_NETWORKS[name]
+    models = []
+    for seed in range(3):
+        torch.manual_seed(seed)
+        models.append(build())
+    members = Members(models, torch.device("cpu"), range(len(models)))
+    x = torch.randn(len(models), 5, *shape, generator=torch.Generator().manual_seed(2))
+
+    def module_forward(count: int) -> torch.Tensor:
+        return members.network(x[:count].reshape(-1, *shape)).reshape(count, 5, -1)
+
+    with torch.no_grad():
+        assert torch.equal(members(x), module_forward(3))  # the first call traces and checks
+        assert (members._acting[1] is not None) == (name != "branches")  # traced where fx can follow the forward
+        members.flat.mul_(1.5)  # Adam steps ``flat`` in place: the traced forward reads the new weights
+        assert torch.equal(members(x), module_forward(3))
+        members.keep([2, 0])  # a new ``flat``: traced again for the two members left
+        assert torch.equal(members(x[:2]), module_forward(2))
+        for position in range(2):
+            torch.testing.assert_close(members(x[:2])[position], members.module(position)(x[position]))

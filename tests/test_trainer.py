@@ -39,7 +39,7 @@ CUSTOM = Path(__file__).parent.parent / "examples" / "models" / "residual.py"
 
 
 def _custom(**overrides):
-    """A user's network (an MLP with a residual block, from a file): it acts through stacked layers, not numpy."""
+    """A user's network (an MLP with a residual block, from a file, its own ``forward``)."""
     config = apply_knobs(SHORT, {"model": f"{CUSTOM}:create_model", "model_args": {"width": 16}})
     return replace(config, **overrides)
 
@@ -56,8 +56,8 @@ def test_a_population_of_one_is_its_single_trial_bit_for_bit(base):
 
 
 def test_a_custom_member_equals_its_population_of_one_to_float_tolerance_in_its_first_update():
-    """A user's network acts through stacked layers in a population and its own forward alone: the same episodes
-    (their actions differ only if a float difference flips a sampled action) and the same first update."""
+    """A user's network in a population of four and alone: the same episodes (their actions differ only if a float
+    difference flips a sampled action) and the same first update, to float tolerance."""
     configs = [_custom(seed=s, max_episodes=8) for s in range(4)]
     together = run_population(configs)
     for config, member in zip(configs, together, strict=True):
@@ -155,13 +155,12 @@ def test_a_failing_member_fails_alone_and_one_that_solves_leaves_early():
 def test_a_member_whose_weights_turn_nan_fails_alone(monkeypatch):
     update = Population.update
 
-    def poisoned(self, position, batch):
-        stats = update(self, position, batch)
-        member = self.members[position]
-        if len(self.members) == 3 and member.index == 1:  # member 1's weights become NaN after its first update
-            with torch.no_grad():
-                next(member.model.parameters()).fill_(float("nan"))
-            self.acting.refresh(position)
+    def poisoned(self, batches):
+        stats = update(self, batches)
+        for position in batches:
+            if len(self.members) == 3 and self.members[position].index == 1:  # NaN weights after its first update
+                with torch.no_grad():
+                    self.network.flat[position, :3] = float("nan")
         return stats
 
     monkeypatch.setattr(Population, "update", poisoned)

@@ -23,9 +23,10 @@ There, in the repository's root::
 folder first and import them from there; nothing is installed into the Python itself.)
 
 The population part (``--members``, default 1,024 default CartPole trials at ``--cartpole-episodes`` each):
-``agent.trainer.run_population`` with the members' networks on CUDA (acting by one ``vmap`` over their stacked
-parameters, each member's update on its own module; the envs stay on the CPU), then on the CPU, both as env steps
-per second. Pong populations (32 CNN members) are the same trainer; this script does not measure them yet.
+``agent.trainer.run_population`` with the members' networks on CUDA (acting by one batched forward of their
+stacked parameters, the members ready at a step updating in one batched pass; the envs stay on the CPU), then on
+the CPU, both as env steps per second. Pong populations (32 CNN members) are the same trainer; this script does
+not measure them yet.
 Measured once on a lent H200 (2026-12-04; docs/pong.md, docs/performance.md); tests/test_tools.py runs its short
 form on the CPU.
 """

@@ -85,12 +85,8 @@ def record_episode(
     """Play one episode of ``model`` on a seed training never used, frames to ``on_frame`` as they come (every
     ``video_stride``-th step, downscaled); returns its return. Greedy (argmax), except on Pong, where a greedy agent
     that has not learnt much presses one button for the whole video: there the sampling policy plays."""
-    from ablate.agent.acting import stack
-
     info = describe(config)
     env = make_trial_env(config, render=True)
-    # The network acts as it did in training (numpy for the built-in stacks), one observation at a time.
-    acting = stack([model], next(model.parameters()).device, not config.model.factory, info.observation_shape)
     greedy = not is_pong(config.env_id)
     rng = np.random.default_rng(config.seed + 1_000_003)
     scale = info.video_downscale
@@ -106,15 +102,12 @@ def record_episode(
         del seen[:-history]  # the window needs the last `history` only (zeros before the episode's first)
         return windows(np.stack(seen).astype(np.float32), history)[-1]
 
-    def logits(batch: np.ndarray) -> np.ndarray:
-        return acting(batch[None])[0]
-
     try:
         observation, _ = env.reset(seed=config.seed + 1_000_003)
         frame()
         frames, steps, total, done = 1, 0, 0.0, False
         while not done and frames < max_frames:
-            action = choose_action(logits, policy_input(observation), rng, greedy=greedy)
+            action = choose_action(model, policy_input(observation), rng, greedy=greedy)
             observation, reward, terminated, truncated, _ = env.step(action)
             total += float(reward)
             steps += 1

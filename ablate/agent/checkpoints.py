@@ -11,8 +11,8 @@ import torch
 from ablate.agent.records import EpisodeMetrics
 from ablate.agent.slots import Episode
 
-CHECKPOINT_VERSION = 2
-"""The one trainer's checkpoints (1: the stacked trainer's, which a trial starts afresh from)."""
+CHECKPOINT_VERSION = 3
+"""The stacked members' checkpoints (1, 2: earlier trainers', which a trial starts afresh from)."""
 
 
 def checkpoint(population, position: int) -> bytes:
@@ -22,9 +22,9 @@ def checkpoint(population, position: int) -> bytes:
     torch.save(
         {
             "version": CHECKPOINT_VERSION,
-            "model": member.model.state_dict(),
-            "optimizer": member.optimizer.state_dict(),
-            "torch_rng": member.torch_rng,
+            "model": population.network.state_dict(position),
+            "optimizer": population.optimizer.state_dict(position),
+            "dropout_rng": population.network.generator_state(position),
             "numpy_rng": population.actions_state(position),
             "slots": population.slots.member_state(position),
             "collection": _collection_state(population, position),
@@ -64,12 +64,11 @@ def restore(population, position: int, blob: bytes) -> None:
     member.window.extend(m.episode_return for m in member.history[-member.config.solve_window :])
     member.env_steps, member.updates = saved["env_steps"], saved["updates"]
     member.episodes_to_solve, member.completed = saved["episodes_to_solve"], saved["completed"]
-    member.model.load_state_dict(saved["model"])
-    member.optimizer.load_state_dict(saved["optimizer"])
-    member.torch_rng = saved["torch_rng"]
+    population.network.load_state_dict(position, saved["model"])
+    population.optimizer.load_state_dict(position, saved["optimizer"])
+    population.network.set_generator_state(position, saved["dropout_rng"])
     member.actions_rng.bit_generator.state = saved["numpy_rng"]
     population.slots.set_member_state(position, saved["slots"])
-    population.acting.refresh(position)
     member.started -= saved["wall_s"]
     if member.videos is not None and member.videos.every:
         member.videos.next_at = -(-member.completed // member.videos.every) * member.videos.every

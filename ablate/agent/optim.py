@@ -1,65 +1,78 @@
-"""Adam, the update ``torch.optim.Adam`` makes on CPU (single-tensor path, default betas and eps), in a few lines.
+"""Adam for a population: each member's own Adam (its learning rate, its step count) on the stacked parameters,
+stepping only the members an update serves; the update ``torch.optim.Adam`` makes, member by member.
 
-Why not ``torch.optim.Adam``: constructing any ``torch.optim`` optimizer imports ``torch._dynamo`` (its
-``add_param_group`` is wrapped by ``torch._disable_dynamo``), which costs ~1.3 s of CPU in every fresh
-process, more than a third of a typical CartPole trial, paid again by every Ray worker. The update below
-is tested equal to ``torch.optim.Adam``'s, step for step.
+Why not ``torch.optim.Adam``: it steps every row of a stacked tensor with one step count and one learning rate,
+and constructing any ``torch.optim`` optimizer imports ``torch._dynamo`` (~1.3 s of CPU in every fresh process,
+paid again by every Ray worker). Tested equal to ``torch.optim.Adam`` member by member.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Sequence
 
 import torch
 
 
 class Adam:
-    """Adam (Kingma & Ba, 2015) with bias correction, no weight decay, no AMSGrad."""
+    """Adam (Kingma & Ba, 2015) with bias correction, no weight decay, no AMSGrad, one per member: a row of
+    ``params`` (M, P), every member's parameters one after another (``stacking.Members.flat``)."""
 
     def __init__(
-        self, params: Iterable[torch.Tensor], lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8
+        self, params: torch.Tensor, lr: Sequence[float], betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8
     ) -> None:
-        if lr <= 0:
-            raise ValueError(f"learning rate must be positive, got {lr}")
-        self.params = [p for p in params if p.requires_grad]
-        self.lr = lr
+        if any(rate <= 0 for rate in lr):
+            raise ValueError(f"learning rate must be positive, got {min(lr)}")
+        self.params = params
+        self.lr = torch.tensor(list(lr), dtype=torch.float64, device=params.device)
         self.beta1, self.beta2 = betas
         self.eps = eps
-        self.steps = 0
-        self.exp_avg = [torch.zeros_like(p) for p in self.params]
-        self.exp_avg_sq = [torch.zeros_like(p) for p in self.params]
+        self.steps = torch.zeros(len(self.lr), dtype=torch.int64, device=params.device)
+        self.exp_avg = torch.zeros_like(params)
+        self.exp_avg_sq = torch.zeros_like(params)
 
-    def zero_grad(self, set_to_none: bool = True) -> None:
-        for p in self.params:
-            if set_to_none:
-                p.grad = None
-            elif p.grad is not None:
-                p.grad.zero_()
+    def zero_grad(self) -> None:
+        self.params.grad = None
 
     @torch.no_grad()
-    def step(self) -> None:
-        self.steps += 1
-        bias_correction1 = 1 - self.beta1**self.steps
-        bias_correction2_sqrt = (1 - self.beta2**self.steps) ** 0.5
-        step_size = self.lr / bias_correction1
-        for p, exp_avg, exp_avg_sq in zip(self.params, self.exp_avg, self.exp_avg_sq, strict=True):
-            if p.grad is None:
-                continue
-            grad = p.grad
-            exp_avg.lerp_(grad, 1 - self.beta1)
-            exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
-            denom = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(self.eps)
-            p.addcdiv_(exp_avg, denom, value=-step_size)
+    def step(self, serving: torch.Tensor | None = None) -> None:
+        """One step of the members ``serving`` (rows; ``None``: all), from their gradients."""
+        grad = self.params.grad
+        if grad is None:
+            return
+        if serving is None or len(serving) == 1:  # every member, or one (a CPU's update): views, stepped in place
+            rows: slice | torch.Tensor = slice(None) if serving is None else slice(int(serving[0]), int(serving[0]) + 1)
+        else:
+            rows = serving
+        self.steps[rows] += 1
+        steps = self.steps[rows].double()
+        step_size = (self.lr[rows] / (1 - self.beta1**steps)).float().unsqueeze(1)
+        bias_correction2_sqrt = (1 - self.beta2**steps).sqrt().float().unsqueeze(1)
+        exp_avg, exp_avg_sq, grad = self.exp_avg[rows], self.exp_avg_sq[rows], grad[rows]
+        exp_avg.lerp_(grad, 1 - self.beta1)
+        exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
+        denom = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(self.eps)
+        if isinstance(rows, slice):
+            self.params[rows].sub_(step_size * exp_avg / denom)
+            return
+        self.exp_avg[rows], self.exp_avg_sq[rows] = exp_avg, exp_avg_sq
+        self.params[rows] = self.params[rows] - step_size * exp_avg / denom
 
-    def state_dict(self) -> dict:
-        """Step count and moment estimates (for a trial's checkpoint)."""
+    def state_dict(self, member: int) -> dict:
+        """Member ``member``'s step count and moment estimates (its checkpoint's)."""
         return {
-            "steps": self.steps,
-            "exp_avg": [t.clone() for t in self.exp_avg],
-            "exp_avg_sq": [t.clone() for t in self.exp_avg_sq],
+            "steps": int(self.steps[member]),
+            "exp_avg": self.exp_avg[member].cpu().clone(),
+            "exp_avg_sq": self.exp_avg_sq[member].cpu().clone(),
         }
 
-    def load_state_dict(self, state: dict) -> None:
-        self.steps = state["steps"]
-        for mine, saved in zip(self.exp_avg + self.exp_avg_sq, state["exp_avg"] + state["exp_avg_sq"], strict=True):
-            mine.copy_(saved)
+    def load_state_dict(self, member: int, state: dict) -> None:
+        self.steps[member] = state["steps"]
+        self.exp_avg[member] = state["exp_avg"]
+        self.exp_avg_sq[member] = state["exp_avg_sq"]
+
+    def keep(self, members: list[int], params: torch.Tensor) -> None:
+        """Only ``members`` go on; ``params`` is the stack after the same ``keep``."""
+        index = torch.tensor(members, device=self.lr.device)
+        self.params = params
+        self.lr, self.steps = self.lr[index], self.steps[index]
+        self.exp_avg, self.exp_avg_sq = self.exp_avg[index], self.exp_avg_sq[index]

@@ -1,5 +1,6 @@
-"""A population's state: its members (each a learner with its own streams), their env slots and their batched
-acting; what ``trainer``'s loop steps, updates and lets leave. No Ray and no MLflow here.
+"""A population's state: its members (each a learner with its own streams), their networks stacked as one
+(``stacking.Members``) with each member's Adam, their env slots; what ``trainer``'s loop steps, updates and lets
+leave. No Ray and no MLflow here.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ablate.agent.acting import stack
 from ablate.agent.artifacts import TrainingVideos
 from ablate.agent.envs import Described, describe, is_native_vector, make_trial_env
 from ablate.agent.models import build_model, history
@@ -21,6 +21,7 @@ from ablate.agent.optim import Adam
 from ablate.agent.records import Batch, EpisodeMetrics
 from ablate.agent.reinforce import choose_action, discount_rewards, normalize, train_step
 from ablate.agent.slots import CartPoleSlots, EnvSlots, Episode
+from ablate.agent.stacking import Members, dropout_seed
 from ablate.config import TrialConfig
 from ablate.env_spec import solve_threshold
 
@@ -40,11 +41,7 @@ class Member:
     config: TrialConfig
     threshold: float | None
     started: float
-    model: torch.nn.Module
-    optimizer: Adam
     actions_rng: np.random.Generator
-    torch_rng: torch.Tensor
-    """Its torch RNG state (after its initial weights): its dropout draws."""
     history: list[EpisodeMetrics] = field(default_factory=list)
     window: deque = field(default_factory=deque)
     env_steps: int = 0
@@ -85,9 +82,10 @@ class Population:
         self.device = device
         started = time.perf_counter()
         self.members = []
+        models = []
         for i, config in enumerate(configs):
-            torch.manual_seed(config.seed)  # initial weights, then dropout's stream
-            model = build_model(config, self.env).to(device)
+            torch.manual_seed(config.seed)  # each member's initial weights from its own seed
+            models.append(build_model(config, self.env))
             fps, folder = self.env.video_fps, folders[i]
             self.members.append(
                 Member(
@@ -95,19 +93,19 @@ class Population:
                     config,
                     solve_threshold(config),
                     started,
-                    model,
-                    Adam(model.parameters(), lr=config.learning_rate),
                     np.random.default_rng(config.seed),
-                    torch.get_rng_state(),
                     window=deque(maxlen=config.solve_window),
                     videos=TrainingVideos(folder, config.video_every, config.video_max_frames, fps),
                 )
             )
+        self.network = Members(models, device, [dropout_seed(c.seed) for c in configs])
+        shape = (self.history, *self.env.observation_shape) if self.history else self.env.observation_shape
+        self.network.check(models, shape)
+        self.optimizer = Adam(self.network.flat, lr=[c.learning_rate for c in configs])
+        self.l2 = np.array([c.l2 for c in configs], np.float32)
         seeds = [c.seed for c in configs]
         if is_native_vector(first) and not self.continuous:
-            self.slots = CartPoleSlots(
-                seeds, self.per_member, self.env.max_episode_steps, self.history, env_id=first.env_id
-            )
+            self.slots = CartPoleSlots(seeds, self.per_member, self.env.max_episode_steps, self.history, env_id=first.env_id)
         else:
 
             def make(m: int, j: int):  # a member's first env renders where it records training videos
@@ -117,8 +115,6 @@ class Population:
 
             self.slots = EnvSlots(seeds, self.per_member, make, self.history)
             self.slots.on_frame = self._frame
-        shape = (self.history, *self.env.observation_shape) if self.history else self.env.observation_shape
-        self.acting = stack([m.model for m in self.members], device, built_in=not first.model.factory, shape=shape)
         self.chunk = IMAGE_TRAIN_CHUNK if len(self.env.observation_shape) == 3 else None
         self.stepping = np.zeros(len(self.members) * self.per_member, bool)
         """Every member's counting slots, as one mask (what ``step`` steps)."""
@@ -164,7 +160,7 @@ class Population:
         observations = self.slots.observations()
         observations = observations.reshape(m, n, *observations.shape[1:])
         uniforms = self._uniforms()
-        actions = choose_action(self.acting, observations, single=False, uniforms=uniforms).reshape(-1)
+        actions = choose_action(self.network, observations, single=False, uniforms=uniforms).reshape(-1)
         _, ended = self.slots.step(actions, self.stepping)
         over = np.flatnonzero(ended & self.stepping)  # counting slots whose episode ended (most steps: none or a few)
         self.stepping[over] = False
@@ -234,15 +230,12 @@ class Population:
             taken = self.slots.take(slots, lengths)
             member.episodes = {}
         config = member.config
-        observations = taken.observations
-        if config.model.factory:  # a user's network takes float32 (the built-ins read int8 frames as they are)
-            observations = observations.astype(np.float32, copy=False)
         rewards = taken.rewards.astype(np.float64)
         returns = discount_rewards(rewards, config.gamma, config.reset_on_score, lengths=lengths)
         return Batch(
             lengths,
             np.add.reduceat(rewards, np.cumsum(lengths) - lengths),
-            observations,
+            taken.observations,
             taken.actions,
             normalize(returns),
         )
@@ -255,22 +248,51 @@ class Population:
             return len(member.finished) >= member.wanted
         return bool(member.episodes) and not len(member.counting)
 
-    def update(self, position: int, batch: Batch):
-        """The member's own Adam step on its own module, its dropout from its own stream."""
-        member = self.members[position]
-        torch.set_rng_state(member.torch_rng)
+    def update_groups(self, positions: list[int]) -> list[list[int]]:
+        """Which of the members ready at one step update together. On a GPU, all of them in one batched pass
+        (kernel launches dominate there). On a CPU, each in its own pass: a member's gradient then never depends on
+        who else is ready (a batched pass pads each member to the longest batch, which moves float rounding), so
+        a member is bit for bit its population of one and a resumed run is its unbroken one; members rarely end
+        their collections on one step (CartPole: 247 passes for 256 updates), so batching gains little there."""
+        return [positions] if self.device.type == "cuda" else [[p] for p in positions]
+
+    def update(self, batches: dict[int, Batch]) -> dict[int, tuple[float, float]]:
+        """The members at ``batches``' positions each take their own Adam step on their own batch, all in one
+        forward and backward (batches padded to the longest); (loss, entropy) by position."""
+        positions = sorted(batches)
+        lengths = np.array([len(batches[p].actions) for p in positions], np.int64)
+        steps = int(lengths.max())
+        first = batches[positions[0]]
+        if len(positions) == 1:  # one member (a CPU's update): its batch as it is, nothing to pad
+            observations, actions, weights = first.observations[None], first.actions[None], first.weights[None]
+        else:
+            observations = np.zeros((len(positions), steps, *first.observations.shape[1:]), first.observations.dtype)
+            actions = np.zeros((len(positions), steps), np.int64)
+            weights = np.zeros((len(positions), steps), np.float32)
+            for row, position in enumerate(positions):
+                batch, n = batches[position], lengths[row]
+                observations[row, :n], actions[row, :n], weights[row, :n] = (
+                    batch.observations,
+                    batch.actions,
+                    batch.weights,
+                )
+        serving = torch.tensor(positions, device=self.device)
         stats = train_step(
-            member.model,
-            member.optimizer,
-            batch.observations,
-            batch.actions,
-            batch.weights,
-            l2=member.config.l2,
+            self.network,
+            self.optimizer,
+            observations,
+            actions,
+            weights,
+            l2=self.l2[positions],
             chunk_size=self.chunk,
+            lengths=lengths,
+            serving=serving,
         )
-        member.torch_rng = torch.get_rng_state()
-        self.acting.refresh(position)
-        return stats
+        return {p: (float(stats.loss[row]), float(stats.entropy[row])) for row, p in enumerate(positions)}
+
+    def module(self, position: int) -> torch.nn.Module:
+        """Member ``position``'s own network, its current weights (its result's)."""
+        return self.network.module(position)
 
     def keep(self, positions: list[int]) -> None:
         """Only the members at ``positions`` go on (the others left)."""
@@ -278,7 +300,9 @@ class Population:
         if self.block is not None:
             self.block = self.block[positions]
         self.slots.keep(positions)
-        self.acting.keep(positions)
+        self.network.keep(positions)
+        self.optimizer.keep(positions, self.network.flat)
+        self.l2 = self.l2[positions]
         self.stepping = self.stepping.reshape(-1, self.per_member)[positions].reshape(-1)
         for new, member in enumerate(self.members):
             mine = self.slots_of(new)

@@ -6,7 +6,6 @@ No I/O, no Ray, no MLflow, no environment: arrays and a torch model in, arrays a
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -36,7 +35,7 @@ class Memory:
 
 
 def choose_action(
-    model: nn.Module | Callable[[np.ndarray], np.ndarray],
+    model: nn.Module,
     observation: np.ndarray,
     rng: np.random.Generator | None = None,
     *,
@@ -47,18 +46,15 @@ def choose_action(
     """Sample an action from the softmax of the model's logits (the argmax when ``greedy``).
 
     ``observation`` is one observation (``single``: returns an ``int``) or a batch (returns an array of ints).
-    ``model`` is a torch module, or a population's batched forward (``acting``: numpy in, (members, envs,
-    actions) logits out). The draws come from ``uniforms`` (one per row) or ``rng``. No autograd graph is
-    built: the log-probabilities are recomputed in one batched forward at update time (``train_step``).
+    ``model`` is a torch module, or a population's members (``stacking.Members``: (members, envs, *obs) in,
+    (members, envs, actions) logits out). The draws come from ``uniforms`` (one per row) or ``rng``. No autograd
+    graph is built: the log-probabilities are recomputed in one batched forward at update time (``train_step``).
     """
     batch = np.asarray(observation)[None] if single else np.asarray(observation)
-    if isinstance(model, nn.Module):
-        model.eval()  # acting is deterministic apart from sampling: no dropout; train_step switches back
-        device = next(model.parameters()).device
-        with torch.inference_mode():
-            logits = model(torch.from_numpy(np.ascontiguousarray(batch, np.float32)).to(device)).float().cpu().numpy()
-    else:
-        logits = model(batch)
+    model.eval()  # acting is deterministic apart from sampling: no dropout; train_step switches back
+    device = getattr(model, "device", None) or next(model.parameters()).device
+    with torch.inference_mode():
+        logits = model(torch.from_numpy(np.require(batch, requirements="CW")).to(device, torch.float32)).cpu().numpy()
     if greedy:
         actions = logits.argmax(axis=-1)
     else:
@@ -142,12 +138,14 @@ def normalize(values: np.ndarray) -> np.ndarray:
 
 
 def compute_loss(logits: torch.Tensor, actions: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Softmax cross-entropy of the taken actions, weighted by the normalised returns, averaged.
+    """Softmax cross-entropy of the taken actions, weighted by the normalised returns, averaged over the steps
+    (the last axis: one loss per member for a population's (members, steps) batch).
 
     Cross-entropy of the taken action is -log pi(a|s), so this is the policy-gradient loss
     ``-(log pi(a|s) * G).mean()``.
     """
-    return (F.cross_entropy(logits, actions, reduction="none") * weights).mean()
+    cross_entropy = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), actions.reshape(-1), reduction="none")
+    return (cross_entropy.reshape(actions.shape) * weights).mean(-1)
 
 
 def l2_penalty(model: nn.Module) -> torch.Tensor:
@@ -159,14 +157,14 @@ def l2_penalty(model: nn.Module) -> torch.Tensor:
 class Optimizer(Protocol):
     """What ``train_step`` needs of an optimizer: ``ablate.agent.optim.Adam`` and any ``torch.optim`` optimizer fit."""
 
-    def zero_grad(self, set_to_none: bool = True) -> None: ...
+    def zero_grad(self) -> None: ...
     def step(self) -> object: ...
 
 
 class UpdateStats(NamedTuple):
-    loss: float
-    """Policy-gradient loss of the batch, before the step (L2 term excluded)."""
-    entropy: float
+    loss: float | np.ndarray
+    """Policy-gradient loss of the batch, before the step (L2 term excluded); one per member for a population."""
+    entropy: float | np.ndarray
     """Mean entropy (nats) of the policy over the batch's observations, before the step."""
 
 
@@ -176,8 +174,10 @@ def train_step(
     observations: np.ndarray,
     actions: np.ndarray,
     discounted_rewards: np.ndarray,
-    l2: float = 0.0,
+    l2: float | np.ndarray = 0.0,
     chunk_size: int | None = None,
+    lengths: np.ndarray | None = None,
+    serving: torch.Tensor | None = None,
 ) -> UpdateStats:
     """One gradient step on a batch: a single forward in training mode (dropout active), backward, step.
 
@@ -186,6 +186,10 @@ def train_step(
     coupled decay would also shrink biases, and a loss term means the same thing as the course's Keras
     ``kernel_regularizer=l2(...)``, so a value read in the course transfers unchanged.
 
+    A population (``model`` a ``stacking.Members``, ``optimizer`` its ``optim.Adam``): the members ``serving``
+    each take their own step in one forward and backward. Their batches come as (members, steps, ...), padded
+    after each member's ``lengths[i]`` steps (padding weighs nothing); ``l2`` holds each member's.
+
     ``chunk_size``: forward and backward at most this many observations at a time, summing gradients (the
     same gradient as one pass, in bounded memory: a Pong batch of 8,000 frames is GBs of activations). The
     chunks are ``chunk_size`` long, then the rest in decreasing powers of two (``_chunks``).
@@ -193,27 +197,43 @@ def train_step(
     model's device.
     """
     model.train()
-    device = next(model.parameters()).device
-    total = len(actions)
-    optimizer.zero_grad(set_to_none=True)
-    policy_loss_sum, entropy_sum = 0.0, 0.0
-    for start, end in _chunks(total, chunk_size):
-        chunk = torch.as_tensor(observations[start:end]).to(device)
-        if chunk.dtype != torch.int8:  # int8 (Pong's frame differences): the policy takes them as they are
-            chunk = chunk.float()
-        logits = model(chunk)
-        actions_t = torch.as_tensor(actions[start:end], dtype=torch.int64, device=device)
-        weights = torch.as_tensor(discounted_rewards[start:end], dtype=torch.float32, device=device)
+    stacked = lengths is not None
+    device = getattr(model, "device", None) or next(model.parameters()).device
+    steps = actions.shape[-1]
+    members = len(actions) if stacked else 1
+    lengths_t = torch.as_tensor(lengths if stacked else [steps], device=device)
+    padded = stacked and int(np.min(lengths)) < steps
+    optimizer.zero_grad()
+    policy_losses = torch.zeros(members, device=device, dtype=torch.float64)
+    entropies = torch.zeros(members, device=device, dtype=torch.float64)
+    per_chunk = max(1, chunk_size // members) if chunk_size else None
+    for start, end in _chunks(steps, per_chunk):
+        chunk = torch.as_tensor(observations[:, start:end] if stacked else observations[start:end]).to(device)
+        logits = model(chunk, serving) if stacked else model(chunk.float())
+        actions_t = torch.as_tensor(actions[..., start:end], dtype=torch.int64, device=device)
+        weights = torch.as_tensor(discounted_rewards[..., start:end], dtype=torch.float32, device=device)
+        if padded:  # a member's mean is over its own steps: the padding after them weighs nothing
+            weights = weights * (steps / lengths_t.clamp(min=1)).float().reshape(members, 1)
         # compute_loss is a mean over the chunk; scaled, the chunks' losses sum to the whole batch's mean.
-        policy_loss = compute_loss(logits, actions_t, weights) * ((end - start) / total)
-        loss = policy_loss + l2 * l2_penalty(model) if l2 > 0 and start == 0 else policy_loss
+        policy_loss = compute_loss(logits, actions_t, weights) * ((end - start) / steps)
+        loss = policy_loss.sum()
+        if start == 0 and np.any(np.asarray(l2) > 0):
+            if stacked:
+                loss = loss + model.l2_penalty(torch.as_tensor(l2, dtype=torch.float32, device=device), serving)
+            else:
+                loss = loss + l2 * l2_penalty(model)
         loss.backward()
-        policy_loss_sum += float(policy_loss.item())
         with torch.no_grad():
-            log_probs = F.log_softmax(logits, dim=1)
-            entropy_sum += float(-(log_probs.exp() * log_probs).sum(dim=1).sum().item())
+            policy_losses += policy_loss.detach().double().reshape(members)
+            log_probs = F.log_softmax(logits.float(), dim=-1)
+            entropy = -(log_probs.exp() * log_probs).sum(dim=-1).reshape(members, -1).double()
+            seen = torch.arange(start, end, device=device) < lengths_t.reshape(members, 1)
+            entropies += (entropy * seen).sum(dim=1)
+    if stacked:
+        optimizer.step(serving)
+        return UpdateStats(policy_losses.cpu().numpy(), (entropies / lengths_t.clamp(min=1)).cpu().numpy())
     optimizer.step()
-    return UpdateStats(loss=policy_loss_sum, entropy=entropy_sum / max(total, 1))
+    return UpdateStats(loss=float(policy_losses[0]), entropy=float(entropies[0]) / max(steps, 1))
 
 
 def _chunks(total: int, chunk_size: int | None, smallest: int = 64) -> list[tuple[int, int]]:

@@ -1,11 +1,12 @@
 """The one trainer: REINFORCE for M members (seeds, tuning candidates) of one variant in one process, any network,
 any env with discrete actions; a single trial is a population of one.
 
-One loop over a ``population.Population``: every member acts in one batched forward (``acting``), every slot
-steps (``slots``), and a member whose episodes are in takes its own update at once (``reinforce.train_step`` on
-its own module and Adam), no member waiting for another. Each member draws its initial weights, dropout, actions
-and env resets from its own streams, so its run never depends on who shares its process: on a CPU, with a
-built-in network, a member is its population of one bit for bit. No Ray and no MLflow here.
+One loop over a ``population.Population``: every member acts in one batched forward of the members' stacked
+parameters (``stacking.Members``, any network), every slot steps (``slots``), and the members whose episodes are
+in take their own Adam steps at once (``reinforce.train_step`` on the stack), no member waiting for another. Each
+member draws its initial weights, dropout, actions and env resets from its own streams, so its run never depends
+on who shares its process: on a CPU a member is its population of one bit for bit (tests/test_trainer.py), on a
+GPU to float rounding. No Ray and no MLflow here.
 """
 
 from __future__ import annotations
@@ -92,7 +93,7 @@ def run_population(
     for config in configs:
         _inject_fault(config)
     torch.set_num_threads(1)  # small networks: threads cost more than they give, and trials run side by side
-    threadpool_limits(1, user_api="blas")  # the same for numpy's acting (OpenBLAS would spin 2 threads)
+    threadpool_limits(1, user_api="blas")  # the same for numpy's (OpenBLAS would spin 2 threads)
     if is_pong(configs[0].env_id):
         _limit_fragmentation()
     torch_device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
@@ -117,44 +118,57 @@ def run_population(
                 population.leaving = False
             if not population.members:
                 break
-            for position in population.step():
-                _learn(population, position, outcomes, on_episodes, on_checkpoint, on_outcome)
+            ready = population.step()
+            if ready:
+                _learn(population, ready, outcomes, on_episodes, on_checkpoint, on_outcome)
     finally:
         population.close()
     return [outcomes[i] for i in range(len(configs))]
 
 
-def _learn(population: Population, position: int, outcomes: dict, on_episodes, on_checkpoint, on_outcome) -> None:
-    """Member ``position``'s updates while its episodes are in (continuous: several may be), then its next
-    collection."""
-    member = population.members[position]
-    while population.has_batch(member):
-        batch = population.batch(member)
-        stats = population.update(position, batch)
-        failure = None
-        if not math.isfinite(stats.loss):
-            failure = TrialFailed(
-                f"loss became {stats.loss} at episode {len(member.history) + len(batch.lengths)}; "
-                f"try a smaller learning_rate (now {member.config.learning_rate})"
-            )
-        elif member.config.fault == "raise":
-            failure = TrialFailed("injected fault: raise after the first update (tests only)")
-        if failure is not None:
-            outcomes[member.index] = failure
-            if on_outcome is not None:
-                on_outcome(member.index, failure)
-            population.set_counting(position, member.counting[:0])
+def _learn(population: Population, ready: list[int], outcomes: dict, on_episodes, on_checkpoint, on_outcome) -> None:
+    """The ``ready`` members' updates, in one batched step each round while their episodes are in (continuous:
+    several may be), then their next collections."""
+    learning = list(ready)
+    while learning:
+        batches = {p: population.batch(population.members[p]) for p in learning}
+        stats = {}
+        for group in population.update_groups(list(batches)):
+            stats.update(population.update({p: batches[p] for p in group}))
+        learning = []
+        for position, batch in batches.items():
+            member = population.members[position]
+            loss, entropy = stats[position]
+            failure = None
+            if not math.isfinite(loss):
+                failure = TrialFailed(
+                    f"loss became {loss} at episode {len(member.history) + len(batch.lengths)}; "
+                    f"try a smaller learning_rate (now {member.config.learning_rate})"
+                )
+            elif member.config.fault == "raise":
+                failure = TrialFailed("injected fault: raise after the first update (tests only)")
+            if failure is not None:
+                outcomes[member.index] = failure
+                if on_outcome is not None:
+                    on_outcome(member.index, failure)
+                population.set_counting(position, member.counting[:0])
+                population.leaving = True
+                continue
+            member.updates += 1
+            new = _record(member, batch, loss, entropy, time.perf_counter() - member.started)
+            if on_episodes is not None:
+                on_episodes(member.index, new)
+            _maybe_checkpoint(population, position, on_checkpoint)
+            if population.has_batch(member):
+                learning.append(position)
+    for position in ready:
+        member = population.members[position]
+        if member.index in outcomes:
+            continue
+        if member.done:
             population.leaving = True
-            return
-        member.updates += 1
-        new = _record(member, batch, stats.loss, stats.entropy, time.perf_counter() - member.started)
-        if on_episodes is not None:
-            on_episodes(member.index, new)
-        _maybe_checkpoint(population, position, on_checkpoint)
-    if member.done:
-        population.leaving = True
-    elif not population.continuous:
-        population.start(position)
+        elif not population.continuous:
+            population.start(position)
 
 
 def _maybe_checkpoint(population: Population, position: int, on_checkpoint) -> None:
@@ -179,7 +193,7 @@ def _finish(population: Population, outcomes: dict, folders, on_outcome, videos:
             continue
         if member.index in outcomes:
             continue
-        model = member.model
+        model = population.module(position)
         result = TrialResult(
             config=member.config,
             episodes=member.history,

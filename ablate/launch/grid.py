@@ -14,6 +14,7 @@ from typing import Any
 
 from ablate.config import ConfigError, TrialConfig, key_fields
 from ablate.experiment import Experiment
+from ablate.schema import RESULTS_VERSION
 
 
 @dataclass(frozen=True)
@@ -28,8 +29,10 @@ class GridTrial:
 
 
 def config_hash(config: TrialConfig) -> str:
-    """10 hex digits of the fields the schema puts in the key (``config.key_fields``)."""
-    return hashlib.sha1(json.dumps(key_fields(config), sort_keys=True, default=list).encode()).hexdigest()[:10]
+    """10 hex digits of the fields the schema puts in the key (``config.key_fields``) and of the trainer's results
+    version (``schema.RESULTS_VERSION``)."""
+    fields = {**key_fields(config), "results_version": RESULTS_VERSION}
+    return hashlib.sha1(json.dumps(fields, sort_keys=True, default=list).encode()).hexdigest()[:10]
 
 
 def variant_slug(variant: str) -> str:
