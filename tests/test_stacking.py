@@ -149,7 +149,7 @@ def test_acting_is_the_modules_forward_bit_for_bit_after_steps_in_place_and_a_me
 
     with torch.no_grad():
         assert torch.equal(members(x), module_forward(3))  # the first call traces and checks
-        assert (members._acting[1] is not None) == (name != "branches")  # traced where fx can follow the forward
+        assert (members._acting[2] is not None) == (name != "branches")  # traced where fx can follow the forward
         members.flat.mul_(1.5)  # Adam steps ``flat`` in place: the traced forward reads the new weights
         assert torch.equal(members(x), module_forward(3))
         members.keep([2, 0])  # a new ``flat``: traced again for the two members left

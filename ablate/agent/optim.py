@@ -8,6 +8,7 @@ paid again by every Ray worker). Tested equal to ``torch.optim.Adam`` member by 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -39,10 +40,10 @@ class Adam:
         grad = self.params.grad
         if grad is None:
             return
-        if serving is None or len(serving) == 1:  # every member, or one (a CPU's update): views, stepped in place
-            rows: slice | torch.Tensor = slice(None) if serving is None else slice(int(serving[0]), int(serving[0]) + 1)
-        else:
-            rows = serving
+        if serving is not None and len(serving) == 1:  # one member (a CPU's update): torch's own arithmetic
+            self._step_one(int(serving[0]), grad[int(serving[0])])
+            return
+        rows: slice | torch.Tensor = slice(None) if serving is None else serving
         self.steps[rows] += 1
         steps = self.steps[rows].double()
         step_size = (self.lr[rows] / (1 - self.beta1**steps)).float().unsqueeze(1)
@@ -56,6 +57,19 @@ class Adam:
             return
         self.exp_avg[rows], self.exp_avg_sq[rows] = exp_avg, exp_avg_sq
         self.params[rows] = self.params[rows] - step_size * exp_avg / denom
+
+    def _step_one(self, member: int, grad: torch.Tensor) -> None:
+        """Member ``member``'s step as ``torch.optim.Adam`` makes it for one tensor: the bias corrections in Python
+        floats, its row's moments and parameters stepped in place (seven tensor operations)."""
+        self.steps[member] += 1
+        step = int(self.steps[member])
+        step_size = float(self.lr[member]) / (1 - self.beta1**step)
+        bias_correction2_sqrt = math.sqrt(1 - self.beta2**step)
+        exp_avg, exp_avg_sq = self.exp_avg[member], self.exp_avg_sq[member]
+        exp_avg.lerp_(grad, 1 - self.beta1)
+        exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
+        denom = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(self.eps)
+        self.params.detach()[member].addcdiv_(exp_avg, denom, value=-step_size)
 
     def state_dict(self, member: int) -> dict:
         """Member ``member``'s step count and moment estimates (its checkpoint's)."""

@@ -105,7 +105,9 @@ class Population:
         self.l2 = np.array([c.l2 for c in configs], np.float32)
         seeds = [c.seed for c in configs]
         if is_native_vector(first) and not self.continuous:
-            self.slots = CartPoleSlots(seeds, self.per_member, self.env.max_episode_steps, self.history, env_id=first.env_id)
+            self.slots = CartPoleSlots(
+                seeds, self.per_member, self.env.max_episode_steps, self.history, env_id=first.env_id
+            )
         else:
 
             def make(m: int, j: int):  # a member's first env renders where it records training videos

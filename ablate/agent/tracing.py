@@ -1,14 +1,18 @@
 """A population's acting forward as one traced function (``torch.fx``): the swapped network's forward with every
-layer's weight views and their reshapes read once, at the trace, and no module call per layer; the same
-operations in the same order as the module (``stacking.Members`` checks it bit for bit at its first call).
+layer's weight views and their reshapes read once, at the trace, and no module call per layer; specialised to the
+acting batch's shape (its shape arithmetic done once, a reshape that gives back its input's shape dropped, also
+across an activation); the same arithmetic in the same order as the module. When members leave, the same code reads
+the new stack's views (``Traced.rebind``); ``stacking.Members`` checks it against the module bit for bit at the first
+call after every trace or rebinding, and traces again where it no longer fits.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import TYPE_CHECKING
+import operator
+from typing import TYPE_CHECKING, NamedTuple
 
 import torch
+import torch.nn.functional as F
 from torch import fx, nn
 
 if TYPE_CHECKING:
@@ -26,47 +30,202 @@ class _Tracer(fx.Tracer):
         return False
 
 
-def trace(network: nn.Module, stack: _Stack) -> Callable | None:
-    """``network``'s acting forward as one traced function, or ``None`` where fx cannot trace it. Every operation
-    on weights alone that gives a view of ``flat`` (a transpose, an unsqueeze) is done here, once."""
+class _Acting(nn.Module):
+    """(members, batch, *observation) in, (members, batch, actions) out: the members folded into the batch."""
+
+    def __init__(self, network: nn.Module) -> None:
+        super().__init__()
+        self.network = network
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.network(x.flatten(0, 1)).unflatten(0, (x.shape[0], x.shape[1]))
+
+
+class Traced:
+    """A traced acting forward (call it on x) and how its weight attributes are made from ``flat``'s views, to make
+    them again from another ``flat`` (``rebind``: members left) without tracing again."""
+
+    def __init__(self, module: fx.GraphModule, recipe: list[tuple]) -> None:
+        self.module, self.recipe = module, recipe
+        self.forward = module.forward
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        return self.forward(x)
+
+    def rebind(self, stack: _Stack) -> None:
+        views = stack._acting_views()
+        values: dict[str, torch.Tensor] = {}
+        for target, op, function, args, kwargs in self.recipe:
+            if op == "view":
+                values[target] = views[function]
+                continue
+            made = fx.node.map_aggregate((args, kwargs), lambda a: values[a.target] if isinstance(a, _Ref) else a)
+            values[target] = _apply(op, function, *made)
+        self.module.__dict__.update(values)
+
+
+class _Ref:
+    """An argument of a recipe's operation: the attribute made before it."""
+
+    def __init__(self, target: str) -> None:
+        self.target = target
+
+
+def trace(network: nn.Module, stack: _Stack, example: torch.Tensor) -> Traced | None:
+    """``network``'s acting forward on a batch of ``example``'s shape (members, batch, *observation) as one traced
+    function, or ``None`` where fx cannot trace it. Every operation on weights alone that gives a view of ``flat``
+    (a transpose, an unsqueeze) is done here, once."""
     views = stack._acting_views()
     tracer = _Tracer()
     stack.tracer = tracer
     try:
-        graph = tracer.trace(network)
+        graph = tracer.trace(_Acting(network))
     except Exception:  # control flow on values, a call fx cannot follow: the module runs as it is
         return None
     finally:
         stack.tracer = None
     constants: dict[fx.Node, torch.Tensor] = {}
     attributes: dict[str, torch.Tensor] = {}
+    recipe: list[tuple] = []
+    """(attribute, how: "view" of a layout name or an fx op, function, args, kwargs), in the order they are made."""
     storage = stack.flat.untyped_storage().data_ptr()
     for node in list(graph.nodes):
         if node.op == "get_attr" and node.target.startswith("_stacked_"):
             name = next(n for n in stack.layout if attribute(n) == node.target)
             constants[node] = attributes[node.target] = views[name]
+            recipe.append((node.target, "view", name, (), {}))
             continue
         if node.op not in ("call_method", "call_function") or not node.all_input_nodes:
             continue
         if not all(n in constants for n in node.all_input_nodes):
             continue
         args, kwargs = fx.node.map_arg((node.args, node.kwargs), lambda n: constants[n])
-        value = (
-            getattr(args[0], node.target)(*args[1:], **kwargs)
-            if node.op == "call_method"
-            else node.target(*args, **kwargs)
-        )
+        value = _apply(node.op, node.target, args, kwargs)
         if not isinstance(value, torch.Tensor) or value.untyped_storage().data_ptr() != storage:
             continue  # a copy (a reshape that cannot view): computed at every call, as it would go stale
         target = f"_stacked_folded_{len(attributes)}"
         attributes[target] = constants[node] = value
+        refs = fx.node.map_arg((node.args, node.kwargs), lambda n: _Ref(n.target))
+        recipe.append((target, node.op, node.target, *refs))
         with graph.inserting_before(node):
             folded = graph.get_attr(target)
         constants[folded] = value
         node.replace_all_uses_with(folded)
         graph.erase_node(node)
     graph.eliminate_dead_code()
-    module = fx.GraphModule(attributes, graph)
+    try:
+        module = fx.GraphModule(attributes, _copy(graph))
+        _specialise(module, example)
+    except Exception:  # shapes fx cannot propagate: the graph as traced
+        module = fx.GraphModule(attributes, graph)
     for target in list(module._buffers):  # plain attributes: read without nn.Module's lookup
         module.__dict__[target] = module._buffers.pop(target)
-    return module.forward
+    return Traced(module, recipe)
+
+
+def _apply(op: str, function: object, args: tuple, kwargs: dict) -> object:
+    return getattr(args[0], function)(*args[1:], **kwargs) if op == "call_method" else function(*args, **kwargs)
+
+
+def _copy(graph: fx.Graph) -> fx.Graph:
+    copied = fx.Graph()
+    copied.output(copied.graph_copy(graph, {}))
+    return copied
+
+
+_SHAPE_ARITHMETIC = (operator.getitem, operator.add, operator.mul, operator.floordiv, operator.sub)
+_ELEMENTWISE = {F.relu, torch.relu, torch.tanh, torch.sigmoid, F.gelu, F.elu, F.silu, F.leaky_relu, F.tanh, F.sigmoid}
+_ELEMENTWISE_METHODS = ("relu", "tanh", "sigmoid", "exp", "neg", "abs")
+_RESHAPES = ("reshape", "view", "flatten", "unflatten")
+
+
+class _Meta(NamedTuple):
+    shape: torch.Size
+    dtype: torch.dtype
+    stride: tuple[int, ...]
+
+
+class _Shapes(fx.Interpreter):
+    """Runs the graph once, noting each tensor's shape, dtype and strides (``node.meta["tensor"]``)."""
+
+    def run_node(self, n: fx.Node) -> object:
+        result = super().run_node(n)
+        if isinstance(result, torch.Tensor):
+            n.meta["tensor"] = _Meta(result.shape, result.dtype, result.stride())
+        return result
+
+
+def _specialise(module: fx.GraphModule, example: torch.Tensor) -> None:
+    """``module``'s graph for inputs of ``example``'s shape: shape arithmetic (``x.shape``, ``x.size()``, their
+    items and sums) becomes constants; a reshape to its input's shape, or one undone after an elementwise
+    activation, goes; ``F.relu`` calls ``torch.relu`` (no Python wrapper)."""
+    graph = module.graph
+    _Shapes(module).run(example)
+
+    def shape(node: object) -> torch.Size | None:
+        meta = node.meta.get("tensor") if isinstance(node, fx.Node) else None
+        return getattr(meta, "shape", None)
+
+    constants: dict[fx.Node, object] = {}
+    for node in graph.nodes:
+        if node.op == "call_function" and node.target is getattr and node.args[1] == "shape" and shape(node.args[0]):
+            constants[node] = shape(node.args[0])
+        elif node.op == "call_method" and node.target in ("size", "dim") and shape(node.args[0]) is not None:
+            on = torch.empty(shape(node.args[0]), device="meta")
+            constants[node] = getattr(on, node.target)(*node.args[1:], **node.kwargs)
+        elif (
+            node.op == "call_function"
+            and node.target in _SHAPE_ARITHMETIC
+            and node.all_input_nodes
+            and all(n in constants for n in node.all_input_nodes)
+        ):
+            args, kwargs = fx.node.map_arg((node.args, node.kwargs), lambda n: constants[n])
+            constants[node] = node.target(*args, **kwargs)
+    for node in graph.nodes:  # every use of a shape node: its value
+        node.args, node.kwargs = fx.node.map_arg((node.args, node.kwargs), lambda n: constants.get(n, n))
+    graph.eliminate_dead_code()
+
+    def is_reshape(node: object) -> bool:
+        return isinstance(node, fx.Node) and node.op == "call_method" and node.target in _RESHAPES
+
+    def elementwise(node: object) -> bool:
+        return isinstance(node, fx.Node) and (
+            (node.op == "call_function" and node.target in _ELEMENTWISE)
+            or (node.op == "call_method" and node.target in _ELEMENTWISE_METHODS)
+        )
+
+    for node in list(graph.nodes):
+        if node.op == "call_function" and node.target is F.relu and not node.kwargs.get("inplace", False):
+            node.target, node.kwargs = torch.relu, {}
+        if node.op == "call_method" and node.target in ("float", "contiguous") and len(node.args) == 1:
+            source = node.args[0]  # a float32 input made float32, a contiguous one contiguous: the input itself
+            meta, before = node.meta.get("tensor"), getattr(source, "meta", {}).get("tensor")
+            if meta is not None and before is not None and meta == before:
+                node.replace_all_uses_with(source)
+                graph.erase_node(node)
+            continue
+        if not is_reshape(node) or shape(node) is None:
+            continue
+        source = node.args[0]
+        if is_reshape(source) and len(source.users) == 1:  # reshape(reshape(a)): a reshape of a
+            if shape(source.args[0]) == shape(node):
+                node.replace_all_uses_with(source.args[0])
+                graph.erase_node(node)
+                continue
+            if node.target == "reshape":
+                node.args = (source.args[0], *node.args[1:])
+                source = source.args[0]
+        elif (  # reshape(f(reshape(a))) back to a's shape: f(a), for an elementwise f
+            elementwise(source)
+            and len(source.users) == 1
+            and is_reshape(source.args[0])
+            and len(source.args[0].users) == 1
+            and shape(source.args[0].args[0]) == shape(node)
+        ):
+            source.args = (source.args[0].args[0], *source.args[1:])
+            source.meta["tensor"] = node.meta["tensor"]
+        if shape(source) == shape(node):  # a reshape to the shape it has
+            node.replace_all_uses_with(source)
+            graph.erase_node(node)
+    graph.eliminate_dead_code()
+    module.recompile()

@@ -11,6 +11,8 @@ GPU to float rounding. No Ray and no MLflow here.
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import math
 import os
 import time
@@ -66,6 +68,27 @@ def _record(member: Member, batch: Batch, loss: float, entropy: float, wall_s: f
     return new
 
 
+MMAP_THRESHOLD = 32 << 20
+"""Bytes: glibc serves blocks below this from its heap (its default, 128 KB, rises only as blocks are freed)."""
+
+TRIM_THRESHOLD = 128 << 20
+"""Bytes of free heap top glibc keeps before giving memory back to the OS."""
+
+
+@functools.cache
+def _keep_freed_memory() -> None:
+    """An update's activations (MBs: a CartPole batch of 5,000 steps through a 32-wide layer is 640 KB a tensor)
+    are freed and allocated again at every update; by default glibc hands such blocks back to the OS, and every
+    update page-faults them in anew. Raised thresholds keep them in the process (``make bench trainer``: the
+    default's updates 0.61 s -> 0.47 s for 16 members x 1,024 episodes). glibc only; elsewhere nothing changes."""
+    try:
+        mallopt = ctypes.CDLL("libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return
+    mallopt(-3, MMAP_THRESHOLD)  # M_MMAP_THRESHOLD
+    mallopt(-1, TRIM_THRESHOLD)  # M_TRIM_THRESHOLD
+
+
 def run_population(
     configs: Sequence[TrialConfig],
     on_episodes: Callable[[int, list[EpisodeMetrics]], None] | None = None,
@@ -90,6 +113,7 @@ def run_population(
         raise ValueError(
             "these configs cannot share a population: " + ", ".join(map(str, map(population_group, configs)))
         )
+    _keep_freed_memory()
     for config in configs:
         _inject_fault(config)
     torch.set_num_threads(1)  # small networks: threads cost more than they give, and trials run side by side
