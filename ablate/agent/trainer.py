@@ -11,10 +11,10 @@ GPU to float rounding. No Ray and no MLflow here.
 
 from __future__ import annotations
 
-import ctypes
-import functools
+import contextlib
 import math
 import os
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -68,27 +68,6 @@ def _record(member: Member, batch: Batch, loss: float, entropy: float, wall_s: f
     return new
 
 
-MMAP_THRESHOLD = 32 << 20
-"""Bytes: glibc serves blocks below this from its heap (its default, 128 KB, rises only as blocks are freed)."""
-
-TRIM_THRESHOLD = 128 << 20
-"""Bytes of free heap top glibc keeps before giving memory back to the OS."""
-
-
-@functools.cache
-def _keep_freed_memory() -> None:
-    """An update's activations (MBs: a CartPole batch of 5,000 steps through a 32-wide layer is 640 KB a tensor)
-    are freed and allocated again at every update; by default glibc hands such blocks back to the OS, and every
-    update page-faults them in anew. Raised thresholds keep them in the process (``make bench trainer``: the
-    default's updates 0.61 s -> 0.47 s for 16 members x 1,024 episodes). glibc only; elsewhere nothing changes."""
-    try:
-        mallopt = ctypes.CDLL("libc.so.6").mallopt
-    except (OSError, AttributeError):
-        return
-    mallopt(-3, MMAP_THRESHOLD)  # M_MMAP_THRESHOLD
-    mallopt(-1, TRIM_THRESHOLD)  # M_TRIM_THRESHOLD
-
-
 def run_population(
     configs: Sequence[TrialConfig],
     on_episodes: Callable[[int, list[EpisodeMetrics]], None] | None = None,
@@ -113,13 +92,11 @@ def run_population(
         raise ValueError(
             "these configs cannot share a population: " + ", ".join(map(str, map(population_group, configs)))
         )
-    _keep_freed_memory()
     for config in configs:
         _inject_fault(config)
     torch.set_num_threads(1)  # small networks: threads cost more than they give, and trials run side by side
     threadpool_limits(1, user_api="blas")  # the same for numpy's (OpenBLAS would spin 2 threads)
-    if is_pong(configs[0].env_id):
-        _limit_fragmentation()
+    _set_malloc(pong=is_pong(configs[0].env_id))
     torch_device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     folders = [Path(d) if d is not None else None for d in (artifacts_dirs or [None] * len(configs))]
     population = Population(configs, torch_device, folders)
@@ -268,15 +245,20 @@ def run_trial(
     return outcome
 
 
-def _limit_fragmentation() -> None:
-    """Fix glibc's mmap threshold at 256 KB. By default it rises (to 32 MB) each time a large block is freed,
-    after which a Pong trial's per-update arrays (MBs each) come from the heap and fragment it: RSS grew
-    515 MB -> 4.1 GB over 500 episodes. Mapped blocks go back to the system when freed. No-op off glibc."""
-    import contextlib
+def _set_malloc(pong: bool) -> None:
+    """glibc's thresholds for this population (no-op off glibc). By default its mmap threshold rises, up to 32 MB,
+    each time a large block is freed, and it trims its heap's free top. CartPole: an update's activations (a
+    5,000-step batch through a 32-wide layer: 640 KB a tensor) come from a heap that keeps what it frees (mmap
+    threshold 32 MB, trim threshold 128 MB), not page-faulted in anew at every update (``make bench trainer``:
+    the default's 16 x 1,024-episode updates 0.61 s -> 0.47 s). Pong: 256 KB, so its per-update arrays (MBs each)
+    are mapped and go back to the system when freed; from the heap they fragmented it (RSS 515 MB -> 4.1 GB over
+    500 episodes)."""
     import ctypes
-    import sys
 
     if not sys.platform.startswith("linux"):
         return
     with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL("libc.so.6").mallopt(-3, 256 * 1024)  # M_MMAP_THRESHOLD; setting it turns the dynamic one off
+        mallopt = ctypes.CDLL("libc.so.6").mallopt
+        mallopt(-3, 256 * 1024 if pong else 32 << 20)  # M_MMAP_THRESHOLD; setting it turns the dynamic one off
+        if not pong:
+            mallopt(-1, 128 << 20)  # M_TRIM_THRESHOLD
