@@ -103,7 +103,7 @@ def run(
     from ablate.reporting.rounds import judge_for
 
     loaded = _experiment(experiment)
-    from ablate.agent.checks import check_experiment
+    from ablate.checks import check_experiment
 
     check_experiment(loaded)
     if max_concurrent is not None and max_concurrent < 1:

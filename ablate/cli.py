@@ -345,7 +345,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise ConfigError("--variant: only with --from EXPERIMENT (a preset has no variants)")
     else:
         config = apply_knobs(PRESETS[args.preset], knobs)  # ConfigError before anything is written
-    from ablate.agent.checks import check_configs
+    from ablate.checks import check_configs
 
     # Flags name no file and no variant: the error is the problem alone (the command prefixes its name).
     check_configs([(trial.variant if trial else "", config)], str(args.from_experiment or ""))
@@ -436,7 +436,7 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
             from ablate.experiment import load_experiment
 
             experiment = load_experiment(args.experiment)  # bad input: one line, before Ray or MLflow is imported
-            from ablate.agent.checks import check_experiment
+            from ablate.checks import check_experiment
 
             check_experiment(experiment)
             trials = select(expand(experiment), args.only, args.seeds)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -21,7 +21,7 @@ __all__ = ["Knob", "is_int", "is_number"]  # re-exported: older callers import t
 
 BUILT_IN_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
 """The course's envs; ``env_id`` may name any registered Gymnasium env with discrete actions and a Box observation
-(``agent.checks`` refuses the others before a launch)."""
+(``checks`` refuses the others before a launch)."""
 ARCHITECTURES = ("mlp", "cnn")
 ACTIVATIONS = ("relu", "tanh", "elu", "gelu")
 DEFAULT_POPULATION = 8
@@ -256,7 +256,7 @@ class TrialConfig:
 
 SCHEMA: dict[str, Knob] = schema.fields_of(TrialConfig)
 """Every field of a trial's config by column (``model.hidden_sizes``), declared once above: the source of every
-list below and of the keys (``launch.grid``), populations (``agent.sharing``), flags (``cli``) and docs."""
+list below and of the keys (``launch.grid``), populations (``config.population_group``), flags (``cli``) and docs."""
 KNOBS: dict[str, Knob] = {k.key_name: k for k in SCHEMA.values() if k.user}
 """The knobs a user writes, by the experiment file's key."""
 TUNABLE_KNOBS = tuple(name for name, k in KNOBS.items() if k.tunable)
@@ -395,3 +395,15 @@ def config_from_document(document: Mapping[str, Any]) -> TrialConfig:
         model_values["factory_source"] = ((Path(target).name, text),) if text else ()
     model = ModelConfig(**model_values)
     return TrialConfig(**(known(TrialConfig, document) | {"model": model}))
+
+
+def population_group(config: TrialConfig) -> tuple:
+    """Configs with one group share a population: one env (and its settings), one network, one batch shape (the
+    fields the schema marks ``population``); everything else (seed, learning rate, L2, discount, budget, stop rule)
+    is per member. The launch groups trials by it (``launch.plan``)."""
+    return tuple(schema.value_of(config, column) for column in POPULATION_COLUMNS)
+
+
+def can_share(configs: Sequence[TrialConfig]) -> bool:
+    """Whether ``configs`` can train as one population (one is always a population)."""
+    return len({population_group(c) for c in configs}) <= 1

@@ -87,7 +87,7 @@ def solve_threshold(config: EnvConfig) -> float | None:
 
 def solve_threshold_or_none(config: EnvConfig) -> float | None:
     """``solve_threshold``, or ``None`` where the env cannot be looked up here (an unknown id, a module that does
-    not import: ``agent.checks`` says so in words before a launch)."""
+    not import: ``checks`` says so in words before a launch)."""
     try:
         return solve_threshold(config)
     except (EnvError, ImportError):

@@ -50,7 +50,7 @@ class Knob:
     population: bool = False
     """Trials that differ in it cannot share a population (one env, one network, one batch shape)."""
     env: bool = False
-    """It changes the env a trial is built against (what ``agent.envs.describe`` reads)."""
+    """It changes the env a trial is built against (what ``envs.describe`` reads)."""
     built_in: bool = False
     """A knob of the built-in networks, which a user's own ``model`` does not read."""
     architecture: bool = False

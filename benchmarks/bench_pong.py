@@ -59,8 +59,8 @@ def _cnn_compute_ms_per_step(batch: int = 1024, acting_batch: int = 4) -> float:
     backward of a training chunk of ``batch`` frames divided by the chunk (real frame differences)."""
     import numpy as np
 
-    from ablate.agent.envs import make_pong
     from ablate.agent.policies import create_pong_model
+    from ablate.envs import make_pong
 
     env = make_pong(action_set="move")
     env.reset(seed=0)

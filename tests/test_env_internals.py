@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv, CartPoleVectorEnv
 
-from ablate.agent import env_internals
+from ablate import env_internals
 
 
 def _env(n: int = 3, max_episode_steps: int = 500) -> CartPoleVectorEnv:

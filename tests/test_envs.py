@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from ablate.agent.envs import (
+from ablate.config import TrialConfig
+from ablate.envs import (
     EnvError,
     describe,
     frame_difference,
@@ -12,7 +13,6 @@ from ablate.agent.envs import (
     pre_process,
     pre_process_int8,
 )
-from ablate.config import TrialConfig
 
 
 def test_pre_process_crops_downsamples_and_binarises():

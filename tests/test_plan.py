@@ -125,7 +125,7 @@ def test_a_launch_of_populations_records_every_member_as_its_own_trial(run_quiet
 
 
 def test_cnn_configs_stack_apart_from_dense_ones():
-    from ablate.agent.sharing import population_group
+    from ablate.config import population_group
 
     cnn = population_group(replace(DEFAULT, model=ModelConfig("cnn")))
     assert cnn is not None and cnn != population_group(DEFAULT)

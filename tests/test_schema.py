@@ -7,8 +7,7 @@ from dataclasses import dataclass, field
 import pytest
 
 from ablate import config, schema
-from ablate.agent.sharing import population_group
-from ablate.config import DEFAULT, SCHEMA, TrialConfig, apply_knobs
+from ablate.config import DEFAULT, SCHEMA, TrialConfig, apply_knobs, population_group
 from ablate.launch.grid import config_hash
 
 

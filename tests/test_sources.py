@@ -124,7 +124,7 @@ def test_a_model_with_a_helper_trains_through_train_from(folder, tmp_path):
 
 NODE = """
 import json, sys
-from ablate.agent.envs import describe
+from ablate.envs import describe
 from ablate.agent.models import build_model, summary
 from ablate.config import config_from_document
 config = config_from_document(json.load(open(sys.argv[1])))
@@ -261,8 +261,8 @@ def _env_experiment(folder: Path, env_module: str, env_id: str = "Mine-v0") -> P
 
 
 def test_env_module_naming_a_function_calls_it_and_a_local_one_ships_and_is_keyed(tmp_path):
-    from ablate.agent.checks import check_experiment
-    from ablate.agent.envs import describe
+    from ablate.checks import check_experiment
+    from ablate.envs import describe
 
     experiment = load_experiment(_env_experiment(tmp_path, "myenvs.reg:register"))
     config = experiment.variants[0].config
@@ -332,7 +332,7 @@ def test_minatar_registers_its_envs_only_in_its_function_and_its_image_is_channe
 
 
 def test_minatar_through_its_register_function_builds_an_mlp(tmp_path):
-    from ablate.agent.checks import check_experiment
+    from ablate.checks import check_experiment
 
     pytest.importorskip("minatar")
     path = tmp_path / "minatar.toml"
@@ -346,7 +346,7 @@ gym.register("Beside-v0", entry_point="gymnasium.envs.classic_control.cartpole:C
 """
 NODE_ENV = """
 import json, sys
-from ablate.agent.envs import describe
+from ablate.envs import describe
 from ablate.config import config_from_document
 print(describe(config_from_document(json.load(open(sys.argv[1])))).max_episode_steps)
 """
@@ -378,9 +378,9 @@ def test_a_local_env_module_beside_the_experiment_ships_to_a_node_without_it(tmp
 def test_on_a_node_whose_env_module_differs_the_trial_fails_before_training_with_the_pre_flights_line():
     from dataclasses import replace
 
-    from ablate.agent.envs import EnvError
     from ablate.agent.trainer import run_trial
     from ablate.config import DEFAULT
+    from ablate.envs import EnvError
 
     config = replace(DEFAULT, env_module="no_such_env_package.envs:register", max_episodes=2, record_video=False)
     with pytest.raises(EnvError) as error:

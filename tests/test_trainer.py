@@ -10,9 +10,8 @@ import torch
 
 from ablate.agent.population import Population
 from ablate.agent.records import TrialFailed, TrialResult
-from ablate.agent.sharing import can_share
 from ablate.agent.trainer import run_population, run_trial
-from ablate.config import DEFAULT, ModelConfig, apply_knobs
+from ablate.config import DEFAULT, ModelConfig, apply_knobs, can_share
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=48, episodes_per_update=8, record_video=False)
 DEEP = replace(SHORT, model=ModelConfig(hidden_sizes=(16, 16), dropout=0.2), l2=0.001)

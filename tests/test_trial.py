@@ -8,10 +8,10 @@ from dataclasses import replace
 import pytest
 import torch
 
-from ablate.agent.envs import PongFrameDifference
 from ablate.agent.records import TrialFailed
 from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT, ModelConfig
+from ablate.envs import PongFrameDifference
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=64, episodes_per_update=8, record_video=False)
 

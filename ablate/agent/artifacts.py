@@ -15,13 +15,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from ablate.agent.envs import describe, is_pong, make_trial_env
 from ablate.agent.models import build_model
 from ablate.agent.models import history as window_of
 from ablate.agent.records import EpisodeMetrics, TrialResult
 from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows
 from ablate.config import TrialConfig, config_document, config_from_document
+from ablate.envs import describe, is_pong, make_trial_env
 
 
 def video_writer(path: Path, fps: int):
@@ -124,8 +124,8 @@ def write_artifacts(result: TrialResult, model: nn.Module, history: int, folder:
     """Per-episode table, weights, config, learning curve and (``record_video`` and ``video``) a video of the agent
     into ``folder``; for Pong also ``observation.png`` (one observation raw, pre-processed and as a frame
     difference). ``video=False``: the video is left to ``replay_video`` (a launch's report records its picks')."""
-    from ablate.agent.envs import sample_pong_frames
     from ablate.agent.plots import plot_pong_observation, plot_progress
+    from ablate.envs import sample_pong_frames
 
     folder.mkdir(parents=True, exist_ok=True)
     config = result.config

@@ -18,9 +18,9 @@ import torch
 from torch import nn
 
 from ablate import sources
-from ablate.agent.envs import Described
 from ablate.agent.policies import create_cartpole_model, create_pong_model
 from ablate.config import SCHEMA, ModelConfig, TrialConfig
+from ablate.envs import Described
 
 
 class ModelError(ValueError):
@@ -113,7 +113,7 @@ def history(config: TrialConfig) -> int:
 
 
 def _image(config: TrialConfig) -> bool:
-    from ablate.agent.envs import describe
+    from ablate.envs import describe
 
     return len(describe(config).observation_shape) == 3
 

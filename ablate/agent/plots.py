@@ -44,7 +44,7 @@ def plot_progress(
 def plot_pong_observation(previous: np.ndarray, frame: np.ndarray, path: str | Path) -> Path:
     """One Pong observation three ways, side by side: the raw RGB frame, ``pre_process``-ed (80x80, 0/1),
     and the frame difference the policy sees (current - previous pre-processed frame: -1/0/+1)."""
-    from ablate.agent.envs import frame_difference, pre_process
+    from ablate.envs import frame_difference, pre_process
 
     path = Path(path)
     fig, axes = plt.subplots(1, 3, figsize=(9, 3.4), dpi=100)

@@ -13,9 +13,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ablate.agent import env_internals
-from ablate.agent.envs import make_native_vector
+from ablate import env_internals
 from ablate.agent.reinforce import Memory
+from ablate.envs import make_native_vector
 
 
 class Episode(NamedTuple):

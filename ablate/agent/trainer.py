@@ -24,11 +24,10 @@ from threadpoolctl import threadpool_limits
 
 from ablate.agent.artifacts import write_artifacts
 from ablate.agent.checkpoints import checkpoint, restore
-from ablate.agent.envs import is_pong, record
 from ablate.agent.population import Member, Population
 from ablate.agent.records import Batch, EpisodeMetrics, TrialFailed, TrialResult
-from ablate.agent.sharing import can_share, population_group
-from ablate.config import TrialConfig
+from ablate.config import TrialConfig, can_share, population_group
+from ablate.envs import is_pong, record
 from ablate.measures import reaches_threshold
 
 MemberOutcome = TrialResult | TrialFailed
@@ -79,7 +78,7 @@ def run_population(
     device: str | None = None,
     videos: bool = True,
 ) -> list[MemberOutcome]:
-    """Train ``configs`` (``sharing.can_share``) together; member i behaves as ``run_trial(configs[i], ...)``.
+    """Train ``configs`` (``config.can_share``) together; member i behaves as ``run_trial(configs[i], ...)``.
 
     ``on_episodes(i, rows)``: member i's new episodes after each update (a resumed member's saved history first,
     in one call). ``artifacts_dirs[i]``: member i's folder. Every ``checkpoint_interval`` episodes,

@@ -13,7 +13,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ablate.agent.sharing import population_group
+from ablate.config import population_group
 from ablate.launch.grid import GridTrial
 
 

@@ -93,7 +93,7 @@ class Recorder:
         population: str = "",
         env: dict[str, str] | None = None,
     ) -> None:
-        """``env``: what the trial ran against (``agent.envs.record``), kept as its run's ``env.*`` params."""
+        """``env``: what the trial ran against (``envs.record``), kept as its run's ``env.*`` params."""
         if not self._open(key):
             return
         size = str(self.members.get(key, 1))

@@ -20,8 +20,8 @@ def check_configs(named: Iterable[tuple[str, TrialConfig]], source: str) -> None
     """Each distinct env described and each distinct network built and run on a sample observation; the first
     problem is a ``ConfigError`` naming the file, the variant and what is wrong."""
     # Here, not at the top: torch and Gymnasium (~1 s to import) only where there is a network or env to try.
-    from ablate.agent.envs import EnvError, describe
     from ablate.agent.models import ModelError, check_model
+    from ablate.envs import EnvError, describe
 
     seen: set = set()
     for variant, config in named:
