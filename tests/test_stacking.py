@@ -156,3 +156,40 @@ def test_acting_is_the_modules_forward_bit_for_bit_after_steps_in_place_and_a_me
         assert torch.equal(members(x[:2]), module_forward(2))
         for position in range(2):
             torch.testing.assert_close(members(x[:2])[position], members.module(position)(x[position]))
+
+
+@pytest.mark.parametrize("name", ["mlp-class", "layernorm", "atari-cnn"])
+def test_one_members_update_is_its_own_modules_in_chunks_or_whole_and_touches_no_other_member(name):
+    """A CPU's update serves one member: its parameters as leaf views of its row. Its step equals train_step on its
+    own module with torch's Adam (to float tolerance), a chunked update sums its chunks' gradients (a later chunk
+    must not clear the earlier ones'), and the other members' rows do not move."""
+    from ablate.agent.optim import Adam
+    from ablate.agent.reinforce import train_step
+
+    build, shape = USERS_NETWORKS[name]
+    models = []
+    for seed in range(3):
+        torch.manual_seed(seed)
+        models.append(build())
+    rng = torch.Generator().manual_seed(5)
+    observations = torch.randn(1, 40, *shape, generator=rng).numpy()
+    actions = torch.randint(0, 2, (1, 40), generator=rng).numpy()
+    weights = torch.randn(1, 40, generator=rng).numpy()
+    results = []
+    for chunk in (None, 8):
+        members = Members(models, torch.device("cpu"), range(3))
+        optimizer = Adam(members.flat, lr=[1e-2] * 3)
+        before = members.flat.detach().clone()
+        for _ in range(3):
+            train_step(members, optimizer, observations, actions, weights, l2=torch.tensor([0.0]).numpy(),
+                       chunk_size=chunk, lengths=torch.tensor([40]).numpy(), serving=torch.tensor([1]))  # fmt: skip
+        after = members.flat.detach()
+        assert torch.equal(after[[0, 2]], before[[0, 2]])
+        results.append(members.state_dict(1))
+    own = models[1]
+    reference = torch.optim.Adam(own.parameters(), lr=1e-2)
+    for _ in range(3):
+        train_step(own, reference, observations[0], actions[0], weights[0])
+    for name_, expected in own.state_dict().items():
+        for got in results:
+            torch.testing.assert_close(got[name_], expected, rtol=1e-4, atol=1e-5, msg=name_)
