@@ -127,12 +127,16 @@ class _Stack:
     def members(self) -> list[int]:
         return list(range(len(self.flat))) if self.index is None else self.index.tolist()
 
+    def penalised(self) -> list[str]:
+        """The parameters L2 penalises: weight tensors, not biases or norms' shifts."""
+        return [name for name in self.layout if name.endswith("weight")]
+
     def weight_mask(self) -> torch.Tensor:
-        """(P,): 1 at the entries of weight tensors (what L2 penalises), 0 at biases and norms' shifts."""
+        """(P,): 1 at the entries of the ``penalised`` parameters, 0 elsewhere."""
         mask = torch.zeros(self.flat.shape[1], device=self.flat.device)
-        for name, (start, end, _) in self.layout.items():
-            if name.endswith("weight"):
-                mask[start:end] = 1
+        for name in self.penalised():
+            start, end, _ = self.layout[name]
+            mask[start:end] = 1
         return mask
 
 
@@ -249,7 +253,7 @@ class Members:
         """Each member's ``l2 * sum(w**2)`` over its weight tensors (biases excluded), summed over the members."""
         if serving is not None and len(serving) == 1:  # one member: its leaves
             one = self.stack._leaves(int(serving[0]))
-            return l2[0] * sum(one[name].pow(2).sum() for name in self.stack.layout if name.endswith("weight"))
+            return l2[0] * sum(one[name].pow(2).sum() for name in self.stack.penalised())
         rows = self.flat if serving is None else self.flat[serving]
         return (l2 * (rows.pow(2) * self.weight_mask).sum(1)).sum()
 
