@@ -20,7 +20,7 @@ def check_configs(named: Iterable[tuple[str, TrialConfig]], source: str) -> None
     """Each distinct env described and each distinct network built and run on a sample observation; the first
     problem is a ``ConfigError`` naming the file, the variant and what is wrong."""
     # Here, not at the top: torch and Gymnasium (~1 s to import) only where there is a network or env to try.
-    from ablate.agent.models import ModelError, check_model
+    from ablate.agent.models import ModelError
     from ablate.envs import EnvError, describe
 
     seen: set = set()
@@ -42,3 +42,30 @@ def check_experiment(experiment) -> None:
     (and no torch imported) where every variant is built in."""
     if any(needs_check(v.config) for v in experiment.variants):
         check_configs(((v.name, v.config) for v in experiment.variants), experiment.path)
+
+
+def check_model(config: TrialConfig, env) -> None:
+    """Build ``config``'s network and run it on a sample observation: a ``ModelError`` unless it maps
+    (batch, *observation) to (batch, n_actions)."""
+    import torch
+
+    from ablate.agent.models import ModelError, build_model, history
+
+    network = build_model(config, env)
+    steps = history(config)
+    shape = (2, steps, *env.observation_shape) if steps else (2, *env.observation_shape)
+    try:
+        with torch.no_grad():
+            network.eval()
+            logits = network(torch.zeros(shape))
+    except Exception as error:
+        raise ModelError(
+            f"model = {config.model.factory!r}: its forward fails on a batch of shape {tuple(shape)} "
+            f"({type(error).__name__}: {error})"
+        ) from None
+    if not isinstance(logits, torch.Tensor) or tuple(logits.shape) != (2, env.n_actions):
+        got = tuple(logits.shape) if isinstance(logits, torch.Tensor) else type(logits).__name__
+        raise ModelError(
+            f"model = {config.model.factory!r}: its forward returns {got} for a batch of 2; valid: (batch, n_actions) "
+            f"= (2, {env.n_actions}) logits"
+        )

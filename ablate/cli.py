@@ -357,10 +357,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         )
 
     from ablate.agent.trainer import run_trial  # heavy imports only once the input is known to be good
+    from ablate.trial_files import write_artifacts
 
     progress = EpisodeLine()
     result = run_trial(config, on_episodes=progress.update, artifacts_dir=out)
     progress.close()
+    write_artifacts(result, out)
     summary = result.summary()
     if trial:
         summary = {"trial_key": trial.key, "experiment_file": str(args.from_experiment), **summary}

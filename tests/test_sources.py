@@ -125,7 +125,8 @@ def test_a_model_with_a_helper_trains_through_train_from(folder, tmp_path):
 NODE = """
 import json, sys
 from ablate.envs import describe
-from ablate.agent.models import build_model, summary
+from ablate.agent.models import build_model
+from ablate.reporting.networks import summary
 from ablate.config import config_from_document
 config = config_from_document(json.load(open(sys.argv[1])))
 print(summary(build_model(config, describe(config))))

@@ -51,36 +51,6 @@ def test_cnn_variant_trains():
     assert len(result.episodes) == 64 and result.parameter_count > 0
 
 
-def test_artifacts_written(tmp_path):
-    result = run_trial(replace(SHORT, max_episodes=16, record_video=True, video_max_frames=40), artifacts_dir=tmp_path)
-    names = {p.name for p in tmp_path.iterdir()}
-    assert names == {"episodes.csv", "weights.pt", "config.json", "learning_curve.png", "video.mp4"}
-    assert len((tmp_path / "episodes.csv").read_text().splitlines()) == 1 + 16
-    assert (tmp_path / "video.mp4").stat().st_size > 1000
-    assert result.greedy_return is not None and 1 <= result.greedy_return <= 2 * 40  # every 2nd step is a frame
-
-
-@pytest.mark.parametrize("kind", ["mlp with dropout", "cnn", "pong"])
-def test_a_replayed_video_is_the_one_the_trial_would_have_recorded(tmp_path, kind):
-    """A launch leaves each trial's video to the report (``replay_video``, from ``config.json`` and ``weights.pt``):
-    the same frames and the same greedy return as the trial's own, byte for byte."""
-    import imageio.v2 as imageio
-
-    from ablate.agent.artifacts import replay_video
-
-    config = {
-        "mlp with dropout": replace(SHORT, model=ModelConfig(hidden_sizes=(16, 16), dropout=0.2)),
-        "cnn": replace(SHORT, model=ModelConfig(architecture="cnn", history=4, kernel_size=2, hidden_sizes=(16,))),
-        "pong": replace(PONG, checkpoint_every=0),
-    }[kind]
-    config = replace(config, max_episodes=4 if kind == "pong" else 16, record_video=True, video_max_frames=40)
-    result = run_trial(config, artifacts_dir=tmp_path / "trial")
-    played = replay_video(tmp_path / "trial" / "config.json", tmp_path / "trial" / "weights.pt", tmp_path / "again.mp4")
-    assert played == result.greedy_return and (played is None) == (kind == "pong")
-    ours, theirs = (imageio.mimread(p) for p in (tmp_path / "again.mp4", tmp_path / "trial" / "video.mp4"))
-    assert len(ours) == len(theirs) > 1 and all((a == b).all() for a, b in zip(ours, theirs, strict=True))
-
-
 def test_nan_loss_fails_with_an_actionable_message():
     with pytest.raises(TrialFailed, match="injected fault"):
         run_trial(replace(SHORT, fault="raise"))
@@ -152,18 +122,6 @@ def test_pong_trial_spends_no_steps_on_episodes_past_its_budget(monkeypatch):
     result = run_trial(replace(PONG, max_episodes=5, checkpoint_every=0))
     assert len(result.episodes) == 5
     assert len(taken) == result.env_steps == 5 * 40  # 3 sub-envs: without the budget, 6 episodes were played
-
-
-def test_pong_trial_artifacts_training_videos_and_observation_figure(tmp_path):
-    config = replace(PONG, max_episodes=4, video_every=1, video_max_frames=30, record_video=True, checkpoint_every=0)
-    result = run_trial(config, artifacts_dir=tmp_path)
-    names = {p.name for p in tmp_path.iterdir()}
-    expected = {"episodes.csv", "weights.pt", "config.json", "learning_curve.png", "video.mp4", "observation.png"}
-    assert names == expected | {"videos"}
-    videos = sorted(p.name for p in (tmp_path / "videos").iterdir())
-    assert videos[:2] == ["episode_00001.mp4", "episode_00002.mp4"]  # the untrained policy, then each of sub-env 0
-    assert all((tmp_path / "videos" / v).stat().st_size > 1000 for v in videos)
-    assert result.greedy_return is None  # Pong's video is of the sampling policy: no greedy return to report
 
 
 @pytest.mark.parametrize(("given", "expected"), [(None, "1"), ("0", "0")])

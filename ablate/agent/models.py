@@ -14,7 +14,6 @@ import sys
 import types
 from collections.abc import Callable
 
-import torch
 from torch import nn
 
 from ablate import sources
@@ -116,44 +115,3 @@ def _image(config: TrialConfig) -> bool:
     from ablate.envs import describe
 
     return len(describe(config).observation_shape) == 3
-
-
-def check_model(config: TrialConfig, env: Described) -> nn.Module:
-    """Build ``config``'s network and run it on a sample observation: a ``ModelError`` unless it maps
-    (batch, *observation) to (batch, n_actions)."""
-    network = build_model(config, env)
-    steps = history(config)
-    shape = (2, steps, *env.observation_shape) if steps else (2, *env.observation_shape)
-    try:
-        with torch.no_grad():
-            network.eval()
-            logits = network(torch.zeros(shape))
-    except Exception as error:
-        raise ModelError(
-            f"model = {config.model.factory!r}: its forward fails on a batch of shape {tuple(shape)} "
-            f"({type(error).__name__}: {error})"
-        ) from None
-    if not isinstance(logits, torch.Tensor) or tuple(logits.shape) != (2, env.n_actions):
-        got = tuple(logits.shape) if isinstance(logits, torch.Tensor) else type(logits).__name__
-        raise ModelError(
-            f"model = {config.model.factory!r}: its forward returns {got} for a batch of 2; valid: (batch, n_actions) "
-            f"= (2, {env.n_actions}) logits"
-        )
-    return network
-
-
-def summary(network: nn.Module) -> str:
-    """One line: the network's layers by type, e.g. ``Linear(4→64) LayerNorm ReLU Linear(64→2)``."""
-    parts = []
-    for module in network.modules():
-        if list(module.children()):
-            continue
-        if isinstance(module, nn.Linear):
-            parts.append(f"Linear({module.in_features}→{module.out_features})")
-        elif isinstance(module, nn.Conv1d | nn.Conv2d):
-            parts.append(
-                f"{type(module).__name__}({module.in_channels}→{module.out_channels}, k{module.kernel_size[0]})"
-            )
-        else:
-            parts.append(type(module).__name__)
-    return " ".join(parts)

@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ablate.agent.artifacts import TrainingVideos
 from ablate.agent.models import build_model, history
 from ablate.agent.optim import Adam
 from ablate.agent.records import Batch, EpisodeMetrics
@@ -24,6 +23,7 @@ from ablate.agent.stacking import Members, dropout_seed
 from ablate.config import TrialConfig
 from ablate.env_spec import solve_threshold
 from ablate.envs import Described, describe, is_native_vector, make_trial_env
+from ablate.videos import TrainingVideos
 
 UNIFORM_BLOCK = 64
 """Steps of action uniforms drawn from each member's stream at a time."""

@@ -22,7 +22,6 @@ from pathlib import Path
 import torch
 from threadpoolctl import threadpool_limits
 
-from ablate.agent.artifacts import write_artifacts
 from ablate.agent.checkpoints import checkpoint, restore
 from ablate.agent.population import Member, Population
 from ablate.agent.records import Batch, EpisodeMetrics, TrialFailed, TrialResult
@@ -76,17 +75,15 @@ def run_population(
     on_checkpoint: Callable[[int, bytes], None] | None = None,
     on_outcome: Callable[[int, MemberOutcome], None] | None = None,
     device: str | None = None,
-    videos: bool = True,
 ) -> list[MemberOutcome]:
     """Train ``configs`` (``config.can_share``) together; member i behaves as ``run_trial(configs[i], ...)``.
 
     ``on_episodes(i, rows)``: member i's new episodes after each update (a resumed member's saved history first,
-    in one call). ``artifacts_dirs[i]``: member i's folder. Every ``checkpoint_interval`` episodes,
+    in one call). ``artifacts_dirs[i]``: member i's folder, for the videos it records as it trains (``video_every``;
+    ``trial_files.write_artifacts`` writes a result's files). Every ``checkpoint_interval`` episodes,
     ``on_checkpoint(i, blob)`` gets member i's whole state, which ``resume_from[i]`` restores (the resumed run is
     the unbroken one). ``on_outcome(i, outcome)`` as each member ends. ``device``: where the networks act and
-    learn (``None``: CUDA whenever torch sees a device, else the CPU). ``videos=False``: no member records its
-    trained policy's video (``record_video``); its folder holds what ``artifacts.replay_video`` records it from.
-    Returns every member's outcome, in order."""
+    learn (``None``: CUDA whenever torch sees a device, else the CPU). Returns every member's outcome, in order."""
     if not can_share(configs):
         raise ValueError(
             "these configs cannot share a population: " + ", ".join(map(str, map(population_group, configs)))
@@ -114,7 +111,7 @@ def run_population(
                 population.start(position)
         while True:
             if population.leaving:
-                _finish(population, outcomes, folders, on_outcome, videos)
+                _finish(population, outcomes, on_outcome)
                 population.leaving = False
             if not population.members:
                 break
@@ -184,8 +181,8 @@ def _maybe_checkpoint(population: Population, position: int, on_checkpoint) -> N
         os._exit(17)  # the process dies with a checkpoint taken: its retry must resume from it
 
 
-def _finish(population: Population, outcomes: dict, folders, on_outcome, videos: bool) -> None:
-    """Members that solved, spent their budget or failed leave: result, artifacts, ``on_outcome``."""
+def _finish(population: Population, outcomes: dict, on_outcome) -> None:
+    """Members that solved, spent their budget or failed leave: their results, ``on_outcome``."""
     staying = []
     for position, member in enumerate(population.members):
         if member.index not in outcomes and not member.done:
@@ -205,12 +202,9 @@ def _finish(population: Population, outcomes: dict, folders, on_outcome, videos:
             state_dict={k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
             env=record(member.config, population.env, member.threshold),
         )
-        folder = folders[member.index]
         if member.videos is not None:
             member.videos.close()  # the trial is over: its last video ends here
             result.artifacts.update({f"videos/{p.name}": p for p in member.videos.paths if p.exists()})
-        if folder is not None:
-            write_artifacts(result, model, population.history, folder, video=videos)
         outcomes[member.index] = result
         if on_outcome is not None:
             on_outcome(member.index, result)
@@ -229,9 +223,9 @@ def run_trial(
     on_checkpoint: Callable[[bytes], None] | None = None,
 ) -> TrialResult:
     """Train one REINFORCE agent as ``config`` says: a population of one. ``on_episodes`` receives each update's
-    new episodes; with ``artifacts_dir``, the trial writes ``episodes.csv``, ``weights.pt``,
-    ``learning_curve.png`` and (``record_video``) ``video.mp4``. ``on_checkpoint`` receives the whole state every
-    ``checkpoint_interval`` episodes; ``resume_from`` = such a blob goes on from it. Raises ``TrialFailed``."""
+    new episodes; ``artifacts_dir`` holds the videos it records as it trains (``video_every``). ``on_checkpoint``
+    receives the whole state every ``checkpoint_interval`` episodes; ``resume_from`` = such a blob goes on from it.
+    Raises ``TrialFailed``."""
     [outcome] = run_population(
         [config],
         on_episodes=(lambda _, rows: on_episodes(rows)) if on_episodes is not None else None,

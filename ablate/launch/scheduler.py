@@ -149,7 +149,9 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
             if isinstance(outcome, Exception):
                 outcome_of[keys[i]] = {"failed": f"{type(outcome).__name__}: {outcome}"}
             else:
-                files = _read_folder(folders[i]) if folders[i].exists() else {}
+                # The report records the videos of the seeds it shows (``trial_files.replay_video``).
+                write_artifacts(outcome, folders[i], video=False)
+                files = _read_folder(folders[i])
                 outcome_of[keys[i]] = {"summary": outcome.summary(), "artifacts": files, "env": outcome.env}
             report(ablate_outcomes={keys[i]: outcome_of[keys[i]]})
 
@@ -157,7 +159,9 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
         if checkpoints is not None:
             blobs = ray.get([checkpoints.get.remote(k) for k in keys])
             resume = {"resume_from": blobs, "on_checkpoint": on_checkpoint}
-        from ablate.agent.trainer import run_population  # here, in the worker: the driver never imports torch for it
+        # Here, in the worker: the driver never imports torch for them.
+        from ablate.agent.trainer import run_population
+        from ablate.trial_files import write_artifacts
 
         try:
             run_population(
@@ -165,7 +169,6 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
                 on_episodes=on_episodes,
                 artifacts_dirs=folders,
                 on_outcome=on_outcome,
-                videos=False,  # the report records the videos of the seeds it shows (``artifacts.replay_video``)
                 **resume,
             )
         except Exception as error:  # noqa: BLE001 - every error is recorded on the runs, with its type

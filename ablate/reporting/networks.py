@@ -28,7 +28,7 @@ def layers(tracker: RunReader, run_id: str, params: dict[str, str]) -> str | Non
     """The run's network as ``Linear(4→32) LayerNorm ReLU Linear(32→2)``, built as its trial built it (the
     recorded source, its ``model_args``, its env's shapes); None where the run recorded no source or the
     network cannot be built here."""
-    from ablate.agent.models import ModelError, build_model, summary
+    from ablate.agent.models import ModelError, build_model
     from ablate.config import DEFAULT, ModelConfig, config_from_document
     from ablate.envs import describe
 
@@ -124,3 +124,22 @@ def _observation_shape(params: dict[str, str], env_id: str) -> tuple[int, ...]:
     if recorded:
         return tuple(int(n) for n in recorded.split("x"))
     return (1, 80, 80) if is_pong(env_id) else (0,)
+
+
+def summary(network) -> str:
+    """One line: the network's layers by type, e.g. ``Linear(4→64) LayerNorm ReLU Linear(64→2)``."""
+    from torch import nn
+
+    parts = []
+    for module in network.modules():
+        if list(module.children()):
+            continue
+        if isinstance(module, nn.Linear):
+            parts.append(f"Linear({module.in_features}→{module.out_features})")
+        elif isinstance(module, nn.Conv1d | nn.Conv2d):
+            parts.append(
+                f"{type(module).__name__}({module.in_channels}→{module.out_channels}, k{module.kernel_size[0]})"
+            )
+        else:
+            parts.append(type(module).__name__)
+    return " ".join(parts)

@@ -1,16 +1,19 @@
-"""What a finished trial leaves in its folder: ``episodes.csv``, ``weights.pt``, ``config.json``, the learning
-curve, a video of the trained policy, Pong's observation figure, and the videos of the sampling policy taken while
-it trained. ``replay_video`` records the trained policy's video later, from ``weights.pt`` and ``config.json``:
-a launch leaves each trial's video to the report, which records only the seeds it shows.
+"""What a finished trial leaves in its folder (``write_artifacts``): ``episodes.csv``, ``weights.pt``,
+``config.json``, the course's ``plot_progress`` learning curve, a video of the trained policy, Pong's observation
+figure. The trainer returns a result; its caller writes it here (a launch's worker before the tracker logs the
+folder, ``ablate train`` into its ``--out``). ``replay_video`` records the trained policy's video later, from
+``weights.pt`` and ``config.json``: a launch leaves each trial's video to the report, which records only the seeds it
+shows. Matplotlib with the Agg backend, so it draws on a headless machine or a Ray worker.
 """
 
 from __future__ import annotations
 
 import csv
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 import torch
 from torch import nn
@@ -22,61 +25,10 @@ from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows
 from ablate.config import TrialConfig, config_document, config_from_document
 from ablate.envs import describe, is_pong, make_trial_env
+from ablate.videos import video_writer
 
-
-def video_writer(path: Path, fps: int):
-    import imageio.v2 as imageio  # a worker pays for ffmpeg only when it records
-
-    # yuv420p H.264 plays in every browser, MLflow's artifact viewer included. One encoder thread at x264's
-    # fastest preset: ffmpeg runs beside the trial's own process, on CPUs its neighbours are training on.
-    return imageio.get_writer(
-        path,
-        fps=fps,
-        codec="libx264",
-        pixelformat="yuv420p",
-        macro_block_size=2,
-        output_params=["-threads", "1", "-preset", "ultrafast"],
-    )
-
-
-class TrainingVideos:
-    """Videos of the sampling policy as it trains: every ``every`` episodes, the member's first env's next episode,
-    up to ``max_frames`` frames, into ``folder/videos/episode_NNNNN.mp4`` (NNNNN: the episode's number)."""
-
-    def __init__(self, folder: Path | None, every: int, max_frames: int, fps: int, completed: int = 0) -> None:
-        self.folder = folder / "videos" if folder is not None else None
-        self.every = every if folder is not None else 0
-        self.max_frames = max_frames
-        self.fps = fps
-        self.next_at = -(-completed // self.every) * self.every if self.every else 0
-        self.writer = None
-        self.frames = 0
-        self.paths: list[Path] = []
-
-    def episode_started(self, completed: int, frame: Callable[[], np.ndarray]) -> None:
-        """The first env began an episode; ``completed`` episodes have finished in the trial so far."""
-        if not self.every or self.writer is not None or completed < self.next_at:
-            return
-        self.folder.mkdir(parents=True, exist_ok=True)
-        path = self.folder / f"episode_{completed + 1:05d}.mp4"
-        self.writer = video_writer(path, self.fps)
-        self.paths.append(path)
-        self.frames = 0
-        self.next_at = (completed // self.every + 1) * self.every
-        self.frame(frame, done=False)
-
-    def frame(self, frame: Callable[[], np.ndarray], done: bool) -> None:
-        if self.writer is None:
-            return
-        self.writer.append_data(frame())
-        self.frames += 1
-        if done or self.frames >= self.max_frames:
-            self.close()
-
-    def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-            self.writer = None
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
 
 
 def record_episode(
@@ -120,11 +72,11 @@ def record_episode(
         env.close()
 
 
-def write_artifacts(result: TrialResult, model: nn.Module, history: int, folder: Path, video: bool = True) -> None:
+def write_artifacts(result: TrialResult, folder: Path, video: bool = True) -> None:
     """Per-episode table, weights, config, learning curve and (``record_video`` and ``video``) a video of the agent
-    into ``folder``; for Pong also ``observation.png`` (one observation raw, pre-processed and as a frame
-    difference). ``video=False``: the video is left to ``replay_video`` (a launch's report records its picks')."""
-    from ablate.agent.plots import plot_pong_observation, plot_progress
+    into ``folder``, each added to ``result.artifacts``; for Pong also ``observation.png`` (one observation raw,
+    pre-processed and as a frame difference). ``video=False``: the video is left to ``replay_video`` (a launch's
+    report records its picks')."""
     from ablate.envs import sample_pong_frames
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -157,15 +109,23 @@ def write_artifacts(result: TrialResult, model: nn.Module, history: int, folder:
         result.artifacts["model_source"] = source
     if config.record_video and video:
         path = folder / "video.mp4"
-        played = _write_video(config, model, history, path)
+        played = _write_video(config, _network(config, result.state_dict), path)
         if not is_pong(config.env_id):
             result.greedy_return = played
         result.artifacts["video"] = path
 
 
-def _write_video(config: TrialConfig, model: nn.Module, history: int, path: Path) -> float:
+def _network(config: TrialConfig, state_dict: dict[str, torch.Tensor]) -> nn.Module:
+    """The trial's network with its trained weights (the global RNG left as it was: members may still train)."""
+    with torch.random.fork_rng(devices=[]):
+        model = build_model(config, describe(config))
+    model.load_state_dict(state_dict)
+    return model
+
+
+def _write_video(config: TrialConfig, model: nn.Module, path: Path) -> float:
     with video_writer(path, describe(config).video_fps) as writer:
-        return record_episode(config, model, history, config.video_max_frames, writer.append_data)
+        return record_episode(config, model, window_of(config), config.video_max_frames, writer.append_data)
 
 
 def replay_video(config_json: Path, weights: Path, path: Path) -> float | None:
@@ -174,7 +134,54 @@ def replay_video(config_json: Path, weights: Path, path: Path) -> float | None:
     (``None`` on Pong, whose video is of the sampling policy). Raises what building the network or the env
     raises (a user's factory or env module that this machine cannot import)."""
     config = config_from_document(json.loads(config_json.read_text(encoding="utf-8")))
-    model = build_model(config, describe(config))
-    model.load_state_dict(torch.load(weights, map_location="cpu", weights_only=True))
-    played = _write_video(config, model, window_of(config), path)
+    played = _write_video(config, _network(config, torch.load(weights, map_location="cpu", weights_only=True)), path)
     return None if is_pong(config.env_id) else played
+
+
+def plot_progress(
+    returns: Sequence[float],
+    rolling_means: Sequence[float],
+    path: str | Path,
+    threshold: float | None = None,
+    title: str = "",
+) -> Path:
+    """Per-episode return and its rolling mean against episodes, with the solve threshold, saved to ``path``."""
+    path = Path(path)
+    fig, ax = plt.subplots(figsize=(7, 4), dpi=100)
+    episodes = range(1, len(returns) + 1)
+    ax.plot(episodes, returns, color="tab:blue", alpha=0.35, linewidth=0.8, label="episode return")
+    ax.plot(episodes, rolling_means, color="tab:blue", linewidth=2, label="rolling mean")
+    if threshold is not None:
+        ax.axhline(threshold, color="tab:green", linestyle="--", linewidth=1, label=f"solved ({threshold:g})")
+    ax.set_xlabel("episode")
+    ax.set_ylabel("return")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def plot_pong_observation(previous: np.ndarray, frame: np.ndarray, path: str | Path) -> Path:
+    """One Pong observation three ways, side by side: the raw RGB frame, ``pre_process``-ed (80x80, 0/1),
+    and the frame difference the policy sees (current - previous pre-processed frame: -1/0/+1)."""
+    from ablate.envs import frame_difference, pre_process
+
+    path = Path(path)
+    fig, axes = plt.subplots(1, 3, figsize=(9, 3.4), dpi=100)
+    panels = [
+        (frame, "raw frame 210x160x3", {}),
+        (pre_process(frame), "pre_process: 80x80, 0/1", {"cmap": "gray", "vmin": 0, "vmax": 1}),
+        (frame_difference(frame, previous), "frame difference: -1/0/+1", {"cmap": "coolwarm", "vmin": -1, "vmax": 1}),
+    ]
+    for ax, (image, title, style) in zip(axes, panels, strict=True):
+        ax.imshow(image, interpolation="nearest", **style)
+        ax.set_title(title, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path

@@ -1,0 +1,65 @@
+"""Video files: an H.264 writer every browser plays, and the videos of a member's sampling policy taken while it
+trains (``TrainingVideos``, fed frame by frame by the trainer's env slots).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+
+def video_writer(path: Path, fps: int):
+    import imageio.v2 as imageio  # a worker pays for ffmpeg only when it records
+
+    # yuv420p H.264 plays in every browser, MLflow's artifact viewer included. One encoder thread at x264's
+    # fastest preset: ffmpeg runs beside the trial's own process, on CPUs its neighbours are training on.
+    return imageio.get_writer(
+        path,
+        fps=fps,
+        codec="libx264",
+        pixelformat="yuv420p",
+        macro_block_size=2,
+        output_params=["-threads", "1", "-preset", "ultrafast"],
+    )
+
+
+class TrainingVideos:
+    """Videos of the sampling policy as it trains: every ``every`` episodes, the member's first env's next episode,
+    up to ``max_frames`` frames, into ``folder/videos/episode_NNNNN.mp4`` (NNNNN: the episode's number)."""
+
+    def __init__(self, folder: Path | None, every: int, max_frames: int, fps: int, completed: int = 0) -> None:
+        self.folder = folder / "videos" if folder is not None else None
+        self.every = every if folder is not None else 0
+        self.max_frames = max_frames
+        self.fps = fps
+        self.next_at = -(-completed // self.every) * self.every if self.every else 0
+        self.writer = None
+        self.frames = 0
+        self.paths: list[Path] = []
+
+    def episode_started(self, completed: int, frame: Callable[[], np.ndarray]) -> None:
+        """The first env began an episode; ``completed`` episodes have finished in the trial so far."""
+        if not self.every or self.writer is not None or completed < self.next_at:
+            return
+        self.folder.mkdir(parents=True, exist_ok=True)
+        path = self.folder / f"episode_{completed + 1:05d}.mp4"
+        self.writer = video_writer(path, self.fps)
+        self.paths.append(path)
+        self.frames = 0
+        self.next_at = (completed // self.every + 1) * self.every
+        self.frame(frame, done=False)
+
+    def frame(self, frame: Callable[[], np.ndarray], done: bool) -> None:
+        if self.writer is None:
+            return
+        self.writer.append_data(frame())
+        self.frames += 1
+        if done or self.frames >= self.max_frames:
+            self.close()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
