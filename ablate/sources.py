@@ -18,6 +18,7 @@ import json
 import shutil
 import sys
 import tempfile
+import types
 from pathlib import Path
 
 Bundle = tuple[tuple[str, str], ...]
@@ -190,6 +191,35 @@ def install(bundle: Bundle, digest: str) -> Path:
             del sys.modules[_module_name(relative)]
     importlib.invalidate_caches()
     return folder
+
+
+def load_function(spec: str, bundle: Bundle, digest: str):
+    """The function ``spec`` (``FILE.py:FUNCTION`` or ``package.module:FUNCTION``) names, its shipped files put on
+    the path first (checked against ``digest``), so no file is needed on this node; a ``FILE.py`` runs as a module
+    of its own (one per ``digest``), a ``package.module`` is imported. ``SourceError`` saying what failed."""
+    target, function = spec.rsplit(":", 1)
+    if bundle:
+        install(bundle, digest)
+    if target.endswith(".py"):
+        name = f"ablate_model_{digest}"
+        module = sys.modules.get(name)
+        if module is None:
+            module = types.ModuleType(name)
+            module.__file__ = target
+            try:
+                exec(compile(bundle[0][1], target, "exec"), module.__dict__)
+            except Exception as error:  # a user's file: any error is theirs to read, in one line
+                raise SourceError(f"{target} raised {type(error).__name__}: {error}") from None
+            sys.modules[name] = module
+    else:
+        try:
+            module = importlib.import_module(target)
+        except Exception as error:
+            raise SourceError(f"cannot import {target} ({type(error).__name__}: {error})") from None
+    found = getattr(module, function, None)
+    if not callable(found):
+        raise SourceError(f"{target} has no function {function}")
+    return found
 
 
 _CALLED: set[tuple[str, str]] = set()

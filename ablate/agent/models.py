@@ -7,11 +7,8 @@ accepts, and must return an ``nn.Module`` mapping a float32 batch of observation
 
 from __future__ import annotations
 
-import importlib
 import inspect
 import math
-import sys
-import types
 from collections.abc import Callable
 
 from torch import nn
@@ -27,38 +24,11 @@ class ModelError(ValueError):
 
 
 def load_factory(model: ModelConfig) -> Callable[..., nn.Module]:
-    """The factory function of ``model``: its shipped files (checked against ``factory_hash``) put on the path, so
-    no file is needed on this node; a ``FILE.py`` run as a module of its own, a ``package.module`` imported."""
-    target, function = model.factory.rsplit(":", 1)
-    if model.factory_source:
-        try:
-            sources.install(model.factory_source, model.factory_hash)
-        except sources.SourceError as error:
-            raise ModelError(f"model = {model.factory!r}: {error}") from None
-    if target.endswith(".py"):
-        name = f"ablate_model_{model.factory_hash}"
-        module = sys.modules.get(name)
-        if module is None:
-            module = types.ModuleType(name)
-            module.__file__ = target
-            try:
-                exec(compile(model.factory_source[0][1], target, "exec"), module.__dict__)
-            except Exception as error:  # a user's file: any error is theirs to read, in one line
-                raise ModelError(
-                    f"model = {model.factory!r}: {target} raised {type(error).__name__}: {error}"
-                ) from None
-            sys.modules[name] = module
-    else:
-        try:
-            module = importlib.import_module(target)
-        except Exception as error:
-            raise ModelError(
-                f"model = {model.factory!r}: cannot import {target} ({type(error).__name__}: {error})"
-            ) from None
-    factory = getattr(module, function, None)
-    if not callable(factory):
-        raise ModelError(f"model = {model.factory!r}: {target} has no function {function}")
-    return factory
+    """The factory function of ``model``, loaded from its shipped files (``sources.load_function``)."""
+    try:
+        return sources.load_function(model.factory, model.factory_source, model.factory_hash)
+    except sources.SourceError as error:
+        raise ModelError(f"model = {model.factory!r}: {error}") from None
 
 
 def call_factory(model: ModelConfig, observation_shape: tuple[int, ...], n_actions: int) -> nn.Module:
