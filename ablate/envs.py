@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from ablate import env_internals
 from ablate.config import TrialConfig, env_facts
 from ablate.env_spec import EnvError, is_pong, register, versions  # noqa: F401 - EnvError: what describe raises
 
@@ -306,3 +307,39 @@ def record(config, described: Described, threshold: float | None) -> dict[str, s
         "env.gymnasium_version": libraries["gymnasium"],
         "env.ale_py_version": libraries["ale-py"],
     }
+
+
+def env_state(env) -> dict:
+    """What ``env``'s next steps and resets draw from (a checkpointed slot's, restored by ``set_env_state``): the
+    emulator's state, RNG included, where it has one (ALE), its wrappers' own (``state()``: Pong's previous frame)
+    and its ``TimeLimit``'s step count; else its np_random."""
+    base = env.unwrapped
+    if hasattr(base, "clone_state"):
+        return {
+            "emulator": base.clone_state(include_rng=True),
+            "wrappers": [w.state() for w in _stateful_wrappers(env)],
+            "episode_steps": env_internals.episode_steps(env),
+        }
+    return {"np_random": base.np_random.bit_generator.state}
+
+
+def set_env_state(env, saved: dict) -> None:
+    base = env.unwrapped
+    if "emulator" in saved:
+        env.reset()  # Gymnasium's OrderEnforcing refuses a step before a reset; the state below replaces its effects
+        base.restore_state(saved["emulator"])
+        for wrapper, state in zip(_stateful_wrappers(env), saved["wrappers"], strict=True):
+            wrapper.set_state(state)
+        env_internals.set_episode_steps(env, saved["episode_steps"])
+    else:
+        base.np_random.bit_generator.state = saved["np_random"]
+
+
+def _stateful_wrappers(env) -> list:
+    """``env``'s wrappers, outermost first, that hold state of their own (a ``state``/``set_state`` pair)."""
+    found = []
+    while isinstance(env, gym.Wrapper):
+        if callable(getattr(type(env), "set_state", None)):
+            found.append(env)
+        env = env.env
+    return found

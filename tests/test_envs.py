@@ -123,7 +123,7 @@ def test_pong_env_is_ale_pong_v5_step_for_step():
 
 def _continues_exactly(saved_after: int, repeat_action_probability: float) -> bool:
     """A fresh env given a slot's saved state (``EnvSlots``'s checkpoint) plays on as the saved one does."""
-    from ablate.agent.slots import _env_state, _set_env_state
+    from ablate.envs import env_state, set_env_state
 
     def make():
         return make_pong(action_set="move", max_episode_steps=60, repeat_action_probability=repeat_action_probability)
@@ -132,9 +132,9 @@ def _continues_exactly(saved_after: int, repeat_action_probability: float) -> bo
     env.reset(seed=0)
     for t in range(saved_after):
         env.step(t % 2)
-    saved = _env_state(env)
+    saved = env_state(env)
     fresh = make()
-    _set_env_state(fresh, saved)
+    set_env_state(fresh, saved)
     for t in range(60 - saved_after):
         a, b = env.step((t // 3) % 2), fresh.step((t // 3) % 2)
         if not (np.array_equal(a[0], b[0]) and a[1:4] == b[1:4]):

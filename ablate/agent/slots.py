@@ -15,7 +15,7 @@ import numpy as np
 
 from ablate import env_internals
 from ablate.agent.reinforce import Memory
-from ablate.envs import make_native_vector
+from ablate.envs import env_state, make_native_vector, set_env_state
 
 
 class Episode(NamedTuple):
@@ -254,12 +254,12 @@ class EnvSlots:
 
     def member_state(self, member: int) -> dict:
         n = self.per_member
-        return {"envs": [_env_state(self.envs[m]) for m in range(member * n, (member + 1) * n)]}
+        return {"envs": [env_state(self.envs[m]) for m in range(member * n, (member + 1) * n)]}
 
     def set_member_state(self, member: int, state: dict) -> None:
         n = self.per_member
         for j, saved in enumerate(state["envs"]):
-            _set_env_state(self.envs[member * n + j], saved)
+            set_env_state(self.envs[member * n + j], saved)
             self.seeds[member * n + j] = None
 
     def keep(self, members: list[int]) -> None:
@@ -277,40 +277,3 @@ class EnvSlots:
     def close(self) -> None:
         for env in self.envs:
             env.close()
-
-
-def _env_state(env) -> dict:
-    """What a slot's next steps and reset draw from: the emulator's state, RNG included, where it has one (ALE), its
-    wrappers' own (``state()``: Pong's previous frame) and its ``TimeLimit``'s step count; else its np_random."""
-    base = env.unwrapped
-    if hasattr(base, "clone_state"):
-        return {
-            "emulator": base.clone_state(include_rng=True),
-            "wrappers": [w.state() for w in _stateful_wrappers(env)],
-            "episode_steps": env_internals.episode_steps(env),
-        }
-    return {"np_random": base.np_random.bit_generator.state}
-
-
-def _set_env_state(env, saved: dict) -> None:
-    base = env.unwrapped
-    if "emulator" in saved:
-        env.reset()  # Gymnasium's OrderEnforcing refuses a step before a reset; the state below replaces its effects
-        base.restore_state(saved["emulator"])
-        for wrapper, state in zip(_stateful_wrappers(env), saved["wrappers"], strict=True):
-            wrapper.set_state(state)
-        env_internals.set_episode_steps(env, saved["episode_steps"])
-    else:
-        base.np_random.bit_generator.state = saved["np_random"]
-
-
-def _stateful_wrappers(env) -> list:
-    """``env``'s wrappers, outermost first, that hold state of their own (a ``state``/``set_state`` pair)."""
-    import gymnasium as gym
-
-    found = []
-    while isinstance(env, gym.Wrapper):
-        if callable(getattr(type(env), "set_state", None)):
-            found.append(env)
-        env = env.env
-    return found
