@@ -250,3 +250,39 @@ def test_continuous_slots_draw_one_uniform_per_playing_slot_and_a_resting_one_dr
     assert population.members[0].actions_rng.random() == first.random()
     assert population.members[1].actions_rng.random() == second.random()
     population.close()
+
+
+@pytest.mark.parametrize("base", [SHORT, CNN], ids=["dense", "cnn"])
+def test_the_batched_update_a_gpu_takes_is_each_members_own_update_to_float_tolerance(base):
+    """On a GPU the members ready at one step update in one pass (``update_groups``: their batches padded to the
+    longest); on a CPU each in its own. Run here on the CPU, the batched pass moves each member as its own pass
+    does: its weights, Adam's state after the step, its loss and entropy, to float tolerance."""
+    configs = [
+        replace(base, seed=s, learning_rate=lr, l2=l2) for s, lr, l2 in ((0, 0.03, 0.0), (1, 0.1, 1e-3), (2, 0.01, 0.0))
+    ]
+    populations = [Population(configs, torch.device("cpu"), [None] * 3) for _ in range(2)]
+    batches = []
+    for population in populations:  # the same seeds, the same collections: each member's first batch
+        for position in range(3):
+            population.start(position)
+        ready: set[int] = set()
+        while len(ready) < 3:
+            ready.update(population.step())
+        batches.append({p: population.batch(population.members[p]) for p in range(3)})
+    assert len({len(b.actions) for b in batches[0].values()}) > 1  # batches of different lengths: padding is used
+    before = populations[0].network.flat.detach().clone()
+    together = populations[0].update(batches[0])
+    alone = {}
+    for position in range(3):
+        alone |= populations[1].update({position: batches[1][position]})
+    for position in range(3):
+        assert together[position] == pytest.approx(alone[position], rel=1e-5, abs=1e-7)
+    torch.testing.assert_close(populations[0].network.flat, populations[1].network.flat, rtol=1e-5, atol=1e-6)
+    assert all(bool((populations[0].network.flat[m] != before[m]).any()) for m in range(3))  # every member stepped
+    for position in range(3):
+        first, second = (p.optimizer.state_dict(position) for p in populations)
+        for key, value in first.items():
+            if isinstance(value, torch.Tensor):
+                torch.testing.assert_close(value, second[key], rtol=1e-5, atol=1e-6)
+    for population in populations:
+        population.close()
