@@ -17,6 +17,7 @@ from bench_results import RESULTS
 
 from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT
+from ablate.trial_files import write_artifacts
 
 
 class _TimedEvents:
@@ -282,8 +283,8 @@ def _cartpole_stream() -> tuple[list, float, Path]:
     result = run_trial(
         replace(DEFAULT, env_id="CartPole-v1", seed=0, solve_threshold=1e9, record_video=False),
         on_episodes=lambda rows: updates.append((time.perf_counter() - started, list(rows))),
-        artifacts_dir=folder,
     )
+    write_artifacts(result, folder)
     return updates, result.wall_s, folder
 
 
