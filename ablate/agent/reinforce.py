@@ -148,9 +148,14 @@ def compute_loss(logits: torch.Tensor, actions: torch.Tensor, weights: torch.Ten
     return (cross_entropy.reshape(actions.shape) * weights).mean(-1)
 
 
+def penalised(name: str) -> bool:
+    """Whether L2 penalises the parameter ``name``: weight tensors, not biases or norms' shifts."""
+    return name.endswith("weight")
+
+
 def l2_penalty(model: nn.Module) -> torch.Tensor:
     """Sum of squared weights of every layer, biases excluded (Keras ``regularizers.l2`` semantics)."""
-    weights = [p for name, p in model.named_parameters() if name.endswith("weight")]
+    weights = [p for name, p in model.named_parameters() if penalised(name)]
     return sum((p.pow(2).sum() for p in weights), torch.zeros((), device=weights[0].device if weights else None))
 
 

@@ -20,6 +20,7 @@ import torch
 from torch import fx, nn
 
 from ablate.agent import tracing
+from ablate.agent.reinforce import penalised
 from ablate.agent.stacked_layers import swap, swappable
 
 
@@ -128,8 +129,8 @@ class _Stack:
         return list(range(len(self.flat))) if self.index is None else self.index.tolist()
 
     def penalised(self) -> list[str]:
-        """The parameters L2 penalises: weight tensors, not biases or norms' shifts."""
-        return [name for name in self.layout if name.endswith("weight")]
+        """The parameters L2 penalises (``reinforce.penalised``)."""
+        return [name for name in self.layout if penalised(name)]
 
     def weight_mask(self) -> torch.Tensor:
         """(P,): 1 at the entries of the ``penalised`` parameters, 0 elsewhere."""
