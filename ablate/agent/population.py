@@ -293,10 +293,6 @@ class Population:
         )
         return {p: (float(stats.loss[row]), float(stats.entropy[row])) for row, p in enumerate(positions)}
 
-    def module(self, position: int) -> torch.nn.Module:
-        """Member ``position``'s own network, its current weights (its result's)."""
-        return self.network.module(position)
-
     def keep(self, positions: list[int]) -> None:
         """Only the members at ``positions`` go on (the others left)."""
         self.members = [self.members[p] for p in positions]

@@ -190,7 +190,6 @@ def _finish(population: Population, outcomes: dict, on_outcome) -> None:
             continue
         if member.index in outcomes:
             continue
-        model = population.module(position)
         result = TrialResult(
             config=member.config,
             episodes=member.history,
@@ -198,8 +197,8 @@ def _finish(population: Population, outcomes: dict, on_outcome) -> None:
             solve_threshold=member.threshold,
             env_steps=member.env_steps,
             wall_s=time.perf_counter() - member.started,
-            parameter_count=sum(p.numel() for p in model.parameters()),
-            state_dict={k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
+            parameter_count=population.network.flat.shape[1],  # a member's row: each of its parameters once
+            state_dict=population.network.state_dict(position),
             env=record(member.config, population.env, member.threshold),
         )
         if member.videos is not None:
