@@ -24,20 +24,19 @@ from ablate.agent.records import EpisodeMetrics, TrialResult
 from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows
 from ablate.config import TrialConfig, config_document, config_from_document
-from ablate.envs import describe, is_pong, make_trial_env
+from ablate.envs import describe, is_pong, make_trial_env, sample_pong_frames
 from ablate.videos import video_writer
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-def record_episode(
-    config, model: nn.Module, history: int, max_frames: int, on_frame: Callable[[np.ndarray], None]
-) -> float:
+def record_episode(config: TrialConfig, model: nn.Module, on_frame: Callable[[np.ndarray], None]) -> float:
     """Play one episode of ``model`` on a seed training never used, frames to ``on_frame`` as they come (every
-    ``video_stride``-th step, downscaled); returns its return. Greedy (argmax), except on Pong, where a greedy agent
-    that has not learnt much presses one button for the whole video: there the sampling policy plays."""
-    info = describe(config)
+    ``video_stride``-th step, downscaled, up to ``video_max_frames``); returns its return. Greedy (argmax), except
+    on Pong, where a greedy agent that has not learnt much presses one button for the whole video: there the
+    sampling policy plays."""
+    info, history, max_frames = describe(config), window_of(config), config.video_max_frames
     env = make_trial_env(config, render=True)
     greedy = not is_pong(config.env_id)
     rng = np.random.default_rng(config.seed + 1_000_003)
@@ -77,8 +76,6 @@ def write_artifacts(result: TrialResult, folder: Path, video: bool = True) -> No
     into ``folder``, each added to ``result.artifacts``; for Pong also ``observation.png`` (one observation raw,
     pre-processed and as a frame difference). ``video=False``: the video is left to ``replay_video`` (a launch's
     report records its picks')."""
-    from ablate.envs import sample_pong_frames
-
     folder.mkdir(parents=True, exist_ok=True)
     config = result.config
     table = folder / "episodes.csv"
@@ -125,7 +122,7 @@ def _network(config: TrialConfig, state_dict: dict[str, torch.Tensor]) -> nn.Mod
 
 def _write_video(config: TrialConfig, model: nn.Module, path: Path) -> float:
     with video_writer(path, describe(config).video_fps) as writer:
-        return record_episode(config, model, window_of(config), config.video_max_frames, writer.append_data)
+        return record_episode(config, model, writer.append_data)
 
 
 def replay_video(config_json: Path, weights: Path, path: Path) -> float | None:
