@@ -388,3 +388,25 @@ def test_on_a_node_whose_env_module_differs_the_trial_fails_before_training_with
         run_trial(config)
     assert str(error.value).startswith("env_module = 'no_such_env_package.envs:register': cannot import it (")
     assert "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize(
+    ("text", "factory", "words"),
+    [
+        ("from torch import nn\n", "net.py:create", "model = 'net.py:create': net.py has no function create"),
+        ("raise RuntimeError('half written')\n", "net.py:create", "net.py raised RuntimeError: half written"),
+    ],
+)
+def test_a_model_file_that_gives_no_factory_is_one_line_exit_2(tmp_path, capsys, text, factory, words):
+    """``sources.load_function``'s errors, as a user meets them: one line naming the model, exit 2, nothing tracked."""
+    from ablate.cli import main
+
+    (tmp_path / "net.py").write_text(text)
+    path = tmp_path / "net.toml"
+    path.write_text(
+        f'name = "net"\nseeds = 1\n[base]\nmodel = "{factory}"\nmax_episodes = 2\n[[variants]]\nname = "a"\n'
+    )
+    assert main(["run", str(path), "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "mlflow.db").exists()
