@@ -83,7 +83,73 @@ def _child(case: str) -> None:
         for e in outcome.episodes:
             digest.update(repr((e.episode, e.episode_return, e.length, e.loss, e.entropy)).encode())
     steps = sum(o.env_steps for o in outcomes)
-    print(json.dumps({"steps_per_s": steps / wall_s, "wall_s": wall_s, "digest": digest.hexdigest()[:16]}))
+    figures = {"steps_per_s": steps / wall_s, "wall_s": wall_s, "digest": digest.hexdigest()[:16]}
+    if members > 1:
+        figures.update(_network_costs(configs))
+    print(json.dumps(figures))
+
+
+def _network_costs(configs: list) -> dict[str, float]:
+    """What the network costs, apart from how it learns: median microseconds of one acting step of every member
+    (all of its slots, sampling included) and of one member's update on a fixed 512-step batch, on inputs drawn
+    once. Env steps/s also moves with the learning: a network whose members solve sooner runs more of its
+    steps in a smaller population, and one whose episodes differ more in length waits longer for its batch's
+    last episode; these two figures do not. ``{}`` before the stacked trainer (``agent.stacking``)."""
+    import importlib.util
+
+    import numpy as np
+    import torch
+
+    if importlib.util.find_spec("ablate.agent.stacking") is None:
+        return {}
+    from ablate.agent.population import Population
+    from ablate.agent.records import Batch
+    from ablate.agent.reinforce import choose_action
+
+    population = Population(configs, torch.device("cpu"), [None] * len(configs))
+    try:
+        for position in range(len(configs)):
+            population.start(position)
+        observations = population.slots.observations()
+        observations = observations.reshape(len(configs), -1, *observations.shape[1:])
+        rng = np.random.default_rng(0)
+        uniforms = rng.random(observations.shape[:2])
+
+        def act() -> None:
+            choose_action(population.network, observations, single=False, uniforms=uniforms)
+
+        steps = 512
+        batch = Batch(
+            np.array([steps]),
+            np.array([float(steps)]),
+            rng.standard_normal((steps, *observations.shape[2:])).astype(np.float32),
+            rng.integers(0, population.env.n_actions, steps),
+            rng.standard_normal(steps).astype(np.float32),
+        )
+
+        def update() -> None:
+            for position in range(len(configs)):
+                population.update({position: batch})
+
+        return {
+            "acting_us": _median_us(act, 500, per_call=1),
+            "update_us": _median_us(update, 5, per_call=len(configs)),
+        }
+    finally:
+        population.close()
+
+
+def _median_us(function, calls: int, per_call: int, repeats: int = 5) -> float:
+    """Median over ``repeats`` blocks of ``calls`` calls (after one warm-up block) of microseconds per unit of work
+    (``per_call`` units a call)."""
+    times = []
+    for block in range(repeats + 1):
+        started = time.perf_counter()
+        for _ in range(calls):
+            function()
+        if block:
+            times.append((time.perf_counter() - started) / calls / per_call * 1e6)
+    return statistics.median(times)
 
 
 def _run(case: str, tree: Path) -> dict:
@@ -121,7 +187,7 @@ def bench_trainer(against: str = BEFORE_STACKED, pairs: int = 5, cases: tuple[st
                 for name, tree in trees if pair % 2 == 0 else trees[::-1]:  # alternate who goes first
                     runs[name].append(_run(case, tree))
             now = [r["steps_per_s"] for r in runs["now"]]
-            figure = {"now_steps_per_s": now, "now_median": statistics.median(now)}
+            figure = {"now_steps_per_s": now, "now_median": statistics.median(now), "now_runs": runs["now"]}
             figure["before_median"] = statistics.median(r["steps_per_s"] for r in runs["before"])
             line = f"trainer: {case}: now median {statistics.median(now):,.0f} env steps/s"
             if "before" in runs:
@@ -143,6 +209,18 @@ def bench_trainer(against: str = BEFORE_STACKED, pairs: int = 5, cases: tuple[st
                     ratio = figures[case][f"{when}_median"] / figures[default][f"{when}_median"]
                     figures[case][f"{when}_over_{default}"] = ratio
                     print(f"trainer: {case} (a user's network) {when}: {ratio:.2f}x {default}'s env steps/s")
+                costs = {
+                    measure: statistics.median(r[measure] for r in figures[case]["now_runs"])
+                    / statistics.median(r[measure] for r in figures[default]["now_runs"])
+                    for measure in ("acting_us", "update_us")
+                    if all(measure in r for r in figures[case]["now_runs"] + figures[default]["now_runs"])
+                }
+                if costs:
+                    figures[case][f"cost_over_{default}"] = costs
+                    print(
+                        f"trainer: {case} (a user's network) now: an acting step {costs['acting_us']:.2f}x, a "
+                        f"member's update {costs['update_us']:.2f}x {default}'s time (the network's cost alone)"
+                    )
     finally:
         subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(before)], check=False,
                        capture_output=True)  # fmt: skip
