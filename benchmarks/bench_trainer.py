@@ -50,6 +50,8 @@ its first seeded reset, ~0.07 s each), which a trial of the ablation's 300-400 e
 OVER_DEFAULT = {"mlp-class-16": "cartpole-16", "layernorm-16": "cartpole-16", "residual-16": "cartpole-16",
                 "breakout-user-cnn": "breakout-cnn"}  # fmt: skip
 """Cases also measured against another case of this checkout (a user's network against the built-in one)."""
+COSTS = ("acting_us", "update_us")
+"""What ``_network_costs`` measures (microseconds of an acting step, of a member's update)."""
 
 
 def _child(case: str) -> None:
@@ -131,10 +133,8 @@ def _network_costs(configs: list) -> dict[str, float]:
             for position in range(len(configs)):
                 population.update({position: batch})
 
-        return {
-            "acting_us": _median_us(act, 500, per_call=1),
-            "update_us": _median_us(update, 5, per_call=len(configs)),
-        }
+        acting_us, update_us = _median_us(act, 500, per_call=1), _median_us(update, 5, per_call=len(configs))
+        return dict(zip(COSTS, (acting_us, update_us), strict=True))
     finally:
         population.close()
 
@@ -187,7 +187,10 @@ def bench_trainer(against: str = BEFORE_STACKED, pairs: int = 5, cases: tuple[st
                 for name, tree in trees if pair % 2 == 0 else trees[::-1]:  # alternate who goes first
                     runs[name].append(_run(case, tree))
             now = [r["steps_per_s"] for r in runs["now"]]
-            figure = {"now_steps_per_s": now, "now_median": statistics.median(now), "now_runs": runs["now"]}
+            figure = {"now_steps_per_s": now, "now_median": statistics.median(now)}
+            for measure in COSTS:  # the network's own cost, where this checkout's child measured it
+                if all(measure in r for r in runs["now"]):
+                    figure[f"now_{measure}"] = statistics.median(r[measure] for r in runs["now"])
             figure["before_median"] = statistics.median(r["steps_per_s"] for r in runs["before"])
             line = f"trainer: {case}: now median {statistics.median(now):,.0f} env steps/s"
             if "before" in runs:
@@ -210,10 +213,9 @@ def bench_trainer(against: str = BEFORE_STACKED, pairs: int = 5, cases: tuple[st
                     figures[case][f"{when}_over_{default}"] = ratio
                     print(f"trainer: {case} (a user's network) {when}: {ratio:.2f}x {default}'s env steps/s")
                 costs = {
-                    measure: statistics.median(r[measure] for r in figures[case]["now_runs"])
-                    / statistics.median(r[measure] for r in figures[default]["now_runs"])
-                    for measure in ("acting_us", "update_us")
-                    if all(measure in r for r in figures[case]["now_runs"] + figures[default]["now_runs"])
+                    measure: figures[case][f"now_{measure}"] / figures[default][f"now_{measure}"]
+                    for measure in COSTS
+                    if f"now_{measure}" in figures[case] and f"now_{measure}" in figures[default]
                 }
                 if costs:
                     figures[case][f"cost_over_{default}"] = costs
