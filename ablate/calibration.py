@@ -18,6 +18,7 @@ from typing import Any
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment, load_experiment
+from ablate.seeds import SeedRounds
 
 SEED_START = 20_000
 """The calibration's seeds start here: above the evaluation seeds and the tuning seeds (10,000 up)."""
@@ -190,12 +191,12 @@ def aa_reports(
     seeds: int,
     reports: int,
     smallest_effect: float,
-    rounds: tuple[int, int, int] | None = None,
+    rounds: SeedRounds | None = None,
 ) -> Calibration:
     """Deal the reference's seeds (``trials``: one row per finished seed, the report's columns) into ``reports``
     disjoint A/A reports of ``variants`` groups of ``seeds`` (group 0 the baseline), and judge each by the
     primary-claims rule on ``primary`` and by the old rule (a 95% bootstrap interval excluding 0, with the
-    censoring care) on each of ``metric_names``. ``rounds``: (start, step, max) of seed rounds, replayed by the
+    censoring care) on each of ``metric_names``. ``rounds``: the experiment's seed rounds, replayed by the
     new rule on each report's first seeds (``seeds`` is then ``max``); the old rule judges all ``seeds``."""
     import numpy as np
 
@@ -236,7 +237,7 @@ def aa_reports(
             f"v{i}": Sample(columns[primary][order[i]], censored[order[i]] if episodes else None)
             for i in range(variants)
         }
-        design = Design(*rounds) if rounds else Design.fixed(seeds)
+        design = Design.of(rounds) if rounds else Design.fixed(seeds)
         result = decide(samples, references, question, design, intervals=False, estimate_seeds=False)
         new += any(v.verdict in (BETTER, WORSE) for v in result.verdicts)
         equivalent += any(v.verdict == EQUIVALENT for v in result.verdicts)
@@ -314,7 +315,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         seeds,
         args.reports,
         experiment.smallest_effect,
-        (rounds.start, rounds.step, rounds.max) if rounds else None,
+        rounds,
     )
     print(print_calibration(experiment, ablation, result, variants, seeds, primary, metrics))
     return 0

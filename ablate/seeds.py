@@ -21,21 +21,38 @@ class SeedRounds:
     max: int
     max_minutes: float | None = None
     """No new round starts once a launch has run this long (minutes); ``None``: no time budget."""
+    growth: float = 1.0
+    """Each round adds ``growth`` times the seeds the round before added (``step`` first): 1 adds ``step`` every
+    round; 2 doubles the seeds per round (start 10, step 10: 10, 20, 40, 80 ...), so a cap in the hundreds costs
+    a handful of looks."""
 
     @property
     def looks(self) -> tuple[int, ...]:
-        """Seeds per variant after each round: ``start``, ``start + step``, ... and ``max`` last (the looks of
-        ``reporting.claims.Design`` with the same three numbers)."""
-        if self.max == self.start:
-            return (self.start,)
-        return (*range(self.start, self.max, self.step), self.max)
+        """Seeds per variant after each round (the looks of ``claims.Design`` with the same numbers)."""
+        return seed_looks(self.start, self.step, self.max, self.growth)
+
+
+def added_words(step: int, growth: float) -> str:
+    """How a round adds seeds, in words: "5 more" or "10 more, then 2x as many each round"."""
+    return f"{step} more" + (f", then {growth:g}x as many each round" if growth > 1 else "")
+
+
+def seed_looks(start: int, step: int, most: int, growth: float = 1.0) -> tuple[int, ...]:
+    """Seeds per variant at each look: ``start``, then ``step`` more, then ``step * growth`` more, ``step *
+    growth**2`` more ..., and ``most`` last. The one definition, read by the launch's rounds and the claims'
+    boundary."""
+    looks, added = [start], float(step)
+    while looks[-1] < most and step > 0:
+        looks.append(min(most, looks[-1] + max(1, round(added))))
+        added *= growth
+    return tuple(looks)
 
 
 SEEDS_RULE = (
     "valid: a count in [1, 1000], a list of distinct non-negative integers, or a table of rounds "
-    "{ start = 5, step = 5, max = 40 } (optional max_minutes = 15)"
+    "{ start = 5, step = 5, max = 40 } (optional max_minutes = 15, growth = 2)"
 )
-ROUND_KEYS = ("start", "step", "max", "max_minutes")
+ROUND_KEYS = ("start", "step", "max", "max_minutes", "growth")
 
 
 def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | None]:
@@ -74,9 +91,17 @@ def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | N
             f"{where}.max_minutes = {_shown(minutes)} is invalid; valid: minutes in (0, 100000] after which no new "
             "round starts (or leave it out: no time budget)"
         )
+    growth = value.get("growth", 1.0)
+    if not (is_number(growth) and 1 <= growth <= 10):
+        raise ConfigError(
+            f"{where}.growth = {_shown(growth)} is invalid; valid: a factor in [1, 10] by which each round's added "
+            "seeds grow (1: step every round; 2: doubling)"
+        )
     if most == start:  # one round: exactly ``seeds = start`` (its trial keys too)
         return tuple(range(start)), None
-    return tuple(range(start)), SeedRounds(start, step, most, None if minutes is None else float(minutes))
+    return tuple(range(start)), SeedRounds(
+        start, step, most, None if minutes is None else float(minutes), float(growth)
+    )
 
 
 def _shown(value: Any, limit: int = 60) -> str:

@@ -12,6 +12,7 @@ import pytest
 from ablate.calibration import Share, aa_reports, derived_text, reference_knobs, wilson
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand
+from ablate.seeds import SeedRounds
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 
@@ -63,7 +64,9 @@ def test_aa_reports_of_identical_seeds_claim_rarely_under_the_new_rule_often_und
     assert set(result.old_per_metric) == set(metrics) and all(0 < r < 0.15 for r in result.old_per_metric.values())
     at_five = aa_reports(trials, ["auc"], "episodes_to_solve", 10, 5, 40, 0.1)
     assert at_five.new.claims == 0  # 5 seeds can reach no claim in a family of 9
-    rounds = aa_reports(_pool(np.random.default_rng(2), 90), ["auc"], "episodes_to_solve", 3, 30, 40, 0.1, (10, 10, 30))
+    rounds = aa_reports(
+        _pool(np.random.default_rng(2), 90), ["auc"], "episodes_to_solve", 3, 30, 40, 0.1, SeedRounds(10, 10, 30)
+    )
     assert rounds.new.reports == 40 and rounds.new.rate <= 0.15  # the rounds' design, replayed per report
 
 

@@ -74,7 +74,21 @@ BAD_SEEDS = [
     ("seeds = { start = 5, max = 10, stop = 3 }", "seeds.stop: unknown key; valid keys of a seeds table"),
     ("seeds = { start = 5.5, max = 10 }", "seeds.start = 5.5 is invalid"),
     ("seeds = 'five'", "seeds = 'five' is invalid; valid: a count in [1, 1000], a list"),
+    ("seeds = { start = 5, max = 10, growth = 0.5 }", "seeds.growth = 0.5 is invalid; valid: a factor in [1, 10]"),
 ]
+
+
+def test_a_growing_schedule_doubles_the_seeds_each_round_and_the_claims_judge_at_the_same_looks(tmp_path):
+    from ablate.claims import Design
+
+    experiment = _experiment(
+        tmp_path, 'name = "rounds"\nseeds = { start = 10, step = 10, max = 500, growth = 2 }\n' + VARIANTS
+    )
+    assert experiment.rounds.looks == (10, 20, 40, 80, 160, 320, 500)
+    assert Design.of(experiment.rounds).looks == experiment.rounds.looks
+    # growth 1 (the default) is the additive schedule, its looks unchanged
+    plain = _experiment(tmp_path, 'name = "rounds"\nseeds = { start = 5, step = 10, max = 30 }\n' + VARIANTS)
+    assert plain.rounds.looks == (5, 15, 25, 30) == Design(5, 10, 30).looks
 
 
 @pytest.mark.parametrize(("line", "message"), BAD_SEEDS)

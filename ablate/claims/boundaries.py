@@ -11,14 +11,16 @@ from functools import lru_cache
 import numpy as np
 from scipy import optimize, stats
 
+from ablate.seeds import seed_looks
+
 ALPHA = 0.05
 """The family-wise error rate of a report's primary claims."""
 
 
 @dataclass(frozen=True)
 class Design:
-    """The seeds per variant at each look: ``start``, ``start + step``, ... up to ``max`` (a fixed design: one
-    look, ``start == max``), and the spending function that shares ``alpha`` among the looks."""
+    """The seeds per variant at each look: ``start``, ``start + step``, ... up to ``max`` (``growth`` > 1: each look
+    adds more than the one before; a fixed design: one look, ``start == max``), and the spending function that shares ``alpha`` among the looks."""
 
     start: int
     step: int = 0
@@ -26,6 +28,8 @@ class Design:
     alpha: float = ALPHA
     spending: str = "obrien-fleming"
     """``obrien-fleming`` (Lan-DeMets' O'Brien-Fleming-type) or ``pocock`` (Lan-DeMets' Pocock-type)."""
+    growth: float = 1.0
+    """Each look adds ``growth`` times the seeds the look before added (``seeds.seed_looks``)."""
 
     def __post_init__(self):
         if self.max == 0:
@@ -37,12 +41,16 @@ class Design:
     def fixed(cls, seeds: int, alpha: float = ALPHA) -> Design:
         return cls(seeds, 0, seeds, alpha)
 
+    @classmethod
+    def of(cls, rounds) -> Design:
+        """The design of an experiment's seed rounds (``seeds.SeedRounds``, or its ``rounds.json`` entry)."""
+        get = rounds.get if isinstance(rounds, dict) else lambda key, default=None: getattr(rounds, key, default)
+        return cls(int(get("start")), int(get("step")), int(get("max")), growth=float(get("growth", 1.0) or 1.0))
+
     @property
     def looks(self) -> tuple[int, ...]:
         """Seeds per variant at each look, the last one ``max``."""
-        if self.max == self.start:
-            return (self.start,)
-        return (*range(self.start, self.max, self.step), self.max)
+        return seed_looks(self.start, self.step, self.max, self.growth)
 
     @property
     def fractions(self) -> tuple[float, ...]:

@@ -16,7 +16,7 @@ from typing import Any, Protocol
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, trial_key
 from ablate.launch.tuning import Choice
-from ablate.seeds import SeedRounds
+from ablate.seeds import SeedRounds, added_words
 
 
 @dataclass(frozen=True)
@@ -224,6 +224,7 @@ class Rounds:
                 "step": design.step,
                 "max": design.max,
                 "max_minutes": design.max_minutes,
+                "growth": design.growth,
             },
             "looks": list(design.looks),
             "round": self.round,
@@ -243,7 +244,8 @@ def dry_run_lines(experiment: Experiment, trials: Sequence[GridTrial]) -> list[s
     budget = f"; no new round after {design.max_minutes:g} minutes" if design.max_minutes else ""
     return [
         f"seeds in rounds: round 1 runs {design.start} seeds per variant (the trials below); after each round, the "
-        f"variants whose primary comparison is still open (and their references) get {design.step} more, up to "
+        f"variants whose primary comparison is still open (and their references) get "
+        f"{added_words(design.step, design.growth)}, up to "
         f"{design.max} seeds: at most {len(design.looks)} rounds and {most} evaluation trials"
         f"{' at the chosen values' if experiment.tune else ''}{budget}"
     ]

@@ -251,7 +251,7 @@ def claims_design(ablation: Ablation) -> Design:
     judged them; else one look at the seeds that finished (a fixed design)."""
     rounds = (ablation.launch.get("rounds") or {}).get("design") if isinstance(ablation.launch, dict) else None
     if rounds:
-        return Design(int(rounds["start"]), int(rounds["step"]), int(rounds["max"]))
+        return Design.of(rounds)
     done = ablation.finished
     seeds = int(done.groupby("variant").size().max()) if len(done) else 1
     return Design.fixed(max(seeds, 1))

@@ -12,6 +12,7 @@ from ablate.config import flatten
 from ablate.experiment import Experiment
 from ablate.launch.rounds import Primary
 from ablate.measures import censored_episodes
+from ablate.seeds import added_words
 
 SUMMARY_METRIC = {"episodes_to_solve": "episodes_to_solve", "auc": "auc", "return": "final_rolling_mean"}
 """Each primary metric's name among a trial's summary metrics."""
@@ -75,7 +76,7 @@ def judge_for(experiment: Experiment, seeds: Sequence[int] | None = None):
             samples,
             asked,
             question,
-            Design(design.start, design.step, design.max),
+            Design.of(design),
             intervals=False,
             estimate_seeds=False,
         )
@@ -104,7 +105,8 @@ def rounds_section(document: Mapping[str, Any] | None) -> list[Any]:
     design = document["design"]
     budget = f", no new round after {design['max_minutes']:g} minutes" if design.get("max_minutes") else ""
     intro = (
-        f"Seeds were added in rounds: {design['start']} per variant first, then {design['step']} more per round to "
+        f"Seeds were added in rounds: {design['start']} per variant first, then "
+        f"{added_words(design['step'], design.get('growth') or 1.0)} per round to "
         f"each variant whose primary comparison was still undetermined (and its reference), up to {design['max']}"
         f"{budget}; the error rate holds across the rounds (an alpha-spending boundary). "
         f"{document['round']} round{'s' if document['round'] != 1 else ''} ran."
