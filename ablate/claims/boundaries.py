@@ -20,7 +20,8 @@ ALPHA = 0.05
 @dataclass(frozen=True)
 class Design:
     """The seeds per variant at each look: ``start``, ``start + step``, ... up to ``max`` (``growth`` > 1: each look
-    adds more than the one before; a fixed design: one look, ``start == max``), and the spending function that shares ``alpha`` among the looks."""
+    adds more than the one before; a fixed design: one look, ``start == max``), and the spending function that
+    shares ``alpha`` among the looks."""
 
     start: int
     step: int = 0
