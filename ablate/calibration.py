@@ -200,7 +200,7 @@ def aa_reports(
     new rule on each report's first seeds (``seeds`` is then ``max``); the old rule judges all ``seeds``."""
     import numpy as np
 
-    from ablate.claims import BETTER, EQUIVALENT, WORSE, Design, Question, Sample, decide
+    from ablate.claims import BETTER, EQUIVALENT, WORSE, Design, Sample, decide, primary_question
     from ablate.reporting.statistics import (
         EXPLORATORY_BETTER,
         EXPLORATORY_WORSE,
@@ -226,7 +226,8 @@ def aa_reports(
         columns[primary] = trials[column].to_numpy(float)
     budget = float(trials.budget.max()) if "budget" in trials else None
     episodes = primary == "episodes_to_solve"
-    question = Question(primary, episodes, episodes, smallest_effect, budget if episodes else None)
+    question = primary_question(primary, smallest_effect, budget)
+    auc = trials["auc"].to_numpy(float) if "auc" in trials else None
     references = {f"v{i}": "v0" for i in range(1, variants)}
     rng = np.random.default_rng(DEAL_SEED)
     new = old = equivalent = 0
@@ -234,7 +235,11 @@ def aa_reports(
     for _ in range(reports):
         order = rng.permutation(len(trials))[: variants * seeds].reshape(variants, seeds)
         samples = {
-            f"v{i}": Sample(columns[primary][order[i]], censored[order[i]] if episodes else None)
+            f"v{i}": Sample(
+                columns[primary][order[i]],
+                censored[order[i]] if episodes else None,
+                auc[order[i]] if episodes and auc is not None else None,
+            )
             for i in range(variants)
         }
         design = Design.of(rounds) if rounds else Design.fixed(seeds)

@@ -23,7 +23,7 @@ from ablate.claims.family import (
     seeds_needed,
     smallest_p,
 )
-from ablate.claims.permutation import Question, Sample, effect_interval, iqm, p_values
+from ablate.claims.permutation import Question, Sample, effect_interval, iqm, p_values, primary_question
 
 __all__ = [
     "ALPHA",
@@ -45,6 +45,7 @@ __all__ = [
     "iqm",
     "nominal_levels",
     "p_values",
+    "primary_question",
     "seeds_needed",
     "smallest_p",
 ]

@@ -15,16 +15,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ablate.claims import advice
 from ablate.claims.boundaries import ALPHA, Design, nominal_levels
 from ablate.claims.permutation import Question, Sample, effect_interval, iqm, p_values, permutations_for
 from ablate.design import smallest_permutation_p as smallest_p
-from ablate.measures import SEED_COUNTS
-from ablate.measures import seeds_needed as fewest_seeds
 
 BETTER, WORSE, EQUIVALENT, UNDETERMINED = "better", "worse", "equivalent", "undetermined"
 VERDICTS = (BETTER, WORSE, EQUIVALENT, UNDETERMINED)
-SEEDS_CAP = SEED_COUNTS[-1]
-SEED = 20_251
+SEEDS_CAP = advice.SEEDS_CAP
+CENSORED_SHARE = 0.5
+"""Where more than this share of a comparison's seeds (both sides pooled, at its first look) never reached the
+threshold, it is judged on the question's ``fallback`` measure (the AUC, never censored) instead: the share of the
+pooled seeds is the same under every relabelling of the seeds, so the permutation test stays exact, and the rule
+is fixed before any data."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +69,10 @@ class Verdict:
     seeds_cap: int = SEEDS_CAP
     reason: str = ""
     """Where undetermined, why in words (too few seeds for any claim at the family level, censoring, ...)."""
+    seeds_first: int = 0
+    """Where undetermined with too few seeds a side to predict the seeds needed: run this many first."""
+    censored: float = 0.0
+    """The share of the comparison's seeds (both sides) that never reached the threshold, at its first look."""
 
     @property
     def decided(self) -> bool:
@@ -110,14 +117,28 @@ class _Open:
     pair: tuple[str, str]
     x: Sample
     y: Sample
+    question: Question | None = None
+    """The question it is judged on, fixed at its first look: the family's, or its fallback (``CENSORED_SHARE``)."""
+    censored: float = 0.0
     p_diff: float = 1.0
     p_eq: float = 1.0
     bound: str = ""
     better: bool = False
     estimate: float = float("nan")
 
+    def sides(self, question: Question, x: Sample, y: Sample) -> tuple[Sample, Sample]:
+        """The two samples on the question this comparison is judged on (its first call fixes it)."""
+        if self.question is None:
+            flags = [s.censored for s in (x, y) if s.censored is not None]
+            self.censored = float(np.concatenate(flags).mean()) if flags else 0.0
+            usable = question.fallback is not None and x.fallback is not None and y.fallback is not None
+            self.question = question.fallback if usable and self.censored > CENSORED_SHARE else question
+        if self.question is question:
+            return x, y
+        return Sample(np.asarray(x.fallback, float)), Sample(np.asarray(y.fallback, float))
 
-def _claim(item: _Open, question: Question, level_diff: float, level_eq: float) -> str:
+
+def _claim(item: _Open, level_diff: float, level_eq: float) -> str:
     """The claim the p-values support at these levels, with the care censoring needs; ``UNDETERMINED`` if none."""
     x_bound, y_bound = _bounds(item.x), _bounds(item.y)
     if x_bound and y_bound:
@@ -172,13 +193,14 @@ def decide(
         open_names = [v for v in order if v not in decided]
         for v in open_names:
             item = state[v]
-            x, y = samples[v].first(n), samples[references[v]].first(n)
+            x, y = item.sides(question, samples[v].first(n), samples[references[v]].first(n))
             item.x, item.y = x, y
             first_level = design.alpha / max(k, 1)
             count = permutations or permutations_for(nominal_levels(fractions, first_level, design.spending)[-1])
-            item.p_diff, item.p_eq = p_values(x, y, question, count)
-            item.estimate = _estimate(x, y, question)
-            item.better = (item.estimate < 0) == question.lower_is_better if item.estimate != 0 else False
+            asked = item.question
+            item.p_diff, item.p_eq = p_values(x, y, asked, count)
+            item.estimate = _estimate(x, y, asked)
+            item.better = (item.estimate < 0) == asked.lower_is_better if item.estimate != 0 else False
         while open_names:
             # Holm's step-down, released only by difference claims: a comparison shown equivalent keeps its
             # share, since its "no difference" may be true (releasing it let a family of identical variants
@@ -187,7 +209,7 @@ def decide(
             level = design.alpha / (k - different)
             level_diff = nominal_levels(fractions, level, design.spending, 2)[-1]
             level_eq = nominal_levels(fractions, level, design.spending, 1)[-1]
-            claims = {v: _claim(state[v], question, level_diff, level_eq) for v in open_names}
+            claims = {v: _claim(state[v], level_diff, level_eq) for v in open_names}
             for v in open_names:
                 state[v].last_level = level_diff  # type: ignore[attr-defined]
                 if claims[v] in (BETTER, WORSE):
@@ -222,28 +244,32 @@ def decide(
     family_level = design.alpha / max(k, 1)
     for v in order:
         item = state[v]
+        asked = item.question or question
         verdict, look_index, level = decided.get(v, (UNDETERMINED, made, getattr(item, "last_level", family_level)))
-        margin = question.margin(item.y.values)
+        margin = asked.margin(item.y.values)
         low = high = float("nan")
         if intervals and len(item.x) >= 2 and len(item.y) >= 2:
             interval_level = levels[look_index] if look_index >= 0 and look_index < len(levels) else levels[-1]
-            _, low, high = effect_interval(item.x, item.y, question, interval_level)
+            _, low, high = effect_interval(item.x, item.y, asked, interval_level)
         bound = ""
         xb, yb = _bounds(item.x), _bounds(item.y)
         if xb and yb:
             bound = "censored"
         elif xb or yb:
             bound = "at least"
-        seeds, estimated, reason = None, False, ""
+        seeds, estimated, reason, first = None, False, "", 0
         if verdict == UNDETERMINED:
-            reason = _reason(item, question, levels[-1] if levels else family_level, bound)
+            reason = _reason(item, asked, levels[-1] if levels else family_level, bound)
             if estimate_seeds and done and bound != "censored":
-                seeds, estimated = seeds_needed(item.x, item.y, question, family_level), True
+                if advice.enough_for_advice(item.x, item.y):
+                    seeds, estimated = advice.seeds_needed(item.x, item.y, asked, family_level), True
+                else:
+                    first = advice.MIN_SEEDS
         verdicts.append(
             Verdict(
                 v,
                 references[v],
-                question.metric,
+                asked.metric,
                 verdict,
                 item.estimate,
                 low,
@@ -260,6 +286,8 @@ def decide(
                 estimated,
                 SEEDS_CAP,
                 reason,
+                first,
+                item.censored,
             )
         )
     needs = () if done else tuple(v for v in samples if v in needed(open_names))
@@ -282,33 +310,7 @@ def _reason(item: _Open, question: Question, level: float, bound: str) -> str:
     return "neither a difference nor equivalence within the margin is shown at the family level"
 
 
-def seeds_needed(x: Sample, y: Sample, question: Question, level: float, simulations: int = 40) -> int | None:
-    """The fewest seeds per variant (of ``SEED_COUNTS``) with which a fixed design decides the comparison
-    (better, worse or equivalent, with the censoring care) at ``level`` in ``POWER`` of experiments drawn with
-    replacement from these seeds; ``None``: more than ``SEEDS_CAP``. Seeded: the same seeds give the same
-    answer."""
-    if len(x) < 2 or len(y) < 2:
-        return None
-    xv, yv = np.asarray(x.values, float), np.asarray(y.values, float)
-    xc = np.zeros(len(xv), bool) if x.censored is None else np.asarray(x.censored, bool)
-    yc = np.zeros(len(yv), bool) if y.censored is None else np.asarray(y.censored, bool)
-    count = int(max(199, math.ceil(4 / level)))
-
-    def power(n: int) -> float:
-        if smallest_p(n, n) > level:
-            return 0.0
-        rng = np.random.default_rng([SEED, n, len(xv), len(yv)])
-        hits = 0
-        for _ in range(simulations):
-            ix, iy = rng.integers(0, len(xv), n), rng.integers(0, len(yv), n)
-            item = _Open(("x", "y"), Sample(xv[ix], xc[ix]), Sample(yv[iy], yc[iy]))
-            item.p_diff, item.p_eq = p_values(item.x, item.y, question, count)
-            est = _estimate(item.x, item.y, question)
-            item.better = (est < 0) == question.lower_is_better if est != 0 else False
-            hits += _claim(item, question, level, level) != UNDETERMINED
-        return hits / simulations
-
-    return fewest_seeds(power, [n for n in SEED_COUNTS if smallest_p(n, n) <= level])
+seeds_needed = advice.seeds_needed
 
 
 def family_sentence(k: int, alpha: float = ALPHA, sequential: bool = False) -> str:

@@ -38,12 +38,24 @@ class Question:
     otherwise a fraction of the reference's IQM (``margin``)."""
     budget: float | None = None
     """Where values are censored at a budget (unsolved seeds counted as it), that budget; else ``None``."""
+    fallback: Question | None = None
+    """The question a comparison is judged on instead where most of its seeds are censored (``family.CENSORED_SHARE``):
+    the area under the learning curve, which every seed has. ``None``: always this one."""
 
     def margin(self, reference: np.ndarray) -> float:
         """± the margin in the effect's units."""
         if self.relative:
             return self.smallest_effect
         return self.smallest_effect * abs(float(iqm(np.asarray(reference, float)))) if len(reference) else 0.0
+
+
+def primary_question(metric: str, smallest_effect: float, budget: float | None = None) -> Question:
+    """The one way a report, the launch's rounds and the A/A calibration ask their claims: episodes to solve as
+    ratios, censored at ``budget``, falling back to the AUC where most seeds are censored; any other metric as
+    differences, higher better."""
+    episodes = metric == "episodes_to_solve"
+    fallback = Question("auc", False, False, smallest_effect) if episodes else None
+    return Question(metric, episodes, episodes, smallest_effect, budget if episodes else None, fallback)
 
 
 @dataclass(frozen=True)
@@ -53,9 +65,15 @@ class Sample:
     values: np.ndarray
     censored: np.ndarray | None = None
     """Per seed, whether the value is the budget standing for "never got there" (``None``: nothing censored)."""
+    fallback: np.ndarray | None = None
+    """The same seeds on the question's ``fallback`` measure (the AUC), where it has one."""
 
     def first(self, n: int) -> Sample:
-        return Sample(self.values[:n], None if self.censored is None else self.censored[:n])
+        return Sample(
+            self.values[:n],
+            None if self.censored is None else self.censored[:n],
+            None if self.fallback is None else self.fallback[:n],
+        )
 
     def __len__(self) -> int:
         return len(self.values)

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.claims import Design, Question, Round, Sample, decide
+from ablate.claims import primary_question as claims_question
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import (
     CONFIDENCE,
@@ -212,10 +213,8 @@ def in_report_units(frame: pd.DataFrame) -> pd.DataFrame:
 def primary_question(ablation: Ablation) -> Question:
     """What the primary claims ask: on the ablation's primary metric, effects as ratios of episodes (censored at
     the budget) or as differences of AUC or return, with the experiment's ``smallest_effect`` as the margin."""
-    metric = ablation.primary_metric
-    episodes = metric == "episodes_to_solve"
-    budget = float(ablation.finished.budget.max()) if episodes and len(ablation.finished) else None
-    return Question(metric, episodes, episodes, ablation.smallest_effect, budget)
+    budget = float(ablation.finished.budget.max()) if len(ablation.finished) else None
+    return claims_question(ablation.primary_metric, ablation.smallest_effect, budget)
 
 
 def _claim_samples(ablation: Ablation, question: Question) -> dict[str, Sample]:
@@ -225,7 +224,9 @@ def _claim_samples(ablation: Ablation, question: Question) -> dict[str, Sample]:
     for variant in ablation.variants:
         rows = done[done.variant == variant]
         if question.metric == "episodes_to_solve":
-            samples[variant] = Sample(rows.censored_episodes.to_numpy(float), (rows.solved != 1).to_numpy())
+            samples[variant] = Sample(
+                rows.censored_episodes.to_numpy(float), (rows.solved != 1).to_numpy(), rows.auc.to_numpy(float)
+            )
         elif question.metric in rows:
             samples[variant] = Sample(rows[question.metric].to_numpy(float))
     return samples
@@ -279,6 +280,8 @@ CLAIM_COLUMNS = (
     "seeds_cap",
     "look",
     "reason",
+    "seeds_first",
+    "censored",
 )
 """The columns of ``tables/claims.csv`` and ``Results.claims`` (docs/python.md describes each)."""
 
@@ -291,13 +294,16 @@ def claims_table(ablation: Ablation, result: Round | None = None) -> pd.DataFram
     undetermined, seeds per variant that would decide it (``inf``: more than ``seeds_cap``; NaN: not estimated).
     The report's claims are this table in words."""
     result = result if result is not None else primary_claims(ablation)
-    question = primary_question(ablation)
-    samples = _claim_samples(ablation, question)
-    scale = 100.0 if question.relative else 1.0
+    primary = primary_question(ablation)
+    samples = _claim_samples(ablation, primary)
     rows = []
     for v in result.verdicts:
-        x = np.asarray(samples[v.variant].values, float)[: v.n_variant]
-        y = np.asarray(samples[v.reference].values, float)[: v.n_reference]
+        # a comparison most of whose seeds are censored was judged on the fallback measure (claims.CENSORED_SHARE)
+        question = primary if v.metric == primary.metric else primary.fallback
+        scale = 100.0 if question.relative else 1.0
+        side = (lambda s: s.values) if question is primary else (lambda s: s.fallback)
+        x = np.asarray(side(samples[v.variant]), float)[: v.n_variant]
+        y = np.asarray(side(samples[v.reference]), float)[: v.n_reference]
         needed = np.nan if not v.seeds_estimated else np.inf if v.seeds_needed is None else float(v.seeds_needed)
         rows.append(
             {
@@ -322,6 +328,8 @@ def claims_table(ablation: Ablation, result: Round | None = None) -> pd.DataFram
                 "seeds_cap": v.seeds_cap,
                 "look": v.look,
                 "reason": v.reason,
+                "seeds_first": v.seeds_first,
+                "censored": v.censored,
             }
         )
     return pd.DataFrame(rows, columns=list(CLAIM_COLUMNS))

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ablate.claims import BETTER, EQUIVALENT, WORSE, Question, family_sentence
+from ablate.claims import BETTER, EQUIVALENT, WORSE, Question, advice, family_sentence
+from ablate.claims.family import CENSORED_SHARE
 from ablate.reporting.blocks import Block, Item, Items, Paragraph, Table
 from ablate.reporting.comparisons import claims_design, claims_table, primary_question
 from ablate.reporting.results import Ablation
@@ -289,12 +290,24 @@ def _effect_words(row: pd.Series, question: Question) -> str:
 def _seeds_needed_words(needed: float, cap: int) -> str:
     if np.isinf(needed):
         return f"more than {cap} seeds per variant would be needed to decide it"
-    return f"about {int(needed)} seeds per variant would decide it (in 80% of runs like this one)"
+    return (
+        f"about {int(needed)} seeds per variant would decide it (in {_pct(advice.POWER)} of runs like this one; "
+        f"`seeds = {{ start = {advice.MIN_SEEDS}, step = {advice.MIN_SEEDS}, max = {int(needed)}, growth = 2 }}` "
+        "adds them in rounds, stopping as soon as it is decided)"
+    )
 
 
-def claim_line(row: pd.Series, question: Question) -> str:
+def claim_line(row: pd.Series, primary: Question) -> str:
     """One primary claim (a row of ``claims_table``) in words a student can hand in."""
     variant, reference = esc(row.variant), esc(row.reference)
+    question = primary if row.metric == primary.metric or primary.fallback is None else primary.fallback
+    switched = (
+        f" Judged on {_metric_name(row.metric)}, not {_metric_name(primary.metric)}: {_pct(row.censored)} of its "
+        f"seeds never solved within the budget, so episodes cannot rank them (the rule, fixed before the data: "
+        f"more than {_pct(CENSORED_SHARE)} unsolved)."
+        if question is not primary
+        else ""
+    )
     stat = stat_name(int(row.n_variant), int(row.n_reference))
     digits = 0 if question.relative else 1
     # a one-sided bound supports only the claim it leans towards: worse when the variant's IQM is the bound,
@@ -314,12 +327,19 @@ def claim_line(row: pd.Series, question: Question) -> str:
             if reaches
             else ""
         )
-        return f"**{variant}** is **{row.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}{step}."
+        return f"**{variant}** is **{row.verdict}** than {reference}:{bound} {effect}; {iqms}; {seeds}{step}.{switched}"
     if row.verdict == EQUIVALENT:
         margin = _pct(question.smallest_effect)
-        return f"**{variant}** is **equivalent** to {reference} within ±{margin}: {effect}; {iqms}; {seeds}."
+        return f"**{variant}** is **equivalent** to {reference} within ±{margin}: {effect}; {iqms}; {seeds}.{switched}"
     needed = "" if pd.isna(row.seeds_needed) else f"; {_seeds_needed_words(row.seeds_needed, int(row.seeds_cap))}"
-    return f"**{variant}** vs {reference}: **undetermined** ({row.reason}): {effect}; {iqms}; {seeds}{needed}."
+    if row.get("seeds_first", 0) and pd.isna(row.seeds_needed):
+        needed = (
+            f"; {int(row.n_variant)} seeds cannot support a prediction of the seeds that would decide it: run "
+            f"{int(row.seeds_first)} per variant first"
+        )
+    return (
+        f"**{variant}** vs {reference}: **undetermined** ({row.reason}): {effect}; {iqms}; {seeds}{needed}.{switched}"
+    )
 
 
 def claims(ablation: Ablation, table: pd.DataFrame | None = None) -> list[Block]:

@@ -44,7 +44,8 @@ def sample(rows: Sequence[Primary], metric: str):
     if metric == "episodes_to_solve":
         episodes = np.asarray([r.metrics.get("episodes_to_solve", np.nan) for r in rows], float)
         solved = np.asarray([r.metrics.get("solved", 0.0) == 1.0 for r in rows], bool) & np.isfinite(episodes)
-        return Sample(censored_episodes(solved, episodes, [r.budget for r in rows]), ~solved)
+        auc = np.asarray([r.metrics.get("auc", np.nan) for r in rows], float)
+        return Sample(censored_episodes(solved, episodes, [r.budget for r in rows]), ~solved, auc)
     return Sample(np.asarray([r.metrics.get(SUMMARY_METRIC[metric], np.nan) for r in rows], float))
 
 
@@ -55,17 +56,10 @@ def judge_for(experiment: Experiment, seeds: Sequence[int] | None = None):
     design = experiment.rounds
     if design is None or seeds:
         return None
-    from ablate.claims import Design, Question, decide
+    from ablate.claims import Design, decide, primary_question
 
     metric = experiment.primary_metric
-    episodes = metric == "episodes_to_solve"
-    question = Question(
-        metric,
-        relative=episodes,
-        lower_is_better=episodes,
-        smallest_effect=experiment.smallest_effect,
-        budget=float(experiment.base.max_episodes) if episodes else None,
-    )
+    question = primary_question(metric, experiment.smallest_effect, float(experiment.base.max_episodes))
     family = references(experiment)
 
     def judge(finished: Mapping[str, Sequence[Primary]]):
