@@ -287,7 +287,8 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
         )
     every_seed = {s for v in variants for s in (v.seeds or ())} | set(range(rounds.max) if rounds else seeds)
     every_seed |= {s for v in variants if v.rounds for s in range(v.rounds.max)}
-    tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), tuple(sorted(every_seed)))
+    first_round = len(seeds) if rounds else len(every_seed)  # a tuned variant's base-value trials: round 1's seeds
+    tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), tuple(sorted(every_seed)), first_round)
     primary = data.get("primary")
     if primary is not None and primary not in PRIMARY_METRICS:
         raise ConfigError(
@@ -317,7 +318,12 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
 
 
 def _parse_tune(
-    table: Any, source: str, grid: Mapping[str, Any], variants: tuple[Variant, ...], seeds: tuple[int, ...]
+    table: Any,
+    source: str,
+    grid: Mapping[str, Any],
+    variants: tuple[Variant, ...],
+    seeds: tuple[int, ...],
+    first_round: int,
 ) -> TuneSpec | None:
     """``[tune]`` checked as a whole: each bad value is one ``ConfigError`` naming ``tune.<key>``."""
     if table is None:
@@ -379,7 +385,7 @@ def _parse_tune(
     spec = TuneSpec(tuple(knobs), tuple(range(TUNE_SEED_START, TUNE_SEED_START + count)), metric, budget)
     # Stage 1 (every candidate on every tuning seed) and stage 2 (the choice and the base value per seed).
     tuning = sum(len(spec.candidates(v)) for v in variants if spec.tuned_knobs(v)) * count
-    evaluation = 2 * len(variants) * len(seeds)
+    evaluation = len(variants) * (len(seeds) + first_round)  # at the chosen values, and at the base value
     if tuning + evaluation > MAX_TRIALS:
         raise ConfigError(
             f"{where}: {tuning:,} tuning trials and up to {evaluation:,} evaluation trials is more than "
