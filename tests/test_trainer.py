@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from ablate.agent.population import Population
+from ablate.agent.population import PACK_SHARE, Population
 from ablate.agent.records import TrialFailed, TrialResult
 from ablate.agent.trainer import run_population, run_trial
 from ablate.config import DEFAULT, ModelConfig, apply_knobs, can_share
@@ -117,6 +117,49 @@ def test_members_with_their_own_budgets_update_when_their_own_episodes_are_in(mo
     for config, outcome in zip(configs, outcomes, strict=True):
         alone = run_trial(config)
         assert len(outcome.episodes) == config.max_episodes
+        assert [m[:7] for m in outcome.episodes] == [m[:7] for m in alone.episodes]
+        for name, tensor in alone.state_dict.items():
+            assert torch.equal(outcome.state_dict[name], tensor), name
+
+
+@pytest.mark.parametrize("base", [SHORT, CNN, replace(SHORT, num_envs=4)], ids=["dense", "cnn", "continuous"])
+def test_members_that_left_idle_in_their_rows_until_packed_and_the_others_run_as_alone(monkeypatch, base):
+    """Nine members leave one after another (one fails at its first update, the others at their own budgets):
+    those that left keep their rows (slots resting, weights zeroed) until they hold ``PACK_SHARE`` of the rows,
+    then the others are packed into new arrays; every member is still its single trial, bit for bit."""
+    configs = [replace(base, seed=s, max_episodes=8 * s + 10) for s in range(9)]  # the last update: 2 episodes
+    configs[4] = replace(configs[4], fault="raise")
+    for s in (7, 8):  # solved mid-budget: continuous slots still play as they leave
+        configs[s] = replace(configs[s], solve_threshold=25.0, solve_window=4)
+    packs: list[tuple[int, int, int]] = []
+    pack, leave = Population._pack, Population.leave
+
+    def idle(self):
+        for position in self.left:  # until packed: no slot steps, no parameter acts
+            assert not self.stepping[self.slots_of(position)].any()
+            assert not self.network.flat[position].any()
+
+    def recorded(self, positions):
+        idle(self)
+        packs.append((len(self.members), len(self.left), len(positions)))
+        pack(self, positions)
+
+    def resting(self, positions):
+        leave(self, positions)
+        idle(self)
+
+    monkeypatch.setattr(Population, "_pack", recorded)
+    monkeypatch.setattr(Population, "leave", resting)
+    outcomes = run_population(configs)
+    monkeypatch.undo()
+    assert packs[0] == (9, 3, 6)  # the first two to leave idled in their rows; the third packed the six left
+    assert all(rows - left == kept and left >= PACK_SHARE * rows for rows, left, kept in packs)
+    assert isinstance(outcomes[4], TrialFailed)
+    for config, outcome in zip(configs, outcomes, strict=True):
+        if config.fault:
+            continue
+        alone = run_trial(config)
+        assert outcome.episodes_to_solve == alone.episodes_to_solve
         assert [m[:7] for m in outcome.episodes] == [m[:7] for m in alone.episodes]
         for name, tensor in alone.state_dict.items():
             assert torch.equal(outcome.state_dict[name], tensor), name
