@@ -381,3 +381,44 @@ def test_the_trials_later_rounds_may_add_are_every_open_variant_to_max_round_by_
     answers.append(_Judgment(1, 10, [], done=True))
     assert rounds.next_round({}, finished | {t.key: {"auc": 1.0} for t in round_2}) == []
     assert rounds.possible({}, known) == []  # decided: nothing more can come
+
+
+def test_what_more_seeds_would_cost_is_read_from_this_launchs_rounds():
+    import pandas as pd
+
+    from ablate.claims import primary_question
+    from ablate.reporting.findings import claim_line
+    from ablate.reporting.rounds import seconds_per_trial
+
+    document = {
+        "rounds_run": [{"round": 2, "trials": 40, "started_s": 30.0}, {"round": 3, "trials": 80, "started_s": 50.0}],
+        "elapsed_s": 90.0,
+    }
+    assert seconds_per_trial(document) == pytest.approx(60 / 120)  # rounds 2-3: 60 s for 120 trials
+    assert seconds_per_trial({"rounds_run": [], "elapsed_s": 5.0}) is None and seconds_per_trial(None) is None
+    row = pd.Series(
+        {
+            "variant": "deep",
+            "reference": "baseline",
+            "metric": "episodes_to_solve",
+            "verdict": "undetermined",
+            "change": 12.0,
+            "change_low": -8.0,
+            "change_high": 30.0,
+            "bound": "",
+            "variant_value": 600.0,
+            "reference_value": 540.0,
+            "n_variant": 40,
+            "n_reference": 40,
+            "level": 0.004,
+            "margin": 10.0,
+            "seeds_needed": 160.0,
+            "seeds_cap": 1000,
+            "reason": "neither",
+            "seeds_first": 0,
+            "censored": 0.05,
+        }
+    )
+    line = claim_line(row, primary_question("episodes_to_solve", 0.1, 1500.0), 0.5)
+    assert "about 160 seeds per variant would decide it" in line
+    assert "240 more trials: about 2 min on this machine at this launch's pace" in line  # 2 x (160 - 40) x 0.5 s

@@ -153,6 +153,8 @@ class Rounds:
                 "seeds": target,
                 "variants": sorted({t.variant for t in todo}),
                 "open": list(judgment.open),
+                "trials": len(todo),
+                "started_s": round(self.clock() - self.started_at, 3),
             }
         )
         return todo
@@ -229,6 +231,7 @@ class Rounds:
             "looks": list(design.looks),
             "round": self.round,
             "rounds_run": self.ran,
+            "elapsed_s": round(self.clock() - self.started_at, 3),
             "stopped": self.stopped,
             "variants": variants,
         }

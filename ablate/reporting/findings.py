@@ -11,6 +11,7 @@ from ablate.claims.family import CENSORED_SHARE
 from ablate.reporting.blocks import Block, Item, Items, Paragraph, Table
 from ablate.reporting.comparisons import claims_design, claims_table, primary_question
 from ablate.reporting.results import Ablation
+from ablate.reporting.rounds import seconds_per_trial
 from ablate.reporting.sections import _episodes_cell, _extends, _stat_cell
 from ablate.reporting.statistics import (
     EXPLORATORY_BETTER,
@@ -297,8 +298,9 @@ def _seeds_needed_words(needed: float, cap: int) -> str:
     )
 
 
-def claim_line(row: pd.Series, primary: Question) -> str:
-    """One primary claim (a row of ``claims_table``) in words a student can hand in."""
+def claim_line(row: pd.Series, primary: Question, pace: float | None = None) -> str:
+    """One primary claim (a row of ``claims_table``) in words a student can hand in. ``pace``: seconds a seed
+    added in rounds cost this launch (``rounds.seconds_per_trial``), for what more seeds would cost."""
     variant, reference = esc(row.variant), esc(row.reference)
     question = primary if row.metric == primary.metric or primary.fallback is None else primary.fallback
     switched = (
@@ -332,6 +334,9 @@ def claim_line(row: pd.Series, primary: Question) -> str:
         margin = _pct(question.smallest_effect)
         return f"**{variant}** is **equivalent** to {reference} within ±{margin}: {effect}; {iqms}; {seeds}.{switched}"
     needed = "" if pd.isna(row.seeds_needed) else f"; {_seeds_needed_words(row.seeds_needed, int(row.seeds_cap))}"
+    if needed and pace and np.isfinite(row.seeds_needed):
+        more = 2 * max(int(row.seeds_needed) - int(min(row.n_variant, row.n_reference)), 0)
+        needed += f", {more:,} more trials: about {_duration(more * pace)} on this machine at this launch's pace"
     if row.get("seeds_first", 0) and pd.isna(row.seeds_needed):
         needed = (
             f"; {int(row.n_variant)} seeds cannot support a prediction of the seeds that would decide it: run "
@@ -357,7 +362,13 @@ def claims(ablation: Ablation, table: pd.DataFrame | None = None) -> list[Block]
         f"over the {k} (95% for all of them together); "
         f"*equivalent* means within ±{_pct(question.smallest_effect)} of the reference{_margin_why(ablation, table)}."
     )
-    return [Paragraph(intro), Items.of(claim_line(row, question) for _, row in table.iterrows())]
+    pace = seconds_per_trial((ablation.launch or {}).get("rounds"))
+    return [Paragraph(intro), Items.of(claim_line(row, question, pace) for _, row in table.iterrows())]
+
+
+def _duration(seconds: float) -> str:
+    minutes = seconds / 60
+    return f"{seconds:.0f} s" if minutes < 2 else f"{minutes:.0f} min" if minutes < 120 else f"{minutes / 60:.1f} h"
 
 
 def _margin_why(ablation: Ablation, table: pd.DataFrame) -> str:

@@ -78,6 +78,18 @@ def judge_for(experiment: Experiment, seeds: Sequence[int] | None = None):
     return judge
 
 
+def seconds_per_trial(document: Mapping[str, Any] | None) -> float | None:
+    """What a seed added in rounds cost this launch: the time from its second round's start to the end of its
+    rounds over the trials those rounds ran (judging, scheduling and tracking included); ``None`` without them."""
+    document = document or {}
+    later = [r for r in document.get("rounds_run", []) if "started_s" in r]
+    if not later or "elapsed_s" not in document:
+        return None
+    trials = sum(r.get("trials", 0) for r in later)
+    spent = float(document["elapsed_s"]) - float(later[0]["started_s"])
+    return spent / trials if trials and spent > 0 else None
+
+
 WHY = {
     "reached max": "reached the most seeds (max) undecided",
     "time budget": "the time budget ended",
