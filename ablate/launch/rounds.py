@@ -81,6 +81,8 @@ class Rounds:
         self.attempted: set[str] = set()
         self.seeds_run: dict[str, int] = {}
         """Each variant's finished primary seeds when last judged."""
+        self.judged_s = 0.0
+        """Seconds from the launch's start to the last judgment (the end of the rounds, once they stop)."""
 
     @property
     def round(self) -> int:
@@ -119,6 +121,7 @@ class Rounds:
     def next_round(self, choices: Mapping[str, Choice], finished: Mapping[str, Mapping[str, float]]) -> list[GridTrial]:
         """Judge the finished trials; the trials of the next round (none: the rounds are over, ``stopped`` says
         why). ``finished``: trial key -> summary metrics, from the store and this launch."""
+        self.judged_s = round(self.clock() - self.started_at, 3)
         samples = self.samples(choices, finished)
         self.seeds_run = {name: len(rows) for name, rows in samples.items()}
         judgment = self.judgment = self.judge(samples)
@@ -231,7 +234,7 @@ class Rounds:
             "looks": list(design.looks),
             "round": self.round,
             "rounds_run": self.ran,
-            "elapsed_s": round(self.clock() - self.started_at, 3),
+            "elapsed_s": self.judged_s,
             "stopped": self.stopped,
             "variants": variants,
         }
