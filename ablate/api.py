@@ -24,9 +24,6 @@ if TYPE_CHECKING:  # only for the annotations: the real imports are inside the f
     from ablate.launch.runner import RunOutcome
     from ablate.reporting.results import Ablation
 
-DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
-"""Where ``ablate run`` tracks by default: ``mlflow.db`` in the folder the command (or notebook) runs in."""
-
 FIGURES = ("curves", "per_seed", "improvement", "parameters", "wallclock")
 """The names ``Results.figure`` draws: the report's figures, in its order."""
 
@@ -49,7 +46,7 @@ def _name(name_or_file: str | Path | Experiment) -> str:
     return text
 
 
-def _check_store(tracking_uri: str) -> str:
+def _check_store(tracking_uri: str | None) -> str:
     """Refuse a local store that does not exist, in words for a Python caller (the CLI's says ``--tracking-uri``):
     reading must never create an empty database where a path was mistyped or the notebook runs elsewhere."""
     from ablate.launch.store import resolve_uri, sqlite_path
@@ -67,7 +64,7 @@ def _check_store(tracking_uri: str) -> str:
 def run(
     experiment: str | Path | Experiment,
     *,
-    tracking_uri: str = DEFAULT_TRACKING_URI,
+    tracking_uri: str | None = None,
     address: str | None = None,
     only: Sequence[str] | None = None,
     seeds: Sequence[int] | None = None,
@@ -83,7 +80,8 @@ def run(
     """Run an experiment's trials on Ray and track them in MLflow, as ``ablate run`` does.
 
     ``experiment``: an experiment file (``experiments/smoke.toml``) or a loaded ``Experiment``.
-    ``tracking_uri``: the MLflow store (default ``sqlite:///mlflow.db`` in the current folder).
+    ``tracking_uri``: the MLflow store (default: ``MLFLOW_TRACKING_URI`` as the CLI reads it, else
+    ``sqlite:///mlflow.db`` in the current folder: ``launch.store.resolve_uri``, the one definition).
     ``address``: an existing Ray cluster (``host:port``); ``None`` starts a local one for this call.
     ``only`` / ``seeds``: run a part of the grid (variant names, evaluation seeds).
     ``fresh``: start a new generation instead of resuming the last one.
@@ -133,7 +131,7 @@ def run(
 def report(
     name_or_file: str | Path | Experiment,
     *,
-    tracking_uri: str = DEFAULT_TRACKING_URI,
+    tracking_uri: str | None = None,
     reports_folder: str | Path = "reports",
     pdf: bool = True,
     variants: Sequence[str] | None = None,
@@ -159,7 +157,7 @@ def report(
 
 def _write_report(
     name_or_file: str | Path | Experiment,
-    tracking_uri: str,
+    tracking_uri: str | None,
     reports_folder: str | Path,
     pdf: bool = True,
     variants: Sequence[str] | None = None,
@@ -190,7 +188,7 @@ def _write_report(
 def load(
     name_or_file: str | Path | Experiment,
     *,
-    tracking_uri: str = DEFAULT_TRACKING_URI,
+    tracking_uri: str | None = None,
     generation: str | None = None,
     variants: Sequence[str] | None = None,
     baseline: str | None = None,

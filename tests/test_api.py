@@ -127,3 +127,14 @@ def test_load_returns_the_tables_ablate_report_writes(notebook_run, tmp_path):
     assert figure.axes and figure.axes[0].get_lines()  # an open matplotlib figure with the curves drawn
     with pytest.raises(ValueError, match="valid: curves"):
         results.figure("nope")
+
+
+def test_load_and_report_read_mlflow_tracking_uri_as_the_cli_does(tmp_path, monkeypatch):
+    # issue 56: the API passed its own literal default, so a notebook on a team's server read a local file
+    store = tmp_path / "team" / "mlflow.db"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{store}")
+    monkeypatch.chdir(tmp_path)
+    for call in (lambda: ablate.load("anything"), lambda: ablate.report("anything")):
+        with pytest.raises(Exception) as error:
+            call()
+        assert str(store) in str(error.value), error.value  # the environment's store, not ./mlflow.db
