@@ -422,3 +422,36 @@ def test_what_more_seeds_would_cost_is_read_from_this_launchs_rounds():
     line = claim_line(row, primary_question("episodes_to_solve", 0.1, 1500.0), 0.5)
     assert "about 160 seeds per variant would decide it" in line
     assert "240 more trials: about 2 min on this machine at this launch's pace" in line  # 2 x (160 - 40) x 0.5 s
+
+
+def test_a_claim_on_two_censored_sides_writes_both_iqms_as_bounds():
+    import pandas as pd
+
+    from ablate.claims import primary_question
+    from ablate.reporting.findings import claim_line
+
+    row = pd.Series(
+        {
+            "variant": "mine",
+            "reference": "baseline",
+            "metric": "episodes_to_solve",
+            "verdict": "undetermined",
+            "change": -12.0,
+            "change_low": -40.0,
+            "change_high": 20.0,
+            "bound": "censored",
+            "variant_value": 760.0,
+            "reference_value": 863.0,
+            "n_variant": 12,
+            "n_reference": 12,
+            "level": 0.05,
+            "margin": 10.0,
+            "seeds_needed": float("nan"),
+            "seeds_cap": 1000,
+            "reason": "both IQMs count unsolved seeds",
+            "seeds_first": 0,
+            "censored": 0.4,
+        }
+    )
+    line = claim_line(row, primary_question("episodes_to_solve", 0.1, 1000.0))
+    assert "≥ 760 vs ≥ 863" in line, line  # issue 56: the text dropped the bounds Table 1 shows

@@ -314,8 +314,9 @@ def claim_line(row: pd.Series, primary: Question, pace: float | None = None) -> 
     digits = 0 if question.relative else 1
     # a one-sided bound supports only the claim it leans towards: worse when the variant's IQM is the bound,
     # better when the reference's is (statistics: _episodes_comparison)
-    x_bound = "≥ " if row.bound and row.verdict == WORSE else ""
-    y_bound = "≥ " if row.bound and row.verdict == BETTER else ""
+    # "censored": both IQMs count unsolved seeds as the budget, so both are bounds, as Table 1 writes them
+    x_bound = "≥ " if row.bound == "censored" or (row.bound and row.verdict == WORSE) else ""
+    y_bound = "≥ " if row.bound == "censored" or (row.bound and row.verdict == BETTER) else ""
     iqms = f"{stat} {x_bound}{fmt(row.variant_value, digits)} vs {y_bound}{fmt(row.reference_value, digits)}"
     seeds = f"{int(row.n_variant)} and {int(row.n_reference)} seeds"
     effect = _effect_words(row, question)
