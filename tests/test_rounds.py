@@ -312,14 +312,15 @@ def test_train_from_names_a_seed_a_later_round_runs(tmp_path):
         trial_from(argparse.Namespace(**{**vars(args), "seed": 15}), {"seed": 15}, ())
 
 
-def test_the_default_cartpole_experiment_adds_seeds_in_rounds_from_todays_five(tmp_path):
+def test_the_default_cartpole_experiment_adds_seeds_in_growing_rounds_into_the_hundreds(tmp_path):
     from pathlib import Path
 
     path = Path(__file__).resolve().parents[1] / "experiments" / "cartpole.toml"
     experiment = load_experiment(path)
-    assert experiment.rounds is not None and experiment.rounds.start == 5 and experiment.rounds.step == 5
-    assert 20 <= experiment.rounds.max <= 40  # what `make ablation-cartpole` affords on 2 cores (issue 25 item 7)
-    text = re.sub(r"^seeds = \{.*\}$", "seeds = 5", path.read_text(), flags=re.M)
+    rounds = experiment.rounds
+    assert rounds is not None and rounds.start == 10 and rounds.growth == 2  # issue 55: seeds by the hundred
+    assert rounds.max >= 300 and len(rounds.looks) <= 8 and rounds.max_minutes is not None  # few looks, a budget
+    text = re.sub(r"^seeds = \{.*\}$", "seeds = 10", path.read_text(), flags=re.M)
     fixed = tmp_path / "cartpole.toml"
     fixed.write_text(text)
     assert [t.key for t in expand(load_experiment(fixed))] == [t.key for t in expand(experiment)]
