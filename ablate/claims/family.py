@@ -23,11 +23,12 @@ from ablate.design import smallest_permutation_p as smallest_p
 BETTER, WORSE, EQUIVALENT, UNDETERMINED = "better", "worse", "equivalent", "undetermined"
 VERDICTS = (BETTER, WORSE, EQUIVALENT, UNDETERMINED)
 SEEDS_CAP = advice.SEEDS_CAP
-CENSORED_SHARE = 0.5
+CENSORED_SHARE = 0.25
 """Where more than this share of a comparison's seeds (both sides pooled, at its first look) never reached the
-threshold, it is judged on the question's ``fallback`` measure (the AUC, never censored) instead: the share of the
-pooled seeds is the same under every relabelling of the seeds, so the permutation test stays exact, and the rule
-is fixed before any data."""
+threshold, it is judged on the question's ``fallback`` measure (the AUC, never censored) instead. A quarter because
+the IQM drops a quarter at each end: past it, a side's IQM may rest on the budget itself, and with both sides so,
+episodes could decide nothing. The share of the pooled seeds is the same under every relabelling of the seeds,
+so the permutation test stays exact, and the rule is fixed before any data."""
 
 
 @dataclass(frozen=True)
