@@ -55,7 +55,7 @@ def _check_store(tracking_uri: str | None) -> str:
     path = sqlite_path(uri)
     if path is not None and not path.exists():
         raise StoreNotFound(
-            f"tracking_uri={tracking_uri!r}: no MLflow store at {path.resolve()} (relative paths are read from "
+            f"tracking_uri={uri!r}: no MLflow store at {path.resolve()} (relative paths are read from "
             f"{Path.cwd()}); pass tracking_uri= the store `ablate.run` wrote, e.g. 'sqlite:////abs/path/mlflow.db'"
         )
     return uri

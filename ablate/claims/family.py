@@ -132,7 +132,9 @@ class _Open:
         if self.question is None:
             flags = [s.censored for s in (x, y) if s.censored is not None]
             self.censored = float(np.concatenate(flags).mean()) if flags else 0.0
-            usable = question.fallback is not None and x.fallback is not None and y.fallback is not None
+            usable = question.fallback is not None and all(
+                s.fallback is not None and np.isfinite(s.fallback).all() for s in (x, y)
+            )
             self.question = question.fallback if usable and self.censored > CENSORED_SHARE else question
         if self.question is question:
             return x, y
