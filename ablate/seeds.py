@@ -26,6 +26,11 @@ class SeedRounds:
     round; 2 doubles the seeds per round (start 10, step 10: 10, 20, 40, 80 ...), so a cap in the hundreds costs
     a handful of looks."""
 
+    spending: str = "obrien-fleming"
+    """How the error rate is spent across the looks (``claims.Design``): ``obrien-fleming`` keeps almost all of it
+    for the last look; ``pocock`` spreads it, so that doubling rounds (whose early looks hold a small share of
+    the seeds) can stop a large effect early."""
+
     @property
     def looks(self) -> tuple[int, ...]:
         """Seeds per variant after each round (the looks of ``claims.Design`` with the same numbers)."""
@@ -50,9 +55,10 @@ def seed_looks(start: int, step: int, most: int, growth: float = 1.0) -> tuple[i
 
 SEEDS_RULE = (
     "valid: a count in [1, 1000], a list of distinct non-negative integers, or a table of rounds "
-    "{ start = 5, step = 5, max = 40 } (optional max_minutes = 15, growth = 2)"
+    "{ start = 5, step = 5, max = 40 } (optional max_minutes = 15, growth = 2, spending = 'pocock')"
 )
-ROUND_KEYS = ("start", "step", "max", "max_minutes", "growth")
+ROUND_KEYS = ("start", "step", "max", "max_minutes", "growth", "spending")
+SPENDINGS = ("obrien-fleming", "pocock")
 
 
 def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | None]:
@@ -97,10 +103,15 @@ def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | N
             f"{where}.growth = {_shown(growth)} is invalid; valid: a factor in [1, 10] by which each round's added "
             "seeds grow (1: step every round; 2: doubling)"
         )
+    spending = value.get("spending", SPENDINGS[0])
+    if spending not in SPENDINGS:
+        raise ConfigError(
+            f"{where}.spending = {_shown(spending)} is invalid; valid: {' or '.join(repr(s) for s in SPENDINGS)}"
+        )
     if most == start:  # one round: exactly ``seeds = start`` (its trial keys too)
         return tuple(range(start)), None
     return tuple(range(start)), SeedRounds(
-        start, step, most, None if minutes is None else float(minutes), float(growth)
+        start, step, most, None if minutes is None else float(minutes), float(growth), spending
     )
 
 

@@ -456,3 +456,22 @@ def test_a_claim_on_two_censored_sides_writes_both_iqms_as_bounds():
     )
     line = claim_line(row, primary_question("episodes_to_solve", 0.1, 1000.0))
     assert "≥ 760 vs ≥ 863" in line, line  # issue 56: the text dropped the bounds Table 1 shows
+
+
+def test_a_pocock_boundary_lets_doubling_rounds_stop_early_and_is_recorded_for_the_report(tmp_path):
+    from ablate.claims import Design
+    from ablate.claims.boundaries import nominal_levels
+
+    experiment = _experiment(
+        tmp_path,
+        'name = "rounds"\nseeds = { start = 10, step = 10, max = 640, growth = 2, spending = "pocock" }\n' + VARIANTS,
+    )
+    design = Design.of(experiment.rounds)
+    assert design.spending == "pocock" and Design.of({"start": 10, "step": 10, "max": 640}).spending == (
+        "obrien-fleming"
+    )
+    pocock = nominal_levels(design.fractions, 0.05 / 9, "pocock")
+    fleming = nominal_levels(design.fractions, 0.05 / 9, "obrien-fleming")
+    assert pocock[0] > 1e-4 and fleming[2] < 1e-10  # 10 seeds of 640 can decide under Pocock's, 40 not under OBF's
+    with pytest.raises(ConfigError, match="spending = 'even' is invalid"):
+        _experiment(tmp_path, 'name = "rounds"\nseeds = { start = 5, max = 10, spending = "even" }\n' + VARIANTS)

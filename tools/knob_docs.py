@@ -39,9 +39,9 @@ TOP_LEVEL_MEANINGS = {
     ),
     "description": "One line that opens the report.",
     "seeds": "Evaluation seeds: a count `n` (seeds 0 to n-1), a list of distinct integers, e.g. `[0, 1, 2]`, or a "
-    "table of rounds `{ start = 5, step = 5, max = 40 }` (optional `max_minutes`, `growth`) that adds seeds until the primary "
-    "comparisons are decided: see [seeds in rounds](#seeds-in-rounds). A variant may set its own `seeds` in any of "
-    "these forms.",
+    "table of rounds `{ start = 5, step = 5, max = 40 }` (optional `max_minutes`, `growth`, `spending`) that adds "
+    "seeds until the primary comparisons are decided: see [seeds in rounds](#seeds-in-rounds). A variant may set "
+    "its own `seeds` in any of these forms.",
     "baseline": "The variant the others are compared with, directly or [through another](report.md#references).",
     "cpus_per_trial": "CPUs Ray reserves per trial; fractions pack several trials per core (0.5: two).",
     "gpus_per_trial": "GPUs Ray reserves per trial; fractions allowed (0.25: four per GPU). A trial puts its policy "
@@ -62,7 +62,8 @@ TOP_LEVEL_VALID = {
     "name": f"1 to {config.MAX_NAME_LENGTH} characters; no control characters, `/` or `\\`",
     "description": "a string",
     "seeds": "a count in [1, 1000], a list of distinct integers >= 0, or a table: `start` in [1, 1000], `step` in "
-    "[1, 1000] (default `start`), `max` in [`start`, 1000], `max_minutes` > 0, `growth` in [1, 10] (default 1)",
+    "[1, 1000] (default `start`), `max` in [`start`, 1000], `max_minutes` > 0, `growth` in [1, 10] (default 1), "
+    "`spending` `obrien-fleming` (default) or `pocock`",
     "baseline": "a variant's name",
     "cpus_per_trial": "a number in (0, 64]",
     "gpus_per_trial": "a number in [0, 16]",

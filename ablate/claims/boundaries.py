@@ -46,7 +46,13 @@ class Design:
     def of(cls, rounds) -> Design:
         """The design of an experiment's seed rounds (``seeds.SeedRounds``, or its ``rounds.json`` entry)."""
         get = rounds.get if isinstance(rounds, dict) else lambda key, default=None: getattr(rounds, key, default)
-        return cls(int(get("start")), int(get("step")), int(get("max")), growth=float(get("growth", 1.0) or 1.0))
+        return cls(
+            int(get("start")),
+            int(get("step")),
+            int(get("max")),
+            spending=get("spending", None) or "obrien-fleming",
+            growth=float(get("growth", 1.0) or 1.0),
+        )
 
     @property
     def looks(self) -> tuple[int, ...]:

@@ -316,9 +316,13 @@ def _reason(item: _Open, question: Question, level: float, bound: str) -> str:
 seeds_needed = advice.seeds_needed
 
 
-def family_sentence(k: int, alpha: float = ALPHA, sequential: bool = False) -> str:
+SPENDING_WORDS = {"obrien-fleming": "O'Brien-Fleming-type", "pocock": "Pocock-type"}
+
+
+def family_sentence(k: int, alpha: float = ALPHA, sequential: bool = False, spending: str = "obrien-fleming") -> str:
     """The one sentence a student can repeat: which family, which correction, what level."""
-    looks = " across the rounds of seeds (an O'Brien-Fleming-type alpha-spending boundary)" if sequential else ""
+    kind = SPENDING_WORDS[spending]
+    looks = f" across the rounds of seeds (a {kind} alpha-spending boundary)" if sequential else ""
     family = f"The {k} primary comparisons form one family" if k != 1 else "The one primary comparison is a family"
     return (
         f"{family} whose chance of any false claim is at most {alpha:.0%}: each is a permutation test of the IQM "

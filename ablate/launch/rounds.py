@@ -230,6 +230,7 @@ class Rounds:
                 "max": design.max,
                 "max_minutes": design.max_minutes,
                 "growth": design.growth,
+                "spending": design.spending,
             },
             "looks": list(design.looks),
             "round": self.round,

@@ -358,7 +358,7 @@ def claims(ablation: Ablation, table: pd.DataFrame | None = None) -> list[Block]
         return [Paragraph("No variant has finished seeds to compare with its reference.")]
     design = claims_design(ablation)
     intro = (
-        f"{family_sentence(k, sequential=design.max > design.start)} The claims are on "
+        f"{family_sentence(k, sequential=design.max > design.start, spending=design.spending)} The claims are on "
         f"{_metric_name(question.metric)} (the experiment's primary question); each interval is simultaneous "
         f"over the {k} (95% for all of them together); "
         f"*equivalent* means within ±{_pct(question.smallest_effect)} of the reference{_margin_why(ablation, table)}."

@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from ablate.claims.family import SPENDING_WORDS
 from ablate.config import flatten
 from ablate.experiment import Experiment
 from ablate.launch.rounds import Primary
@@ -114,7 +115,8 @@ def rounds_section(document: Mapping[str, Any] | None) -> list[Any]:
         f"Seeds were added in rounds: {design['start']} per variant first, then "
         f"{added_words(design['step'], design.get('growth') or 1.0)} per round to "
         f"each variant whose primary comparison was still undetermined (and its reference), up to {design['max']}"
-        f"{budget}; the error rate holds across the rounds (an alpha-spending boundary). "
+        f"{budget}; the error rate holds across the rounds (a "
+        f"{SPENDING_WORDS[design.get('spending') or 'obrien-fleming']} alpha-spending boundary). "
         f"{document['round']} round{'s' if document['round'] != 1 else ''} ran."
     )
     rows = []
