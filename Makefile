@@ -63,8 +63,8 @@ bench: $(STAMP) ## speed and memory figures, every section (~3 h on 2 idle cores
 train: $(STAMP) ## one CartPole trial: curve, video, weights in outputs/train/ (ARGS="--preset course", ...)
 	$(BIN)/ablate train $(ARGS)
 
-ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray (seeds in rounds up to 30, populations of 8), track in MLflow, write the report
-	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --population 8 --tracking-uri $(TRACKING_URI)
+ablation-cartpole: $(STAMP) ## run experiments/cartpole.toml on a local Ray (seeds in doubling rounds up to 640, populations of 64), track in MLflow, write the report
+	PORT=$(PORT) $(BIN)/ablate run experiments/cartpole.toml --population 64 --tracking-uri $(TRACKING_URI)
 
 ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, each at its tuned rate, 5 seeds x 400 episodes, every trial alone (49 min to 1 h 42 min on a fresh clone of a 2-core machine, as machines differ; at most 2 h)
 	$(BIN)/ablate run experiments/pong.toml --population 1 --tracking-uri $(TRACKING_URI)
