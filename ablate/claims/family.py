@@ -180,7 +180,7 @@ def decide(
     comparison decided stays decided. A look is made when every variant it needs has its seeds; where the data
     reach no look (fewer seeds than ``start``), the family is judged once on the seeds there are, as a
     fixed design. ``intervals``: compute each verdict's interval (slower); ``estimate_seeds``: the seeds an
-    undetermined comparison would need, once the last look is made (slowest)."""
+    undetermined comparison would need (slowest; the launch's judge does not ask, a report does, rounds over or not)."""
     order = [v for v in references]
     state = {v: _Open((v, references[v]), samples[v], samples[references[v]]) for v in order}
     decided: dict[str, tuple[str, int, float]] = {}
@@ -263,7 +263,7 @@ def decide(
         seeds, estimated, reason, first = None, False, "", 0
         if verdict == UNDETERMINED:
             reason = _reason(item, asked, levels[-1] if levels else family_level, bound)
-            if estimate_seeds and done and bound != "censored":
+            if estimate_seeds and bound != "censored":  # also where rounds stopped early (a time budget)
                 if advice.enough_for_advice(item.x, item.y):
                     seeds, estimated = advice.seeds_needed(item.x, item.y, asked, family_level), True
                 else:
