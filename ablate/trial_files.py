@@ -71,11 +71,12 @@ def record_episode(config: TrialConfig, model: nn.Module, on_frame: Callable[[np
         env.close()
 
 
-def write_artifacts(result: TrialResult, folder: Path, video: bool = True) -> None:
+def write_artifacts(result: TrialResult, folder: Path, video: bool = True, curve: bool = True) -> None:
     """Per-episode table, weights, config, learning curve and (``record_video`` and ``video``) a video of the agent
     into ``folder``, each added to ``result.artifacts``; for Pong also ``observation.png`` (one observation raw,
     pre-processed and as a frame difference). ``video=False``: the video is left to ``replay_video`` (a launch's
-    report records its picks')."""
+    report records its picks'). ``curve=False``: no ``learning_curve.png`` (matplotlib takes ~0.14 s a figure, about
+    what a CartPole member's training costs: a launch draws a few seeds per variant, ``launch.grid.PLOTTED_SEEDS``)."""
     folder.mkdir(parents=True, exist_ok=True)
     config = result.config
     table = folder / "episodes.csv"
@@ -90,13 +91,14 @@ def write_artifacts(result: TrialResult, folder: Path, video: bool = True) -> No
     settings = folder / "config.json"
     settings.write_text(json.dumps(config_document(config), indent=1), encoding="utf-8")
     result.artifacts["config"] = settings
-    result.artifacts["learning_curve"] = plot_progress(
-        result.returns,
-        [m.rolling_mean for m in result.episodes],
-        folder / "learning_curve.png",
-        threshold=result.solve_threshold,
-        title=f"{config.env_id}, seed {config.seed}",
-    )
+    if curve:
+        result.artifacts["learning_curve"] = plot_progress(
+            result.returns,
+            [m.rolling_mean for m in result.episodes],
+            folder / "learning_curve.png",
+            threshold=result.solve_threshold,
+            title=f"{config.env_id}, seed {config.seed}",
+        )
     if is_pong(config.env_id):
         previous, frame = sample_pong_frames(config.env_id, config.seed)
         result.artifacts["observation"] = plot_pong_observation(previous, frame, folder / "observation.png")

@@ -9,7 +9,7 @@ from stores import fresh_store
 from ablate.agent.trainer import run_trial
 from ablate.config import DEFAULT, ModelConfig
 from ablate.experiment import load_experiment
-from ablate.launch.grid import GridTrial, expand, trial_key
+from ablate.launch.grid import PLOTTED_SEEDS, GridTrial, expand, trial_key
 from ablate.launch.plan import Population, plan_populations, population_size
 from ablate.launch.tracking import Tracker
 from ablate.reporting.reader import RunReader
@@ -115,7 +115,8 @@ def test_a_launch_of_populations_records_every_member_as_its_own_trial(run_quiet
             assert run.status == "FAILED"
             continue
         assert run.status == "FINISHED" and run.metrics["episodes_run"] == 20
-        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "config.json", "learning_curve.png"}
+        drawn = {"learning_curve.png"} if run.seed < PLOTTED_SEEDS else set()  # a variant's first seeds only
+        assert set(run.artifacts) == {"episodes.csv", "weights.pt", "config.json"} | drawn
         returns = [v for _, v in reader.metric_history(run.run_id, "episode/return")]
         assert len(returns) == 20
         alone = run_trial(by_key[key].config)
@@ -234,3 +235,14 @@ def test_a_population_whose_process_died_resumes_each_member_exactly(run_quiet, 
         assert tracked[trial.key] == unbroken.returns, trial.variant  # resumed exactly, or never disturbed
         history = reader.metric_history(next(r.run_id for r in runs if r.key == trial.key), "episode/return")
         assert [step for step, _ in history] == list(range(1, trial.config.max_episodes + 1))  # each episode once
+
+
+def test_a_variant_draws_the_curves_of_its_first_seeds_and_the_plan_carries_them(tmp_path):
+    from ablate.launch.grid import plotted_seeds
+
+    experiment, trials = _trials(tmp_path, SEEDS.replace("seeds = 6", "seeds = [9, 3, 7, 1, 0, 5, 2]"))
+    assert plotted_seeds(experiment) == {v: frozenset({9, 3, 7, 1, 0}) for v in ("narrow", "narrow_fast", "cnn")}
+    plotted = {t.key for t in trials if t.seed in plotted_seeds(experiment)[t.variant]}
+    plan = plan_populations(trials, cap=6, slots=2, plotted=plotted)
+    assert set().union(*(p.plotted for p in plan)) == plotted and all(p.plotted <= set(p.keys) for p in plan)
+    assert all(p.plotted is None for p in plan_populations(trials, cap=6, slots=2))  # no bound given: every one

@@ -147,3 +147,37 @@ def test_a_local_ray_that_fails_to_start_is_one_line(monkeypatch):
     message = str(error.value)
     assert message.startswith("could not start a local Ray: The current node timed out during startup")
     assert "\n" not in message and "run the same command again" in message
+
+
+def test_events_are_told_in_order_off_the_callback_and_a_failed_write_is_raised_on_the_driver():
+    """Tune holds a population's worker until its callbacks return: they queue the events, a thread tells them
+    (the launch's MLflow writes), in order; a write that fails is raised by the next event queued, or by close."""
+    from ablate.launch.scheduler import _Writer
+    from ablate.launch.store import TrackingError
+
+    told = []
+    writer = _Writer(None)
+    for i in range(50):
+        writer.put(lambda i=i: told.append(i))
+    writer.close()
+    assert told == list(range(50))
+
+    def lost():
+        raise TrackingError("MLflow store x stopped answering")
+
+    writer = _Writer(None)
+    writer.put(lost)
+    while writer.error is None:
+        time.sleep(0.01)
+    with pytest.raises(TrackingError, match="stopped answering"):
+        writer.put(lambda: told.append("never"))
+    with pytest.raises(TrackingError):
+        writer.close()
+    assert "never" not in told
+
+    writer = _Writer(None)  # Ctrl-C: the event being told ends, the rest are dropped, nothing is raised
+    writer.put(lambda: time.sleep(0.2))
+    for _ in range(5):
+        writer.put(lambda: told.append("dropped"))
+    writer.close(drop=True)
+    assert "dropped" not in told

@@ -119,6 +119,20 @@ def chosen_trials(
     return trials
 
 
+PLOTTED_SEEDS = 5
+"""Seeds per variant whose trials draw ``learning_curve.png`` in a launch: its first evaluation seeds (the first
+round's, where seeds come in rounds) and its first tuning seeds. A figure costs the worker about what a CartPole
+member's training does (~0.14 s), so a launch of thousands of seeds draws a bounded few; every trial keeps its
+``episodes.csv``, curve metrics, weights and config, from which the report draws what it shows."""
+
+
+def plotted_seeds(experiment: Experiment) -> dict[str, frozenset[int]]:
+    """Per variant, the seeds whose trials draw their learning curve (``PLOTTED_SEEDS``): fixed by the experiment,
+    so a resumed launch draws the same trials' figures."""
+    tuning = experiment.tune.seeds[:PLOTTED_SEEDS] if experiment.tune is not None else ()
+    return {v.name: frozenset((*experiment.max_seeds_of(v)[:PLOTTED_SEEDS], *tuning)) for v in experiment.variants}
+
+
 def split_variants(text: str, names: list[str]) -> list[str]:
     """``--only a,b`` into variant names. Grid variants carry commas in their names (``depth=1,dropout=0.2``),
     so the longest run of comma-separated parts that is a known name wins; an unknown part is an error."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 from ablate.config import population_group
@@ -22,6 +22,8 @@ class Population:
     """Trials trained together in one process. ``key``: stable for the same members (Tune's trial name)."""
 
     members: tuple[GridTrial, ...]
+    plotted: frozenset[str] | None = None
+    """The members whose ``learning_curve.png`` the worker draws (``grid.PLOTTED_SEEDS``); ``None``: every one."""
 
     @property
     def key(self) -> str:
@@ -44,13 +46,16 @@ def population_size(trials: int, slots: int, cap: int) -> int:
     return max(1, min(cap, math.ceil(trials / max(slots, 1))))
 
 
-def plan_populations(trials: Sequence[GridTrial], cap: int = 1, slots: int = 1) -> list[Population]:
+def plan_populations(
+    trials: Sequence[GridTrial], cap: int = 1, slots: int = 1, plotted: Collection[str] | None = None
+) -> list[Population]:
     """``trials`` (in the order they start) as populations of at most ``cap`` members: those of one
     ``population_group`` and stage share; a group of n splits into ceil(n / size) populations of balanced size
     (``population_size``), so no population runs far longer than another for its size. The plan starts in the
-    order of each population's first member. ``cap`` 1: every trial alone (today's launch, exactly)."""
+    order of each population's first member. ``cap`` 1: every trial alone (today's launch, exactly).
+    ``plotted``: the keys whose learning curve is drawn (``None``: every trial's)."""
     if cap <= 1:
-        return [Population((t,)) for t in trials]
+        return [_population((t,), plotted) for t in trials]
     groups: dict[tuple, list[GridTrial]] = {}
     for position, trial in enumerate(trials):
         # A test's blocked trial waits for a file before it trains: it would hold its population-mates too.
@@ -66,8 +71,12 @@ def plan_populations(trials: Sequence[GridTrial], cap: int = 1, slots: int = 1) 
         for part in range(count):
             # Round-robin, so each population holds every kind of member the group has (seeds, candidates).
             chosen = tuple(members[part::count])
-            plan.append((min(order[t.key] for t in chosen), Population(chosen)))
+            plan.append((min(order[t.key] for t in chosen), _population(chosen, plotted)))
     return [population for _, population in sorted(plan, key=lambda item: item[0])]
+
+
+def _population(members: tuple[GridTrial, ...], plotted: Collection[str] | None) -> Population:
+    return Population(members, None if plotted is None else frozenset(t.key for t in members if t.key in plotted))
 
 
 def population_keys(trials: Sequence[GridTrial], cap: int = 1, slots: int = 1) -> list[list[str]]:

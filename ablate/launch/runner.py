@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment
-from ablate.launch.grid import GridTrial, expand, schedule_order, tuning_trials
+from ablate.launch.grid import GridTrial, expand, plotted_seeds, schedule_order, tuning_trials
 from ablate.launch.mlflow_store import (
     TAG_HOST,
     TAG_PID,
@@ -241,6 +241,7 @@ class _Launch:
         self.finished_before = set(self.finished_runs)
         self.choices = self.plan.choices(self.finished_runs)
         self.known = unique([*self.plan.tuning, *evaluation, *self.plan.chosen(self.choices)], set())
+        self.plotted = plotted_seeds(experiment)
         judge = options.judge
         self.rounds = (
             Rounds(experiment, self.wanted, judge, options.started_at) if experiment.rounds and judge else None
@@ -430,7 +431,9 @@ class _Launch:
         """Run ``todo`` as populations; trials a killed launch left with a checkpoint continue from it."""
         self.recorder.trials |= {t.key: t for t in todo}
         resume = self.tracker.latest_checkpoints(self.generation, (t.key for t in todo))
-        populations = self.recorder.planned(plan_populations(todo, cap=self.options.population, slots=self.cores))
+        plotted = {t.key for t in todo if t.seed in self.plotted.get(t.variant, ())}
+        plan = plan_populations(todo, cap=self.options.population, slots=self.cores, plotted=plotted)
+        populations = self.recorder.planned(plan)
         with self.view:
             self.scheduler.run_trials(populations, self.recorder, self.cluster, run_name=self.run_name, resume=resume)
 

@@ -20,8 +20,10 @@ driver; a user with NFS or ``s3://`` can still point it there.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
+import queue
 import shutil
 import signal
 import socket
@@ -29,7 +31,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -116,21 +118,27 @@ def _write_folder(files: Mapping[str, bytes], folder: Path) -> None:
 
 def _train(params: dict[str, Any], populations: dict[str, Population], checkpoints: Any) -> None:
     """The Tune trainable: runs one population in a Ray worker, on any node. Each member's events travel in
-    the population's reports, under its own key. A member's exception (a NaN loss) becomes its ``failed``
-    report and the others go on; an exception of the whole population fails every member still running.
-    Only a dead process is retried: a seeded trial that raises would raise again."""
+    the population's reports, under its own key: its curve points, and once it ended, its outcome, in the next
+    report (every ``REPORT_EVERY_S``, a checkpoint's, or the last): Tune holds the worker at each report until the
+    driver has recorded it, so members that end together are recorded together. A member's exception (a NaN
+    loss) becomes its ``failed`` report and the others go on; an exception of the whole population fails every
+    member still running. Only a dead process is retried: a seeded trial that raises would raise again."""
     population = populations[params["key"]]
     keys = population.keys
     reducers = [CurveReducer(t.config.max_episodes) for t in population.members]
     pending: dict[str, list[CurvePoint]] = {}
+    ended: dict[str, dict[str, Any]] = {}
+    """Outcomes not reported yet."""
     outcome_of: dict[str, dict[str, Any]] = {}
     last = time.monotonic()
     node = ray.get_runtime_context().get_node_id()
 
     def report(**extra: Any) -> None:
         nonlocal last
-        tune.report({"ablate_points": dict(pending), "ablate_node": node, **extra})
+        outcomes = {"ablate_outcomes": dict(ended)} if ended else {}
+        tune.report({"ablate_points": dict(pending), "ablate_node": node, **outcomes, **extra})
         pending.clear()
+        ended.clear()
         last = time.monotonic()
 
     def on_episodes(i: int, rows: list) -> None:
@@ -150,10 +158,11 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
                 outcome_of[keys[i]] = {"failed": f"{type(outcome).__name__}: {outcome}"}
             else:
                 # The report records the videos of the seeds it shows (``trial_files.replay_video``).
-                write_artifacts(outcome, folders[i], video=False)
+                curve = population.plotted is None or keys[i] in population.plotted
+                write_artifacts(outcome, folders[i], video=False, curve=curve)
                 files = _read_folder(folders[i])
                 outcome_of[keys[i]] = {"summary": outcome.summary(), "artifacts": files, "env": outcome.env}
-            report(ablate_outcomes={keys[i]: outcome_of[keys[i]]})
+            ended[keys[i]] = outcome_of[keys[i]]
 
         resume = {}
         if checkpoints is not None:
@@ -172,11 +181,11 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
                 **resume,
             )
         except Exception as error:  # noqa: BLE001 - every error is recorded on the runs, with its type
-            failed = {key: {"failed": f"{type(error).__name__}: {error}"} for key in keys if key not in outcome_of}
             for i, key in enumerate(keys):
-                if key in failed:
+                if key not in outcome_of:
                     pending.setdefault(key, []).extend(reducers[i].flush())
-            report(ablate_outcomes=failed)
+                    ended[key] = {"failed": f"{type(error).__name__}: {error}"}
+        report()
 
 
 def run_trials(
@@ -208,7 +217,8 @@ def run_trials(
         checkpoints = _Checkpoints.options(scheduling_strategy=NodeAffinitySchedulingStrategy(here, soft=False)).remote(
             dict(resume or {})
         )
-    bridge = _Bridge(events, checkpoints, {p.key: p.keys for p in plan})
+    writer = _Writer(events)
+    bridge = _Bridge(writer, checkpoints, {p.key: p.keys for p in plan})
     storage = Path(options.storage_path).resolve() if "://" not in options.storage_path else None
     tuner = tune.Tuner(
         tune.with_resources(
@@ -235,11 +245,18 @@ def run_trials(
     try:
         with tune_logs_to(log_path):
             tuner.fit()
+        writer.close()  # every event told before the trials count as ended
     except KeyboardInterrupt:
-        ray.shutdown()  # stops the workers now; the caller marks their runs killed
+        writer.close(drop=True)  # the events not told yet are dropped: the caller marks their runs killed
+        ray.shutdown()  # stops the workers now
         raise
     except Exception as error:  # noqa: BLE001 - Tune's error, whose text is a traceback: told in one line
-        problem = one_line(error, log_path)
+        cause: Exception = error
+        try:
+            writer.close()  # what the trials did before the error is recorded
+        except Exception as failed:  # noqa: BLE001 - a write failed: the store's error is the launch's
+            cause = failed
+        problem = one_line(cause, log_path)
     finally:
         if storage is not None:
             shutil.rmtree(storage / run_name, ignore_errors=True)  # everything is in the tracker by now
@@ -375,12 +392,52 @@ def _host(address: str) -> str:
     return address.removeprefix("ray://").rpartition(":")[0]
 
 
+class _Writer:
+    """``TrialEvents`` told on a thread of their own, in the order they came. Tune holds a population's worker at
+    each report until the driver's callbacks have returned, and telling a report's events is the launch's MLflow
+    writes (a member's run closed with its artifacts: tens of ms, more on a tracking server): told inline they
+    held the workers for ~a quarter of their time (a 200-seed launch, populations of 50). The callback now only
+    queues them. A write that fails stops the thread; the next event queued, or ``close``, raises its error."""
+
+    def __init__(self, events: TrialEvents) -> None:
+        self.events = events
+        self.queue: queue.SimpleQueue[Callable[[], None] | None] = queue.SimpleQueue()
+        self.error: BaseException | None = None
+        self.dropped = False
+        self.thread = threading.Thread(target=self._run, name="ablate-events", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while (event := self.queue.get()) is not None:
+            if self.error is None and not self.dropped:
+                try:
+                    event()
+                except BaseException as error:  # noqa: BLE001 - raised on the driver's thread, by put or close
+                    self.error = error
+
+    def put(self, event: Callable[[], None]) -> None:
+        if self.error is not None:
+            raise self.error
+        self.queue.put(event)
+
+    def close(self, drop: bool = False) -> None:
+        """Wait until the queued events are told (``drop``: only the one being told), then raise a failed write's
+        error. A second Ctrl-C does not cut the wait short: the caller then writes to the same store."""
+        self.dropped = self.dropped or drop
+        self.queue.put(None)
+        while self.thread.is_alive():
+            with contextlib.suppress(KeyboardInterrupt):
+                self.thread.join()
+        if self.error is not None and not drop:
+            raise self.error
+
+
 class _Bridge(tune.Callback):
     """A Tune callback (runs on the driver) that turns Tune's lifecycle of populations into ``TrialEvents``
-    per member. A member's end is told as its report arrives; a population whose process died is retried
-    whole, and its members that had ended already are not told of again."""
+    per member, handed to the ``_Writer``. A member's end is told as its report arrives; a population whose
+    process died is retried whole, and its members that had ended already are not told of again."""
 
-    def __init__(self, events: TrialEvents, checkpoints: Any, members: Mapping[str, list[str]]) -> None:
+    def __init__(self, events: _Writer, checkpoints: Any, members: Mapping[str, list[str]]) -> None:
         self.events = events
         self.checkpoints = checkpoints
         self.members = dict(members)
@@ -396,19 +453,20 @@ class _Bridge(tune.Callback):
 
     def on_trial_start(self, iteration, trials, trial, **info):
         for key in self._running(trial):
-            self.events.started(key)
+            self.events.put(functools.partial(self.events.events.started, key))
 
     def on_trial_result(self, iteration, trials, trial, result, **info):
         # Popped: Tune keeps the last result of every trial in memory and in its experiment state.
+        events = self.events.events
         running = set(self._running(trial))
         for key, points in result.pop("ablate_points", {}).items():
             if points and key in running:
-                self.events.episodes(key, [CurvePoint(*p) for p in points])
+                self.events.put(functools.partial(events.episodes, key, [CurvePoint(*p) for p in points]))
         for key, blob in result.pop("ablate_checkpoint", {}).items():
             if key in running:
                 if self.checkpoints is not None:
                     self.checkpoints.put.remote(key, blob)
-                self.events.checkpoint(key, blob)
+                self.events.put(functools.partial(events.checkpoint, key, blob))
         node = result.get("ablate_node", "")
         population = trial.config["key"]
         for key, outcome in result.pop("ablate_outcomes", {}).items():
@@ -416,24 +474,30 @@ class _Bridge(tune.Callback):
                 continue
             self.ended.add(key)
             if "failed" in outcome:
-                self.events.failed(key, outcome["failed"])
-            elif not outcome["artifacts"]:
-                self.events.finished(key, dict(outcome["summary"]), None, node, population, outcome.get("env"))
+                self.events.put(functools.partial(events.failed, key, outcome["failed"]))
             else:
-                with tempfile.TemporaryDirectory(prefix="ablate-artifacts-") as folder:
-                    _write_folder(outcome["artifacts"], Path(folder))
-                    summary = dict(outcome["summary"])
-                    self.events.finished(key, summary, Path(folder), node, population, outcome.get("env"))
+                self.events.put(functools.partial(_finished, events, key, outcome, node, population))
 
     def on_trial_recover(self, iteration, trials, trial, **info):
         for key in self._running(trial):
-            self.events.restarted(key, _error_text(trial))
+            self.events.put(functools.partial(self.events.events.restarted, key, _error_text(trial)))
 
     def on_trial_error(self, iteration, trials, trial, **info):
         reason = f"trial process died {MAX_PROCESS_FAILURES + 1} times: {_error_text(trial)}"
         for key in self._running(trial):
             self.ended.add(key)
-            self.events.failed(key, reason)
+            self.events.put(functools.partial(self.events.events.failed, key, reason))
+
+
+def _finished(events: TrialEvents, key: str, outcome: Mapping[str, Any], node: str, population: str) -> None:
+    """A member's end told with its files in a folder of their own (the tracker logs the folder)."""
+    summary, env = dict(outcome["summary"]), outcome.get("env")
+    if not outcome["artifacts"]:
+        events.finished(key, summary, None, node, population, env)
+        return
+    with tempfile.TemporaryDirectory(prefix="ablate-artifacts-") as folder:
+        _write_folder(outcome["artifacts"], Path(folder))
+        events.finished(key, summary, Path(folder), node, population, env)
 
 
 def _error_text(trial: Any) -> str:
