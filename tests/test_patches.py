@@ -99,3 +99,34 @@ def test_a_lean_local_ray_starts_without_the_monitor_the_log_monitor_or_the_dash
     for absent in ("monitor", "log_monitor", "dashboard"):
         assert f"'{absent}'" not in kinds, kinds
     assert "'raylet'" in kinds and "'gcs_server'" in kinds, kinds
+
+
+def test_metrics_written_in_bulk_read_back_as_log_batch_leaves_them(tracking_uri):
+    """Two runs given the same values, one through ``log_batch``, one through ``mlflow_insert_metrics``: the same
+    histories and latest values, across two writes (an older value never replaces a newer latest one), with a
+    value given twice, NaN and infinities, and steps out of order."""
+    from mlflow.entities import Metric
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri)
+    experiment = client.create_experiment("bulk")
+    by_batch, in_bulk = (client.create_run(experiment).info.run_id for _ in range(2))
+    other = client.create_run(experiment).info.run_id  # a run of the same write with keys of its own
+    first = [Metric("a", 1.0, 10, 2), Metric("a", 1.0, 10, 2), Metric("a", 3.0, 11, 1), Metric("b", float("nan"), 9, 0)]
+    second = [Metric("a", 0.5, 5, 1), Metric("b", float("inf"), 12, 4), Metric("c", -float("inf"), 13, 0)]
+    store = patches.mlflow_sql_store(client)
+    assert store is not None
+    for values in (first, second):
+        client.log_batch(by_batch, metrics=values)
+        patches.mlflow_insert_metrics(store, {in_bulk: values, other: [Metric("z", 7.0, 1, 1)]})
+
+    def history(run_id):
+        keys = client.get_run(run_id).data.metrics
+        values = {k: client.get_metric_history(run_id, k) for k in keys}
+        return {k: sorted((m.step, m.timestamp, str(m.value)) for m in v) for k, v in values.items()}
+
+    assert client.get_run(in_bulk).data.metrics.keys() == {"a", "b", "c"}
+    assert str(client.get_run(in_bulk).data.metrics) == str(client.get_run(by_batch).data.metrics)
+    assert history(in_bulk) == history(by_batch)
+    assert client.get_run(other).data.metrics == {"z": 7.0}
+    assert patches.mlflow_sql_store(object()) is None  # not a client of an SQL store: the caller logs batches

@@ -11,7 +11,7 @@ so the tracker's process pays nothing for them.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 RAY_TARGETS = (
@@ -23,7 +23,12 @@ RAY_TARGETS = (
 )
 """(module, name) of each private Ray name a patch below replaces or sets."""
 
-MLFLOW_TARGETS = (("mlflow.utils.rest_utils", "http_request"),)
+MLFLOW_TARGETS = (
+    ("mlflow.utils.rest_utils", "http_request"),
+    ("mlflow.store.tracking.sqlalchemy_store", "SqlAlchemyStore"),
+    ("mlflow.store.tracking.dbmodels.models", "SqlMetric"),
+    ("mlflow.store.tracking.dbmodels.models", "SqlLatestMetric"),
+)
 """(module, name) of each private MLflow name a patch below changes."""
 
 
@@ -110,3 +115,92 @@ def mlflow_answers_kept() -> None:
     if "raise_on_status" in names and defaults:
         defaults[names.index("raise_on_status") - (len(names) - len(defaults))] = False
         rest_utils.http_request.__defaults__ = tuple(defaults)
+
+
+def mlflow_sql_store(client: Any) -> Any | None:
+    """The SQL store (SQLite, PostgreSQL, MySQL) an ``MlflowClient`` writes to, for ``mlflow_insert_metrics``;
+    ``None`` for a tracking server or a folder store. The client keeps it as ``_tracking_client.store``."""
+    from mlflow.store.tracking.sqlalchemy_store import SqlAlchemyStore
+
+    store = getattr(getattr(client, "_tracking_client", None), "store", None)
+    return store if isinstance(store, SqlAlchemyStore) else None
+
+
+_IN_CHUNK = 500
+"""Run ids per ``IN (...)`` of a query: under every database's limit of bound values."""
+
+
+def mlflow_insert_metrics(store: Any, metrics: Mapping[str, Sequence[Any]]) -> None:
+    """``metrics`` (``mlflow.entities.Metric``s by run id, of open runs) written into ``store`` in one transaction,
+    as ``log_batch`` leaves them: a history row per value (a value given twice is written once) and each run's
+    latest value per key (highest step, then timestamp, then value). ``log_batch`` builds and checks an ORM object
+    per value (~70 us of CPU each on SQLite, plus ~4 ms a call, one run a call), and the launch's one writer serves
+    every trial: a CartPole trial's curve of ~700 values cost the driver about a third of the trial's training. Here
+    the values of every run go in one INSERT, and the latest values are read once and updated or inserted in bulk,
+    through MLflow's own table models (its store's ``ManagedSessionMaker``, ``SqlMetric``, ``SqlLatestMetric``)."""
+    from sqlalchemy.exc import IntegrityError
+
+    rows: list[dict[str, Any]] = []
+    seen: set[tuple] = set()
+    latest: dict[tuple[str, str], dict[str, Any]] = {}
+    for run_id, values in metrics.items():
+        for metric in values:
+            is_nan, value = store.sanitize_metric_value(metric.value)
+            row = {"run_uuid": run_id, "key": metric.key, "value": value, "timestamp": metric.timestamp,
+                   "step": metric.step, "is_nan": is_nan}  # fmt: skip
+            identity = tuple(row.values())
+            if identity in seen:
+                continue
+            seen.add(identity)
+            rows.append(row)
+            best = latest.get((run_id, metric.key))
+            newest = (row["step"], row["timestamp"], value)
+            if best is None or newest > (best["step"], best["timestamp"], best["value"]):
+                latest[(run_id, metric.key)] = row
+    if not rows:
+        return
+    try:
+        _insert_metric_rows(store, list(metrics), rows, latest)
+    except Exception as error:
+        if not any(isinstance(e, IntegrityError) for e in _causes(error)):
+            raise
+        # A value some earlier write gave already (never in a launch: each point has an episode of its own):
+        # MLflow's own path leaves the store as it was and adds the rest.
+        for run_id, values in metrics.items():
+            for i in range(0, len(values), 1000):  # log_batch's limit of values a call
+                store.log_batch(run_id, metrics=list(values[i : i + 1000]), params=[], tags=[])
+
+
+def _causes(error: BaseException | None) -> Iterator[BaseException]:
+    while error is not None:
+        yield error
+        error = error.__cause__ or error.__context__
+
+
+def _insert_metric_rows(store: Any, run_ids: list[str], rows: list[dict], latest: dict[tuple, dict]) -> None:
+    from mlflow.store.tracking.dbmodels.models import SqlLatestMetric, SqlMetric
+    from sqlalchemy import insert, select, update
+
+    try:
+        transaction = store.ManagedSessionMaker(read_only=False)
+    except TypeError:  # MLflow before read replicas: every session may write
+        transaction = store.ManagedSessionMaker()
+    with transaction as session:
+        # The tables' own INSERT (SQLAlchemy Core), not the models' bulk insert: no ORM bookkeeping per row.
+        session.execute(insert(SqlMetric.__table__), rows)
+        current: dict[tuple[str, str], tuple] = {}
+        for i in range(0, len(run_ids), _IN_CHUNK):
+            columns = (SqlLatestMetric.run_uuid, SqlLatestMetric.key, SqlLatestMetric.step, SqlLatestMetric.timestamp,
+                       SqlLatestMetric.value)  # fmt: skip
+            query = select(*columns).where(SqlLatestMetric.run_uuid.in_(run_ids[i : i + _IN_CHUNK]))
+            current |= {(r[0], r[1]): tuple(r[2:]) for r in session.execute(query)}
+        new = [row for at, row in latest.items() if at not in current]
+        newer = [
+            row
+            for at, row in latest.items()
+            if at in current and (row["step"], row["timestamp"], row["value"]) > current[at]
+        ]
+        if new:
+            session.execute(insert(SqlLatestMetric.__table__), new)
+        if newer:
+            session.execute(update(SqlLatestMetric), newer)  # by primary key: (key, run_uuid) in each row

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 from ablate.launch.secrets import shown
@@ -78,38 +79,43 @@ class RetryingClient:
             return method
 
         def call(*args: Any, **kwargs: Any) -> Any:
-            deadline = None
-            while True:
-                if self._lost:
-                    raise TrackingError(self._lost)
-                try:
-                    return method(*args, **kwargs)
-                except Exception as error:  # noqa: BLE001 - SQLAlchemy's and requests' errors alike
-                    kind, advice = store_fault(error)
-                    if not kind:
-                        raise
-                    if kind not in ("lost", "5xx"):
-                        raise TrackingError(
-                            f"MLflow store {self._shown_uri} refused a write: {advice} ({shown(first_line(error))})"
-                        ) from None
-                    now = time.monotonic()  # read once: the two outcomes below must see the same moment
-                    deadline = deadline or now + STORE_RETRY_S
-                    if now >= deadline and kind == "5xx":  # it answers: the launch can be closed
-                        raise TrackingError(
-                            f"MLflow store {self._shown_uri} answered every try of a write with a server error for "
-                            f"{STORE_RETRY_S:.0f} s ({shown(first_line(error))}); its log says why (an artifact "
-                            "folder it may not write, a full disk, ...): fix it and run the same command again"
-                        ) from None
-                    if now >= deadline:
-                        self._lost = (
-                            f"MLflow store {self._shown_uri} stopped answering ({shown(first_line(error))}); "
-                            f"retried for {STORE_RETRY_S:.0f} s, the launch stops: run the same command again "
-                            "once it is back (trials not recorded run again)"
-                        )
-                        raise TrackingError(self._lost) from None
-                time.sleep(min(2.0, max(0.0, deadline - time.monotonic())))
+            return self.retried(method, *args, **kwargs)
 
         return call
+
+    def retried(self, method: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        """``method(*args, **kwargs)``, a write to this client's store by other means than the client's own
+        methods (``patches.mlflow_insert_metrics``), retried and told as the client's calls are."""
+        deadline = None
+        while True:
+            if self._lost:
+                raise TrackingError(self._lost)
+            try:
+                return method(*args, **kwargs)
+            except Exception as error:  # noqa: BLE001 - SQLAlchemy's and requests' errors alike
+                kind, advice = store_fault(error)
+                if not kind:
+                    raise
+                if kind not in ("lost", "5xx"):
+                    raise TrackingError(
+                        f"MLflow store {self._shown_uri} refused a write: {advice} ({shown(first_line(error))})"
+                    ) from None
+                now = time.monotonic()  # read once: the two outcomes below must see the same moment
+                deadline = deadline or now + STORE_RETRY_S
+                if now >= deadline and kind == "5xx":  # it answers: the launch can be closed
+                    raise TrackingError(
+                        f"MLflow store {self._shown_uri} answered every try of a write with a server error for "
+                        f"{STORE_RETRY_S:.0f} s ({shown(first_line(error))}); its log says why (an artifact "
+                        "folder it may not write, a full disk, ...): fix it and run the same command again"
+                    ) from None
+                if now >= deadline:
+                    self._lost = (
+                        f"MLflow store {self._shown_uri} stopped answering ({shown(first_line(error))}); "
+                        f"retried for {STORE_RETRY_S:.0f} s, the launch stops: run the same command again "
+                        "once it is back (trials not recorded run again)"
+                    )
+                    raise TrackingError(self._lost) from None
+            time.sleep(min(2.0, max(0.0, deadline - time.monotonic())))
 
 
 def fail_fast_writes() -> None:

@@ -29,7 +29,7 @@ from ablate.launch.mlflow_store import (
     Store,
     param_text,
 )
-from ablate.launch.patches import mlflow_answers_kept
+from ablate.launch.patches import mlflow_answers_kept, mlflow_insert_metrics, mlflow_sql_store
 from ablate.launch.secrets import shown as redact
 from ablate.launch.store_writes import RetryingClient, fail_fast_writes
 
@@ -50,8 +50,9 @@ CHECKPOINT_ARTIFACT = "checkpoint.pt"
 """A trial's latest checkpoint blob, kept on its run so a killed launch's next launch resumes from it."""
 _BATCH = 1000  # MLflow's limit of metrics per log_batch call
 FLUSH_EVERY_S = 10.0
-"""Seconds a trial's curve points wait to be written together: one MLflow call costs ~4 ms plus ~50 us per
-value, so a trial that reports every 2 s is written in a fifth of the calls; a trial's end flushes it."""
+"""Seconds curve points wait to be written together: every open trial's in one write (one transaction on an SQL
+store, ``patches.mlflow_insert_metrics``; a ``log_batch`` per run on a server), as one MLflow call costs ~4 ms;
+a trial's end writes its own."""
 
 
 class Tracker(Store):
@@ -59,13 +60,17 @@ class Tracker(Store):
 
     def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
         super().__init__(tracking_uri, experiment_name, write)
+        self._sql = mlflow_sql_store(self.client)
+        """The SQL store the client writes to (``None``: a server): curve points go to it in bulk."""
         self.client = RetryingClient(self.client, self.shown_uri)
         fail_fast_writes()
         mlflow_answers_kept()
         self.open_runs: dict[str, str] = {}
         self.attempts: dict[str, int] = {}
-        self._points: dict[str, tuple[list[Any], float, int]] = {}
-        """Per open trial: its curve points not written yet, when they were last written, its run's start (ms)."""
+        self._points: dict[str, tuple[list[Any], int]] = {}
+        """Per open trial: its curve points not written yet, its run's start (ms)."""
+        self._flushed_at = time.monotonic()
+        """When the open trials' points were last written."""
         self._artifact_uris: dict[str, str] = {}
         """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
         the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
@@ -179,31 +184,43 @@ class Tracker(Store):
         self._artifact_uris[run_id] = run.info.artifact_uri
         self.client.log_batch(run_id, params=[Param(k, param_text(v)) for k, v in params.items()])
         self.open_runs[key] = run_id
-        self._points[key] = ([], time.monotonic(), run.info.start_time)
+        self._points[key] = ([], run.info.start_time)
         return run_id
 
     def log_points(self, key: str, points: Sequence[Any]) -> None:
-        """``POINT_METRICS`` of each curve point (``ablate.launch.curve.CurvePoint``) of an open trial; written
-        ``FLUSH_EVERY_S`` at a time (and when the trial ends), each point timestamped at its own moment in
-        the trial (run start + the point's ``wall_s``) so MLflow's time axes show the curve."""
-        pending, flushed_at, _ = self._points[key]
-        pending.extend(points)
-        if time.monotonic() - flushed_at >= FLUSH_EVERY_S:
-            self._flush_points(key, self.open_runs[key])
+        """``POINT_METRICS`` of each curve point (``ablate.launch.curve.CurvePoint``) of an open trial; every open
+        trial's written together ``FLUSH_EVERY_S`` at a time (and each trial's when it ends), each point timestamped
+        at its own moment in the trial (run start + the point's ``wall_s``) so MLflow's time axes show the curve."""
+        self._points[key][0].extend(points)
+        if time.monotonic() - self._flushed_at >= FLUSH_EVERY_S:
+            self._flush_points(list(self.open_runs))
+            self._flushed_at = time.monotonic()
 
-    def _flush_points(self, key: str, run_id: str) -> None:
-        """Write the pending points, each stamped run start + its ``wall_s``, so MLflow's time axes show when
-        it happened, not when the driver wrote the batch."""
-        pending, _, start_ms = self._points.get(key, ([], 0.0, 0))
-        self._points[key] = ([], time.monotonic(), start_ms)
-        self._log_metrics(
-            run_id,
-            (
-                (metric, getattr(p, attr), p.episode, start_ms + int(1000 * p.wall_s))
-                for p in pending
-                for metric, attr in POINT_METRICS.items()
-            ),
-        )
+    def _flush_points(self, keys: Sequence[str], extra: dict[str, list[Any]] | None = None) -> None:
+        """Write the pending points of the open trials ``keys`` (and ``extra``: more metrics by key) in one write,
+        each point stamped run start + its ``wall_s``, so MLflow's time axes show when it happened, not when the
+        driver wrote the batch."""
+        from mlflow.entities import Metric
+
+        batches: dict[str, list[Any]] = {}
+        for key in keys:
+            pending, start_ms = self._points.get(key, ([], 0))
+            more = (extra or {}).get(key, [])
+            if pending or more:
+                self._points[key] = ([], start_ms)
+                batches[self.open_runs[key]] = [
+                    Metric(metric, float(getattr(p, attr)), start_ms + int(1000 * p.wall_s), int(p.episode))
+                    for p in pending
+                    for metric, attr in POINT_METRICS.items()
+                ] + more
+        if not batches:
+            return
+        if self._sql is not None:
+            self.client.retried(mlflow_insert_metrics, self._sql, batches)
+            return
+        for run_id, metrics in batches.items():
+            for i in range(0, len(metrics), _BATCH):
+                self.client.log_batch(run_id, metrics=metrics[i : i + _BATCH])
 
     def log_checkpoint(self, key: str, blob: bytes) -> None:
         """Keep ``blob`` as the open trial's ``checkpoint.pt`` (replacing the previous one): whatever ends the
@@ -239,14 +256,14 @@ class Tracker(Store):
         it ran against)."""
         from mlflow.entities import Metric, Param, RunTag
 
-        run_id = self._close(key)
         now = int(time.time() * 1000)
-        self.client.log_batch(
-            run_id,
-            metrics=[Metric(k, float(v), now, 0) for k, v in summary.items()],
-            params=[Param(k, param_text(v)) for k, v in (params or {}).items()],
-            tags=[RunTag(k, redact(v)) for k, v in (tags or {}).items()],
-        )
+        run_id = self._close(key, [Metric(k, float(v), now, 0) for k, v in summary.items()])
+        if params or tags:
+            self.client.log_batch(
+                run_id,
+                params=[Param(k, param_text(v)) for k, v in (params or {}).items()],
+                tags=[RunTag(k, redact(v)) for k, v in (tags or {}).items()],
+            )
         if artifacts is not None:
             self._log_artifacts(run_id, artifacts)
         self.client.set_terminated(run_id, "FINISHED")
@@ -260,10 +277,11 @@ class Tracker(Store):
         else:
             get_artifact_repository(uri, tracking_uri=self.uri).log_artifacts(str(folder))
 
-    def _close(self, key: str) -> str:
-        """Write the trial's pending points and forget it as open; its run id."""
+    def _close(self, key: str, last: Sequence[Any] = ()) -> str:
+        """Write the trial's pending points (and ``last``: its summary metrics, in the same write) and forget it as
+        open; its run id."""
+        self._flush_points([key], {key: list(last)})
         run_id = self.open_runs.pop(key)
-        self._flush_points(key, run_id)
         self._points.pop(key, None)
         return run_id
 
@@ -293,9 +311,8 @@ class Tracker(Store):
         """Mark every trial run of ``launch_id`` still RUNNING in the store KILLED; returns their keys. Read
         from the store, not from ``open_runs``: an interrupt can land between MLflow creating a run and this
         object recording it, and such a run must not stay RUNNING."""
-        for key, run_id in list(self.open_runs.items()):  # their curves so far (written every FLUSH_EVERY_S)
-            with contextlib.suppress(Exception):  # marking the runs KILLED matters more than their last points
-                self._flush_points(key, run_id)
+        with contextlib.suppress(Exception):  # marking the runs KILLED matters more than their last points
+            self._flush_points(list(self.open_runs))  # their curves so far (written every FLUSH_EVERY_S)
         self.open_runs.clear()
         self._artifact_uris.clear()
         self._points.clear()
