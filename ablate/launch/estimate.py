@@ -38,10 +38,17 @@ def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], s
 
 def expected_max(samples: Sequence[Sequence[float]]) -> float:
     """The expected longest of independent draws, one from each sample (its values equally likely): what a
-    population of members with these costs holds its slot for."""
+    population of members with these costs holds its slot for. Members with the same settings share a sample:
+    each distinct one counts once, raised to its members (a pending population of 60 seeds, each drawing from
+    900 finished peers, took seconds per estimate counted member by member)."""
+    counts: dict[tuple[float, ...], int] = {}
+    for sample in samples:
+        key = tuple(sorted(sample))
+        counts[key] = counts.get(key, 0) + 1
     total = below = 0.0
-    for x in sorted({v for sample in samples for v in sample}):
-        p = math.prod(sum(v <= x for v in sample) / len(sample) for sample in samples)  # P(every draw <= x)
+    for x in sorted({v for sample in counts for v in sample}):
+        # P(every draw <= x)
+        p = math.prod((bisect.bisect_right(sample, x) / len(sample)) ** n for sample, n in counts.items())
         total, below = total + x * (p - below), p
     return total
 
