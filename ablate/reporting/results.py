@@ -6,7 +6,6 @@ convergence table. Unsolved trials are censored at the budget. The statistics li
 from __future__ import annotations
 
 import json
-import tempfile
 import tomllib
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -25,7 +24,7 @@ from ablate.reporting import settings
 from ablate.reporting.experiment_file import read_from_disk
 from ablate.reporting.networks import layers
 from ablate.reporting.planned import earlier_trials, plan_keys, planned_trials, stage_two
-from ablate.reporting.reader import RunReader, TrackingError
+from ablate.reporting.reader import RunReader, TrackingError, TrialRun
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.reporting.tuning import knobs as tuning_knobs
 
@@ -211,9 +210,9 @@ def _launches(tracker: RunReader) -> list[Any]:
     return tracker.launches()
 
 
-def _generation_summary(tracker: RunReader, launches: list[Any]) -> list[dict[str, Any]]:
-    """Every generation, newest first: its id, when it started, trials in its grid, trials finished."""
-    runs = tracker.trial_runs()
+def _generation_summary(runs: list[TrialRun], launches: list[Any]) -> list[dict[str, Any]]:
+    """Every generation, newest first: its id, when it started, trials in its grid, trials finished; ``runs``:
+    every trial run of the experiment."""
     finished: dict[str, set[str]] = {}
     for run in runs:
         if run.status == "FINISHED":
@@ -268,7 +267,8 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
     launches = _launches(tracker)
     if not launches:
         raise NoResults(f"experiment {name!r} at {tracker.shown_uri} has no launches; run `ablate run` first")
-    generations = _generation_summary(tracker, launches)
+    every_run = tracker.trial_runs()  # read once: a search of thousands of runs takes seconds
+    generations = _generation_summary(every_run, launches)
     if generation is None:
         launch = launches[0]
     else:
@@ -280,10 +280,16 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
                 f"{name!r} matches; valid: {known}"
             )
         launch = next(run for run in launches if run.data.tags.get("ablate.generation") == matching[0]["generation"])
-    return _read_launch(tracker, name, launch, generations)
+    generation_id = launch.data.tags.get("ablate.generation")
+    runs = [run for run in every_run if run.tags.get("ablate.generation") == generation_id]
+    return _read_launch(tracker, name, launch, generations, runs)
 
 
-def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[dict[str, Any]]) -> Ablation:
+def _read_launch(
+    tracker: RunReader, name: str, launch: Any, generations: list[dict[str, Any]], runs: list[TrialRun]
+) -> Ablation:
+    """The launch's grid and documents, and ``runs`` (its generation's trial runs, oldest first) as the trials
+    that answer them."""
     launch_id = launch.info.run_id
     grid = json.loads(tracker.load_text(launch_id, "grid.json"))
     try:
@@ -298,8 +304,6 @@ def _read_launch(tracker: RunReader, name: str, launch: Any, generations: list[d
     edited = read_from_disk(grid, path, experiment_text)  # changed since, in no trial key: read as it is now
     if edited is not None:
         grid, experiment_text = edited
-    generation = launch.data.tags.get("ablate.generation")
-    runs = tracker.trial_runs(generation)
     # The answer for a key: its newest finished run, else its newest run of any status.
     best_run: dict[str, Any] = {}
     for run in runs:
@@ -400,19 +404,19 @@ def _tuning_document(tracker: RunReader, launch_id: str) -> dict[str, Any] | Non
         return None
 
 
+_EPISODE_COLUMNS = ["episode", "episode_return", "wall_s"]
+
+
 def _curve(tracker: RunReader, run: Any, trial: dict[str, Any], grid: dict[str, Any]) -> pd.DataFrame | None:
     """One finished trial's learning curve; None where the store cannot give its episodes.csv (the run's
     artifact folder moved or removed). The exact per-episode table is the run's episodes.csv (MLflow holds
     a bounded curve); the rolling mean is recomputed from the returns with the trial's own window, exactly as
     the trial computed it."""
-    with tempfile.TemporaryDirectory(prefix="ablate-episodes-") as folder:
-        try:
-            table = pd.read_csv(tracker.download(run.run_id, "episodes.csv", folder))
-        except TrackingError:
-            return None
-    returns = dict(zip(table["episode"], table["episode_return"], strict=True))
-    wall = dict(zip(table["episode"], table["wall_s"], strict=True))
-    episodes = sorted(returns)
+    try:
+        table = tracker.read_artifact(run, "episodes.csv", lambda path: pd.read_csv(path, usecols=_EPISODE_COLUMNS))
+    except TrackingError:
+        return None
+    table = table.drop_duplicates("episode", keep="last").sort_values("episode", kind="stable")
     window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
     curve = pd.DataFrame(
         {
@@ -420,9 +424,9 @@ def _curve(tracker: RunReader, run: Any, trial: dict[str, Any], grid: dict[str, 
             "variant": trial["variant"],
             "seed": trial["seed"],
             "solved": run.metrics.get("solved", 0.0) == 1.0,
-            "episode": episodes,
-            "return": [returns[e] for e in episodes],
-            "wall_s": [wall.get(e, np.nan) for e in episodes],
+            "episode": table["episode"].to_numpy(),
+            "return": table["episode_return"].to_numpy(),
+            "wall_s": table["wall_s"].to_numpy(),
         }
     )
     # the clock is logged when an update ends: each episode gets the time of its update's end
