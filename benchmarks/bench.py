@@ -12,7 +12,8 @@ tuned default ablation at 4x its seeds in populations against today's launch), `
 trainer against an earlier commit's, alternating in one run: CartPole populations of 16 of the built-in network
 and of users' networks, a Breakout trial of the built-in and of a user's CNN, one Pong trial per arm; the same
 runs or not), `start` (time to the first trial, cold and warm, and 64 seeds end
-to end against one trial's pace, this checkout against an earlier commit's).
+to end against one trial's pace, this checkout against an earlier commit's), `launch` (1,000 default CartPole
+seeds through `ablate run` against the trainer's own rate on one core, and their report).
 `python benchmarks/bench.py [SECTION ...]`; no argument runs them all.
 """
 
@@ -29,7 +30,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the sections beside this file, also when imported
 
 from bench_estimate import bench_eta, bench_tuning  # noqa: E402
-from bench_launch import bench_ablation, bench_cluster, bench_runner, bench_tracking  # noqa: E402
+from bench_launch import bench_ablation, bench_cluster, bench_launch, bench_runner, bench_tracking  # noqa: E402
 from bench_pong import bench_pong, bench_pong_memory, bench_pong_population, bench_pong_seeds  # noqa: E402
 from bench_population import bench_population, bench_seeds  # noqa: E402
 from bench_results import RESULTS  # noqa: E402
@@ -53,6 +54,7 @@ SECTIONS = {
     "seeds": bench_seeds,
     "trainer": bench_trainer,
     "start": bench_start,
+    "launch": bench_launch,
 }
 
 
@@ -98,6 +100,11 @@ def main() -> int:
         "--trainer-against", default=BEFORE_STACKED, help="trainer: the commit to measure against (a git ref)"
     )
     parser.add_argument("--trainer-pairs", type=int, default=5, help="trainer: alternating pairs of runs per case")
+    parser.add_argument("--launch-seeds", type=int, default=1000, help="launch: seeds of the default trial (<= 1000)")
+    parser.add_argument(
+        "--launch-population", default="64", help="launch: --population values to measure, comma-separated"
+    )
+    parser.add_argument("--launch-repeats", type=int, default=1, help="launch: repeats of each (~5-15 min each)")
     args = parser.parse_args()
     print(f"python {sys.version.split()[0]}, torch {torch.__version__}, {time.strftime('%Y-%m-%d %H:%M')}")
     unknown = [name for name in args.sections if name not in SECTIONS]
@@ -127,6 +134,11 @@ def main() -> int:
                 "seeds": args.population_seeds,
             },
             "trainer": {"against": args.trainer_against, "pairs": args.trainer_pairs},
+            "launch": {
+                "seeds": args.launch_seeds,
+                "populations": tuple(int(m) for m in args.launch_population.split(",")),
+                "repeats": args.launch_repeats,
+            },
             "eta": {
                 "launches": tuple(args.eta_launches.split(",")),
                 **({"experiments": tuple(args.eta_experiments)} if args.eta_experiments else {}),

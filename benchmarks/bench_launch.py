@@ -1,6 +1,8 @@
 """`make bench` sections of a launch's own costs: `runner` (the runner beside the trials), `ablation` (the
 default ablation: speed-up, tracking overhead, memory), `tracking` (the single writer with 256 synthetic
-trials), `cluster` (a tiny ablation on the local default vs a joined head and a tracking server)."""
+trials), `cluster` (a tiny ablation on the local default vs a joined head and a tracking server), `launch`
+(a thousand seeds of the default CartPole trial through `ablate run` against the trainer's own rate, and the
+report of them)."""
 
 from __future__ import annotations
 
@@ -492,3 +494,103 @@ def bench_cluster(repeats: int = 3) -> None:
         f"median {100 * statistics.median(ratios):+.0f}%"
     )
     RESULTS["cluster"] = {"overhead_median": statistics.median(ratios), "overheads": ratios}
+
+
+THOUSAND = """
+name = "bench-thousand"
+seeds = {seeds}
+[base]
+env_id = "CartPole-v1"
+max_episodes = 1000
+[[variants]]
+name = "default"
+"""
+
+
+def _trainer_rate(path: Path, members: int) -> float:
+    """The trainer's own env steps/s on one core (``run_population`` in a process of its own, one torch thread):
+    the launch's first ``members`` trials as one population, no tracking, no files."""
+    code = (
+        "import sys, time; from ablate.agent.trainer import run_population; "
+        "from ablate.experiment import load_experiment; from ablate.launch.grid import expand; "
+        f"configs = [t.config for t in expand(load_experiment({str(path)!r}))[:{members}]]; "
+        "started = time.perf_counter(); outcomes = run_population(configs); "
+        "print(sum(o.env_steps for o in outcomes) / (time.perf_counter() - started))"
+    )
+    done = subprocess.run(["taskset", "-c", "0", sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return float(done.stdout.split()[-1])
+
+
+def _launch_rate(path: Path, folder: Path, population: int) -> tuple[float, float, int, float]:
+    """``ablate run --no-report`` as a user types it, into a fresh store: (wall s from the command's spawn to its
+    exit, Ray's start included; env steps; trials finished; s to write the report of them)."""
+    uri = f"sqlite:///{folder / 'mlflow.db'}"
+    command = [sys.executable, "-m", "ablate.cli", "run", str(path), "--no-report", "--population", str(population)]
+    command += ["--tracking-uri", uri, "--storage-path", str(folder / "ray")]
+    started = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, cwd=folder)
+    wall = time.perf_counter() - started
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    from ablate.reporting.reader import RunReader
+
+    runs = [r for r in RunReader(uri, "bench-thousand").trial_runs() if r.status == "FINISHED"]
+    steps = sum(r.metrics.get("env_steps", 0.0) for r in runs)
+    command = [sys.executable, "-m", "ablate.cli", "report", str(path), "--tracking-uri", uri]
+    started = time.perf_counter()
+    done = subprocess.run([*command, "--out", str(folder / "reports")], capture_output=True, text=True, cwd=folder)
+    report = time.perf_counter() - started
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    return wall, steps, len(runs), report
+
+
+def bench_launch(seeds: int = 1000, populations: tuple[int, ...] = (64,), repeats: int = 1) -> None:
+    """``seeds`` seeds of the default CartPole trial (one variant, 1,000 episodes at most, no tuning) through
+    `ablate run` end to end, Ray's start included, in env steps per second of wall time per core, against the
+    trainer's own rate on one core (``run_population`` of the launch's first members, as large as one of its
+    populations), measured just before and just after each launch in the same run (their mean: a shared
+    machine's load moves both); then `ablate report` of that store. Per ``--population`` in ``populations``."""
+    import shutil
+    import tempfile
+
+    from ablate.launch.plan import population_size
+
+    cores = os.cpu_count() or 1
+    folder = Path(tempfile.mkdtemp(prefix="ablate-bench-launch-"))
+    path = folder / "thousand.toml"
+    path.write_text(THOUSAND.format(seeds=seeds))
+    figures: dict[str, dict[str, list[float]]] = {}
+    try:
+        for repeat in range(repeats):
+            for population in populations:
+                members = population_size(seeds, cores, population)
+                before = _trainer_rate(path, members)
+                store = folder / f"store-{population}-{repeat}"
+                store.mkdir()
+                wall, steps, trials, report = _launch_rate(path, store, population)
+                after = _trainer_rate(path, members)
+                trainer = (before + after) / 2
+                launch = steps / wall / cores
+                shutil.rmtree(store, ignore_errors=True)
+                f = figures.setdefault(str(population), {"ratio": [], "launch": [], "trainer": [], "report_s": []})
+                f["ratio"].append(launch / trainer)
+                f["launch"].append(launch)
+                f["trainer"].append(trainer)
+                f["report_s"].append(report)
+                print(
+                    f"  --population {population} ({members} members), repeat {repeat}: {trials} trials, "
+                    f"{steps / 1e6:.1f}M env steps in {wall:.0f} s: {launch:,.0f} env steps/s per core; the trainer "
+                    f"{trainer:,.0f} on one core ({before:,.0f} before, {after:,.0f} after): {launch / trainer:.2f}x; "
+                    f"ablate report {report:.0f} s",
+                    flush=True,
+                )
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    for population, f in figures.items():
+        print(
+            f"launch: {seeds} default CartPole trials through `ablate run --population {population}`, Ray's start "
+            f"included: {statistics.median(f['launch']):,.0f} env steps/s per core, "
+            f"{statistics.median(f['ratio']):.2f}x the trainer's {statistics.median(f['trainer']):,.0f} on one core "
+            f"(goal >= 0.5x); `ablate report` of them {statistics.median(f['report_s']):.0f} s; medians of {repeats}"
+        )
+    RESULTS["launch"] = {"seeds": seeds, "cores": cores, **figures}

@@ -24,7 +24,7 @@ def bench():
         (
             ["nope"],
             "unknown section 'nope'; valid: core, runner, ablation, tracking, cluster, pong, pong-memory, "
-            "pong-population, pong-seeds, tuning, eta, population, seeds, trainer, start",
+            "pong-population, pong-seeds, tuning, eta, population, seeds, trainer, start, launch",
         ),
         (["ablation", "--ablation-repeats", "0"], "--ablation-repeats must be at least 1, got 0"),
         (["eta", "--eta-launches", "hot"], "--eta-launches: 'hot' is not a launch; valid: cold, warm"),
