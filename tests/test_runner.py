@@ -437,6 +437,24 @@ def test_a_scheduler_crash_records_the_launch_failed_with_the_error(tmp_path, tr
     assert [r.status for r in tracker.trial_runs()] == ["KILLED"]
 
 
+def test_an_error_before_the_recorder_exists_closes_the_launch_failed_with_that_error(
+    tmp_path, tracking_uri, monkeypatch
+):
+    """``watch`` raising before it builds the recorder: the launch still closes, FAILED with the real error (on
+    3e01923 ``close`` read ``self.recorder`` and an ``AttributeError`` replaced it)."""
+    from ablate.launch.runner import run_experiment
+
+    _fake_scheduler(monkeypatch, lambda trials, events: None)
+
+    def earlier_runs(self, keys):
+        raise RuntimeError("the store went away")
+
+    monkeypatch.setattr(Tracker, "earlier_runs", earlier_runs)
+    outcome = run_experiment(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False)
+    assert outcome.error == "RuntimeError: the store went away"
+    assert _launches(Tracker(tracking_uri, "tiny"))[0].info.status == "FAILED"
+
+
 def test_an_interrupt_while_a_run_is_being_opened_leaves_nothing_running(tmp_path, tracking_uri, monkeypatch):
     """Ctrl-C can land after MLflow created a trial's run and before the tracker noted it; and a scheduler
     event can come after the interrupt. Neither may leave a run RUNNING or say "0 marked killed"."""

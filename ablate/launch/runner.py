@@ -221,6 +221,9 @@ class _Launch:
     chosen values, then rounds of seeds (``stages``), each a ``stage`` of populations; the launch closed with
     what happened (``close``), whatever happened."""
 
+    recorder: Recorder | None = None
+    """Set by ``watch``; ``close`` runs whatever step failed before it."""
+
     def __init__(
         self,
         experiment: Experiment,
