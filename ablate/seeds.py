@@ -94,8 +94,8 @@ def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | N
     minutes = value.get("max_minutes")
     if minutes is not None and not (is_number(minutes) and 0 < minutes <= 100_000):
         raise ConfigError(
-            f"{where}.max_minutes = {_shown(minutes)} is invalid; valid: minutes in (0, 100000] after which no new "
-            "round starts (or leave it out: no time budget)"
+            f"{where}.max_minutes = {_shown(minutes)} is invalid; valid: minutes in (0, 100000] by which the rounds "
+            "end: none starts that would end later at the pace measured (or leave it out: no time budget)"
         )
     growth = value.get("growth", 1.0)
     if not (is_number(growth) and 1 <= growth <= 10):

@@ -123,7 +123,7 @@ def test_the_dry_run_prints_the_first_round_and_the_most(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "rounds: 15 of 15 trials" in out  # round 1: 3 variants x 5 seeds, each listed with its key
     assert "round 1 runs 5 seeds per variant" in out and "get 5 more, up to 15 seeds" in out
-    assert "at most 3 rounds and 45 evaluation trials; no new round after 20 minutes" in out
+    assert "at most 3 rounds and 45 evaluation trials; no round that would end after 20 minutes" in out
     assert all(f"-s{seed}-" in out for seed in range(5)) and "-s5-" not in out
     assert not (tmp_path / "mlflow.db").exists()
     # No store: the two figures as a guess in trials (round 1's 15, at most 30 more: ~3x round 1's time).
@@ -475,3 +475,24 @@ def test_a_pocock_boundary_lets_doubling_rounds_stop_early_and_is_recorded_for_t
     assert pocock[0] > 1e-4 and fleming[2] < 1e-10  # 10 seeds of 640 can decide under Pocock's, 40 not under OBF's
     with pytest.raises(ConfigError, match="spending = 'even' is invalid"):
         _experiment(tmp_path, 'name = "rounds"\nseeds = { start = 5, max = 10, spending = "even" }\n' + VARIANTS)
+
+
+@pytest.mark.parametrize("judged_at, runs", [(25.0, True), (40.0, False)])
+def test_a_round_that_would_end_after_the_time_budget_at_the_last_rounds_pace_does_not_start(
+    tmp_path, judged_at, runs
+):
+    from ablate.launch.rounds import TIME_BUDGET, Rounds
+
+    experiment = _experiment(tmp_path, ROUNDS.replace("max = 15 }", "max = 15, max_minutes = 1 }"))
+    now = [10.0]
+    answers = [_Judgment(1, 10, ["baseline", "null"]), _Judgment(0, 5, ["baseline", "null"])]
+    rounds = Rounds(experiment, ["baseline", "fast", "null"], lambda samples: answers.pop(), 0.0, lambda: now[0])
+    finished = {t.key: {"auc": 1.0} for t in expand(experiment)}
+    round_2 = rounds.next_round({}, finished)  # no pace yet: 10 s into a 60 s budget, it runs
+    assert len(round_2) == 10
+    now[0] = judged_at  # round 2's 10 trials took 15 s (1.5 s each) or 30 s (3 s each)
+    round_3 = rounds.next_round({}, finished | {t.key: {"auc": 1.0} for t in round_2})
+    # round 3's 10 trials at that pace: ending at 40 s (within the 60) or at 70 s (after it)
+    assert (len(round_3) == 10) is runs and rounds.projected_s == (40.0 if runs else 70.0)
+    assert rounds.stopped == ("" if runs else TIME_BUDGET)
+    assert rounds.document()["projected_s"] == rounds.projected_s

@@ -1,6 +1,7 @@
 """Seeds added in rounds (``seeds = { start, step, max }``): after each round the primary comparisons are judged
 on the finished trials, and the variants whose comparison is still open (and their references) get ``step``
-more evaluation seeds, until every comparison is decided, ``max`` is reached or the time budget ends.
+more evaluation seeds, until every comparison is decided, ``max`` is reached or the next round would end after
+the time budget (``max_minutes``, at the pace of the rounds so far).
 
 The judge is passed in by the layer above (``ablate.reporting.rounds.judge_for``: the report's own sequential
 rule), so this layer never imports the report's. Pure: no Ray, no MLflow, no file.
@@ -83,6 +84,8 @@ class Rounds:
         """Each variant's finished primary seeds when last judged."""
         self.judged_s = 0.0
         """Seconds from the launch's start to the last judgment (the end of the rounds, once they stop)."""
+        self.projected_s: float | None = None
+        """When the last round considered would have ended, at the last round's pace (``past_budget``)."""
 
     @property
     def round(self) -> int:
@@ -148,6 +151,9 @@ class Rounds:
         if self.attempted & {t.key for t in todo}:  # a round's trial failed: running it again would loop
             self.stopped = FAILED
             return []
+        if self.past_budget(len(todo)):
+            self.stopped = TIME_BUDGET
+            return []
         self.attempted |= {t.key for t in todo}
         number = looks.index(target) + 1 if target in looks else self.round + 1
         self.ran.append(
@@ -161,6 +167,18 @@ class Rounds:
             }
         )
         return todo
+
+    def past_budget(self, trials: int) -> bool:
+        """Whether a round of ``trials`` would end after ``max_minutes`` at the pace of the last round this launch
+        ran (its trials over the seconds from its start to this judgment): a round that doubles the seeds late
+        in the budget would otherwise overrun it by as much again. Round 2 has no pace yet: only the budget's
+        own end stops it."""
+        if self.design.max_minutes is None or not self.ran:
+            return False
+        last = self.ran[-1]
+        pace = (self.judged_s - last["started_s"]) / max(last["trials"], 1)
+        self.projected_s = round(self.judged_s + pace * trials, 1)
+        return self.projected_s > 60 * self.design.max_minutes
 
     def possible(self, choices: Mapping[str, Choice], known: Collection[str]) -> list[list[GridTrial]]:
         """The trials later rounds may still add, round by round: those of every variant this launch may run
@@ -236,6 +254,7 @@ class Rounds:
             "round": self.round,
             "rounds_run": self.ran,
             "elapsed_s": self.judged_s,
+            "projected_s": self.projected_s,
             "stopped": self.stopped,
             "variants": variants,
         }
@@ -248,7 +267,7 @@ def dry_run_lines(experiment: Experiment, trials: Sequence[GridTrial]) -> list[s
         return []
     wanted = {t.variant for t in trials}
     most = sum(len(experiment.max_seeds_of(v)) for v in experiment.variants if v.name in wanted)
-    budget = f"; no new round after {design.max_minutes:g} minutes" if design.max_minutes else ""
+    budget = f"; no round that would end after {design.max_minutes:g} minutes" if design.max_minutes else ""
     return [
         f"seeds in rounds: round 1 runs {design.start} seeds per variant (the trials below); after each round, the "
         f"variants whose primary comparison is still open (and their references) get "

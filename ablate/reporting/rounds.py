@@ -110,7 +110,11 @@ def rounds_section(document: Mapping[str, Any] | None) -> list[Any]:
     if not document:
         return []
     design = document["design"]
-    budget = f", no new round after {design['max_minutes']:g} minutes" if design.get("max_minutes") else ""
+    budget = (
+        f", no round that would end after {design['max_minutes']:g} minutes at the pace measured"
+        if design.get("max_minutes")
+        else ""
+    )
     intro = (
         f"Seeds were added in rounds: {design['start']} per variant first, then "
         f"{added_words(design['step'], design.get('growth') or 1.0)} per round to "
