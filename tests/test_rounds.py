@@ -478,9 +478,7 @@ def test_a_pocock_boundary_lets_doubling_rounds_stop_early_and_is_recorded_for_t
 
 
 @pytest.mark.parametrize("judged_at, runs", [(25.0, True), (40.0, False)])
-def test_a_round_that_would_end_after_the_time_budget_at_the_last_rounds_pace_does_not_start(
-    tmp_path, judged_at, runs
-):
+def test_a_round_that_would_end_after_the_time_budget_at_the_last_rounds_pace_does_not_start(tmp_path, judged_at, runs):
     from ablate.launch.rounds import TIME_BUDGET, Rounds
 
     experiment = _experiment(tmp_path, ROUNDS.replace("max = 15 }", "max = 15, max_minutes = 1 }"))
