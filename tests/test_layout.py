@@ -259,13 +259,34 @@ def test_the_question_without_a_solve_threshold_asks_how_fast_it_learns():
 
     pong = SimpleNamespace(
         variants=["cnn", "mlp"], baseline="cnn", any_solved=False, threshold=None, env_id="ALE/Pong-v5",
-        grid={"description": "CNN vs MLP."}, reference=lambda v: "cnn",
+        grid={"description": "CNN vs MLP."}, reference=lambda v: "cnn", primary_metric="auc",
     )  # fmt: skip
     text = question(pong)
     assert "how fast REINFORCE learns on `ALE/Pong-v5`?" in text and "learns to learn" not in text
-    assert "first on the area under the learning curve" in text
-    cartpole = SimpleNamespace(**{**vars(pong), "threshold": 475.0, "any_solved": True, "env_id": "CartPole-v1"})
-    assert "learns to reach a rolling mean return of 475 on `CartPole-v1`?" in question(cartpole)
+    assert "first on the area under the learning curve." in text
+    cartpole = SimpleNamespace(
+        **{**vars(pong), "threshold": 475.0, "any_solved": True, "env_id": "CartPole-v1"}
+        | {"primary_metric": "episodes_to_solve"}
+    )
+    text = question(cartpole)
+    assert "learns to reach a rolling mean return of 475 on `CartPole-v1`?" in text
+    assert "first on episodes to solve (a comparison with more than 25% of its seeds unsolved" in text
+
+
+def test_the_question_names_the_metric_the_claims_are_on_even_where_no_seed_solved():
+    """Acrobot's claims were on episodes to solve (its file's primary, a threshold exists) while no seed had
+    solved yet, and the Question said "first on the area under the learning curve" (3e01923)."""
+    from types import SimpleNamespace
+
+    from ablate.reporting.layout import question
+
+    acrobot = SimpleNamespace(
+        variants=["base", "wide"], baseline="base", any_solved=False, threshold=-100.0, env_id="Acrobot-v1",
+        grid={}, reference=lambda v: "base", primary_metric="episodes_to_solve",
+    )  # fmt: skip
+    assert "first on episodes to solve" in question(acrobot)
+    returns = SimpleNamespace(**{**vars(acrobot), "primary_metric": "return_at_500"})
+    assert "first on return after 500 episodes." in question(returns)
 
 
 def test_a_knob_written_at_the_bases_value_is_no_change(tmp_path):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ablate.claims.family import CENSORED_SHARE
 from ablate.launch.secrets import shown_command
 from ablate.reporting.blocks import (
     AppendixStart,
@@ -72,7 +73,17 @@ def body_figures(figures: list[Figure]) -> list[Figure]:
 
 def question(ablation: Ablation) -> str:
     others = [v for v in ablation.variants if v != ablation.baseline]
-    primary = "episodes to solve" if ablation.any_solved else "the area under the learning curve"
+    # The claims' own metric (``Ablation.primary_metric``), and their rule for censored comparisons.
+    primary = (
+        "the area under the learning curve"
+        if ablation.primary_metric == "auc"
+        else _metric_name(ablation.primary_metric)
+    )
+    if ablation.primary_metric.startswith("episodes_to_"):
+        primary += (
+            f" (a comparison with more than {CENSORED_SHARE:.0%} of its seeds unsolved at its first look: on the "
+            "area under the learning curve)"
+        )
     learns = (
         f"learns to reach a rolling mean return of {ablation.threshold:g}"
         if ablation.threshold is not None
