@@ -322,6 +322,26 @@ def test_a_knob_written_at_the_bases_value_is_no_change(tmp_path):
     assert ablation.changes("tanh") == {"activation": "tanh"} and ablation.changes("same") == {}
 
 
+def test_a_users_network_with_its_arguments_is_one_change():
+    """A user's network with ``model_args`` was "mynet changes 2 knobs at once (model and model args)" (3e01923);
+    the arguments alone, on the same network, are still a change of their own."""
+    from ablate.reporting.results import Ablation
+    from ablate.reporting.sections import changed_settings, comparison_intro
+
+    grid = {
+        "baseline": "baseline",
+        "base": {"model.hidden_sizes": [32]},
+        "variants": [
+            {"name": "baseline", "overrides": {}},
+            {"name": "mynet", "overrides": {"model": "mynet:make", "model_args": {"blocks": 2}}},
+            {"name": "mynet4", "overrides": {"model": "mynet:make", "model_args": {"blocks": 4}}},
+        ],
+    }
+    ablation = Ablation("mine", grid, {}, pd.DataFrame(), pd.DataFrame())
+    assert changed_settings(ablation, "mynet") == ["model"] and comparison_intro(ablation) == []
+    assert ablation.changes("mynet4", "mynet") == {"model_args": {"blocks": 4}}
+
+
 def test_a_report_without_videos_promises_none_and_says_one_word_per_verdict(stores, tmp_path):
     # The limitations said "Videos show one greedy episode..." where the appendix said "No videos were
     # recorded"; the references named the exploratory "too few seeds" rule "too few seeds to tell".

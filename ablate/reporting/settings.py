@@ -48,15 +48,21 @@ def setting(grid: dict[str, Any], variant: str, knob: str) -> Any:
     return base_value(grid, knob)
 
 
+PART_OF = {"model_args": "model"}
+"""Knobs that are part of another: a user's network and the arguments of its factory are one change."""
+
+
 def changes(grid: dict[str, Any], variant: str, against: str) -> dict[str, Any]:
     """The knobs ``variant`` runs at another value than ``against`` does, with ``variant``'s values, in knob
-    order. Only knobs one of them writes can differ: the others are the base's for both."""
+    order. Only knobs one of them writes can differ: the others are the base's for both. A knob ``PART_OF``
+    another that changes too is not a change of its own."""
     written = set(overrides(grid, variant)) | set(overrides(grid, against))
-    return {
+    changed = {
         knob: setting(grid, variant, knob)
         for knob in sorted(written)
         if setting(grid, variant, knob) != setting(grid, against, knob)
     }
+    return {knob: value for knob, value in changed.items() if PART_OF.get(knob) not in changed}
 
 
 def own_changes(grid: dict[str, Any], variant: str) -> dict[str, Any]:
