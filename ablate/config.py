@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ablate import schema, sources
+from ablate.env_spec import is_pong
 from ablate.schema import Knob, boolean, derived, integer, is_int, is_number, knob, number, one_of
 
 __all__ = ["Knob", "is_int", "is_number"]  # re-exported: older callers import them from here
@@ -344,6 +345,11 @@ def apply_knobs(
         model_updates["hidden_sizes"] = (width,) * depth
     model = replace(base.model, **model_updates)
     config = replace(base, model=model, **trial_updates)
+    if config.action_set != "all" and not is_pong(config.env_id):  # honoured by Pong's env alone (envs.PongActions)
+        raise ConfigError(
+            f"{where}action_set = {config.action_set!r} is invalid for env_id = {config.env_id!r}; valid: only on "
+            "Pong (ALE/Pong-*), whose UP/DOWN set it picks: leave it out for other envs, which act on all their actions"
+        )
     # Judged for every cnn, not by the env's name: the window's knobs are unused over an image, whose default pass.
     if model.architecture == "cnn" and model.kernel_size > model.history:
         raise ConfigError(

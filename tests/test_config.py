@@ -105,6 +105,10 @@ BAD_FILES = [
         "base.env_id = 'Break out' is invalid; valid: a registered Gymnasium id",
     ),
     ("seeds = 2\n", "the grid is empty"),
+    (  # Breakout's env acts on its own actions: the knob was silently ignored (3e01923)
+        "[base]\nenv_id = 'ALE/Breakout-v5'\n[[variants]]\nname='a'\naction_set = 'move'\n",
+        "variants[0].action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5'; valid: only on Pong",
+    ),
     ("[grid]\ndropout = []\n", "grid.dropout = [] is invalid; valid: a non-empty list"),
     (
         "[[variants]]\nname='a'\ngamma = 1.2\n",
