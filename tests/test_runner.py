@@ -127,6 +127,18 @@ def test_rerun_after_adding_a_variant_runs_only_the_new_trials(run_quiet, tmp_pa
     assert len(runs) == 6 and len({r.key for r in runs}) == 6
 
 
+def test_the_progress_line_and_the_summary_count_the_same_trials_finished_before(tmp_path, tiny_store, monkeypatch):
+    """The store holds seeds this launch does not run (2 of each variant, the launch asks for 1): the progress line
+    said "4 finished before" beside the summary's "2 finished before" (3e01923). Both count this launch's own."""
+    from ablate.launch.runner import run_experiment
+
+    tracking_uri, _, _ = tiny_store
+    _fake_scheduler(monkeypatch, lambda trials, events: None)
+    fewer = TINY.replace("seeds = 2", "seeds = 1") + '[[variants]]\nname = "wide"\nhidden_sizes = [64]\n'
+    outcome = run_experiment(_experiment(tmp_path, fewer), tracking_uri=tracking_uri, show_progress=False)
+    assert outcome.skipped == 2 and outcome.view.state.already_done == 2
+
+
 FAULTS = """
 name = "faults"
 seeds = [0]

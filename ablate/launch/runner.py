@@ -352,7 +352,7 @@ class _Launch:
         self.known_keys = {t.key for t in self.known}  # what stage 2 adds is what is not among them
         stand_ins = self.provisional({}) if self.unchosen else []
         self.state = LaunchState(
-            experiment.name, todo, len(self.finished_before), slots, options.started_at, prior, prior_episodes,
+            experiment.name, todo, self.outcome.skipped, slots, options.started_at, prior, prior_episodes,
             self.groups(todo), stand_ins, self.groups(stand_ins), stage_coming=bool(self.unchosen),
             later_most=self.most(todo)[0],
         )  # fmt: skip
@@ -446,6 +446,7 @@ class _Launch:
         todo = [t for t in trials if t.key not in self.finished_before]
         self.outcome.total += len(trials)
         self.outcome.skipped += len(trials) - len(todo)
+        self.state.already_done = self.outcome.skipped  # the summary's count: this launch's trials run before
         costs, episodes = self.tracker.earlier_runs(t.key for t in todo)  # earlier launches' runs of them
         todo = schedule_order(todo, costs)
         self.state.add_trials(todo, costs, episodes, self.groups(todo))
