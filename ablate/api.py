@@ -261,23 +261,28 @@ class Results:
     def baseline(self) -> str:
         return self.ablation.baseline
 
+    def _meeting(self, table: pd.DataFrame, settings: bool = False) -> pd.DataFrame:
+        from ablate.reporting.tables import meeting
+
+        return meeting(table, self.ablation, settings)
+
     @cached_property
     def trials(self) -> pd.DataFrame:
         from ablate.reporting.tables import trials_table
 
-        return trials_table(self.ablation)
+        return self._meeting(trials_table(self.ablation))
 
     @cached_property
     def curves(self) -> pd.DataFrame:
         from ablate.reporting.tables import curves_table
 
-        return curves_table(self.ablation)
+        return self._meeting(curves_table(self.ablation), settings=True)
 
     @cached_property
     def convergence(self) -> pd.DataFrame:
         from ablate.reporting.tables import convergence_long
 
-        return convergence_long(self._convergence_by_variant)
+        return self._meeting(convergence_long(self._convergence_by_variant))
 
     @cached_property
     def _convergence_by_variant(self) -> pd.DataFrame:
@@ -293,21 +298,29 @@ class Results:
 
         trials = self.ablation.tuning_trials
         if self.ablation.tuning and trials is not None:
-            return trials
-        return tuning_table([], self.ablation.tuning or {}, self.variants)
+            return self._meeting(trials)
+        return self._meeting(tuning_table([], self.ablation.tuning or {}, self.variants))
+
+    @property
+    def claims(self) -> pd.DataFrame:
+        return self._meeting(self._claims)
 
     @cached_property
-    def claims(self) -> pd.DataFrame:
+    def _claims(self) -> pd.DataFrame:
         from ablate.reporting.comparisons import claims_table
         from ablate.reporting.tables import side_settings
 
         return side_settings(claims_table(self.ablation), self.ablation)
 
-    @cached_property
+    @property
     def comparisons(self) -> pd.DataFrame:
+        return self._meeting(self._comparisons)
+
+    @cached_property
+    def _comparisons(self) -> pd.DataFrame:
         from ablate.reporting.comparisons import comparisons
 
-        return comparisons(self.ablation, claims=self.claims)
+        return comparisons(self.ablation, claims=self._claims)
 
     def figure(self, name: str = "curves") -> MplFigure:
         """One of the report's figures as a matplotlib figure (a notebook shows it inline): ``curves``
@@ -318,7 +331,7 @@ class Results:
         draw = {
             "curves": lambda folder: figures.figure_overview(self.ablation, folder),
             "per_seed": lambda folder: figures.figure_per_seed(self.ablation, folder),
-            "improvement": lambda folder: figures.figure_improvement(self.ablation, self.comparisons, folder),
+            "improvement": lambda folder: figures.figure_improvement(self.ablation, self._comparisons, folder),
             "parameters": lambda folder: figures.figure_parameters(self.ablation, self._convergence_by_variant, folder),
             "wallclock": lambda folder: figures.figure_wallclock(self.ablation, folder),
         }

@@ -117,6 +117,8 @@ def test_load_returns_the_tables_ablate_report_writes(notebook_run, tmp_path):
         written = pd.read_csv(tmp_path / "quickstart" / "tables" / f"{name}.csv")
         if name == "convergence":  # the file keeps one row per variant; the frame is its long form
             written = pd.read_csv(io.StringIO(convergence_long(written).to_csv(index=False)))
+            written.insert(0, "env_id", "CartPole-v1")
+            written.insert(0, "ablation", "quickstart")
         through_csv = pd.read_csv(io.StringIO(frame.to_csv(index=False)))  # the same text round trip
         pd.testing.assert_frame_equal(through_csv, written, check_exact=False, rtol=1e-12)
     assert (
@@ -138,3 +140,27 @@ def test_load_and_report_read_mlflow_tracking_uri_as_the_cli_does(tmp_path, monk
         with pytest.raises(Exception) as error:
             call()
         assert str(store) in str(error.value), error.value  # the environment's store, not ./mlflow.db
+
+
+def test_the_tables_of_two_ablations_with_other_envs_and_budgets_concatenate_into_the_same_columns(tmp_path):
+    """An Acrobot-like and a CartPole ablation (other env, other budget): no table had the ablation or its env,
+    ``trials`` had ``return_at_<E>`` columns per budget and ``curves`` no settings (3e01923)."""
+    from test_report import make_store, rising
+
+    variants = {
+        "base": {"curve": rising(5, 30, 40)},
+        "wide": {"curve": rising(5, 40, 40), "hidden": [64], "overrides": {"hidden_sizes": [64]}},
+    }
+    cartpole = make_store(tmp_path, "cart", variants, budget=40)
+    acrobot = make_store(tmp_path, "acro", variants, budget=60, env_id="Acrobot-v1", threshold=None)
+    one, two = (ablate.load(name, tracking_uri=uri) for name, uri in (("cart", cartpole), ("acro", acrobot)))
+    for table in ("trials", "curves", "convergence", "claims", "comparisons", "tuning"):
+        a, b = getattr(one, table), getattr(two, table)
+        assert list(a.columns) == list(b.columns), table
+        assert list(a.columns[:2]) == ["ablation", "env_id"], table
+        if len(a):
+            assert set(a.env_id) == {"CartPole-v1"} and set(b.ablation) == {"acro"}, table
+    assert {"return_at_quarter", "return_at_half", "return_at_budget"} <= set(one.trials.columns)
+    assert not [c for c in one.trials.columns if c.startswith("return_at_") and c[10:].isdigit()]
+    curves = pd.concat([one.curves, two.curves])
+    assert {"learning_rate", "hidden_sizes"} <= set(curves.columns) and curves.learning_rate.notna().all()

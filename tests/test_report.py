@@ -697,7 +697,7 @@ def test_an_untuned_experiments_tuning_table_is_empty_with_its_columns(tmp_path)
 
     uri = make_store(tmp_path, "plain", {"a": {"curve": rising(5, 30)}, "b": {"curve": rising(5, 10)}})
     tuning = ablate.load("plain", tracking_uri=uri).tuning
-    assert len(tuning) == 0 and list(tuning.columns) == ["variant", "seed", "auc", "status"]
+    assert len(tuning) == 0 and list(tuning.columns) == ["ablation", "env_id", "variant", "seed", "auc", "status"]
 
 
 def test_a_file_edited_in_nothing_a_trial_ran_is_read_as_it_is_now(built_report, tmp_path):

@@ -140,7 +140,14 @@ def test_an_unsolved_variant_keeps_its_row_and_an_empty_table_its_columns(claime
     alone = ablate.load("claimed", tracking_uri=uri, variants=["base"])  # nothing to compare
     assert alone.claims.empty and list(alone.claims.columns) == list(results.claims.columns)
     assert alone.comparisons.empty and list(alone.comparisons.columns) == list(results.comparisons.columns)
-    assert alone.tuning.empty and list(alone.tuning.columns) == ["variant", "seed", "auc", "status"]
+    assert alone.tuning.empty and list(alone.tuning.columns) == [
+        "ablation",
+        "env_id",
+        "variant",
+        "seed",
+        "auc",
+        "status",
+    ]
 
 
 def test_a_claim_marks_the_censored_side_as_the_bound():

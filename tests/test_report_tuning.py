@@ -133,7 +133,10 @@ def test_the_tuned_report(tuned, tmp_path, monkeypatch):
     assert figure and f"*Figure {figure.group(1)}. Sensitivity to learning rate" in text
     assert (folder / "figures" / "tuning_sensitivity.png").stat().st_size > 5000
     table = pd.read_csv(folder / "tables" / "tuning.csv")
-    assert list(table.columns) == ["variant", "seed", "learning_rate", "auc", "status"] and len(table) == 12
+    assert (
+        list(table.columns) == ["ablation", "env_id", "variant", "seed", "learning_rate", "auc", "status"]
+        and len(table) == 12
+    )
     assert set(pd.read_csv(folder / "tables" / "trials.csv").seed) == set(EVAL_SEEDS)
     depends = text.split("Does the finding depend on the learning rate? (generated)")[1].split("\n### ")[0]
     assert "deep vs baseline on area under the curve (AUC) (flips)" in depends

@@ -40,6 +40,7 @@ from ablate.reporting.layout import build_document, order_figures
 from ablate.reporting.provenance import _generation_note, changed_file_note, missing_artifacts_line
 from ablate.reporting.reader import RunReader
 from ablate.reporting.results import Ablation, NoResults, load_ablation, select
+from ablate.reporting.tables import meeting
 from ablate.reporting.text import fmt
 from ablate.reporting.typeset import compile_pdf as print_pdf
 from ablate.reporting.typeset import page_counts, typst
@@ -269,12 +270,13 @@ def _build(
     for sub in ("figures", "tables", "videos"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     data = report_data(ablation, command)  # every table the report writes and words, computed once
-    data.convergence.to_csv(folder / "tables" / "convergence.csv", index=False)
-    data.claims.to_csv(folder / "tables" / "claims.csv", index=False)
-    data.comparisons.to_csv(folder / "tables" / "comparisons.csv", index=False)
-    data.trials.to_csv(folder / "tables" / "trials.csv", index=False)
+    data.convergence.to_csv(folder / "tables" / "convergence.csv", index=False)  # one row per variant, budgets named
+    # The tables ``ablate.load`` returns, as it returns them (``tables.meeting``: two ablations' tables concatenate).
+    meeting(data.claims, ablation).to_csv(folder / "tables" / "claims.csv", index=False)
+    meeting(data.comparisons, ablation).to_csv(folder / "tables" / "comparisons.csv", index=False)
+    meeting(data.trials, ablation).to_csv(folder / "tables" / "trials.csv", index=False)
     if data.tuning is not None:
-        data.tuning.to_csv(folder / "tables" / "tuning.csv", index=False)
+        meeting(data.tuning, ablation).to_csv(folder / "tables" / "tuning.csv", index=False)
     table, compare = data.convergence, data.comparisons
     figures_folder = folder / "figures"
     candidates = [

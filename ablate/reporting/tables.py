@@ -226,3 +226,28 @@ def curves_table(ablation: Ablation) -> pd.DataFrame:
         if len(extra):
             curves = pd.concat([curves, extra.assign(stage=BASE)[curves.columns]], ignore_index=True)
     return curves
+
+
+BUDGET_FRACTIONS = ("quarter", "half", "budget")
+"""``return_at_<E>`` of the trials' table, by its share of the trial's budget (``results.fixed_budgets``)."""
+
+
+def meeting(table: pd.DataFrame, ablation: Ablation, settings: bool = False) -> pd.DataFrame:
+    """``table`` as ``ablate.load`` returns it, so that the tables of two ablations meet (``pd.concat``): the
+    ablation's name and ``env_id`` first; no column named by a budget or an env's return level
+    (``return_at_750`` is ``return_at_half``; a level's episodes are in ``convergence``'s ``return_level`` rows);
+    ``settings``: each row's settings (``settings_of``) after its key columns, as ``trials`` has them."""
+    out = table.copy()
+    budgets = ablation.budgets
+    names = dict(zip((f"return_at_{b}" for b in budgets), BUDGET_FRACTIONS[-len(budgets) :], strict=True))
+    out = out.rename(columns={c: f"return_at_{names[c]}" for c in out.columns if c in names})
+    levels = tuple(f"{prefix}{level:g}" for level in ablation.levels for prefix in ("episodes_to_", "reached_"))
+    out = out.drop(columns=[c for c in out.columns if c in levels or (c.startswith("return_at_") and c[10:].isdigit())])
+    if settings and "variant" in out and len(out):
+        extra = settings_of(ablation, out)
+        after = list(out.columns).index("stage") + 1 if "stage" in out else min(3, len(out.columns))
+        for position, column in enumerate(c for c in extra.columns if c not in out):
+            out.insert(after + position, column, extra[column])
+    out.insert(0, "env_id", ablation.env_id)
+    out.insert(0, "ablation", ablation.name)
+    return out
