@@ -128,6 +128,24 @@ def test_leave_one_seed_out_marks_a_claim_that_rests_on_some_seeds():
     assert "Fragile" not in _findings_text(four) and "were not checked that way" in _findings_text(four)
 
 
+def test_leave_one_seed_out_is_not_made_past_fifty_seeds_a_side_and_the_report_says_why():
+    """640 seeds a side cost a bootstrap per seed, per metric: a 2,642-trial report spent minutes there."""
+    from ablate.reporting.comparisons import LOO_MAX_SEEDS
+
+    n = LOO_MAX_SEEDS + 1
+    rng = np.random.default_rng(0)
+    values = {"a": rng.normal(10, 1, n), "b": rng.normal(20, 1, n)}
+    many = _frame({"a": [10] * n, "b": [10] * n}, budget=100, metric_values=values)
+    comparison = compare_metric(many, "b", "auc")
+    assert comparison.verdict == "exploratory: better" and not comparison.loo_checked
+    text = _findings_text(many)
+    assert f"more than {LOO_MAX_SEEDS} seeds, one seed is under 2%" in text and "were not checked that way" not in text
+    fifty = _frame(
+        {"a": [10] * (n - 1), "b": [10] * (n - 1)}, budget=100, metric_values={k: v[:-1] for k, v in values.items()}
+    )
+    assert compare_metric(fifty, "b", "auc").loo_checked
+
+
 def test_one_seed_gives_no_interval_and_no_crash():
     ablation = _frame({"a": [10], "b": [None]}, budget=100)
     table = convergence_table(ablation)

@@ -9,7 +9,7 @@ import pandas as pd
 from ablate.claims import BETTER, EQUIVALENT, WORSE, Question, advice, family_sentence
 from ablate.claims.family import CENSORED_SHARE
 from ablate.reporting.blocks import Block, Item, Items, Paragraph, Table
-from ablate.reporting.comparisons import claims_design, claims_table, primary_question
+from ablate.reporting.comparisons import LOO_MAX_SEEDS, claims_design, claims_table, primary_question
 from ablate.reporting.results import Ablation
 from ablate.reporting.rounds import seconds_per_trial
 from ablate.reporting.sections import _episodes_cell, _extends, _stat_cell
@@ -215,10 +215,17 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
                 "Each claim was recomputed without each seed in turn: it holds leaving out any one seed unless "
                 "marked **fragile**."
             )
-        if len(checked) < len(claims):
+        unchecked = claims[~claims.index.isin(checked.index)]
+        many = unchecked[unchecked[["n_variant", "n_reference"]].max(axis=1) > LOO_MAX_SEEDS]
+        if len(many) < len(unchecked):
             notes.append(
                 "Leaving out one of so few seeds leaves too few for any claim, so the claims of a variant with 4 "
                 "seeds or fewer were not checked that way."
+            )
+        if len(many):
+            notes.append(
+                f"Where a side has more than {LOO_MAX_SEEDS} seeds, one seed is under 2% of its sample and the "
+                "check is not made."
             )
         blocks.append(Paragraph(" ".join(notes)))
     items: list[Item] = []
