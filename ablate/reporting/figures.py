@@ -96,8 +96,10 @@ def episode_grid(ablation: Ablation) -> np.ndarray:
 def variant_band(ablation: Ablation, variant: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """``variant``'s learning curve at ``episode_grid``: the IQM over seeds and its 95% band (``curve_band``), as
     Figure "each variant against its reference" draws it and its MLflow run holds it; None without curves."""
-    curves = ablation.curves[ablation.curves.variant == variant]
-    return curve_band(curves, "episode", episode_grid(ablation)) if len(curves) else None
+    if variant not in ablation.bands:  # drawn in two figures and logged on the variant's run: computed once
+        curves = ablation.curves[ablation.curves.variant == variant]
+        ablation.bands[variant] = curve_band(curves, "episode", episode_grid(ablation)) if len(curves) else None
+    return ablation.bands[variant]
 
 
 def _band_text(ablation: Ablation) -> str:
@@ -120,7 +122,7 @@ def figure_overview(ablation: Ablation, folder: Path) -> Figure:
         curves = ablation.curves[ablation.curves.variant == variant]
         if curves.empty:
             continue
-        centre, _, _ = curve_band(curves, "episode", grid)
+        centre, _, _ = curve_band(curves, "episode", grid, band=False)
         baseline = variant == ablation.baseline
         ax.plot(grid, centre, color=_colour(ablation, variant), linewidth=2.8 if baseline else 1.4, label=variant)
     if ablation.threshold is not None:
@@ -201,7 +203,7 @@ def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
         curves = ablation.curves[ablation.curves.variant == variant]
         if curves.empty:
             continue
-        centre, _, _ = curve_band(curves, "wall_s", grid)
+        centre, _, _ = curve_band(curves, "wall_s", grid, band=False)
         baseline = variant == ablation.baseline
         ax.plot(grid, centre, color=_colour(ablation, variant), linewidth=2.8 if baseline else 1.4, label=variant)
     if ablation.threshold is not None:

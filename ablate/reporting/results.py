@@ -68,6 +68,8 @@ class Ablation:
     earlier: dict[str, int] = field(default_factory=dict)
     """Per variant, its trials in the generation under keys the plan no longer holds (an earlier version of its
     settings or code: ``planned``): in the store, in none of the frames."""
+    bands: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    """Each variant's learning curve and its band (``figures.variant_band``), once computed."""
 
     @property
     def seed_span(self) -> tuple[int, int]:
@@ -416,23 +418,29 @@ def _curve(tracker: RunReader, run: Any, trial: dict[str, Any], grid: dict[str, 
         table = tracker.read_artifact(run, "episodes.csv", lambda path: pd.read_csv(path, usecols=_EPISODE_COLUMNS))
     except TrackingError:
         return None
-    table = table.drop_duplicates("episode", keep="last").sort_values("episode", kind="stable")
+    episodes = table["episode"].to_numpy()
+    if len(episodes) > 1 and not (np.diff(episodes) > 0).all():  # a resumed trial wrote some episodes twice
+        table = table.drop_duplicates("episode", keep="last").sort_values("episode", kind="stable")
+        episodes = table["episode"].to_numpy()
     window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
-    curve = pd.DataFrame(
+    returns = table["episode_return"].to_numpy(float)
+    # the rolling mean over the last ``window`` episodes (fewer at the start), as the trial computed it
+    sums = np.cumsum(np.concatenate([[0.0], returns]))
+    ends = np.arange(1, len(returns) + 1)
+    starts = np.maximum(ends - window, 0)
+    return pd.DataFrame(
         {
             "key": trial["key"],
             "variant": trial["variant"],
             "seed": trial["seed"],
             "solved": run.metrics.get("solved", 0.0) == 1.0,
-            "episode": table["episode"].to_numpy(),
-            "return": table["episode_return"].to_numpy(),
-            "wall_s": table["wall_s"].to_numpy(),
+            "episode": episodes,
+            "return": returns,
+            # the clock is logged when an update ends: each episode gets the time of its update's end
+            "wall_s": table["wall_s"].bfill().to_numpy(),
+            "rolling_mean": (sums[ends] - sums[starts]) / (ends - starts),
         }
     )
-    # the clock is logged when an update ends: each episode gets the time of its update's end
-    curve["wall_s"] = curve["wall_s"].bfill()
-    curve["rolling_mean"] = curve["return"].rolling(window, min_periods=1).mean()
-    return curve
 
 
 def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.DataFrame], params) -> Ablation:
@@ -482,6 +490,7 @@ def select(ablation: Ablation, variants: list[str] | None = None, baseline: str 
         untuned=untuned,
         missing=[(variant, key) for variant, key in ablation.missing if variant in chosen],
         earlier={variant: n for variant, n in ablation.earlier.items() if variant in chosen},
+        bands={},  # another budget may give another episode grid
     )
 
 

@@ -60,11 +60,13 @@ def probability_of_improvement(lower_is_better: np.ndarray, reference: np.ndarra
 
 
 def _pairwise_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
-    """P(X < Y) + P(X = Y) / 2 over all pairs, vectorised over leading (resample) axes."""
+    """P(X < Y) + P(X = Y) / 2 over all pairs, vectorised over leading (resample) axes: Mann-Whitney's U of ``y``
+    from the midranks of both samples together, over n m (every pair compared was n x m values per resample: 800 MB
+    for 2,000 resamples of 640 seeds a side)."""
     x, y = np.moveaxis(x, axis, -1), np.moveaxis(y, axis, -1)
-    less = (x[..., :, None] < y[..., None, :]).mean(axis=(-2, -1))
-    ties = (x[..., :, None] == y[..., None, :]).mean(axis=(-2, -1))
-    return less + 0.5 * ties
+    n, m = x.shape[-1], y.shape[-1]
+    ranks = stats.rankdata(np.concatenate([x, y], axis=-1), axis=-1)  # ties: the average rank
+    return (ranks[..., n:].sum(axis=-1) - m * (m + 1) / 2) / (n * m)
 
 
 def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
@@ -191,10 +193,13 @@ def _return_comparison(x: np.ndarray, y: np.ndarray):
     return point, low, high, _verdict(low, high), ""
 
 
-def curve_band(curves: pd.DataFrame, x: str, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def curve_band(
+    curves: pd.DataFrame, x: str, grid: np.ndarray, band: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """IQM across seeds of the rolling mean at each point of ``grid`` (of column ``x``), with a 95% bootstrap
-    band. A seed that stopped because it solved carries its last value forward; one that ran out of budget
-    ends there. Where fewer than half the seeds have a value, the curve stops. One seed: no band."""
+    band (``band``; else the centre as both ends: a figure that draws the lines alone). A seed that stopped because
+    it solved carries its last value forward; one that ran out of budget ends there. Where fewer than half the
+    seeds have a value, the curve stops. One seed: no band."""
     per_seed = []
     for _, seed_curve in curves.groupby("seed"):
         seed_curve = seed_curve.sort_values(x)
@@ -211,10 +216,18 @@ def curve_band(curves: pd.DataFrame, x: str, grid: np.ndarray) -> tuple[np.ndarr
         low[i], high[i] = centre[i], centre[i]
     # One vectorised bootstrap over the points where every seed has a value and they are not all equal.
     full = enough & ~np.isnan(matrix).any(axis=1) & (np.ptp(np.nan_to_num(matrix), axis=1) > 0)
-    if full.any() and matrix.shape[1] >= 2:
-        band_low, band_high = _percentile_bootstrap((matrix[full],), iqm, n_resamples=N_RESAMPLES // 4)
-        low[full], high[full] = band_low, band_high
+    if band and full.any() and matrix.shape[1] >= 2:
+        # At most BAND_POINTS of them, evenly spread, the band between drawn straight: a rolling mean moves slowly,
+        # and the bootstrap's array is points x resamples x seeds (640 seeds: 64M values at 200 points).
+        at = np.flatnonzero(full)
+        picked = at[np.unique(np.linspace(0, len(at) - 1, min(len(at), BAND_POINTS)).round().astype(int))]
+        band_low, band_high = _percentile_bootstrap((matrix[picked],), iqm, n_resamples=N_RESAMPLES // 4)
+        low[at], high[at] = np.interp(at, picked, band_low), np.interp(at, picked, band_high)
     return centre, low, high
+
+
+BAND_POINTS = 50
+"""The points of a learning curve its band is bootstrapped at (``curve_band``); the others are interpolated."""
 
 
 # --- seeds needed -------------------------------------------------------------------------------------------
