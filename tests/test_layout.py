@@ -2,6 +2,7 @@
 describes (small stores: tuned values that differ, too few seeds for any claim, too few for the leave-one-out
 check, no tuning), and the student's discussion.md kept across regenerations and printed under their name."""
 
+import os
 import re
 
 import numpy as np
@@ -126,6 +127,13 @@ def test_the_discussion_is_created_once_kept_and_printed_under_its_author(stores
     assert "the Discussion is Ada Student's own" in body
     typst_source = (again.folder / "report.typ").read_text()
     assert '"Ada Student"' in typst_source or "Ada Student" in typst_source
+    assert "Written about other data" not in text  # saved after the launch it discusses
+    # Saved before the launch whose trials the report shows: the student's "6 to 8 seeds would decide" was printed
+    # unchanged after the data moved to 42 seeds (3e01923). Now the report says the text is about other data.
+    os.utime(again.folder / "discussion.md", (86_400, 86_400))  # 1970-01-02
+    stale = build_report("four", tracking_uri=uri, out_root=tmp_path / "reports", attach=False)
+    body = _body((stale.folder / "report.md").read_text())
+    assert "**Written about other data:** discussion.md was last saved 1970-01-02 00:00 UTC, before the launch" in body
 
 
 def test_the_discussion_template_reads_as_missing_and_an_edit_as_written(tmp_path):

@@ -36,6 +36,9 @@ class Discussion:
     """The name on the ``Author:`` line, or None where it is still the template's."""
     text: str | None
     """The discussion as written, without its comment and Author line; None until it differs from the template."""
+    edited_ms: int | None = None
+    """When the file was last saved (ms since the epoch): a discussion saved before the launch the report shows
+    was written about other data."""
 
 
 def read(folder: Path) -> Discussion:
@@ -53,7 +56,7 @@ def read(folder: Path) -> Discussion:
         body = body[: found.start()] + body[found.end() :]
     author = None if not author or author == "(your name)" else author
     text = body.strip() or None
-    return Discussion(author, text)
+    return Discussion(author, text, int(path.stat().st_mtime * 1000))
 
 
 def keep(old_folder: Path, new_folder: Path) -> None:

@@ -4,6 +4,7 @@ an appendix with everything else (every table, every comparison, the tuning, the
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from ablate.claims.family import CENSORED_SHARE
@@ -139,16 +140,23 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
     )
 
 
-def _discussion(discussion: Discussion, where: str) -> list[Block]:
+def _discussion(discussion: Discussion, where: str, launched_ms: int | None = None) -> list[Block]:
     if discussion.text is None:
         title = f"Discussion{f' — {esc(discussion.author)}' if discussion.author else ''}"
         return [Heading(title), Paragraph(missing_line(where))]
     author = esc(discussion.author or "the author (no Author line in discussion.md)")
-    return [
-        Heading(f"Discussion — {author}"),
-        Paragraph(f"*Written by {author}; printed as written.*"),
-        Authored(discussion.text),
-    ]
+    note = f"*Written by {author}; printed as written.*"
+    if discussion.edited_ms is not None and launched_ms is not None and discussion.edited_ms < launched_ms:
+        note = (
+            f"*Written by {author}; printed as written. **Written about other data:** {esc(Path(where).name)} was last saved "
+            f"{_when(discussion.edited_ms)}, before the launch of {_when(launched_ms)} whose trials this report "
+            "shows; its numbers may not be these. Check them against the claims above, and save the file again.*"
+        )
+    return [Heading(f"Discussion — {author}"), Paragraph(note), Authored(discussion.text)]
+
+
+def _when(ms: int) -> str:
+    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime(ms / 1000))
 
 
 def _videos_intro(ablation: Ablation, videos: list[dict[str, str]], letter: str) -> list[Block]:
@@ -234,7 +242,7 @@ def build_document(
         text for kind, text in limitations(ablation, table, compare, bool(videos), refs) if kind in BODY_LIMITATIONS
     ]
     doc += [Heading("Limitations", generated=True), Items.of(kept)]
-    doc += _discussion(discussion, discussion_path)
+    doc += _discussion(discussion, discussion_path, ablation.launch.get("started_ms"))
     doc += [Heading("References"), Items.of(references(ablation))]
 
     doc += [AppendixStart(), Heading("Method in detail", 3, True, letters["method"])]

@@ -362,6 +362,7 @@ def _read_launch(
     launch_info = {
         "rounds": _json_artifact(tracker, launch_id, "rounds.json"),
         "run_id": launch_id,
+        "started_ms": launch.info.start_time,
         "tags": dict(launch.data.tags),
         "environment": environment,
         "experiment_text": experiment_text,
