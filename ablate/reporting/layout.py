@@ -149,8 +149,8 @@ def _discussion(discussion: Discussion, where: str, launched_ms: int | None = No
     if discussion.edited_ms is not None and launched_ms is not None and discussion.edited_ms < launched_ms:
         note = (
             f"*Written by {author}; printed as written. **Written about other data:** {esc(Path(where).name)} was "
-            f"last saved {_when(discussion.edited_ms)}, before the launch of {_when(launched_ms)} whose trials this report "
-            "shows; its numbers may not be these. Check them against the claims above, and save the file again.*"
+            f"last saved {_when(discussion.edited_ms)}, before the launch of {_when(launched_ms)} whose trials this "
+            "report shows; its numbers may not be these. Check them against the claims above, and save the file again.*"
         )
     return [Heading(f"Discussion — {author}"), Paragraph(note), Authored(discussion.text)]
 
