@@ -525,6 +525,29 @@ def test_each_variant_is_a_run_under_the_launch_holding_the_reports_curve_and_cl
     assert [(t.run_id, t.status) for t in reader.trial_runs()] == [(t.run_id, t.status) for t in trials_before]
 
 
+def test_after_two_launches_mlflow_holds_one_set_of_variant_runs_the_second_reports(tmp_path):
+    """Each launch kept its own set of variant runs: after launches at 3, 8, 12 and 42 seeds the store held 16
+    runs for 4 variants and the UI mixed them (3e01923). Now the last report's set replaces every earlier one."""
+
+    def noisy(start, stop):
+        return lambda seed: np.linspace(start, stop, 40) + np.random.default_rng(seed).normal(0, 4, 40)
+
+    variants = {"a": {"curve": noisy(5, 30)}, "b": {"curve": noisy(5, 60)}}
+    uri = make_store(tmp_path / "store", "twice", variants, seeds=(0, 1, 2), generation="first")
+    write_report("twice", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
+    make_store(tmp_path / "store", "twice", variants, seeds=tuple(range(8)), generation="second")
+    folder = write_report("twice", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
+    reader = RunReader(uri, "twice")
+    found = reader.client.search_runs([reader.experiment_id()], "tags.`ablate.role` = 'variant'")
+    assert sorted(r.data.tags["ablate.variant"] for r in found) == ["a", "b"]  # one set, not two
+    newest = reader.launches()[0].info.run_id
+    assert {r.data.tags["mlflow.parentRunId"] for r in found} == {newest}
+    claim = pd.read_csv(folder / "tables" / "claims.csv").set_index("variant").loc["b"]
+    run = next(r for r in found if r.data.tags["ablate.variant"] == "b")
+    assert run.data.metrics["claim/n_variant"] == claim.n_variant == 8
+    assert run.data.tags["ablate.verdict"] == claim.verdict
+
+
 def test_the_record_shows_the_report_command_as_typed(store, tmp_path, monkeypatch):
     # issue 18 item 7: `ablate report experiments/activations.toml` was recorded as `ablate report activations`
     _, uri = store

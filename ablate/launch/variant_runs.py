@@ -2,8 +2,9 @@
 table has a row per variant (its verdict) and its chart view a curve per variant (``curve/iqm``).
 
 The report computes each variant's ``VariantRecord`` (``ablate.reporting.variant_records``); this writes them. A
-report built again replaces the launch's variant runs: MLflow's params cannot change and a metric logged again
-at a step adds a second point there, so the runs are made anew rather than updated.
+report built again replaces the experiment's variant runs, whichever launch they were nested under: the store holds
+one current set, the last report's, so MLflow's views and the report cannot disagree. MLflow's params cannot
+change and a metric logged again at a step adds a second point there, so the runs are made anew, not updated.
 """
 
 from __future__ import annotations
@@ -38,16 +39,17 @@ class VariantRecord:
     """Metric series: per key, ``(episode, value)`` points (``curve/iqm``: its learning curve)."""
 
 
-def variant_runs(store: Store, launch_id: str) -> list[Any]:
-    """The variant runs nested under ``launch_id`` (MLflow ``Run`` objects), oldest first."""
-    return store.all_runs(f"tags.`{TAG_ROLE}` = '{ROLE}' and tags.`{TAG_PARENT}` = '{launch_id}'")
+def variant_runs(store: Store, launch_id: str | None = None) -> list[Any]:
+    """The variant runs nested under ``launch_id`` (every launch's: ``None``), MLflow ``Run`` objects, oldest first."""
+    under = f" and tags.`{TAG_PARENT}` = '{launch_id}'" if launch_id else ""
+    return store.all_runs(f"tags.`{TAG_ROLE}` = '{ROLE}'{under}")
 
 
 def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantRecord]) -> list[str]:
-    """Replace the variant runs of ``launch_id`` by one run per record; their run ids, in the records' order.
-    The earlier runs are deleted only once every new one is written; a write that fails deletes what it wrote
-    and leaves the earlier runs as they were."""
-    earlier = [run.info.run_id for run in variant_runs(store, launch_id)]
+    """Replace the experiment's variant runs (of any launch) by one run per record, nested under ``launch_id``;
+    their run ids, in the records' order. The earlier runs are deleted only once every new one is written; a
+    write that fails deletes what it wrote and leaves the earlier runs as they were."""
+    earlier = [run.info.run_id for run in variant_runs(store)]
     generation = store.client.get_run(launch_id).data.tags.get(TAG_GENERATION, "")
     written: list[str] = []
     try:
