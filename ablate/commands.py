@@ -81,7 +81,8 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         print(f"{len(outcome.finished)} finished, {len(outcome.failed)} failed, {outcome.skipped} finished before")
     for key, message in outcome.failed.items():
         print(f"  FAILED {key}: {message}")
-    print(f"MLflow runs: {outcome.ui_link}   (start the UI with: make mlflow-ui)")
+    hint = "" if outcome.ui_served else "   (start the UI with: make mlflow-ui)"
+    print(f"MLflow, the variants compared: {outcome.ui_link}{hint}")
     if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
         from ablate.reporting.document import NoResults, build_report, terminal_summary  # after the trials: heavy
 

@@ -58,6 +58,9 @@ def test_status_of_a_real_store(run_quiet, tmp_path, tracking_uri, capsys):
     assert main(["status", str(path), "--tracking-uri", tracking_uri]) == 0
     out = capsys.readouterr().out
     assert out.startswith("faulty: 2 launches in 2 generations")
+    link = out.splitlines()[1]  # the variant comparison in MLflow's UI, as the launch prints it
+    assert link.startswith("MLflow, the variants compared (the last report's): http://127.0.0.1:5000/#/experiments/")
+    assert "searchFilter=tags.%60ablate.role%60+%3D+%22variant%22" in link and "compareRunsMode=CHART" in link
     newest, older = out.split("\ngeneration ")[1:]
     assert newest.startswith(f"{second.generation} (newest): 4 trials: 1 finished, 3 pending")
     assert re.search(r"^  ok\s+1\s+1$", newest, re.M) and re.search(r"^  boom\s+0\s+2$", newest, re.M), newest

@@ -55,11 +55,18 @@ def test_metric_points_carry_their_own_time_not_the_batch_write(tracking_uri):
         assert len(set(stamps.values())) == len(stamps)
 
 
-def test_the_mlflow_link_opens_the_machine_learning_view_on_the_given_port(tracking_uri):
+def test_the_mlflow_link_opens_the_variant_comparison_in_the_machine_learning_view_on_the_given_port(tracking_uri):
+    from urllib.parse import parse_qs, urlsplit
+
     tracker = Tracker(tracking_uri, "link")
-    assert tracker.ui_link(5123) == (
-        f"http://127.0.0.1:5123/#/experiments/{tracker.experiment_id()}/runs?workflowType=machine_learning"
-    )
+    link = tracker.ui_link(5123)
+    assert link.startswith(f"http://127.0.0.1:5123/#/experiments/{tracker.experiment_id()}/runs?")
+    query = parse_qs(urlsplit(link.split("#", 1)[1]).query)
+    assert query == {
+        "workflowType": ["machine_learning"],
+        "searchFilter": ['tags.`ablate.role` = "variant"'],
+        "compareRunsMode": ["CHART"],
+    }
 
 
 def test_first_launches_racing_on_a_fresh_folder_all_open_the_store(tmp_path):

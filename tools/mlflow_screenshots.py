@@ -25,7 +25,8 @@ sys.path.insert(0, str(ROOT / "tests"))  # the DevTools client the report's brow
 
 from devtools import DevTools, chromium_flags  # noqa: E402
 
-VARIANTS_FILTER = 'tags.`ablate.role` = "variant"'
+from ablate.launch.variant_runs import VARIANTS_FILTER  # noqa: E402
+
 COLUMNS = [
     "tags.`ablate.verdict`",
     "tags.`ablate.reference`",

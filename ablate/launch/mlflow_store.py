@@ -56,6 +56,18 @@ TAG_STAGE = "ablate.stage"
 """``tune`` (a tuning trial, stage 1 of a ``[tune]`` experiment) or ``eval``; runs without it are ``eval``."""
 TAG_ROUND = "ablate.round"
 """The round of seeds its launch ran it in (``1``: the first, its tuning stage included)."""
+ROLE_VARIANT = "variant"
+"""``ablate.role`` of a report's variant run (``variant_runs``)."""
+VARIANTS_FILTER = f'tags.`{TAG_ROLE}` = "{ROLE_VARIANT}"'
+"""The MLflow search that shows the variant runs alone: the launch's link (``Store.ui_link``), docs/mlflow-ui.md."""
+
+
+def ui_port() -> int:
+    """The port ``make mlflow-ui`` serves on: ``PORT`` (the Makefile passes it through), else 5000."""
+    try:
+        return int(os.environ.get("PORT", "5000"))
+    except ValueError:
+        return 5000
 
 
 def quiet_mlflow() -> None:
@@ -142,6 +154,23 @@ class Store:
         and for a store other machines reach (not an SQLite file) the store's own lease."""
         shared = sqlite_path(self.uri) is None
         return held_launch(self.lock_path(), what, command, self.client if shared else None, self.experiment_name)
+
+    def ui_link(self, port: int | None = None) -> str:
+        """The MLflow UI's comparison of this experiment's variants: its variant runs (one per variant, the last
+        report's), their curves in the chart view (docs/mlflow-ui.md). On a tracking server, its own address."""
+        from urllib.parse import urlencode
+
+        base = self.shown_uri if self.serves_ui else f"http://127.0.0.1:{port or ui_port()}"
+        # MLflow 3 opens an experiment in its GenAI view unless told this is a machine-learning one.
+        query = urlencode(
+            {"workflowType": "machine_learning", "searchFilter": VARIANTS_FILTER, "compareRunsMode": "CHART"}
+        )
+        return f"{base.rstrip('/')}/#/experiments/{self.experiment_id()}/runs?{query}"
+
+    @property
+    def serves_ui(self) -> bool:
+        """A tracking server serves its own UI; a local store needs ``make mlflow-ui``."""
+        return self.uri.startswith("http")
 
     def experiment_id(self, create: bool = True) -> str | None:
         if self._experiment_id is None:

@@ -81,7 +81,9 @@ class RunOutcome:
     total: int
     """Trials in the experiment's grid."""
     ui_link: str
-    """The MLflow runs table of this experiment."""
+    """The MLflow UI's comparison of this experiment's variants (``Tracker.ui_link``)."""
+    ui_served: bool = False
+    """The store is a tracking server, which serves that UI itself (else: ``make mlflow-ui``)."""
     finished: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
     killed: list[str] = field(default_factory=list)
@@ -119,14 +121,6 @@ def tune_run_name(experiment: str, launch_id: str) -> str:
     """Tune's folder for one launch, ``<storage_path>/<this>``: removed when the launch ends, or by the next
     launch if this one died. ``experiment``: its storage name (``experiment.storage_name``)."""
     return f"{experiment}-{launch_id[:8]}"
-
-
-def ui_port() -> int:
-    """The port ``make mlflow-ui`` serves on: ``PORT`` (the Makefile passes it through), else 5000."""
-    try:
-        return int(os.environ.get("PORT", "5000"))
-    except ValueError:
-        return 5000
 
 
 def check_resources(experiment: Experiment, address: str | None) -> None:
@@ -258,7 +252,8 @@ class _Launch:
             None,
             skipped=len(self.known) - len(todo),
             total=len(self.known),
-            ui_link=self.tracker.ui_link(ui_port()),
+            ui_link=self.tracker.ui_link(),
+            ui_served=self.tracker.serves_ui,
         )
         if not todo:
             self.outcome.rounds = self.rounds.document() if self.rounds else None

@@ -75,11 +75,6 @@ class Tracker(Store):
         """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
         the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
 
-    def ui_link(self, port: int = 5000) -> str:
-        base = self.shown_uri if self.uri.startswith("http") else f"http://127.0.0.1:{port}"
-        # MLflow 3 opens an experiment in its GenAI view unless told this is a machine-learning one.
-        return f"{base.rstrip('/')}/#/experiments/{self.experiment_id()}/runs?workflowType=machine_learning"
-
     # --- launches ---------------------------------------------------------------------------------
     def latest_generation(self) -> str | None:
         """The generation of the newest launch: re-runs continue it, ``--fresh`` starts a new one."""

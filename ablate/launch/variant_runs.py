@@ -15,9 +15,17 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from ablate.launch.mlflow_store import TAG_GENERATION, TAG_PARENT, TAG_ROLE, TAG_VARIANT, Store, param_text
+from ablate.launch.mlflow_store import (
+    ROLE_VARIANT,
+    TAG_GENERATION,
+    TAG_PARENT,
+    TAG_ROLE,
+    TAG_VARIANT,
+    Store,
+    param_text,
+)
 
-ROLE = "variant"
+ROLE = ROLE_VARIANT
 """``ablate.role`` of a variant run (a launch's is ``launch``, a trial's ``trial``)."""
 TAG_VERDICT = "ablate.verdict"
 """The verdict of the variant's primary claim against its reference; absent where it has none (the baseline)."""

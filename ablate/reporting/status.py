@@ -105,8 +105,11 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     for launch in launches:
         by_generation[launch.generation].append(launch)
     runs = tracker.trial_runs()
+    hint = "" if tracker.serves_ui else " (start the UI with: make mlflow-ui)"
+    counts = f"{_count(len(launches), 'launch')} in {_count(len(by_generation), 'generation')}"
     lines = [
-        f"{name}: {_count(len(launches), 'launch')} in {_count(len(by_generation), 'generation')} (MLflow store: {uri})"
+        f"{name}: {counts} (MLflow store: {uri})",
+        f"MLflow, the variants compared (the last report's): {tracker.ui_link()}{hint}",
     ]
     newest_generation = launches[-1].generation
     for generation in sorted(by_generation, key=lambda g: by_generation[g][-1].start_time_ms, reverse=True):
