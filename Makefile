@@ -8,6 +8,8 @@ TRACKING_URI ?= sqlite:///mlflow.db
 RAY_PORT ?= 6390
 CLUSTER_MLFLOW_PORT ?= 5050
 EXPERIMENT ?= experiments/cartpole.toml
+ABLATION ?= cartpole
+SHOTS ?= docs/images
 TEST_WORKERS ?= 2
 
 .PHONY: help setup mlflow-screenshots test test-e2e test-fast test-cluster test-cluster-postgres cluster-up cluster-down ablation-cartpole-cluster lint format bench train ablation-cartpole ablation-pong report mlflow-ui clean
@@ -72,8 +74,8 @@ ablation-pong: $(STAMP) ## run experiments/pong.toml: CNN vs MLP on Pong, each a
 report: $(STAMP) ## rebuild reports/<name>/ from the MLflow store (EXPERIMENT=experiments/cartpole.toml by default)
 	$(BIN)/ablate report $(EXPERIMENT) --tracking-uri $(TRACKING_URI)
 
-mlflow-screenshots: $(STAMP) ## retake docs/images/mlflow-*.png: the variant runs' table and chart view of the cartpole ablation in headless Chromium (apt-get install chromium)
-	$(BIN)/python tools/mlflow_screenshots.py --tracking-uri $(TRACKING_URI) --experiment cartpole --out docs/images
+mlflow-screenshots: $(STAMP) ## the variant runs' table and chart view of ABLATION (default cartpole) as SHOTS/mlflow-*.png (default docs/images), in headless Chromium (apt-get install chromium)
+	$(BIN)/python tools/mlflow_screenshots.py --tracking-uri $(TRACKING_URI) --experiment $(ABLATION) --out $(SHOTS)
 
 mlflow-ui: $(STAMP) ## serve the MLflow UI at http://127.0.0.1:5000 (PORT=... for another port)
 	$(BIN)/mlflow ui --backend-store-uri $(TRACKING_URI) --host 127.0.0.1 --port $(PORT)

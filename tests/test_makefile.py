@@ -59,3 +59,13 @@ def test_gitignore_keeps_other_lock_files_tracked():
         pytest.skip("not a git checkout")
     out = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "--no-index", "-q", "uv.lock"], capture_output=True)
     assert out.returncode == 1
+
+
+def test_mlflow_screenshots_takes_any_ablation_and_an_output_folder():
+    """It was fixed to the cartpole experiment and to docs/images (issue 56)."""
+    out = subprocess.run(
+        ["make", "--no-print-directory", "-n", "-C", str(ROOT), "mlflow-screenshots", "ABLATION=mine", "SHOTS=/tmp/x"],
+        capture_output=True,
+        text=True,
+    ).stdout
+    assert "--experiment mine --out /tmp/x" in out.splitlines()[-1]
