@@ -546,6 +546,11 @@ def test_after_two_launches_mlflow_holds_one_set_of_variant_runs_the_second_repo
     run = next(r for r in found if r.data.tags["ablate.variant"] == "b")
     assert run.data.metrics["claim/n_variant"] == claim.n_variant == 8
     assert run.data.tags["ablate.verdict"] == claim.verdict
+    # the spread as a band, which MLflow's charts (three separate curve/ panels) cannot draw: a figure on the run
+    for variant_run in found:
+        assert [a.path for a in reader.client.list_artifacts(variant_run.info.run_id)] == ["learning_curve.png"]
+    picture = reader.client.download_artifacts(run.info.run_id, "learning_curve.png", str(tmp_path))
+    assert Path(picture).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and Path(picture).stat().st_size > 5000
 
 
 def test_the_record_shows_the_report_command_as_typed(store, tmp_path, monkeypatch):

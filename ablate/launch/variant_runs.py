@@ -10,9 +10,11 @@ change and a metric logged again at a step adds a second point there, so the run
 from __future__ import annotations
 
 import contextlib
+import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from ablate.launch.mlflow_store import (
@@ -45,6 +47,8 @@ class VariantRecord:
     """Single values (its claim, its summary measures), logged at step 0."""
     series: dict[str, list[tuple[int, float]]] = field(default_factory=dict)
     """Metric series: per key, ``(episode, value)`` points (``curve/iqm``: its learning curve)."""
+    artifacts: dict[str, bytes] = field(default_factory=dict)
+    """Files by name (``learning_curve.png``: its curve with the band MLflow's charts cannot draw)."""
 
 
 def variant_runs(store: Store, launch_id: str | None = None) -> list[Any]:
@@ -88,4 +92,9 @@ def _fill(store: Store, run_id: str, record: VariantRecord) -> None:
         store.client.log_batch(run_id, params=params[start : start + _PARAMS_PER_CALL])
     for start in range(0, len(metrics), _METRICS_PER_CALL):
         store.client.log_batch(run_id, metrics=metrics[start : start + _METRICS_PER_CALL])
+    if record.artifacts:
+        with tempfile.TemporaryDirectory(prefix="ablate-variant-") as folder:
+            for name, content in record.artifacts.items():
+                (Path(folder) / name).write_bytes(content)
+            store.client.log_artifacts(run_id, folder)
     store.client.set_terminated(run_id, "FINISHED")

@@ -7,6 +7,7 @@ Matplotlib with the Agg backend. Captions carry user text (variant names) escape
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import shutil
 from collections.abc import Callable, Iterator
@@ -190,6 +191,37 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     )
     title = "Each variant against its reference" if extends else "Each variant against the baseline"
     return Figure(_save(fig, folder, "learning_curves_by_variant"), caption, title)
+
+
+def variant_band_png(ablation: Ablation, variant: str) -> bytes | None:
+    """``variant``'s learning curve with its 95% band, beside its reference's, as PNG bytes: the band MLflow's
+    charts cannot draw, logged on the variant's run (``variant_records``); its panel of Figure "each variant
+    against its reference". None without curves."""
+    band = variant_band(ablation, variant)
+    if band is None:
+        return None
+    grid = episode_grid(ablation)
+    fig, ax = plt.subplots(figsize=(5.2, 3.4))
+    reference = ablation.reference(variant) if variant != ablation.baseline else None
+    drawn = [(reference, variant_band(ablation, reference), BASELINE_COLOUR)] if reference else []
+    for name, curve, colour in [*drawn, (variant, band, _colour(ablation, variant))]:
+        if curve is None:
+            continue
+        centre, low, high = curve
+        ax.plot(grid, centre, color=colour, linewidth=1.8, label=name)
+        ax.fill_between(grid, low, high, color=colour, alpha=0.22, linewidth=0)
+    if ablation.threshold is not None:
+        ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
+    ax.set_title(f"{variant} vs {reference}" if reference else variant, fontsize=10)
+    ax.set_xlabel("episode")
+    ax.set_ylabel("rolling mean return (IQM, 95% band)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=100)
+    plt.close(fig)
+    return buffer.getvalue()
 
 
 def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:

@@ -14,12 +14,14 @@ import pandas as pd
 
 from ablate.launch.variant_runs import TAG_VERDICT, VariantRecord
 from ablate.reporting.data import ReportData
-from ablate.reporting.figures import episode_grid, variant_band
+from ablate.reporting.figures import episode_grid, variant_band, variant_band_png
 from ablate.reporting.settings import own_changes
 from ablate.reporting.tables import settings_of
 from ablate.reporting.tuning import EVAL
 from ablate.reporting.tuning import knobs as tuning_knobs
 
+BAND_FIGURE = "learning_curve.png"
+"""The variant run's artifact: its curve and its reference's, each with its 95% band (MLflow's charts draw lines)."""
 CURVE_METRICS = ("curve/iqm", "curve/low", "curve/high")
 """The learning curve (IQM over seeds of the rolling mean return) and its 95% band, at the episodes of the figure."""
 CLAIM_METRICS = {
@@ -79,6 +81,7 @@ def variant_records(data: ReportData) -> list[VariantRecord]:
         if band is not None:
             for key, values in zip(CURVE_METRICS, band, strict=True):
                 series[key] = [(int(e), float(v)) for e, v in zip(grid, values, strict=True) if _number(v)]
+        picture = variant_band_png(ablation, variant) if band is not None else None
         records.append(
             VariantRecord(
                 name=variant,
@@ -86,6 +89,7 @@ def variant_records(data: ReportData) -> list[VariantRecord]:
                 tags=tags,
                 metrics={k: float(v) for k, v in metrics.items() if _number(v)},
                 series=series,
+                artifacts={BAND_FIGURE: picture} if picture else {},
             )
         )
     return records
