@@ -10,6 +10,19 @@ from pathlib import Path
 import numpy as np
 
 
+def as_frame(image: np.ndarray) -> np.ndarray:
+    """An env's rendered image as the 8-bit RGB frame a video holds: floats (MinAtar renders 0-1 floats) scaled to
+    0-255, so the encoder has nothing to convert (imageio printed "Lossy conversion from float64 to uint8" once a
+    frame)."""
+    image = np.asarray(image)
+    if image.dtype == np.uint8:
+        return image
+    if image.dtype.kind == "f":
+        peak = 1.0 if image.size == 0 or float(np.nanmax(image)) <= 1.0 else 255.0
+        return np.clip(np.nan_to_num(image) * (255.0 / peak), 0, 255).round().astype(np.uint8)
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
 def video_writer(path: Path, fps: int):
     import imageio.v2 as imageio  # a worker pays for ffmpeg only when it records
 
@@ -54,7 +67,7 @@ class TrainingVideos:
     def frame(self, frame: Callable[[], np.ndarray], done: bool) -> None:
         if self.writer is None:
             return
-        self.writer.append_data(frame())
+        self.writer.append_data(as_frame(frame()))
         self.frames += 1
         if done or self.frames >= self.max_frames:
             self.close()

@@ -3,6 +3,7 @@
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 from test_trial import PONG, SHORT
 
@@ -54,3 +55,30 @@ def test_pong_trial_artifacts_training_videos_and_observation_figure(tmp_path):
     assert videos[:2] == ["episode_00001.mp4", "episode_00002.mp4"]  # the untrained policy, then each of sub-env 0
     assert all((tmp_path / "videos" / v).stat().st_size > 1000 for v in videos)
     assert result.greedy_return is None  # Pong's video is of the sampling policy: no greedy return to report
+
+
+def test_a_float_rendering_env_is_written_as_8_bit_frames_without_warnings(tmp_path, caplog, capfd):
+    """MinAtar renders 0-1 floats: imageio printed "Lossy conversion from float64 to uint8" for each of 34 frames
+    (3e01923). The frames are 8-bit before the encoder sees them."""
+    import warnings
+
+    from ablate.videos import as_frame, video_writer
+
+    rendered = np.random.default_rng(0).random((20, 20, 3))  # float64 in [0, 1]
+    frame = as_frame(rendered)
+    assert frame.dtype == np.uint8 and frame.max() > 200 and np.array_equal(frame, (rendered * 255).round())
+    assert as_frame(rendered * 255).tolist() == frame.tolist() and as_frame(frame) is frame
+
+    def written(frames) -> str:
+        """What writing ``frames`` printed: imageio's logger, Python's warnings, the process's stderr."""
+        caplog.clear()
+        capfd.readouterr()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with video_writer(tmp_path / "v.mp4", 10) as writer:
+                for frame in frames:
+                    writer.append_data(frame)
+        return caplog.text + capfd.readouterr().err + " ".join(str(w.message) for w in caught)
+
+    assert "Lossy conversion" in written([rendered] * 3)  # what a float frame printed, so the check can fail
+    assert "Lossy conversion" not in written([as_frame(rendered)] * 3)
