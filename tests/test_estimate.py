@@ -512,7 +512,7 @@ def test_the_summary_says_which_bound_the_trials_ended_near(clock):
     view.started("a-s0")
     clock.now += 10
     view.finished("a-s0", solved=False, summary={"episodes_run": 100})  # a quarter: 30 s left, at most 70 s
-    assert view.quarter == (10.0, pytest.approx(30), pytest.approx(70))
+    assert view.quarter == (10.0, pytest.approx(30), pytest.approx(70), 1)
     for seed in (1, 2, 3):
         view.started(f"a-s{seed}")
         clock.now += 10
@@ -521,6 +521,19 @@ def test_the_summary_says_which_bound_the_trials_ended_near(clock):
     line = view.bounds_line()
     assert "at 0:10 the estimate said ~0:30 left in round 1, at most ~1:10 in all" in line
     assert line.endswith("the trials ended 0:30 later, nearer the round's estimate")
+
+
+def test_the_summary_names_the_round_its_estimate_was_made_in(clock):
+    """A launch resumed in round 5 said "the estimate said ... left in round 1" at its end (3e01923)."""
+    view = Watched("x", _trials(budget=100, variants=("a",), seeds=(0, 1, 2, 3)), 0, slots=1, start=clock.now)
+    view.state.set_possible([_trials(budget=100, variants=("a",), seeds=(4, 5, 6, 7))])
+    view.state.round = 5
+    for seed in range(4):
+        view.started(f"a-s{seed}")
+        clock.now += 10
+        view.finished(f"a-s{seed}", solved=False, summary={"episodes_run": 100})
+    view.state.set_possible([])
+    assert "~0:30 left in round 5, at most ~1:10 in all" in view.bounds_line()
 
 
 def test_the_estimate_of_running_trials_imports_no_torch_in_the_driver():

@@ -39,7 +39,8 @@ class ProgressView:
         self.estimates: list[tuple[float, int, float | None, float | None, int]] = []
         """(seconds since the start, trials ended, the round's estimate, the most in all, the phase: an index
         of ``state.phases``) after every event, for ``make bench`` to hold against the time that remained."""
-        self.quarter: tuple[float, float | None, float | None] | None = None
+        self.quarter: tuple[float, float | None, float | None, int] | None = None
+        """At a quarter of the launch's first trials: (seconds in, left in the round, at most in all, the round)."""
         """(seconds since the start, the round's estimate, the most in all) when a quarter of the launch's
         first trials had ended: the figures the summary holds against the end (``bounds_line``)."""
 
@@ -53,7 +54,7 @@ class ProgressView:
             if self.log_estimates:
                 self.estimates.append((now - state.start, state.ended, left, most, len(state.phases) - 1))
             if quarter_due:
-                self.quarter = (now - state.start, left, most)
+                self.quarter = (now - state.start, left, most, state.round)
         self.refresh()
 
     def _quartered(self) -> bool:
@@ -156,14 +157,14 @@ class ProgressView:
         time that then remained ("" before a quarter, or where no round could follow)."""
         if self.quarter is None or self.state.trials_end is None:
             return ""
-        at, left, most = self.quarter
+        at, left, most, round_number = self.quarter
         if left is None or most is None or most <= left:
             return ""
         remained = self.state.trials_end - self.state.start - at
         nearer = "the round's estimate" if abs(remained - left) <= abs(remained - most) else "the upper bound"
         return (
-            f"time: at {clock(at)} the estimate said ~{clock(left)} left in round 1, at most ~{clock(most)} in all; "
-            f"the trials ended {clock(remained)} later, nearer {nearer}"
+            f"time: at {clock(at)} the estimate said ~{clock(left)} left in round {round_number}, at most "
+            f"~{clock(most)} in all; the trials ended {clock(remained)} later, nearer {nearer}"
         )
 
     def __enter__(self) -> ProgressView:
