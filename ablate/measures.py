@@ -1,5 +1,7 @@
 """Each measure of a trial, defined once: the area under its learning curve, its episodes to solve (censored at
-the budget), and the primary metric an experiment's claims default to. Pure (numpy), below every layer.
+the budget), the primary metric an experiment's claims default to, and what the report reads off a whole curve
+(``trial_measures``: the untrained return, the return at fixed budgets, episodes to a return level). Pure (numpy;
+a curve frame's columns), below every layer.
 
 The trainer records them, the launch's rounds judge on them and the report recomputes them from the curve: all
 through these functions, so the three agree to the bit on the same curve.
@@ -8,8 +10,12 @@ through these functions, so the three agree to the bit on the same curve.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # the report passes a curve frame; the trainer never imports pandas for these
+    import pandas as pd
 
 SEED_COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 80, 100)
 """Seeds per variant ``seeds_needed`` tries, smallest first (3 and 3 can never reach 95% with a rank test)."""
@@ -62,3 +68,36 @@ def seeds_needed(power: Callable[[int], float], counts: Sequence[int]) -> int | 
         else:
             low = middle + 1
     return counts[low]
+
+
+INITIAL_EPISODES = 10
+"""The untrained policy's return: the mean of a trial's first 10 episodes."""
+
+
+def fixed_budgets(budget: int) -> list[int]:
+    """The episode budgets every variant's return is compared at: a quarter, half and all of ``budget``."""
+    return sorted({max(1, budget // 4), max(1, budget // 2), budget})
+
+
+def trial_measures(curve: pd.DataFrame, budget: int, levels: tuple[float, ...], window: int) -> dict[str, float]:
+    """What one trial's curve says beyond its summary metrics: AUC, the untrained return, the improvement
+    over it, the rolling return after each fixed budget, and the first episode the rolling mean (over a full
+    window, or a quarter of the budget if shorter) reaches each return level (censored at the budget)."""
+    rolling = curve.rolling_mean.to_numpy(float)
+    returns = curve["return"].to_numpy(float)
+    measures: dict[str, float] = {"auc": area_under_curve(rolling, budget)}
+    if len(returns) == 0:
+        return measures
+    initial = float(returns[: min(INITIAL_EPISODES, len(returns))].mean())
+    measures["initial_return"] = initial
+    measures["improvement"] = float(rolling[-1]) - initial
+    for episodes in fixed_budgets(budget):
+        measures[f"return_at_{episodes}"] = float(rolling[min(episodes, len(rolling)) - 1])
+    full = curve["return"].rolling(min(window, max(1, budget // 4)), min_periods=min(window, max(1, budget // 4)))
+    full_mean = full.mean().to_numpy(float)
+    episodes_axis = curve.episode.to_numpy(int)
+    for level in levels:
+        hits = np.flatnonzero(full_mean >= level)
+        measures[f"reached_{level:g}"] = float(len(hits) > 0)
+        measures[f"episodes_to_{level:g}"] = float(episodes_axis[hits[0]]) if len(hits) else float(budget)
+    return measures

@@ -9,8 +9,13 @@ import pytest
 
 from ablate.agent.records import EpisodeMetrics, TrialResult
 from ablate.config import TrialConfig
-from ablate.measures import area_under_curve, censored_episodes, default_primary_metric, reaches_threshold
-from ablate.reporting.results import trial_measures
+from ablate.measures import (
+    area_under_curve,
+    censored_episodes,
+    default_primary_metric,
+    reaches_threshold,
+    trial_measures,
+)
 
 
 def test_area_under_curve_carries_the_last_value_to_the_budget():

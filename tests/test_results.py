@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from ablate.reporting.results import Ablation, trial_measures
+from ablate.measures import trial_measures
+from ablate.reporting.results import Ablation
 from ablate.reporting.tables import convergence_table
 
 

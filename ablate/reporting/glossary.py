@@ -3,7 +3,8 @@ rest on (the algorithm, the course's lab, the protocol, the statistics of the cl
 
 from __future__ import annotations
 
-from ablate.reporting.results import INITIAL_EPISODES, Ablation
+from ablate.measures import INITIAL_EPISODES
+from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP
 
 GLOSSARY = [

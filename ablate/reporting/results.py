@@ -19,7 +19,7 @@ import pandas as pd
 from ablate.config import ConfigError
 from ablate.env_spec import solve_threshold_or_none
 from ablate.experiment import Experiment
-from ablate.measures import area_under_curve, censored_episodes, default_primary_metric
+from ablate.measures import censored_episodes, default_primary_metric, fixed_budgets, trial_measures
 from ablate.reporting import settings
 from ablate.reporting.experiment_file import read_from_disk
 from ablate.reporting.networks import layers
@@ -28,8 +28,6 @@ from ablate.reporting.reader import RunReader, TrackingError, TrialRun
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.reporting.tuning import knobs as tuning_knobs
 
-INITIAL_EPISODES = 10
-"""The untrained policy's return: the mean of a trial's first 10 episodes."""
 RETURN_LEVELS = {"ALE/Pong-v5": (-15.0, -10.0)}
 """Return levels whose first crossing (rolling mean) is timed, for envs where few seeds reach a threshold."""
 
@@ -178,34 +176,6 @@ class Ablation:
     @property
     def levels(self) -> tuple[float, ...]:
         return RETURN_LEVELS.get(self.env_id, ())
-
-
-def fixed_budgets(budget: int) -> list[int]:
-    return sorted({max(1, budget // 4), max(1, budget // 2), budget})
-
-
-def trial_measures(curve: pd.DataFrame, budget: int, levels: tuple[float, ...], window: int) -> dict[str, float]:
-    """What one trial's curve says beyond its summary metrics: AUC, the untrained return, the improvement
-    over it, the rolling return after each fixed budget, and the first episode the rolling mean (over a full
-    window, or a quarter of the budget if shorter) reaches each return level (censored at the budget)."""
-    rolling = curve.rolling_mean.to_numpy(float)
-    returns = curve["return"].to_numpy(float)
-    measures: dict[str, float] = {"auc": area_under_curve(rolling, budget)}
-    if len(returns) == 0:
-        return measures
-    initial = float(returns[: min(INITIAL_EPISODES, len(returns))].mean())
-    measures["initial_return"] = initial
-    measures["improvement"] = float(rolling[-1]) - initial
-    for episodes in fixed_budgets(budget):
-        measures[f"return_at_{episodes}"] = float(rolling[min(episodes, len(rolling)) - 1])
-    full = curve["return"].rolling(min(window, max(1, budget // 4)), min_periods=min(window, max(1, budget // 4)))
-    full_mean = full.mean().to_numpy(float)
-    episodes_axis = curve.episode.to_numpy(int)
-    for level in levels:
-        hits = np.flatnonzero(full_mean >= level)
-        measures[f"reached_{level:g}"] = float(len(hits) > 0)
-        measures[f"episodes_to_{level:g}"] = float(episodes_axis[hits[0]]) if len(hits) else float(budget)
-    return measures
 
 
 def _launches(tracker: RunReader) -> list[Any]:

@@ -8,11 +8,12 @@ import pandas as pd
 
 from ablate.config import ARCHITECTURE_KNOBS, KNOBS, SETTING_KNOBS, TUNABLE_KNOBS, freeze
 from ablate.env_spec import is_pong, resets_on_score
+from ablate.measures import INITIAL_EPISODES
 from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.comparisons import LOO_MAX_SEEDS
 from ablate.reporting.figures import ablation_window
 from ablate.reporting.networks import architecture
-from ablate.reporting.results import INITIAL_EPISODES, Ablation
+from ablate.reporting.results import Ablation
 from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
 from ablate.reporting.text import NO_REFS, Refs, _interval, esc, fmt, joined, setting_value

@@ -229,7 +229,7 @@ def curves_table(ablation: Ablation) -> pd.DataFrame:
 
 
 BUDGET_FRACTIONS = ("quarter", "half", "budget")
-"""``return_at_<E>`` of the trials' table, by its share of the trial's budget (``results.fixed_budgets``)."""
+"""``return_at_<E>`` of the trials' table, by its share of the trial's budget (``measures.fixed_budgets``)."""
 
 
 def meeting(table: pd.DataFrame, ablation: Ablation, settings: bool = False) -> pd.DataFrame:
