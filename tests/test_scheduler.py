@@ -152,11 +152,11 @@ def test_a_local_ray_that_fails_to_start_is_one_line(monkeypatch):
 def test_events_are_told_in_order_off_the_callback_and_a_failed_write_is_raised_on_the_driver():
     """Tune holds a population's worker until its callbacks return: they queue the events, a thread tells them
     (the launch's MLflow writes), in order; a write that fails is raised by the next event queued, or by close."""
-    from ablate.launch.scheduler import _Writer
+    from ablate.launch.event_writer import EventWriter
     from ablate.launch.store import TrackingError
 
     told = []
-    writer = _Writer(None)
+    writer = EventWriter(None)
     for i in range(50):
         writer.put(lambda i=i: told.append(i))
     writer.close()
@@ -165,7 +165,7 @@ def test_events_are_told_in_order_off_the_callback_and_a_failed_write_is_raised_
     def lost():
         raise TrackingError("MLflow store x stopped answering")
 
-    writer = _Writer(None)
+    writer = EventWriter(None)
     writer.put(lost)
     while writer.error is None:
         time.sleep(0.01)
@@ -175,7 +175,7 @@ def test_events_are_told_in_order_off_the_callback_and_a_failed_write_is_raised_
         writer.close()
     assert "never" not in told
 
-    writer = _Writer(None)  # Ctrl-C: the event being told ends, the rest are dropped, nothing is raised
+    writer = EventWriter(None)  # Ctrl-C: the event being told ends, the rest are dropped, nothing is raised
     writer.put(lambda: time.sleep(0.2))
     for _ in range(5):
         writer.put(lambda: told.append("dropped"))

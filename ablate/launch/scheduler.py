@@ -23,7 +23,6 @@ import contextlib
 import functools
 import logging
 import os
-import queue
 import shutil
 import signal
 import socket
@@ -31,7 +30,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -41,6 +40,7 @@ from ray import tune
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from ablate.launch.curve import CurvePoint, CurveReducer
+from ablate.launch.event_writer import EventWriter
 from ablate.launch.patches import ray_entrypoint_shown, ray_error_printer, ray_lean_local_start, ray_loopback_only
 from ablate.launch.plan import Population
 from ablate.launch.ray_logs import one_line, route_raylet_errors, tune_logs_to
@@ -217,7 +217,7 @@ def run_trials(
         checkpoints = _Checkpoints.options(scheduling_strategy=NodeAffinitySchedulingStrategy(here, soft=False)).remote(
             dict(resume or {})
         )
-    writer = _Writer(events)
+    writer = EventWriter(events)
     bridge = _Bridge(writer, checkpoints, {p.key: p.keys for p in plan})
     storage = Path(options.storage_path).resolve() if "://" not in options.storage_path else None
     tuner = tune.Tuner(
@@ -392,52 +392,12 @@ def _host(address: str) -> str:
     return address.removeprefix("ray://").rpartition(":")[0]
 
 
-class _Writer:
-    """``TrialEvents`` told on a thread of their own, in the order they came. Tune holds a population's worker at
-    each report until the driver's callbacks have returned, and telling a report's events is the launch's MLflow
-    writes (a member's run closed with its artifacts: tens of ms, more on a tracking server): told inline they
-    held the workers for ~a quarter of their time (a 200-seed launch, populations of 50). The callback now only
-    queues them. A write that fails stops the thread; the next event queued, or ``close``, raises its error."""
-
-    def __init__(self, events: TrialEvents) -> None:
-        self.events = events
-        self.queue: queue.SimpleQueue[Callable[[], None] | None] = queue.SimpleQueue()
-        self.error: BaseException | None = None
-        self.dropped = False
-        self.thread = threading.Thread(target=self._run, name="ablate-events", daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while (event := self.queue.get()) is not None:
-            if self.error is None and not self.dropped:
-                try:
-                    event()
-                except BaseException as error:  # noqa: BLE001 - raised on the driver's thread, by put or close
-                    self.error = error
-
-    def put(self, event: Callable[[], None]) -> None:
-        if self.error is not None:
-            raise self.error
-        self.queue.put(event)
-
-    def close(self, drop: bool = False) -> None:
-        """Wait until the queued events are told (``drop``: only the one being told), then raise a failed write's
-        error. A second Ctrl-C does not cut the wait short: the caller then writes to the same store."""
-        self.dropped = self.dropped or drop
-        self.queue.put(None)
-        while self.thread.is_alive():
-            with contextlib.suppress(KeyboardInterrupt):
-                self.thread.join()
-        if self.error is not None and not drop:
-            raise self.error
-
-
 class _Bridge(tune.Callback):
     """A Tune callback (runs on the driver) that turns Tune's lifecycle of populations into ``TrialEvents``
-    per member, handed to the ``_Writer``. A member's end is told as its report arrives; a population whose
+    per member, handed to the ``EventWriter``. A member's end is told as its report arrives; a population whose
     process died is retried whole, and its members that had ended already are not told of again."""
 
-    def __init__(self, events: _Writer, checkpoints: Any, members: Mapping[str, list[str]]) -> None:
+    def __init__(self, events: EventWriter, checkpoints: Any, members: Mapping[str, list[str]]) -> None:
         self.events = events
         self.checkpoints = checkpoints
         self.members = dict(members)
