@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -18,3 +20,11 @@ def test_gpu_check_runs_its_short_form_on_the_cpu():
     assert "raw ALE/Pong-v5:" in done.stdout
     assert "cnn:" in done.stdout and "mlp:" in done.stdout
     assert "CartPole population of 2:" in done.stdout
+
+
+@pytest.mark.parametrize("tool", sorted(p.name for p in (ROOT / "tools").glob("*.py")))
+def test_every_tool_imports_and_answers_help(tool):
+    """A tool imported a name that moved (mlflow_screenshots's VARIANTS_FILTER) and nothing ran it: each one's
+    --help at least imports it."""
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / tool), "--help"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]

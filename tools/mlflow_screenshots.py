@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT / "tests"))  # the DevTools client the report's brow
 
 from devtools import DevTools, chromium_flags  # noqa: E402
 
-from ablate.launch.variant_runs import VARIANTS_FILTER  # noqa: E402
+from ablate.launch.mlflow_store import VARIANTS_FILTER  # noqa: E402
 
 COLUMNS = [
     "tags.`ablate.verdict`",
