@@ -5,6 +5,7 @@ launch layer (``run.runner``) and the report layer, which the launch layer itsel
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import time
@@ -103,6 +104,11 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
     else:
         report_s = []
     report_seconds = report_s[0] if report_s else None
+    if report_seconds is not None and outcome.launch_run_id:
+        from ablate.launch.tracking import Tracker
+
+        with contextlib.suppress(Exception):  # a courtesy for the next --dry-run: the report stands without it
+            Tracker(args.tracking_uri, experiment.name).record_report_time(outcome.launch_run_id, report_seconds)
     print(outcome.view.total_line(report_seconds) if outcome.view else f"total {clock(time.monotonic() - started_at)}")
     if outcome.view and (bounds := outcome.view.bounds_line()):
         print(bounds)  # which of the two figures the launch ended near

@@ -19,6 +19,7 @@ START_S = 31.0
 """Seconds a launch spends outside its trials (starting a local Ray and opening the store, then shutting Ray
 down): measured as ``ablate.run`` of experiments/quickstart.toml on 2 shared cores, 1:37 against the progress
 line's 1:06 of trials. Nothing in the store records it, so the dry run says it is a guess."""
+GUESS = "a guess, measured once on a quickstart on 2 cores"
 REPORT_S = 46.0
 """Seconds ``ablate run`` spends writing the report at the end (Markdown, HTML, PDF): measured as ``ablate report``
 of the same quickstart store (PDF of 9 pages), on the same 2 cores while other work ran."""
@@ -26,10 +27,20 @@ of the same quickstart store (PDF of 9 pages), on the same 2 cores while other w
 
 def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, report: bool = True) -> str:
     """The whole command's time, first: the trials' (``trial_time``), the start's and the report's, each with
-    how it was estimated."""
-    overhead = START_S + (REPORT_S if report else 0.0)
-    parts = f"~{clock(START_S)} to start" + (f" and ~{clock(REPORT_S)} for the report" if report else "")
-    guess = f"{parts}: a guess, measured once on a quickstart on 2 cores"
+    how it was estimated: the start and the report as this store's newest launch of the experiment took them
+    (``Tracker.launch_times``), else ``START_S`` and ``REPORT_S``."""
+    start_s, report_s = launch_times(experiment, tracking_uri)
+    measured = start_s is not None and (report_s is not None or not report)
+    start_s = start_s if measured else START_S
+    report_s = (report_s if measured else REPORT_S) or 0.0
+    overhead = start_s + (report_s if report else 0.0)
+    parts = f"~{clock(start_s)} to start" + (f" and ~{clock(report_s)} for the report" if report else "")
+    how = (
+        "as this store's last launch of it took them"
+        if measured
+        else "a guess, measured once on a quickstart on 2 cores"
+    )
+    guess = f"{parts}: {how}"
     trials_words, left, most = trial_time(experiment, trials, tracking_uri)
     if left is None:
         return f"time: {trials_words}; plus {guess}"
@@ -102,6 +113,22 @@ def costed(trials: list[GridTrial], earlier: dict[str, float]) -> dict[str, floa
         t.key: earlier[t.key] if t.key in earlier else statistics.fmean(by_variant.get(t.variant) or [overall])
         for t in trials
     }
+
+
+def launch_times(experiment: Experiment, tracking_uri: str | None) -> tuple[float | None, float | None]:
+    """(start, report) seconds of the store's newest launch of ``experiment`` (``Tracker.launch_times``); Nones
+    where the store does not exist yet, cannot be read, or its launch recorded none."""
+    from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
+
+    path = sqlite_path(resolve_uri(tracking_uri))
+    if path is not None and not path.exists():
+        return None, None
+    from ablate.launch.tracking import Tracker
+
+    try:
+        return Tracker(tracking_uri, experiment.name, write=False).launch_times()
+    except TrackingError:
+        return None, None
 
 
 def earlier_costs(experiment: Experiment, tracking_uri: str | None, keys: list[str]) -> dict[str, float]:

@@ -458,6 +458,25 @@ def test_dry_run_prints_its_cost_first_with_the_start_and_the_report(tmp_path, c
     assert "to start" in first and "report" not in first, first
 
 
+def test_dry_run_costs_the_start_and_the_report_as_the_stores_last_launch_took_them(tmp_path, capsys):
+    """It said "~0:31 to start and ~0:46 for the report: a guess" beside a store whose launches had taken 0:06-0:11
+    and 0:02-0:11 (3e01923). A launch records both (``start_s``, ``report_s``); the dry run reads the newest."""
+    from stores import fresh_store
+
+    from ablate.launch.tracking import Tracker
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    uri = fresh_store(tmp_path / "mlflow.db")
+    tracker = Tracker(uri, "tiny")
+    launch = tracker.start_launch("g", "tiny launch", {}, {})
+    tracker.finish_launch(launch, "FINISHED", {"trials_finished": 4.0, "start_s": 7.0})
+    tracker.record_report_time(launch, 12.0)
+    assert main(["run", str(path), "--dry-run", "--tracking-uri", uri]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "~0:07 to start and ~0:12 for the report: as this store's last launch of it took them" in first, first
+
+
 def test_train_flags_for_a_users_env_module_refuse_one_that_registers_nothing_in_one_line(
     tmp_path, monkeypatch, capsys
 ):

@@ -139,6 +139,16 @@ def test_the_progress_line_and_the_summary_count_the_same_trials_finished_before
     assert outcome.skipped == 2 and outcome.view.state.already_done == 2
 
 
+def test_a_launch_records_the_seconds_until_its_first_trial_started(tmp_path, tracking_uri, monkeypatch):
+    """What the next ``--dry-run`` says a start costs (``start_s`` on the launch's run)."""
+    from ablate.launch.runner import run_experiment
+
+    _fake_scheduler(monkeypatch, lambda trials, events: events.started(trials[0].key))
+    run_experiment(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False)
+    start_s = _launches(Tracker(tracking_uri, "tiny"))[0].data.metrics["start_s"]
+    assert 0 <= start_s < HANG_S
+
+
 FAULTS = """
 name = "faults"
 seeds = [0]

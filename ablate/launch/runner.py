@@ -32,7 +32,7 @@ from ablate.launch.recorder import Recorder
 from ablate.launch.records import TorchKernels, environment_document, git_commit, grid_document
 from ablate.launch.rounds import Judge, Rounds
 from ablate.launch.state import LaunchState
-from ablate.launch.tracking import Tracker
+from ablate.launch.tracking import START_METRIC, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
 
 # ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
@@ -471,6 +471,9 @@ class _Launch:
                 "trials_failed": len(outcome.failed),
                 "trials_killed": len(outcome.killed),
             }
+            state = getattr(self, "state", None)
+            if state is not None and state.first_start is not None:  # what the next --dry-run says a start costs
+                counts[START_METRIC] = round(state.first_start - state.start, 3)
             tracker.finish_launch(self.launch, status, counts, note=outcome.note())
             if self.started_ray:
                 self.scheduler.stop_ray()

@@ -55,6 +55,10 @@ store, ``patches.mlflow_insert_metrics``; a ``log_batch`` per run on a server), 
 a trial's end writes its own."""
 
 
+START_METRIC, REPORT_METRIC = "start_s", "report_s"
+"""On a launch's run: seconds until its first trial started, and spent writing its report (``ablate run``)."""
+
+
 class Tracker(Store):
     """The driver's writer: a parent run per launch, a child run per trial (and what resuming reads back)."""
 
@@ -144,6 +148,20 @@ class Tracker(Store):
         if status != "FINISHED":
             self.client.set_tag(run_id, TAG_ERROR, note[:5000])
         self.client.set_terminated(run_id, status)
+
+    def record_report_time(self, run_id: str, seconds: float) -> None:
+        """The seconds ``ablate run`` spent writing the report after launch ``run_id``: what the next ``--dry-run``
+        says a report costs (``launch_times``)."""
+        self._log_metrics(run_id, [(REPORT_METRIC, round(seconds, 3), 0)])
+
+    def launch_times(self) -> tuple[float | None, float | None]:
+        """(start, report) seconds the newest launch took: until its first trial started, and writing its report
+        (None where it recorded none: an older store, a launch without a report)."""
+        launch = self.latest_launch()
+        if launch is None:
+            return None, None
+        metrics = launch.data.metrics
+        return metrics.get(START_METRIC), metrics.get(REPORT_METRIC)
 
     # --- trials -----------------------------------------------------------------------------------
     def start_trial(
