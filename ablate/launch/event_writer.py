@@ -4,6 +4,7 @@ them: the scheduler (the one module that talks to Ray) hands each event here. St
 from __future__ import annotations
 
 import contextlib
+import functools
 import queue
 import threading
 from collections.abc import Callable
@@ -33,10 +34,11 @@ class EventWriter:
                 except BaseException as error:  # noqa: BLE001 - raised on the driver's thread, by put or close
                     self.error = error
 
-    def put(self, event: Callable[[], None]) -> None:
+    def put(self, event: Callable[..., None], *args: Any) -> None:
+        """Tell ``event(*args)`` (a method of ``events``) after the events queued before it."""
         if self.error is not None:
             raise self.error
-        self.queue.put(event)
+        self.queue.put(functools.partial(event, *args))
 
     def close(self, drop: bool = False) -> None:
         """Wait until the queued events are told (``drop``: only the one being told), then raise a failed write's

@@ -20,7 +20,6 @@ driver; a user with NFS or ``s3://`` can still point it there.
 from __future__ import annotations
 
 import contextlib
-import functools
 import logging
 import os
 import shutil
@@ -397,36 +396,35 @@ class _Bridge(tune.Callback):
     per member, handed to the ``EventWriter``. A member's end is told as its report arrives; a population whose
     process died is retried whole, and its members that had ended already are not told of again."""
 
-    def __init__(self, events: EventWriter, checkpoints: Any, members: Mapping[str, list[str]]) -> None:
-        self.events = events
+    def __init__(self, writer: EventWriter, checkpoints: Any, members: Mapping[str, list[str]]) -> None:
+        self.writer, self.events = writer, writer.events
         self.checkpoints = checkpoints
         self.members = dict(members)
         self.ended: set[str] = set()
 
     def __getstate__(self) -> dict:
-        # Tune pickles its callbacks into its experiment state; the events (an MLflow client, a terminal
+        # Tune pickles its callbacks into its experiment state; the writer and its events (an MLflow client, a terminal
         # view) belong to this process and are no part of that state.
-        return {"events": None, "checkpoints": None, "members": {}, "ended": set()}
+        return {"writer": None, "events": None, "checkpoints": None, "members": {}, "ended": set()}
 
     def _running(self, trial: Any) -> list[str]:
         return [k for k in self.members[trial.config["key"]] if k not in self.ended]
 
     def on_trial_start(self, iteration, trials, trial, **info):
         for key in self._running(trial):
-            self.events.put(functools.partial(self.events.events.started, key))
+            self.writer.put(self.events.started, key)
 
     def on_trial_result(self, iteration, trials, trial, result, **info):
         # Popped: Tune keeps the last result of every trial in memory and in its experiment state.
-        events = self.events.events
         running = set(self._running(trial))
         for key, points in result.pop("ablate_points", {}).items():
             if points and key in running:
-                self.events.put(functools.partial(events.episodes, key, [CurvePoint(*p) for p in points]))
+                self.writer.put(self.events.episodes, key, [CurvePoint(*p) for p in points])
         for key, blob in result.pop("ablate_checkpoint", {}).items():
             if key in running:
                 if self.checkpoints is not None:
                     self.checkpoints.put.remote(key, blob)
-                self.events.put(functools.partial(events.checkpoint, key, blob))
+                self.writer.put(self.events.checkpoint, key, blob)
         node = result.get("ablate_node", "")
         population = trial.config["key"]
         for key, outcome in result.pop("ablate_outcomes", {}).items():
@@ -434,19 +432,19 @@ class _Bridge(tune.Callback):
                 continue
             self.ended.add(key)
             if "failed" in outcome:
-                self.events.put(functools.partial(events.failed, key, outcome["failed"]))
+                self.writer.put(self.events.failed, key, outcome["failed"])
             else:
-                self.events.put(functools.partial(_finished, events, key, outcome, node, population))
+                self.writer.put(_finished, self.events, key, outcome, node, population)
 
     def on_trial_recover(self, iteration, trials, trial, **info):
         for key in self._running(trial):
-            self.events.put(functools.partial(self.events.events.restarted, key, _error_text(trial)))
+            self.writer.put(self.events.restarted, key, _error_text(trial))
 
     def on_trial_error(self, iteration, trials, trial, **info):
         reason = f"trial process died {MAX_PROCESS_FAILURES + 1} times: {_error_text(trial)}"
         for key in self._running(trial):
             self.ended.add(key)
-            self.events.put(functools.partial(self.events.events.failed, key, reason))
+            self.writer.put(self.events.failed, key, reason)
 
 
 def _finished(events: TrialEvents, key: str, outcome: Mapping[str, Any], node: str, population: str) -> None:
