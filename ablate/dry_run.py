@@ -115,18 +115,30 @@ def costed(trials: list[GridTrial], earlier: dict[str, float]) -> dict[str, floa
     }
 
 
-def launch_times(experiment: Experiment, tracking_uri: str | None) -> tuple[float | None, float | None]:
-    """(start, report) seconds of the store's newest launch of ``experiment`` (``Tracker.launch_times``); Nones
-    where the store does not exist yet, cannot be read, or its launch recorded none."""
+def _store(experiment: Experiment, tracking_uri: str | None):
+    """The experiment's store opened to read, or None where it does not exist yet (MLflow not imported for
+    nothing) or cannot be read."""
     from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
 
     path = sqlite_path(resolve_uri(tracking_uri))
     if path is not None and not path.exists():
-        return None, None
+        return None
     from ablate.launch.tracking import Tracker
 
     try:
-        return Tracker(tracking_uri, experiment.name, write=False).launch_times()
+        return Tracker(tracking_uri, experiment.name, write=False)
+    except TrackingError:
+        return None
+
+
+def launch_times(experiment: Experiment, tracking_uri: str | None) -> tuple[float | None, float | None]:
+    """(start, report) seconds of the store's newest launch of ``experiment`` (``Tracker.launch_times``); Nones
+    where there is no store or its launch recorded none."""
+    from ablate.launch.store import TrackingError
+
+    store = _store(experiment, tracking_uri)
+    try:
+        return store.launch_times() if store is not None else (None, None)
     except TrackingError:
         return None, None
 
@@ -134,15 +146,11 @@ def launch_times(experiment: Experiment, tracking_uri: str | None) -> tuple[floa
 def earlier_costs(experiment: Experiment, tracking_uri: str | None, keys: list[str]) -> dict[str, float]:
     """Seconds each of ``keys`` took when an earlier launch finished it, read from the store without writing
     to it (none where the store does not exist yet or cannot be read)."""
-    from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
+    from ablate.launch.store import TrackingError
 
-    path = sqlite_path(resolve_uri(tracking_uri))
-    if path is not None and not path.exists():
-        return {}  # no store yet (and MLflow not imported for nothing)
-    from ablate.launch.tracking import Tracker
-
+    store = _store(experiment, tracking_uri)
     try:
-        return Tracker(tracking_uri, experiment.name, write=False).earlier_runs(keys)[0]
+        return store.earlier_runs(keys)[0] if store is not None else {}
     except TrackingError:
         return {}
 

@@ -216,7 +216,8 @@ class _Launch:
     what happened (``close``), whatever happened."""
 
     recorder: Recorder | None = None
-    """Set by ``watch``; ``close`` runs whatever step failed before it."""
+    state: LaunchState | None = None
+    """Both set by ``watch``; ``close`` runs whatever step failed before it."""
 
     def __init__(
         self,
@@ -471,9 +472,8 @@ class _Launch:
                 "trials_failed": len(outcome.failed),
                 "trials_killed": len(outcome.killed),
             }
-            state = getattr(self, "state", None)
-            if state is not None and state.first_start is not None:  # what the next --dry-run says a start costs
-                counts[START_METRIC] = round(state.first_start - state.start, 3)
+            if self.state is not None and self.state.first_start is not None:  # the next --dry-run's start cost
+                counts[START_METRIC] = round(self.state.first_start - self.state.start, 3)
             tracker.finish_launch(self.launch, status, counts, note=outcome.note())
             if self.started_ray:
                 self.scheduler.stop_ray()
