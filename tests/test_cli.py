@@ -102,6 +102,11 @@ BAD_EXPERIMENTS = [
         "primary = 'episodes_to_solve' is invalid: ALE/Pong-v5 has no solve threshold",
     ),
     ("smallest_effect = 1.5\n[[variants]]\nname='a'\n", "smallest_effect = 1.5 is invalid; valid: a fraction"),
+    # a Pong-only knob on another game (issue 56): refused, not silently ignored
+    (
+        "[base]\nenv_id = 'ALE/Breakout-v5'\naction_set = 'move'\n[[variants]]\nname='a'\n",
+        "base.action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5'; valid: only on Pong",
+    ),
 ]
 
 
