@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ablate import schema, sources
-from ablate.env_spec import is_pong
+from ablate.env_spec import PROFILES, profile_of
 from ablate.schema import Knob, boolean, derived, integer, is_int, is_number, knob, number, one_of
 
 __all__ = ["Knob", "is_int", "is_number"]  # re-exported: older callers import them from here
@@ -39,9 +39,10 @@ MAX_VARIANT_NAME_LENGTH = 200
 MAX_TRIALS = 10_000
 """Trials (variants x seeds) one experiment may hold: more is a typo in a ``[grid]`` far more often than an
 intent, and expanding it would take minutes and gigabytes before the first trial starts."""
-# --- Pong env knobs (issue 9) ---
-PONG_ACTION_SETS = ("all", "move")
-"""``all``: Pong's 6 actions; ``move``: only UP and DOWN (ALE actions 2 and 3), as in Karpathy's pg-pong."""
+# --- the Pong profile's knobs (issue 9) ---
+ACTION_SETS = ("all", "move")
+"""``all``: the game's minimal action set (Pong's 6); ``move``: its RIGHT and LEFT (or UP and DOWN) only, as in
+Karpathy's pg-pong (``envs.MOVES``)."""
 # --- tuning (issue 19) ---
 TUNE_METRICS = {"auc": "max", "episodes_to_solve": "min", "final_return": "max"}
 """What "best" means for a tuning candidate, and its direction: ``auc`` (mean rolling return over the budget),
@@ -147,6 +148,7 @@ class ModelConfig:
 
 # A knob of the env a trial is built against: it separates populations and changes what ``describe`` finds.
 _ENV = {"population": True, "env": True}
+_ATARI = tuple(name for name, profile in PROFILES.items() if profile.atari)
 
 
 @dataclass(frozen=True)
@@ -218,13 +220,26 @@ class TrialConfig:
     )
     """Test-only: a file path ``crash_once`` uses to remember it already crashed, ``block`` waits for."""
 
-    # --- Pong env, collection, videos and checkpoints (issue 9); CartPole ignores the Pong-only ones ---
-    action_set: str = knob("all", **one_of(PONG_ACTION_SETS, "'all' (6 actions) or 'move' (UP and DOWN)"), **_ENV)
-    """Pong only: ``all`` (the 6 actions) or ``move`` (UP and DOWN only, as in Karpathy's pg-pong)."""
-    frameskip: int = knob(4, **integer(1, 16), **_ENV)
-    """Pong only: emulator frames per agent step (the action repeats), ALE/Pong-v5's default 4."""
-    repeat_action_probability: float = knob(0.25, **number(0, 1), **_ENV)
-    """Pong only: sticky actions, the chance the emulator repeats the previous action in a frame (v5: 0.25)."""
+    # --- env profiles and their knobs, collection, videos and checkpoints (issue 9) ---
+    env_profile: str = knob(
+        "",
+        **one_of(("", *PROFILES), "one of " + ", ".join(map(repr, PROFILES)) + " (or leave it out: by env_id)"),
+        key_since=4,
+        **_ENV,
+    )
+    """The env family's pipeline (``env_spec.PROFILES``): ``pong`` (the course's Pong pre-processing, for any Atari
+    game), ``atari`` (``AtariPreprocessing``), ``gym`` (the env as Gymnasium makes it); "": by ``env_id``."""
+    action_set: str = knob(
+        "all",
+        **one_of(ACTION_SETS, "'all' (the game's minimal action set) or 'move' (its RIGHT and LEFT)"),
+        profiles=("pong",),
+        **_ENV,
+    )
+    """Pong profile: ``all`` (the game's minimal action set) or ``move`` (RIGHT and LEFT only, as in pg-pong)."""
+    frameskip: int = knob(4, **integer(1, 16), profiles=_ATARI, **_ENV)
+    """Atari profiles: emulator frames per agent step (the action repeats), ALE v5's default 4."""
+    repeat_action_probability: float = knob(0.25, **number(0, 1), profiles=_ATARI, **_ENV)
+    """Atari profiles: sticky actions, the chance the emulator repeats the previous action in a frame (v5: 0.25)."""
     max_episode_steps: int = knob(0, **integer(0, 1_000_000, " (0: the env's limit)"), **_ENV)
     """Agent steps after which an episode is cut short (truncated); 0: the env's own limit. For smoke runs."""
     num_envs: int = knob(0, **integer(0, 256, " (0: episodes_per_update)"), population=True)
@@ -241,7 +256,7 @@ class TrialConfig:
     def checkpoint_interval(self) -> int:
         if self.checkpoint_every is not None:
             return self.checkpoint_every
-        return 50 if self.reset_on_score else 0
+        return profile_of(self).checkpoint_every
 
     @property
     def vector_envs(self) -> int:
@@ -249,10 +264,8 @@ class TrialConfig:
 
     @property
     def reset_on_score(self) -> bool:
-        """Pong's return restarts at every point scored (``env_spec.resets_on_score``)."""
-        from ablate.env_spec import resets_on_score
-
-        return resets_on_score(self.env_id)
+        """The return restarts at every point scored (the profile's return rule: Pong's)."""
+        return profile_of(self).resets_on_score
 
 
 SCHEMA: dict[str, Knob] = schema.fields_of(TrialConfig)
@@ -311,6 +324,23 @@ def resolve_factory(spec: str, base_dir: Path, where: str = "") -> tuple[sources
         raise ConfigError(f"{where}model = {spec!r} is invalid: {error}") from None
 
 
+def _check_profile(config: TrialConfig, where: str) -> None:
+    """The env profile can make the env, and every env knob set away from its default is one the profile honours."""
+    profile = profile_of(config)
+    if not config.env_id.startswith(profile.needs):
+        raise ConfigError(
+            f"{where}env_profile = {profile.name!r} is invalid for env_id = {config.env_id!r}; valid: an env id "
+            f"starting {profile.needs!r}, or another profile ({', '.join(PROFILES)})"
+        )
+    for name, declared in KNOBS.items():
+        if declared.profiles and profile.name not in declared.profiles and getattr(config, name) != declared.default:
+            raise ConfigError(
+                f"{where}{name} = {getattr(config, name)!r} is invalid for env_id = {config.env_id!r} (profile "
+                f"{profile.name!r}, which ignores it); valid: only with env_profile "
+                + " or ".join(map(repr, declared.profiles))
+            )
+
+
 def apply_knobs(
     base: TrialConfig, knobs: Mapping[str, Any], where: str = "", base_dir: Path | None = None
 ) -> TrialConfig:
@@ -345,11 +375,7 @@ def apply_knobs(
         model_updates["hidden_sizes"] = (width,) * depth
     model = replace(base.model, **model_updates)
     config = replace(base, model=model, **trial_updates)
-    if config.action_set != "all" and not is_pong(config.env_id):  # honoured by Pong's env alone (envs.PongActions)
-        raise ConfigError(
-            f"{where}action_set = {config.action_set!r} is invalid for env_id = {config.env_id!r}; valid: only on "
-            "Pong (ALE/Pong-*), whose UP/DOWN set it picks: leave it out for other envs, which act on all their actions"
-        )
+    _check_profile(config, where)
     # Judged for every cnn, not by the env's name: the window's knobs are unused over an image, whose default pass.
     if model.architecture == "cnn" and model.kernel_size > model.history:
         raise ConfigError(

@@ -1,13 +1,19 @@
-"""What Gymnasium's registry says of a config's env, without building it: registering it (a user's module,
-ale-py's games), its spec's reward threshold, the solve threshold a trial stops at, Pong's return rule.
+"""What an env family needs, declared once as its profile (the wrappers that make a trial's env, the knobs it
+honours, its return rule, its videos, its words in the report), and what Gymnasium's registry says of a config's
+env without building it: registering it (a user's module, ale-py's games), its spec's reward threshold, the solve
+threshold a trial stops at.
 
 Below the agent (stdlib; Gymnasium and ale-py imported lazily), so the experiment, the launch's driver and the
-report ask the same functions the trainer does.
+report ask the same functions the trainer does. The one place that reads an env's name: ``profile_of`` picks a
+profile by ``Profile.matches`` where the experiment names none.
 """
 
 from __future__ import annotations
 
 import functools
+import importlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from ablate import sources
@@ -25,14 +31,96 @@ class EnvConfig(Protocol):
     solve_threshold: float | None
 
 
-def is_pong(env_id: str) -> bool:
-    """The course's Pong (``ALE/Pong-*``): its frame-difference env, its sampling-policy videos, its return rule."""
-    return env_id.startswith("ALE/Pong")
+@dataclass(frozen=True)
+class Profile:
+    """An env family: how a trial's env is made and what follows from it, each fact once (the knobs it honours
+    are declared with them: ``schema.Knob.profiles``)."""
+
+    name: str
+    summary: str
+    """One line for the docs and the knob's message."""
+    make: str
+    """``module:function`` building one env of a trial, called as ``function(config, render)`` (Gymnasium's own
+    entry-point form)."""
+    matches: str = ""
+    """The env ids it is the default profile for: those starting with this ("": any)."""
+    needs: str = ""
+    """The env ids it can make: those starting with this ("": any)."""
+    resets_on_score: bool = False
+    """The discounted return restarts at every nonzero reward (the course's rule for Pong: a point scored)."""
+    sampling_video: bool = False
+    """The end-of-trial video plays the sampling policy, not the greedy one (a greedy agent that has not learnt
+    much holds one button for a whole Atari game)."""
+    episode_limit_from_spec: bool = True
+    """An episode is cut at the spec's ``max_episode_steps`` where ``max_episode_steps`` is 0 (else: never)."""
+    observation: str = "image"
+    """What a 3-D observation is, in the report's words."""
+    observation_shape: tuple[int, ...] = (0,)
+    """The observation's shape where a trial did not record it (a run from before trials recorded it)."""
+    observation_figure: bool = False
+    """A trial draws ``observation.png`` (a raw frame, pre-processed, as a difference)."""
+    large_frames: bool = False
+    """Per-update arrays of megabytes: glibc maps them, and gives them back when freed (``trainer._set_malloc``)."""
+    checkpoint_every: int = 0
+    """Episodes between checkpoints where ``checkpoint_every`` is unset (trials of hours need them)."""
+    atari: bool = False
+    """An Atari game: the report cites the Arcade Learning Environment."""
+    return_levels: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
+    """Return levels the report counts episodes to, by game (no solve threshold there)."""
+
+    def maker(self):
+        module, function = self.make.split(":")
+        return getattr(importlib.import_module(module), function)
 
 
-def resets_on_score(env_id: str) -> bool:
-    """Does the discounted return restart at every point scored? The course's rule for Pong."""
-    return is_pong(env_id)
+PROFILES = {
+    profile.name: profile
+    for profile in (
+        Profile(
+            "pong",
+            "the course's Pong pipeline for any Atari game: 80x80 foreground frames (rows 35:195, every 2nd pixel, "
+            "backgrounds 144 and 109 erased) differenced, the return reset at every point, action_set",
+            "ablate.envs:make_pong_trial_env",
+            matches="ALE/Pong",
+            needs="ALE/",
+            resets_on_score=True,
+            sampling_video=True,
+            episode_limit_from_spec=False,
+            observation="frame difference",
+            observation_shape=(1, 80, 80),
+            observation_figure=True,
+            large_frames=True,
+            checkpoint_every=50,
+            atari=True,
+            return_levels={"ALE/Pong-v5": (-15.0, -10.0)},
+        ),
+        Profile(
+            "atari",
+            "Gymnasium's AtariPreprocessing (grayscale 84x84, frameskip, sticky actions), frames differenced",
+            "ablate.envs:make_atari_trial_env",
+            matches="ALE/",
+            needs="ALE/",
+            observation="frame difference",
+            atari=True,
+        ),
+        Profile(
+            "gym", "gym.make(env_id, **env_args), observations as the env gives them", "ablate.envs:make_gym_trial_env"
+        ),
+    )
+}
+"""The env families, by the name an experiment's ``env_profile`` gives; most specific first."""
+
+
+def profile_of(config: Any) -> Profile:
+    """``config``'s profile (a config, or anything with its ``env_id`` and ``env_profile``)."""
+    return profile_named(config.env_id, getattr(config, "env_profile", ""))
+
+
+def profile_named(env_id: str, env_profile: str = "") -> Profile:
+    """The profile ``env_profile`` names, else the first whose ``matches`` starts ``env_id``."""
+    if env_profile:
+        return PROFILES[env_profile]
+    return next(p for p in PROFILES.values() if env_id.startswith(p.matches))
 
 
 def register(config: EnvConfig) -> None:

@@ -1,18 +1,21 @@
-"""Environments: any Gymnasium env with discrete actions, as the trainer makes and describes it; Pong's course
-pipeline (``pre_process``, the frame difference) and other Atari games' standard one.
+"""Environments: any Gymnasium env with discrete actions, as the trainer makes and describes it, through its
+profile (``env_spec.PROFILES``): the course's Pong pipeline (``pre_process``, the frame difference), for any Atari
+game; other Atari games' standard one; any other env as Gymnasium makes it.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 from ablate import env_internals
 from ablate.config import TrialConfig, env_facts
-from ablate.env_spec import EnvError, is_pong, register, versions  # noqa: F401 - EnvError: what describe raises
+from ablate.env_spec import EnvError, profile_of, register, versions  # noqa: F401 - EnvError: what describe raises
 
 # Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
 # display and prints "XDG_RUNTIME_DIR is invalid or not set" on a headless machine.
@@ -64,18 +67,24 @@ def frame_difference(frame: np.ndarray, previous: np.ndarray | None) -> np.ndarr
     return current - (current if previous is None else pre_process(previous))
 
 
-# --- Pong for trials (issue 9): ale-py's own env through Gymnasium, with the course's observation and actions ---
-PONG_ACTIONS = {"all": (0, 1, 2, 3, 4, 5), "move": (2, 3)}
-"""Policy action index -> index into Pong's minimal action set (NOOP, FIRE, RIGHT, LEFT, RIGHTFIRE, LEFTFIRE).
-``move``: 2 (RIGHT, the paddle goes up) and 3 (LEFT, down)."""
+# --- the Pong profile (issue 9): ale-py's own env through Gymnasium, with the course's observation and actions ---
+MOVES = (("RIGHT", "LEFT"), ("UP", "DOWN"))
+"""``action_set = "move"``: the first of these pairs of actions the game's minimal set has (Pong's RIGHT and LEFT
+move the paddle up and down, as in Karpathy's pg-pong); ``all``: the whole minimal set."""
 
 
-class PongActions(gym.ActionWrapper):
-    """The policy's actions, ``range(len(PONG_ACTIONS[action_set]))``, as Pong's minimal-set actions."""
+class ActionSubset(gym.ActionWrapper):
+    """The policy's actions, ``range(len(actions))``, as the game's minimal-set actions ``action_set`` picks;
+    ``names``: ALE's names of them."""
 
     def __init__(self, env: gym.Env, action_set: str = "all") -> None:
         super().__init__(env)
-        self.actions = PONG_ACTIONS[action_set]
+        meanings = env.unwrapped.get_action_meanings()
+        pairs = [pair for pair in MOVES if set(pair) <= set(meanings)] if action_set == "move" else []
+        if action_set == "move" and not pairs:
+            raise EnvError(f"action_set = {action_set!r}: {env.spec.id} has no RIGHT/LEFT or UP/DOWN actions")
+        self.actions = tuple(meanings.index(name) for name in pairs[0]) if pairs else tuple(range(len(meanings)))
+        self.names = tuple(meanings[a] for a in self.actions)
         self.action_space = gym.spaces.Discrete(len(self.actions))
 
     def action(self, action: int) -> int:
@@ -123,13 +132,12 @@ def make_pong(
     repeat_action_probability: float = 0.25,
     max_episode_steps: int = 0,
     render: bool = False,
+    env_args: Mapping[str, Any] | None = None,
 ) -> gym.Env:
-    """ale-py's ``AtariEnv`` made by Gymnasium (``frameskip`` frames a step, sticky actions at
-    ``repeat_action_probability``, Pong's minimal action set, truncated by ``TimeLimit`` after
-    ``max_episode_steps`` steps, 0: never) giving ``PongFrameDifference``'s observations; its actions
-    ``PONG_ACTIONS[action_set]``. ``render``: ``env.render()`` gives the RGB screen (videos)."""
-    if not is_pong(env_id):
-        raise ValueError(f"make_pong plays ALE/Pong only, not {env_id}")
+    """ale-py's ``AtariEnv`` of ``env_id`` (Pong, or any other game) made by Gymnasium (``frameskip`` frames a
+    step, sticky actions at ``repeat_action_probability``, the game's minimal action set, truncated by ``TimeLimit``
+    after ``max_episode_steps`` steps, 0: never) giving ``PongFrameDifference``'s observations; its actions those
+    ``action_set`` picks. ``render``: ``env.render()`` gives the RGB screen (videos)."""
     register(TrialConfig(env_id=env_id))
     kwargs = {"max_episode_steps": max_episode_steps} if max_episode_steps > 0 else {}
     env = gym.make(
@@ -141,12 +149,26 @@ def make_pong(
         full_action_space=False,
         render_mode="rgb_array" if render else None,
         **kwargs,
+        **dict(env_args or {}),
     )
-    return PongFrameDifference(PongActions(env, action_set))
+    return PongFrameDifference(ActionSubset(env, action_set))
 
 
-def sample_pong_frames(env_id: str = "ALE/Pong-v5", seed: int = 0, steps: int = 60) -> tuple[np.ndarray, np.ndarray]:
-    """Two consecutive raw RGB frames of a Pong game ``steps`` agent steps in (the ball in play), for figures."""
+def make_pong_trial_env(config, render: bool = False) -> gym.Env:
+    """The Pong profile's env of a trial: ``make_pong`` with the trial's knobs."""
+    return make_pong(
+        config.env_id,
+        config.action_set,
+        config.frameskip,
+        config.repeat_action_probability,
+        config.max_episode_steps,
+        render,
+        dict(config.env_args),
+    )
+
+
+def sample_frames(env_id: str = "ALE/Pong-v5", seed: int = 0, steps: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """Two consecutive raw RGB frames of an Atari game ``steps`` agent steps in (Pong's ball in play), for figures."""
     env = make_pong(env_id, repeat_action_probability=0.0, render=True)
     try:
         env.reset(seed=seed)
@@ -180,10 +202,6 @@ def is_native_vector(config) -> bool:
     return config.env_id in NATIVE_VECTOR and not config.env_args
 
 
-def is_atari(env_id: str) -> bool:
-    return env_id.startswith("ALE/") and not is_pong(env_id)
-
-
 class AtariFrameDifference(gym.ObservationWrapper):
     """A grayscale 84x84 frame (``AtariPreprocessing``) minus the previous one, scaled to [-1, 1], (1, 84, 84):
     the frame difference the course feeds its Pong CNN, for any other Atari game."""
@@ -205,34 +223,39 @@ class AtariFrameDifference(gym.ObservationWrapper):
 
 
 def make_trial_env(config, render: bool = False) -> gym.Env:
-    """One env of a trial, its observations what the policy takes: Pong's frame differences of ``pre_process``-ed
-    frames; another Atari game's grayscale 84x84 frame differences (``AtariPreprocessing``, ``frameskip`` frames a
-    step, sticky actions at ``repeat_action_probability``); any other env as ``gym.make(env_id, **env_args)``."""
+    """One env of a trial, its observations what the policy takes, as its profile makes it (``env_spec.PROFILES``):
+    Pong's frame differences of ``pre_process``-ed frames; another Atari game's grayscale 84x84 frame differences;
+    any other env as ``gym.make(env_id, **env_args)``."""
     register(config)
-    if is_pong(config.env_id) and not config.env_args:
-        return make_pong(
-            config.env_id,
-            config.action_set,
-            config.frameskip,
-            config.repeat_action_probability,
-            config.max_episode_steps,
-            render,
-        )
+    try:
+        return profile_of(config).maker()(config, render)
+    except gym.error.Error as error:
+        raise EnvError(f"env_id = {config.env_id!r}: {error}") from None
+    except TypeError as error:
+        raise EnvError(f"env_args = {dict(config.env_args)!r}: {config.env_id} refuses them ({error})") from None
+
+
+def _gym_kwargs(config, render: bool) -> dict[str, Any]:
     kwargs = dict(config.env_args)
     if config.max_episode_steps:
         kwargs["max_episode_steps"] = config.max_episode_steps
     if render:
         kwargs["render_mode"] = "rgb_array"
-    try:
-        if is_atari(config.env_id):
-            kwargs.setdefault("repeat_action_probability", config.repeat_action_probability)
-            env = gym.make(config.env_id, frameskip=1, **kwargs)
-            return AtariFrameDifference(gym.wrappers.AtariPreprocessing(env, frame_skip=config.frameskip))
-        return gym.make(config.env_id, **kwargs)
-    except gym.error.Error as error:
-        raise EnvError(f"env_id = {config.env_id!r}: {error}") from None
-    except TypeError as error:
-        raise EnvError(f"env_args = {dict(config.env_args)!r}: {config.env_id} refuses them ({error})") from None
+    return kwargs
+
+
+def make_atari_trial_env(config, render: bool = False) -> gym.Env:
+    """The Atari profile's env: ``AtariPreprocessing`` (``frameskip`` frames a step, sticky actions at
+    ``repeat_action_probability``), its frames differenced."""
+    kwargs = _gym_kwargs(config, render)
+    kwargs.setdefault("repeat_action_probability", config.repeat_action_probability)
+    env = gym.make(config.env_id, frameskip=1, **kwargs)
+    return AtariFrameDifference(gym.wrappers.AtariPreprocessing(env, frame_skip=config.frameskip))
+
+
+def make_gym_trial_env(config, render: bool = False) -> gym.Env:
+    """The plain profile's env: ``gym.make(env_id, **env_args)``."""
+    return gym.make(config.env_id, **_gym_kwargs(config, render))
 
 
 @dataclass(frozen=True)
@@ -248,6 +271,8 @@ class Described:
     video_stride: int = 1
     video_downscale: int = 1
     observation_dtype: str = "float32"
+    action_names: tuple[str, ...] = ()
+    """The env's names of the policy's actions, where it names them (ALE's ``get_action_meanings``)."""
 
 
 _DESCRIBED: dict[tuple, Described] = {}
@@ -270,9 +295,9 @@ def describe(config) -> Described:
             raise EnvError(f"env_id = {config.env_id!r} has {type(actions).__name__} actions; valid: Discrete ones")
         if not isinstance(observations, gym.spaces.Box):
             raise EnvError(f"env_id = {config.env_id!r} has a {type(observations).__name__} observation; valid: a Box")
-        limit = config.max_episode_steps or spec.max_episode_steps or 0
-        if is_pong(config.env_id):
-            limit = config.max_episode_steps
+        limit = config.max_episode_steps or (
+            spec.max_episode_steps or 0 if profile_of(config).episode_limit_from_spec else 0
+        )
         cartpole = config.env_id in NATIVE_VECTOR
         described = Described(
             tuple(observations.shape),
@@ -283,11 +308,21 @@ def describe(config) -> Described:
             video_stride=2 if cartpole else 1,
             video_downscale=2 if cartpole else 1,
             observation_dtype=str(observations.dtype),
+            action_names=_action_names(env),
         )
     finally:
         env.close()
     _DESCRIBED[key] = described
     return described
+
+
+def _action_names(env: gym.Env) -> tuple[str, ...]:
+    while isinstance(env, gym.Wrapper) and not isinstance(env, ActionSubset):
+        env = env.env
+    if isinstance(env, ActionSubset):
+        return env.names
+    meanings = getattr(env.unwrapped, "get_action_meanings", None)
+    return tuple(meanings()) if meanings else ()
 
 
 def record(config, described: Described, threshold: float | None) -> dict[str, str]:
@@ -303,6 +338,7 @@ def record(config, described: Described, threshold: float | None) -> dict[str, s
         "env.obs_shape": "x".join(map(str, described.observation_shape)),
         "env.obs_dtype": described.observation_dtype,
         "env.n_actions": str(described.n_actions),
+        **({"env.actions": ", ".join(described.action_names)} if described.action_names else {}),
         "env.solve_threshold": str(threshold),
         "env.gymnasium_version": libraries["gymnasium"],
         "env.ale_py_version": libraries["ale-py"],

@@ -24,7 +24,7 @@ from ablate.agent.records import EpisodeMetrics, TrialResult
 from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows
 from ablate.config import TrialConfig, config_document, config_from_document
-from ablate.envs import describe, is_pong, make_trial_env, sample_pong_frames
+from ablate.envs import describe, make_trial_env, profile_of, sample_frames
 from ablate.videos import as_frame, video_writer
 
 matplotlib.use("Agg")
@@ -38,7 +38,7 @@ def record_episode(config: TrialConfig, model: nn.Module, on_frame: Callable[[np
     sampling policy plays."""
     info, history, max_frames = describe(config), window_of(config), config.video_max_frames
     env = make_trial_env(config, render=True)
-    greedy = not is_pong(config.env_id)
+    greedy = not profile_of(config).sampling_video
     rng = np.random.default_rng(config.seed + 1_000_003)
     scale = info.video_downscale
     seen: list[np.ndarray] = []
@@ -99,8 +99,8 @@ def write_artifacts(result: TrialResult, folder: Path, video: bool = True, curve
             threshold=result.solve_threshold,
             title=f"{config.env_id}, seed {config.seed}",
         )
-    if is_pong(config.env_id):
-        previous, frame = sample_pong_frames(config.env_id, config.seed)
+    if profile_of(config).observation_figure:
+        previous, frame = sample_frames(config.env_id, config.seed)
         result.artifacts["observation"] = plot_pong_observation(previous, frame, folder / "observation.png")
     if config.model.factory_source:
         source = folder / "model.py"
@@ -109,7 +109,7 @@ def write_artifacts(result: TrialResult, folder: Path, video: bool = True, curve
     if config.record_video and video:
         path = folder / "video.mp4"
         played = _write_video(config, _network(config, result.state_dict), path)
-        if not is_pong(config.env_id):
+        if not profile_of(config).sampling_video:
             result.greedy_return = played
         result.artifacts["video"] = path
 
@@ -134,7 +134,7 @@ def replay_video(config_json: Path, weights: Path, path: Path) -> float | None:
     raises (a user's factory or env module that this machine cannot import)."""
     config = config_from_document(json.loads(config_json.read_text(encoding="utf-8")))
     played = _write_video(config, _network(config, torch.load(weights, map_location="cpu", weights_only=True)), path)
-    return None if is_pong(config.env_id) else played
+    return None if profile_of(config).sampling_video else played
 
 
 def plot_progress(

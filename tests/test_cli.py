@@ -105,7 +105,7 @@ BAD_EXPERIMENTS = [
     # a Pong-only knob on another game (issue 56): refused, not silently ignored
     (
         "[base]\nenv_id = 'ALE/Breakout-v5'\naction_set = 'move'\n[[variants]]\nname='a'\n",
-        "base.action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5'; valid: only on Pong",
+        "base.action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5' (profile 'atari', which ignores it); valid: only with env_profile 'pong'",
     ),
 ]
 
@@ -187,7 +187,7 @@ def test_train_has_a_flag_for_every_knob_and_each_reaches_the_config():
         "--env-id CartPole-v0 --learning-rate 0.5 --gamma 0.9 --l2 0.01 --episodes-per-update 4 --max-episodes 7 "
         "--solve-threshold 150 --solve-window 20 --seed 3 --no-record-video --video-max-frames 9 --architecture cnn "
         "--hidden-sizes 5,6 --activation tanh --dropout 0.25 --history 6 --conv-channels 3,4 --kernel-size 3 "
-        "--frameskip 2 --repeat-action-probability 0.1 --max-episode-steps 30 --num-envs 2 "
+        "--env-profile gym --max-episode-steps 30 --num-envs 2 "
         "--video-every 5 --checkpoint-every 7 --env-module gymnasium.envs --env-args '{\"sutton_barto_reward\": true}' "
         "--layer-norm"
     )
@@ -202,9 +202,15 @@ def test_train_has_a_flag_for_every_knob_and_each_reaches_the_config():
         return {by_column[c]: v for c, v in flat.items() if v != flatten(DEFAULT)[c] and c in by_column}
 
     changed = changed_knobs(argv)
-    pong_only = {"action_set"}  # refused on CartPole (config.apply_knobs): set on Pong below
-    assert set(changed) == set(KNOBS) - set(TEST_ONLY_KNOBS) - own_network - pong_only  # every knob set by its flag
-    assert changed_knobs(["--env-id", "ALE/Pong-v5", "--action-set", "move"])["action_set"] == "move"
+    atari = {name for name, k in KNOBS.items() if k.profiles}  # refused on CartPole (config.apply_knobs): on Pong
+    assert set(changed) == set(KNOBS) - set(TEST_ONLY_KNOBS) - own_network - atari  # every knob set by its flag
+    pong = ["--env-id", "ALE/Pong-v5", "--action-set", "move", "--frameskip", "2", "--repeat-action-probability", "0.1"]
+    assert changed_knobs(pong) == {
+        "env_id": "ALE/Pong-v5",
+        "action_set": "move",
+        "frameskip": 2,
+        "repeat_action_probability": 0.1,
+    }
     assert changed["hidden_sizes"] == (5, 6) and changed["record_video"] is False and changed["gamma"] == 0.9
     assert changed["env_args"] == (("sutton_barto_reward", True),)
     assert changed_knobs(argv_own) == {"model": f"{model}:create_model", "model_args": (("width", 8),)}

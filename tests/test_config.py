@@ -37,7 +37,10 @@ def test_depth_and_width_expand_to_hidden_sizes():
         ({"learning_rate": "fast"}, "learning_rate = 'fast' is invalid"),
         ({"widht": 3}, "widht: unknown key; valid keys:"),
         ({"hidden_sizes": [32], "depth": 2}, "either hidden_sizes or depth/width"),
-        ({"action_set": "up"}, "action_set = 'up' is invalid; valid: 'all' (6 actions) or 'move' (UP and DOWN)"),
+        (
+            {"action_set": "up"},
+            "action_set = 'up' is invalid; valid: 'all' (the game's minimal action set) or 'move' (its RIGHT and LEFT)",
+        ),
         ({"frameskip": 0}, "frameskip = 0 is invalid; valid: an integer in [1, 16]"),
         ({"repeat_action_probability": 1.5}, "repeat_action_probability = 1.5 is invalid"),
         ({"max_episode_steps": -1}, "max_episode_steps = -1 is invalid"),
@@ -107,7 +110,7 @@ BAD_FILES = [
     ("seeds = 2\n", "the grid is empty"),
     (  # Breakout's env acts on its own actions: the knob was silently ignored (3e01923)
         "[base]\nenv_id = 'ALE/Breakout-v5'\n[[variants]]\nname='a'\naction_set = 'move'\n",
-        "variants[0].action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5'; valid: only on Pong",
+        "variants[0].action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5' (profile 'atari', which ignores it); valid: only with env_profile 'pong'",
     ),
     ("[grid]\ndropout = []\n", "grid.dropout = [] is invalid; valid: a non-empty list"),
     (

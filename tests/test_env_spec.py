@@ -5,7 +5,7 @@ import gymnasium as gym
 import pandas as pd
 
 from ablate.config import TrialConfig
-from ablate.env_spec import resets_on_score, solve_threshold
+from ablate.env_spec import profile_of, solve_threshold
 from ablate.experiment import parse_experiment
 
 ENV_ID = "AblateThreshold100-v0"
@@ -30,7 +30,17 @@ def test_the_solve_threshold_is_the_files_else_the_specs_else_none():
     assert solve_threshold(TrialConfig(env_id=ENV_ID, solve_threshold=50.0)) == 50.0
     assert solve_threshold(TrialConfig(env_id="CartPole-v1")) == 475.0
     assert solve_threshold(TrialConfig(env_id="ALE/Pong-v5")) is None
-    assert resets_on_score("ALE/Pong-v5") and not resets_on_score(ENV_ID)
+
+
+def test_the_profile_is_the_experiments_else_the_first_matching_the_env_id():
+    assert profile_of(TrialConfig(env_id="ALE/Pong-v5")).name == "pong"
+    assert profile_of(TrialConfig(env_id="ALE/Breakout-v5")).name == "atari"
+    assert profile_of(TrialConfig(env_id="ALE/Breakout-v5", env_profile="pong")).name == "pong"
+    assert profile_of(TrialConfig(env_id=ENV_ID)).name == "gym"
+    assert (
+        profile_of(TrialConfig(env_id="ALE/Pong-v5")).resets_on_score
+        and not profile_of(TrialConfig(env_id=ENV_ID)).resets_on_score
+    )
 
 
 def test_a_registered_envs_threshold_makes_episodes_to_solve_the_default_primary_metric():

@@ -159,3 +159,33 @@ def test_your_model_runs_the_students_network_and_a_layernorm_one_beside_the_bas
     assert [m[:7] for m in baseline.episodes] == [m[:7] for m in student.episodes]
     members = run_population([replace(short["layernorm"], seed=s) for s in range(3)])
     assert all(len(m.episodes) == 64 and m.parameter_count == 4 * 32 + 32 + 2 * 32 + 32 * 2 + 2 for m in members)
+
+
+def test_breakout_with_the_pong_profile_trains_on_pongs_frames_and_names_its_two_actions(
+    run_quiet, tmp_path, tracking_uri
+):
+    """The Pong pipeline is a profile any Atari game may use (issue 57): Breakout with ``env_profile = "pong"`` and
+    ``action_set = "move"`` gets Pong's 80x80 int8 frame differences, its return rule and its two moves, as
+    Breakout names them, in the trial's record and the report's variants table."""
+    import ablate
+
+    path = tmp_path / "breakout-pong.toml"
+    path.write_text(
+        'name = "breakout-pong"\nseeds = 1\n[base]\nenv_id = "ALE/Breakout-v5"\nenv_profile = "pong"\n'
+        'action_set = "move"\nmax_episode_steps = 40\nmax_episodes = 2\nepisodes_per_update = 1\n'
+        "video_max_frames = 10\nhidden_sizes = [8]\n"
+        '[[variants]]\nname = "cnn"\narchitecture = "cnn"\n[[variants]]\nname = "mlp"\n'
+    )
+    experiment = load_experiment(path)
+    assert experiment.base.reset_on_score and experiment.base.checkpoint_interval == 50
+    outcome = run_quiet(experiment, tmp_path, tracking_uri)
+    assert outcome.exit_code == 0 and len(outcome.finished) == 2 and not outcome.failed
+    for run in RunReader(tracking_uri, "breakout-pong").trial_runs():
+        recorded = {k: v for k, v in run.params.items() if k.startswith("env.")}
+        assert recorded["env.id"] == "ALE/Breakout-v5" and recorded["env.obs_shape"] == "1x80x80"
+        assert recorded["env.obs_dtype"] == "int8" and recorded["env.actions"] == "RIGHT, LEFT"
+        assert run.params["env_profile"] == "pong" and run.metrics["episodes_run"] == 2
+    folder = ablate.report("breakout-pong", tracking_uri=tracking_uri, reports_folder=tmp_path / "reports", pdf=False)
+    variants = (folder / "report.md").read_text(encoding="utf-8")
+    assert "80×80 frame difference: conv" in variants and "80×80 frame difference: dense" in variants
+    assert variants.count("; 2 actions (RIGHT, LEFT)") == 2

@@ -26,7 +26,7 @@ from ablate.agent.checkpoints import checkpoint, restore
 from ablate.agent.population import Member, Population
 from ablate.agent.records import Batch, EpisodeMetrics, TrialFailed, TrialResult
 from ablate.config import TrialConfig, can_share, population_group
-from ablate.envs import is_pong, record
+from ablate.envs import profile_of, record
 from ablate.measures import reaches_threshold
 
 MemberOutcome = TrialResult | TrialFailed
@@ -92,7 +92,7 @@ def run_population(
         _inject_fault(config)
     torch.set_num_threads(1)  # small networks: threads cost more than they give, and trials run side by side
     threadpool_limits(1, user_api="blas")  # the same for numpy's (OpenBLAS would spin 2 threads)
-    _set_malloc(pong=is_pong(configs[0].env_id))
+    _set_malloc(large_frames=profile_of(configs[0]).large_frames)
     torch_device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     folders = [Path(d) if d is not None else None for d in (artifacts_dirs or [None] * len(configs))]
     population = Population(configs, torch_device, folders)
@@ -238,7 +238,7 @@ def run_trial(
     return outcome
 
 
-def _set_malloc(pong: bool) -> None:
+def _set_malloc(large_frames: bool) -> None:
     """glibc's thresholds for this population (no-op off glibc). By default its mmap threshold rises, up to 32 MB,
     each time a large block is freed, and it trims its heap's free top. CartPole: an update's activations (a
     5,000-step batch through a 32-wide layer: 640 KB a tensor) come from a heap that keeps what it frees (mmap
@@ -252,6 +252,6 @@ def _set_malloc(pong: bool) -> None:
         return
     with contextlib.suppress(OSError, AttributeError):
         mallopt = ctypes.CDLL("libc.so.6").mallopt
-        mallopt(-3, 256 * 1024 if pong else 32 << 20)  # M_MMAP_THRESHOLD; setting it turns the dynamic one off
-        if not pong:
+        mallopt(-3, 256 * 1024 if large_frames else 32 << 20)  # M_MMAP_THRESHOLD; setting it turns the dynamic one off
+        if not large_frames:
             mallopt(-1, 128 << 20)  # M_TRIM_THRESHOLD

@@ -130,7 +130,7 @@ TUNING_REFERENCES = [
     "them. *ICML 2023*. (Tuning and evaluation seeds kept apart.)",
 ]
 
-PONG_REFERENCES = [
+ATARI_REFERENCES = [
     "Mnih, V., et al. (2015). Human-level control through deep reinforcement learning. *Nature*, 518, 529-533. "
     "(Atari pre-processing and frame-based policies.)",
 ]
@@ -138,7 +138,7 @@ PONG_REFERENCES = [
 
 def references(ablation: Ablation) -> list[str]:
     """The references this report cites: the alpha-spending paper only where seeds came in rounds, the tuning paper
-    only where it tuned, Atari's only for Pong."""
+    only where it tuned, the Arcade Learning Environment's only for Atari games."""
     from ablate.reporting.comparisons import claims_design
 
     design = claims_design(ablation)
@@ -146,5 +146,5 @@ def references(ablation: Ablation) -> list[str]:
         REFERENCES
         + (ROUNDS_REFERENCES if design.max > design.start else [])
         + (TUNING_REFERENCES if ablation.tuning else [])
-        + (PONG_REFERENCES if ablation.env_id.startswith("ALE/") else [])
+        + (ATARI_REFERENCES if ablation.profile.atari else [])
     )

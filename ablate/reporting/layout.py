@@ -37,7 +37,6 @@ from ablate.reporting.provenance import (
 from ablate.reporting.results import Ablation
 from ablate.reporting.rounds import rounds_section
 from ablate.reporting.sections import (
-    _sampling_videos,
     comparison_intro,
     convergence_blocks,
     limitations,
@@ -162,7 +161,7 @@ def _when(ms: int) -> str:
 def _videos_intro(ablation: Ablation, videos: list[dict[str, str]], letter: str) -> list[Block]:
     if not videos:
         return [Heading("Videos", 3, True, letter)]
-    if _sampling_videos(ablation):
+    if ablation.profile.sampling_video:
         frames = int(ablation.grid["base"].get("video_max_frames", 500))
         return [
             Heading("Videos of the trained agent", 3, True, letter),

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ablate.config import SCHEMA
-from ablate.env_spec import is_pong
+from ablate.env_spec import profile_named
 from ablate.reporting.reader import RunReader
 
 
@@ -84,10 +84,12 @@ def architecture(params: dict[str, str], env_id: str) -> str:
     activation = params.get("model.activation", "relu")
     hidden = _sizes(params)
     dense = f"dense {' → '.join(map(str, hidden))} ({activation})" if hidden else "no hidden layer"
-    shape = _observation_shape(params, env_id)
+    profile = profile_named(env_id, params.get("env_profile", ""))
+    recorded = params.get("env.obs_shape", "")
+    shape = tuple(int(n) for n in recorded.split("x")) if recorded else profile.observation_shape
     if len(shape) == 3:  # an image, as the trial recorded its observation (Pong's frame difference, another game's)
         channels, height, width = shape
-        pixels = f"{height}×{width} frame difference" if is_pong(env_id) else f"{height}×{width}×{channels} image"
+        pixels = f"{height}×{width}" + ("" if channels == 1 else f"×{channels}") + f" {profile.observation}"
         if arch == "cnn":
             from ablate.agent.policies import PONG_CONV
 
@@ -97,8 +99,9 @@ def architecture(params: dict[str, str], env_id: str) -> str:
             text = f"MLP over the {channels * height * width:,} pixels of the {pixels}: {dense}"
         else:
             text = f"linear policy over the {channels * height * width:,} pixels of the {pixels} (no hidden layer)"
-        actions = {"all": "6 actions", "move": "2 actions (up, down)"}.get(params.get("action_set", ""), "")
-        text += f"; {actions}" if actions else ""
+        names = params.get("env.actions", "")
+        text += f"; {params['env.n_actions']} actions" if params.get("env.n_actions") else ""
+        text += f" ({names})" if names else ""
     elif arch == "cnn":
         conv = _sizes(params, "model.conv_channels")
         text = (
@@ -115,15 +118,6 @@ def architecture(params: dict[str, str], env_id: str) -> str:
     if float(params.get("l2", 0) or 0) > 0:
         text += f"; L2 {params['l2']}"
     return text
-
-
-def _observation_shape(params: dict[str, str], env_id: str) -> tuple[int, ...]:
-    """The observation's shape as the trial recorded it (``env.obs_shape``, e.g. ``1x80x80``); a run from before
-    trials recorded it: Pong's frame difference, else a vector."""
-    recorded = params.get("env.obs_shape", "")
-    if recorded:
-        return tuple(int(n) for n in recorded.split("x"))
-    return (1, 80, 80) if is_pong(env_id) else (0,)
 
 
 def summary(network) -> str:

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import ConfigError
-from ablate.env_spec import solve_threshold_or_none
+from ablate.env_spec import Profile, profile_named, solve_threshold_or_none
 from ablate.experiment import Experiment
 from ablate.measures import censored_episodes, default_primary_metric, fixed_budgets, trial_measures
 from ablate.reporting import settings
@@ -28,8 +28,10 @@ from ablate.reporting.reader import RunReader, TrackingError, TrialRun
 from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
 from ablate.reporting.tuning import knobs as tuning_knobs
 
-RETURN_LEVELS = {"ALE/Pong-v5": (-15.0, -10.0)}
-"""Return levels whose first crossing (rolling mean) is timed, for envs where few seeds reach a threshold."""
+
+def _profile(grid: dict) -> Profile:
+    base = grid.get("base", {})
+    return profile_named(str(base.get("env_id", "")), str(base.get("env_profile", "")))
 
 
 class NoResults(LookupError):
@@ -125,6 +127,11 @@ class Ablation:
     def env_id(self) -> str:
         return str(self.grid.get("base", {}).get("env_id", ""))
 
+    @property
+    def profile(self) -> Profile:
+        """The env profile the trials ran under (``env_spec.PROFILES``)."""
+        return _profile(self.grid)
+
     @cached_property
     def threshold(self) -> float | None:
         """The solve threshold the trials stopped at, as they recorded it (``env.solve_threshold``); for trials
@@ -175,7 +182,7 @@ class Ablation:
 
     @property
     def levels(self) -> tuple[float, ...]:
-        return RETURN_LEVELS.get(self.env_id, ())
+        return self.profile.return_levels.get(self.env_id, ())
 
 
 def _launches(tracker: RunReader) -> list[Any]:
@@ -282,7 +289,7 @@ def _read_launch(
         current = best_run.get(run.key)
         if current is None or run.status == "FINISHED" or current.status != "FINISHED":
             best_run[run.key] = run
-    levels = RETURN_LEVELS.get(str(grid.get("base", {}).get("env_id", "")), ())
+    levels = _profile(grid).return_levels.get(str(grid.get("base", {}).get("env_id", "")), ())
 
     tuning = _tuning_document(tracker, launch_id)
     names = tuning_knobs(tuning) if tuning else []

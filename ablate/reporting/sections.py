@@ -7,7 +7,6 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import ARCHITECTURE_KNOBS, KNOBS, SETTING_KNOBS, TUNABLE_KNOBS, freeze
-from ablate.env_spec import is_pong, resets_on_score
 from ablate.measures import INITIAL_EPISODES
 from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.comparisons import LOO_MAX_SEEDS
@@ -28,11 +27,6 @@ def _setting_groups(overrides: dict) -> list[str]:
 def _set_away(base: dict, knob: str, default: object) -> bool:
     """Whether the base sets ``knob`` to other than its declared default (an env's own knobs are shown then)."""
     return knob in base and freeze(base[knob]) != freeze(default)
-
-
-def _sampling_videos(ablation: Ablation) -> bool:
-    """Pong's end-of-trial videos are of the sampling policy (``collectors.record_pong_episode``), others greedy."""
-    return is_pong(ablation.env_id)
 
 
 def _extends(ablation: Ablation) -> list[str]:
@@ -97,7 +91,7 @@ def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS)
             f"{budget:,} episodes, and variants are compared on their returns (area under the curve, the return "
             "after fixed budgets, episodes to reach return levels, the improvement over the untrained policy)."
         )
-    reset = " Pong's discounted return restarts at every point scored." if resets_on_score(ablation.env_id) else ""
+    reset = " The discounted return restarts at every point scored." if ablation.profile.resets_on_score else ""
     blocks: list[Block] = [
         Paragraph(env),
         Paragraph(
@@ -424,7 +418,7 @@ def limitations(
             "rough cost.",
         )
     )
-    if videos and _sampling_videos(ablation):
+    if videos and ablation.profile.sampling_video:
         out.append(
             (
                 "videos",
