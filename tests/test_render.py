@@ -84,3 +84,20 @@ def test_markdown_nests_sub_items_and_lists_videos_as_links():
     assert "#### Mine" in md and "### A. Results (generated)" in md and "## Appendix" in md
     assert "- [&lt;img src=x onerror=alert(1)&gt;, seed 0](videos/a.mp4)" in md
     assert render.markdown([Videos()]) == "No videos were recorded.\n"
+
+
+def test_the_students_markdown_reads_as_commonmark_in_html_and_typst():
+    """One parser (markdown-it) for both: a two-space nested list and a fenced block are the same structure in the
+    HTML and the PDF, and a name in asterisks inside an italic line is italics, not stray stars."""
+    text = "- two\n  - nested\n\n```\nablate run x\n  indented\n```\n"
+    page, typ = render.html_body([Authored(text)]), typst([Authored(text)])
+    assert "<li>two\n<ul>\n<li>nested</li>" in page and '  - #"nested"' in typ
+    assert (
+        "<pre><code>ablate run x\n  indented\n</code></pre>" in page
+        and 'raw(block: true, "ablate run x\\n  indented")' in typ
+    )
+    line = "*Written by Ada *Lovelace*; printed as written.*"
+    assert (
+        render.html_body([Paragraph(line)]) == "<p><em>Written by Ada <em>Lovelace</em>; printed as written.</em></p>"
+    )
+    assert typst([Paragraph(line)]).endswith('#emph[#"Written by Ada "#emph[#"Lovelace"]#"; printed as written."]\n\n')

@@ -3,9 +3,9 @@ student's own text), built once by the sections from ``ReportData`` and written 
 (``render.markdown``, ``render.html_body``, ``typeset.typst``). Figure, table and appendix numbers are resolved in
 the blocks (``number_tables``, ``Refs``): no renderer replaces a token or parses what another one wrote.
 
-A block's text is one paragraph of the report's inline markup (``INLINE``): ``**strong**``, ``*emphasis*``,
-```code```, ``<code>code</code>``, ``[label](url)``, ``<br>``; user text in it has been made inert by
-``text.esc`` (HTML entities), which each renderer decodes once.
+A block's text is one paragraph of the report's Markdown (``MARKUP``, CommonMark as report.md shows it):
+``**strong**``, ``*emphasis*``, ```code```, ``[label](url)``, and of HTML only ``OWN_TAGS``; user text in it has
+been made inert by ``text.esc`` (HTML entities), which markdown-it decodes once.
 """
 
 from __future__ import annotations
@@ -16,19 +16,22 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import pandas as pd
+from markdown_it import MarkdownIt
+from markdown_it.tree import SyntaxTreeNode
 
 if TYPE_CHECKING:
     from ablate.reporting.figures import Figure
 
-INLINE = re.compile(
-    r"\*\*(?P<strong>.+?)\*\*"
-    r"|(?<![\w*])\*(?P<emph>[^*\s](?:[^*]*[^*\s])?)\*(?![\w*])"
-    r"|`(?P<code>[^`]+)`"
-    r"|<code>(?P<html_code>.*?)</code>"
-    r"|\[(?P<label>[^\]]+)\]\((?P<url>[^)\s]+)\)"
-    r"|<br\s*/?>"
-)
-"""The inline markup a block's text may hold; anything else in it is text."""
+MARKUP = MarkdownIt("commonmark").enable("table")
+"""The report's Markdown (CommonMark with pipe tables): a block's text, and the student's discussion."""
+OWN_TAGS = re.compile(r"</?code>|<br\s*/?>")
+"""The HTML a block's text may hold (a command in ``<code>``, where a code span would not decode ``esc``'s
+entities); any other tag in it is text."""
+
+
+def inline_nodes(text: str) -> list[SyntaxTreeNode]:
+    """A block's text as markdown-it's inline nodes (text, strong, em, code_inline, link, html_inline, ...)."""
+    return SyntaxTreeNode(MARKUP.parseInline(text)).children[0].children
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,9 @@ from __future__ import annotations
 import html
 import re
 
-import markdown as markdown_lib
-
 from ablate.reporting.blocks import (
-    INLINE,
+    MARKUP,
+    OWN_TAGS,
     AppendixStart,
     Authored,
     Block,
@@ -78,31 +77,13 @@ def markdown(blocks: list[Block]) -> str:
 
 
 # --- HTML -------------------------------------------------------------------------------------------------------
-def _text(text: str) -> str:
-    """Text as HTML: the entities ``esc`` wrote are decoded once and everything is escaped once."""
-    return html.escape(html.unescape(text), quote=False)
-
-
 def inline_html(text: str) -> str:
-    """One block's inline markup as HTML; everything else as text."""
-    out, at = [], 0
-    for match in INLINE.finditer(text):
-        out.append(_text(text[at : match.start()]))
-        if match.group("strong") is not None:
-            out.append(f"<strong>{inline_html(match.group('strong'))}</strong>")
-        elif match.group("emph") is not None:
-            out.append(f"<em>{inline_html(match.group('emph'))}</em>")
-        elif match.group("code") is not None or match.group("html_code") is not None:
-            code = match.group("code") if match.group("code") is not None else match.group("html_code")
-            out.append(f"<code>{_text(code)}</code>")
-        elif match.group("label") is not None:
-            url = html.escape(html.unescape(match.group("url")))
-            out.append(f'<a href="{url}">{inline_html(match.group("label"))}</a>')
-        else:
-            out.append("<br>")
-        at = match.end()
-    out.append(_text(text[at:]))
-    return "".join(out)
+    """One block's text as HTML; a tag other than ``OWN_TAGS`` in it is text."""
+    tokens = MARKUP.parseInline(text)
+    for token in tokens[0].children or []:
+        if token.type == "html_inline" and not OWN_TAGS.fullmatch(token.content):
+            token.type = "text"
+    return MARKUP.renderer.render(tokens, MARKUP.options, {})
 
 
 def _html_table(table: Table) -> str:
@@ -157,7 +138,7 @@ def _html_block(block: Block) -> str:
         )
         return f'<div class="videos">\n{shown}\n</div>'
     if isinstance(block, Authored):
-        return markdown_lib.markdown(nested(block.text, 3), extensions=["tables"])
+        return MARKUP.render(nested(block.text, 3))
     raise TypeError(f"not a report block: {block!r}")
 
 

@@ -2,19 +2,20 @@
 report.pdf, compiled by the ``typst`` wheel (the Typst compiler with its fonts inside: no browser, no system package,
 any machine pip reaches).
 
-The only Markdown read here is the student's own ``discussion.md`` (headings, paragraphs, lists, pipe tables, images,
-block quotes, fenced code). Every run of text becomes a Typst string literal, never markup, so no variant name or
-sentence can be read as a Typst command.
+Markdown (a block's inline markup, the student's own ``discussion.md``) is read by markdown-it (``blocks.MARKUP``)
+and its syntax tree written as Typst. Every run of text becomes a Typst string literal, never markup, so no variant
+name or sentence can be read as a Typst command.
 """
 
 from __future__ import annotations
 
-import html
-import re
 from pathlib import Path
 
+from markdown_it.tree import SyntaxTreeNode
+
 from ablate.reporting.blocks import (
-    INLINE,
+    MARKUP,
+    OWN_TAGS,
     AppendixStart,
     Authored,
     Block,
@@ -25,6 +26,7 @@ from ablate.reporting.blocks import (
     Picture,
     Table,
     Videos,
+    inline_nodes,
 )
 from ablate.reporting.render import NO_VIDEOS, nested
 from ablate.reporting.text import esc
@@ -63,42 +65,67 @@ def string(text: str, lines: bool = False) -> str:
     return '"' + text.replace("\n", "\\n" if lines else " ") + '"'
 
 
+def _seen(node: SyntaxTreeNode) -> str:
+    """What a reader sees of an inline node: its text without markup."""
+    if node.type in ("softbreak", "hardbreak"):
+        return " "
+    if node.type == "html_inline":
+        return "" if OWN_TAGS.fullmatch(node.content) else node.content
+    return "".join(map(_seen, node.children)) if node.children else node.content
+
+
+def _source(node: SyntaxTreeNode) -> str:
+    """An inline node as written, its emphasis marks kept (the text of a ``<code>``)."""
+    if node.type in ("strong", "em"):
+        return node.markup + "".join(map(_source, node.children)) + node.markup
+    return _seen(node)
+
+
 def plain(text: str) -> str:
-    """Markdown text with its HTML entities decoded and its markup removed: what a reader sees (for widths)."""
-    text = re.sub(r"<[^>]+>", "", text)
-    text = re.sub(r"\*\*|`", "", text)
-    text = re.sub(r"\[([^\]]+)\]\([^)]+\)", r"\1", text)
-    return html.unescape(text)
+    """A block's text as a reader sees it, markup removed and entities decoded (for widths)."""
+    return "".join(map(_seen, inline_nodes(text)))
+
+
+def _inline(nodes: list[SyntaxTreeNode]) -> str:
+    out: list[str] = []
+    text: list[str] = []  # the run of plain text not yet written
+    code: list[str] | None = None  # the text of an open <code>
+    for node in nodes:
+        tag = OWN_TAGS.fullmatch(node.content) if node.type == "html_inline" else None
+        if code is not None and not (tag and node.content == "</code>"):
+            code.append(_source(node))
+            continue
+        if node.type not in ("strong", "em", "link", "code_inline", "hardbreak") and not tag:
+            text.append(_seen(node))
+            continue
+        out += _run(text)
+        text = []
+        if node.type == "strong":
+            out.append(f"#strong[{_inline(node.children)}]")
+        elif node.type == "em":
+            out.append(f"#emph[{_inline(node.children)}]")
+        elif node.type == "link":
+            out.append(f"#link({string(node.attrs['href'])})[{_inline(node.children)}]")
+        elif node.type == "code_inline":
+            out.append(f"#raw({string(node.content)})")
+        elif node.content == "<code>":
+            code = []
+        elif node.content == "</code>":
+            out.append(f"#raw({string(''.join(code or []))})")
+            code = None
+        else:
+            out.append("#linebreak()")
+    return "".join(out + _run(text))
+
+
+def _run(text: list[str]) -> list[str]:
+    joined = "".join(text)
+    return ["#" + string(joined)] if joined else []
 
 
 def inline(text: str) -> str:
-    """One paragraph's Markdown (bold, italics, code, links) as Typst content; everything else as strings."""
-    out, at = [], 0
-    for match in INLINE.finditer(text):
-        if match.start() > at:
-            out.append("#" + string(html.unescape(text[at : match.start()])))
-        if match.group("strong") is not None:
-            out.append(f"#strong[{inline(match.group('strong'))}]")
-        elif match.group("emph") is not None:
-            out.append(f"#emph[{inline(match.group('emph'))}]")
-        elif match.group("code") is not None or match.group("html_code") is not None:
-            code = match.group("code") if match.group("code") is not None else match.group("html_code")
-            out.append(f"#raw({string(html.unescape(code))})")
-        elif match.group("label") is not None:
-            out.append(f"#link({string(html.unescape(match.group('url')))})[{inline(match.group('label'))}]")
-        else:
-            out.append("#linebreak()")
-        at = match.end()
-    if at < len(text):
-        out.append("#" + string(html.unescape(text[at:])))
-    return "".join(out)
-
-
-def _cells(line: str) -> list[str]:
-    body = line.strip()
-    body = body[1:] if body.startswith("|") else body
-    body = body[:-1] if body.endswith("|") else body
-    return [cell.strip() for cell in body.split("|")]
+    """One block's text (bold, italics, code, links) as Typst content; everything else as strings."""
+    return _inline(inline_nodes(text))
 
 
 def table(header: list[str], rows: list[list[str]], align: list[str], caption: str = "", number: int = 0) -> str:
@@ -130,16 +157,6 @@ def table(header: list[str], rows: list[list[str]], align: list[str], caption: s
     return f"#page(flipped: true)[\n{figure}]\n" if landscape else figure
 
 
-def pipe_table(lines: list[str]) -> str:
-    """A pipe table of the student's own Markdown, unnumbered."""
-    header, rule, rows = _cells(lines[0]), _cells(lines[1]), [_cells(line) for line in lines[2:]]
-    align = ["right" if cell.endswith(":") and not cell.startswith(":") else "left" for cell in rule]
-    return table(header, rows, align)
-
-
-IMAGE = re.compile(r"^!\[(?P<alt>[^\]]*)\]\((?P<path>[^)\s]+)\)$")
-
-
 def image(path: str, folder: Path | None, alt: str) -> str:
     """The figure's vector form where the report wrote one (``figures/x.svg`` beside ``x.png``)."""
     if folder is not None and path.endswith(".png") and (folder / path).with_suffix(".svg").is_file():
@@ -147,101 +164,61 @@ def image(path: str, folder: Path | None, alt: str) -> str:
     return f"image({string(path)}, width: 82%, alt: {string(plain(alt))})"
 
 
-def markdown_blocks(markdown: str) -> list[tuple[str, list[str]]]:
-    """The student's Markdown as (kind, lines) blocks: heading, table, list, quote, code, image, paragraph, comment."""
-    out: list[tuple[str, list[str]]] = []
-    lines = markdown.splitlines()
-    i = 0
-    while i < len(lines):
-        line = lines[i]
-        if not line.strip():
-            i += 1
-            continue
-        if line.startswith("```"):
-            end = next((j for j in range(i + 1, len(lines)) if lines[j].startswith("```")), len(lines))
-            out.append(("code", lines[i + 1 : end]))
-            i = end + 1
-            continue
-        if line.lstrip().startswith("<!--"):
-            end = next((j for j in range(i, len(lines)) if "-->" in lines[j]), len(lines) - 1)
-            out.append(("comment", lines[i : end + 1]))
-            i = end + 1
-            continue
-        if re.match(r"^#{1,6} ", line):
-            out.append(("heading", [line]))
-            i += 1
-            continue
-        kind = (
-            "table"
-            if line.lstrip().startswith("|")
-            else "list"
-            if re.match(r"^\s*([-*+]|\d+\.) ", line)
-            else "quote"
-            if line.startswith(">")
-            else "image"
-            if IMAGE.match(line.strip())
-            else "paragraph"
-        )
-        if kind == "image":
-            out.append(("image", [line.strip()]))
-            i += 1
-            continue
-        group = [line]
-        i += 1
-        while i < len(lines) and lines[i].strip() and not re.match(r"^#{1,6} |```", lines[i]):
-            following = lines[i]
-            if kind == "table" and not following.lstrip().startswith("|"):
-                break
-            if kind == "paragraph" and (following.lstrip().startswith(("|", ">")) or IMAGE.match(following.strip())):
-                break
-            if kind == "paragraph" and re.match(r"^\s*([-*+]|\d+\.) ", following):
-                break
-            group.append(following)
-            i += 1
-        out.append((kind, group))
-    return out
+def _text_of(node: SyntaxTreeNode) -> str:
+    """The Markdown source of a list item's or a quote's paragraphs, one line."""
+    return " ".join(c.children[0].content for c in node.children if c.type == "paragraph")
 
 
-def list_items(lines: list[str]) -> str:
-    items: list[tuple[int, str, str]] = []
-    for line in lines:
-        found = re.match(r"^(\s*)([-*+]|\d+\.) (.*)$", line)
-        if found:
-            depth = len(found.group(1).replace("\t", "    ")) // 2
-            items.append((depth, "+" if found.group(2)[0].isdigit() else "-", found.group(3)))
-        elif items:
-            depth, marker, text = items[-1]
-            items[-1] = (depth, marker, f"{text} {line.strip()}")
-    levels = sorted({depth for depth, _, _ in items})
-    return "\n".join(f"{'  ' * levels.index(d)}{marker} {inline(text)}" for d, marker, text in items) + "\n"
+def _list(node: SyntaxTreeNode, depth: int = 0) -> list[str]:
+    marker = "+" if node.type == "ordered_list" else "-"
+    lines = []
+    for item in node.children:
+        lines.append(f"{'  ' * depth}{marker} {inline(_text_of(item))}")
+        for sub in item.children:
+            if sub.type in ("bullet_list", "ordered_list"):
+                lines += _list(sub, depth + 1)
+    return lines
+
+
+def _pipe_table(node: SyntaxTreeNode) -> str:
+    """A pipe table of the student's own Markdown, unnumbered."""
+    rows = [
+        [cell.children[0].content if cell.children else "" for cell in row.children]
+        for part in node.children
+        for row in part.children
+    ]
+    first = node.children[0].children[0].children
+    align = ["right" if "right" in cell.attrs.get("style", "") else "left" for cell in first]
+    return table(rows[0], rows[1:], align)
+
+
+def _authored(node: SyntaxTreeNode, folder: Path | None) -> str:
+    if node.type == "heading":
+        return f"#heading(level: {max(int(node.tag[1:]) - 1, 1)})[{_inline(node.children[0].children)}]\n"
+    if node.type == "paragraph":
+        nodes = node.children[0].children
+        if len(nodes) == 1 and nodes[0].type == "image":
+            return f"#align(center, {image(nodes[0].attrs['src'], folder, nodes[0].content)})\n"
+        return _inline(nodes) + "\n"
+    if node.type in ("bullet_list", "ordered_list"):
+        return "\n".join(_list(node)) + "\n"
+    if node.type == "table":
+        return _pipe_table(node)
+    if node.type == "blockquote":
+        return _quote(_text_of(node))
+    if node.type in ("fence", "code_block"):
+        code = string(node.content.removesuffix("\n"), lines=True)
+        return f"#block(fill: luma(245), inset: 6pt, width: 100%, raw(block: true, {code}))\n"
+    if node.type == "hr":
+        return "#line(length: 100%)\n"
+    return "" if node.content.lstrip().startswith("<!--") else "#" + string(node.content.strip()) + "\n"
 
 
 def authored(markdown: str, folder: Path | None = None) -> str:
     """The student's own Markdown (the discussion) as Typst: headings, paragraphs, lists, pipe tables, images, block
-    quotes and fenced code; anything else as plain text."""
-    out = []
-    for kind, lines in markdown_blocks(markdown):
-        if kind == "comment":
-            continue
-        if kind == "heading":
-            hashes, text = lines[0].split(" ", 1)
-            out.append(f"#heading(level: {max(len(hashes) - 1, 1)})[{inline(text)}]\n")
-        elif kind == "image":
-            found = IMAGE.match(lines[0])
-            out.append(f"#align(center, {image(found.group('path'), folder, found.group('alt'))})\n")
-        elif kind == "table":
-            out.append(pipe_table(lines) if len(lines) >= 2 else f"{inline(lines[0])}\n")
-        elif kind == "list":
-            out.append(list_items(lines))
-        elif kind == "quote":
-            out.append(_quote(" ".join(re.sub(r"^>\s?", "", line) for line in lines)))
-        elif kind == "code":
-            code = string("\n".join(lines), lines=True)
-            out.append(f"#block(fill: luma(245), inset: 6pt, width: 100%, raw(block: true, {code}))\n")
-        else:
-            out.append(inline(" ".join(line.strip() for line in lines)) + "\n")
-        out.append("\n")
-    return "".join(out)
+    quotes, fenced code and rules; other HTML than a comment as plain text."""
+    typeset = (_authored(node, folder) for node in SyntaxTreeNode(MARKUP.parse(markdown)).children)
+    return "".join(f"{text}\n" for text in typeset if text)
 
 
 def _quote(text: str) -> str:
