@@ -95,34 +95,26 @@ def run(
     (``finished``, ``failed``, ``skipped``, ``exit_code``, ...); ``outcome.report_folder`` is the report's
     folder, or ``None``. Bad input raises ``ConfigError`` before anything is tracked.
     """
-    from ablate.launch.grid import expand, select
-    from ablate.launch.runner import run_experiment
+    from ablate.checks import check_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
     from ablate.launch.store import insecure_http
     from ablate.reporting.rounds import judge_for
 
     loaded = _experiment(experiment)
-    from ablate.checks import check_experiment
-
     check_experiment(loaded)
     if max_concurrent is not None and max_concurrent < 1:
         raise ConfigError(f"max_concurrent={max_concurrent} is invalid; valid: an integer >= 1")
     if population < 1:
         raise ConfigError(f"population={population} is invalid; valid: an integer >= 1")
-    chosen = select(expand(loaded), list(only) if only is not None else None, list(seeds) if seeds else None)
+    plan = LaunchPlan.of(
+        loaded, list(only) if only is not None else None, list(seeds) if seeds else None,
+        tracking_uri=tracking_uri, address=address, fresh=fresh, max_concurrent=max_concurrent,
+        storage_path=storage_path, show_progress=progress, population=population,
+        command=f"ablate.run({loaded.path!r})", judge=judge_for(loaded, seeds),
+    )  # fmt: skip
     with insecure_http(allow_insecure_http):  # the store is opened, and the report written, inside
-        outcome = run_experiment(
-            loaded,
-            tracking_uri=tracking_uri,
-            address=address,
-            fresh=fresh,
-            max_concurrent=max_concurrent,
-            storage_path=storage_path,
-            show_progress=progress,
-            command=f"ablate.run({loaded.path!r})",
-            only=chosen,
-            population=population,
-            judge=judge_for(loaded, seeds),
-        )
+        outcome = run_plan(plan)
         if report and not outcome.interrupted and not outcome.error and (outcome.finished or outcome.skipped):
             outcome.report_folder = _write_report(loaded, tracking_uri, reports_folder)
     return outcome

@@ -21,9 +21,9 @@ from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, ModelConfig, 
 from ablate.dry_run import dry_run
 from ablate.experiment import Experiment
 from ablate.launch.clock import EpisodeLine
-from ablate.launch.grid import expand, select, tuning_trials
 from ablate.launch.lock import LaunchLocked
-from ablate.launch.secrets import masked_output, remember_uri, shown
+from ablate.launch.plan import LaunchPlan
+from ablate.launch.secrets import masked_output, remember_uri, shown, shown_command
 from ablate.launch.store import TrackingError, insecure_http
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_PIPE = 0, 1, 2, 130, 141  # 141: ended by SIGPIPE
@@ -441,19 +441,23 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
             from ablate.checks import check_experiment
 
             check_experiment(experiment)
-            trials = select(expand(experiment), args.only, args.seeds)
+            plan = LaunchPlan.of(
+                experiment, args.only, args.seeds,
+                tracking_uri=args.tracking_uri, address=args.address, fresh=args.fresh, started_at=started_at,
+                max_concurrent=args.max_concurrent, storage_path=args.storage_path, population=args.population,
+                command=shown_command(["ablate", *sys.argv[1:]]),  # as it is recorded and shown
+            )  # fmt: skip
             if args.dry_run:
-                code = dry_run(experiment, trials, args.tracking_uri, args.report)
+                code = dry_run(experiment, plan.trials, args.tracking_uri, args.report)
                 warn_design(experiment)
                 return code
             warn_design(experiment)  # before any compute
-            wanted = {t.variant for t in trials}
-            tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
+            tuning, trials = plan.tuning, plan.trials
             count = f"{len(tuning)} tuning trials, then {len(trials)}" if tuning else f"{len(trials)}"
             print(f"ablate run {experiment.name}: {count} trials; reading the MLflow store ...", flush=True)
             from ablate.commands import cmd_run
 
-            return cmd_run(args, started_at)
+            return cmd_run(args, plan)
         from ablate.reporting.document import cmd_report
 
         return cmd_report(args)

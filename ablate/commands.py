@@ -9,53 +9,36 @@ import contextlib
 import signal
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from ablate.config import ConfigError
-from ablate.experiment import load_experiment
 from ablate.launch.clock import clock, stage
-from ablate.launch.grid import expand, select
-from ablate.launch.runner import raise_interrupted, run_experiment, signals_received
-from ablate.launch.secrets import shown_command
+from ablate.launch.plan import LaunchPlan
+from ablate.launch.runner import raise_interrupted, run_plan, signals_received
 from ablate.reporting.rounds import judge_for
 
 
-def cmd_run(args: argparse.Namespace, started_at: float | None = None) -> int:
+def cmd_run(args: argparse.Namespace, plan: LaunchPlan) -> int:
     # SIGTERM (a supervisor, `kill`, a CI timeout) stops the launch as Ctrl-C does, with exit code 143 (the
     # shell's 128 + 15, so a supervisor sees which signal ended it). The scheduler keeps this handler across
     # ray.init, which would install one that exits mid-call and aborts in C++.
     previous = signal.signal(signal.SIGTERM, raise_interrupted)
     signals_received.clear()
     try:
-        return _cmd_run(args, started_at)
+        return _cmd_run(args, plan)
     finally:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
-    started_at = time.monotonic() if started_at is None else started_at
-    experiment = load_experiment(args.experiment)
-    chosen = select(expand(experiment), args.only, args.seeds)
-    if args.max_concurrent is not None and args.max_concurrent < 1:
-        raise ConfigError(f"--max-concurrent = {args.max_concurrent} is invalid; valid: an integer >= 1")
-    if args.population < 1:
-        raise ConfigError(f"--population = {args.population} is invalid; valid: an integer >= 1")
-    command = shown_command(["ablate", *sys.argv[1:]])  # as it is recorded and shown
+def _cmd_run(args: argparse.Namespace, plan: LaunchPlan) -> int:
+    experiment = plan.experiment
+    if plan.max_concurrent is not None and plan.max_concurrent < 1:
+        raise ConfigError(f"--max-concurrent = {plan.max_concurrent} is invalid; valid: an integer >= 1")
+    if plan.population < 1:
+        raise ConfigError(f"--population = {plan.population} is invalid; valid: an integer >= 1")
     try:
-        outcome = run_experiment(
-            experiment,
-            tracking_uri=args.tracking_uri,
-            address=args.address,
-            fresh=args.fresh,
-            max_concurrent=args.max_concurrent,
-            show_progress=True,
-            command=command,
-            only=chosen,
-            started_at=started_at,
-            storage_path=args.storage_path,
-            population=args.population,
-            judge=judge_for(experiment, args.seeds),
-        )
+        outcome = run_plan(replace(plan, judge=judge_for(experiment, args.seeds)))
     except Exception as error:
         # The scheduler (and Ray) is only imported when trials run: its error class is known only then.
         scheduler = sys.modules.get("ablate.launch.scheduler")
@@ -90,7 +73,7 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         try:
             with stage(f"writing the report into reports/{experiment.storage_name}/") as report_s:
                 result = build_report(
-                    experiment.name, tracking_uri=args.tracking_uri, out_root=Path("reports"), command=command
+                    experiment.name, tracking_uri=plan.tracking_uri, out_root=Path("reports"), command=plan.command
                 )
         except NoResults as error:  # every trial failed: say so, and leave the last good report in place
             print(f"no report: {error}")
@@ -108,8 +91,12 @@ def _cmd_run(args: argparse.Namespace, started_at: float | None) -> int:
         from ablate.launch.tracking import Tracker
 
         with contextlib.suppress(Exception):  # a courtesy for the next --dry-run: the report stands without it
-            Tracker(args.tracking_uri, experiment.name).record_report_time(outcome.launch_run_id, report_seconds)
-    print(outcome.view.total_line(report_seconds) if outcome.view else f"total {clock(time.monotonic() - started_at)}")
+            Tracker(plan.tracking_uri, experiment.name).record_report_time(outcome.launch_run_id, report_seconds)
+    print(
+        outcome.view.total_line(report_seconds)
+        if outcome.view
+        else f"total {clock(time.monotonic() - plan.started_at)}"
+    )
     if outcome.view and (bounds := outcome.view.bounds_line()):
         print(bounds)  # which of the two figures the launch ended near
     return outcome.exit_code

@@ -246,3 +246,40 @@ def test_a_variant_draws_the_curves_of_its_first_seeds_and_the_plan_carries_them
     plan = plan_populations(trials, cap=6, slots=2, plotted=plotted)
     assert set().union(*(p.plotted for p in plan)) == plotted and all(p.plotted <= set(p.keys) for p in plan)
     assert all(p.plotted is None for p in plan_populations(trials, cap=6, slots=2))  # no bound given: every one
+
+
+def test_ablate_run_hands_one_plan_its_experiment_read_and_its_grid_expanded_once(tmp_path, monkeypatch):
+    """The command line's options reach the runner as one ``LaunchPlan``: the experiment file read once, its grid
+    expanded once, the part to run selected from that grid."""
+    from ablate import cli, commands
+    from ablate import experiment as experiment_module
+    from ablate.launch import plan as plan_module
+    from ablate.launch.runner import RunOutcome
+
+    calls = {"load": 0, "expand": 0}
+
+    def counted(name, function):
+        def call(*args, **kwargs):
+            calls[name] += 1
+            return function(*args, **kwargs)
+
+        return call
+
+    monkeypatch.setattr(experiment_module, "load_experiment", counted("load", experiment_module.load_experiment))
+    monkeypatch.setattr(plan_module, "expand", counted("expand", plan_module.expand))
+    handed = []
+
+    def run_plan(plan):
+        handed.append(plan)
+        return RunOutcome(plan.experiment.name, "g", None, skipped=len(plan.trials), total=len(plan.trials), ui_link="")
+
+    monkeypatch.setattr(commands, "run_plan", run_plan)
+    path = tmp_path / "pops.toml"
+    path.write_text(SEEDS)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    argv = ["run", str(path), "--only", "narrow", "--seeds", "0,1", "--tracking-uri", uri, "--no-report"]
+    assert cli.main([*argv, "--population", "3"]) == 0
+    (plan,) = handed
+    assert calls == {"load": 1, "expand": 1}
+    assert len(plan.grid) == 18 and [t.key for t in plan.trials] == [t.key for t in plan.grid[:2]]
+    assert plan.tracking_uri == uri and plan.population == 3 and plan.judge is None  # no rounds: no judge

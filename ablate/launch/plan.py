@@ -1,4 +1,5 @@
-"""A launch's plan: its trials grouped into populations (``agent.trainer``), the unit the scheduler runs.
+"""A launch's plan: what ``ablate run`` or ``ablate.run`` asked for (``LaunchPlan``), and its trials grouped into
+populations (``agent.trainer``), the unit the scheduler runs.
 
 A population is one Ray task that trains its members together; each member is still a trial, with its own
 key, MLflow run, curve, checkpoints and result. Members share a population when their configs allow it
@@ -11,10 +12,67 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Collection, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
-from ablate.config import population_group
-from ablate.launch.grid import GridTrial
+from ablate.config import DEFAULT_POPULATION, population_group
+from ablate.experiment import Experiment
+from ablate.launch.grid import GridTrial, expand, select, tuning_trials
+
+if TYPE_CHECKING:
+    from ablate.launch.rounds import Judge
+
+
+@dataclass(frozen=True)
+class LaunchPlan:
+    """One launch as the command line or the API asks for it, handed whole to the runner (``runner.run_plan``):
+    the experiment as loaded and its grid as expanded (each once), the part of it to run, and how."""
+
+    experiment: Experiment
+    only: Sequence[GridTrial] | None = None
+    """The part of the grid to run (``grid.select``); ``None``: all of it."""
+    tracking_uri: str | None = None
+    address: str | None = None
+    """An existing Ray cluster (``host:port``); ``None`` starts a local one."""
+    fresh: bool = False
+    """A new generation instead of resuming the last one."""
+    max_concurrent: int | None = None
+    storage_path: str = "ray_results"
+    show_progress: bool = True
+    command: str = ""
+    """The command, as recorded and shown (``secrets.shown_command``)."""
+    started_at: float | None = None
+    """The command's ``time.monotonic()`` start, for the progress view's clock."""
+    log_estimates: bool = False
+    """Keep every time-left estimate in ``outcome.view.estimates`` (``make bench``)."""
+    population: int = DEFAULT_POPULATION
+    """At most this many trials train together as one population; 1: each alone."""
+    judge: Judge | None = None
+    """With seeds in rounds (``experiment.rounds``), the sequential rule that decides after each round who gets
+    more seeds (``reporting.rounds.judge_for``); ``None``: round 1 only."""
+    grid: tuple[GridTrial, ...] = ()
+    """Every trial of the experiment (variants x seeds): expanded here, once, unless given."""
+
+    def __post_init__(self) -> None:
+        if not self.grid:
+            object.__setattr__(self, "grid", tuple(expand(self.experiment)))
+
+    @classmethod
+    def of(cls, experiment: Experiment, variants: list[str] | None, seeds: list[int] | None, **how) -> LaunchPlan:
+        """The plan of running the trials of ``variants`` x ``seeds`` (``grid.select``; ``None``: all), ``how``."""
+        plan = cls(experiment, **how)
+        return replace(plan, only=select(list(plan.grid), variants, seeds))
+
+    @property
+    def trials(self) -> list[GridTrial]:
+        """The trials it evaluates: ``only``, else the whole grid."""
+        return list(self.grid if self.only is None else self.only)
+
+    @property
+    def tuning(self) -> list[GridTrial]:
+        """Stage 1's trials (``grid.tuning_trials``) of the variants it evaluates."""
+        wanted = {t.variant for t in self.trials}
+        return [t for t in tuning_trials(self.experiment) if t.variant in wanted]
 
 
 @dataclass(frozen=True)

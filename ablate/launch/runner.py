@@ -18,19 +18,19 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ablate.config import DEFAULT_POPULATION, ConfigError
+from ablate.config import ConfigError
 from ablate.experiment import Experiment
-from ablate.launch.grid import GridTrial, expand, plotted_seeds, schedule_order, tuning_trials
+from ablate.launch.grid import GridTrial, plotted_seeds, schedule_order
 from ablate.launch.mlflow_store import (
     TAG_HOST,
     TAG_PID,
     TAG_ROLE,
 )
-from ablate.launch.plan import plan_populations, population_keys
+from ablate.launch.plan import LaunchPlan, plan_populations, population_keys
 from ablate.launch.progress import ProgressView, total_words
 from ablate.launch.recorder import Recorder
 from ablate.launch.records import TorchKernels, environment_document, git_commit, grid_document
-from ablate.launch.rounds import Judge, Rounds
+from ablate.launch.rounds import Rounds
 from ablate.launch.state import LaunchState
 from ablate.launch.tracking import START_METRIC, Tracker
 from ablate.launch.tuning import StagePlan, tuning_document, unique
@@ -150,59 +150,23 @@ def reap_stale_runs(tracker: Tracker, storage_path: str) -> int:
     return len(trials) + len(stale)
 
 
-@dataclass(frozen=True)
-class LaunchOptions:
-    """How a launch runs (``ablate run``'s options); see ``run_experiment``."""
-
-    address: str | None = None
-    fresh: bool = False
-    max_concurrent: int | None = None
-    storage_path: str = "ray_results"
-    show_progress: bool = True
-    command: str = ""
-    only: Sequence[GridTrial] | None = None
-    started_at: float | None = None
-    log_estimates: bool = False
-    population: int = DEFAULT_POPULATION
-    judge: Judge | None = None
+def run_experiment(experiment: Experiment, **how) -> RunOutcome:
+    """``run_plan`` of ``LaunchPlan(experiment, **how)``: the whole grid, or ``only=`` a part of it."""
+    return run_plan(LaunchPlan(experiment, **how))
 
 
-def run_experiment(
-    experiment: Experiment,
-    tracking_uri: str | None = None,
-    address: str | None = None,
-    fresh: bool = False,
-    max_concurrent: int | None = None,
-    storage_path: str = "ray_results",
-    show_progress: bool = True,
-    command: str = "",
-    only: Sequence[GridTrial] | None = None,
-    started_at: float | None = None,
-    log_estimates: bool = False,
-    population: int = DEFAULT_POPULATION,
-    judge: Judge | None = None,
-) -> RunOutcome:
-    """Run every trial of ``experiment`` (or of ``only``, a part of its grid) that has no finished run in the
-    current generation. ``started_at``: the command's ``time.monotonic()`` start, for the progress view's clock.
-    ``log_estimates``: keep every time-left estimate in ``outcome.view.estimates`` (``make bench``).
-    ``population``: at most this many trials train together as one population (``launch.plan``); 1: each alone.
-    ``judge``: with seeds in rounds (``experiment.rounds``), the sequential rule that decides after each round who
-    gets more seeds (``reporting.rounds.judge_for``); ``None``: round 1 only.
+def run_plan(plan: LaunchPlan) -> RunOutcome:
+    """Run every trial of ``plan`` that has no finished run in the current generation.
 
     Every check that can fail without Ray (the grid, the CPUs, the store, another launch) fails first. Holds
     the experiment's launch lock throughout (``LaunchLocked`` if another launch has it)."""
-    options = LaunchOptions(
-        address, fresh, max_concurrent, storage_path, show_progress, command, only, started_at, log_estimates,
-        population, judge,
-    )  # fmt: skip
-    trials = expand(experiment)
-    check_resources(experiment, address)
+    check_resources(plan.experiment, plan.address)
     kernels = TorchKernels()  # the machine record's one torch question, beside the store's opening
     try:
-        tracker = Tracker(tracking_uri, experiment.name)
-        with tracker.hold_launch(f"experiment {experiment.name!r}", command):
-            reaped = reap_stale_runs(tracker, storage_path)
-            outcome = _Launch(experiment, trials, tracker, options, kernels).run()
+        tracker = Tracker(plan.tracking_uri, plan.experiment.name)
+        with tracker.hold_launch(f"experiment {plan.experiment.name!r}", plan.command):
+            reaped = reap_stale_runs(tracker, plan.storage_path)
+            outcome = _Launch(plan, tracker, kernels).run()
             outcome.reaped = reaped
             return outcome
     finally:
@@ -219,31 +183,20 @@ class _Launch:
     state: LaunchState | None = None
     """Both set by ``watch``; ``close`` runs whatever step failed before it."""
 
-    def __init__(
-        self,
-        experiment: Experiment,
-        trials: list[GridTrial],
-        tracker: Tracker,
-        options: LaunchOptions,
-        kernels: TorchKernels,
-    ) -> None:
-        self.experiment, self.trials, self.tracker, self.options = experiment, trials, tracker, options
-        self.kernels = kernels
-        self.generation = (None if options.fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
-        evaluation = trials if options.only is None else list(options.only)
+    def __init__(self, plan: LaunchPlan, tracker: Tracker, kernels: TorchKernels) -> None:
+        self.experiment, self.options, self.tracker, self.kernels = plan.experiment, plan, tracker, kernels
+        self.generation = (None if plan.fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
+        evaluation = plan.trials
         self.wanted = {t.variant for t in evaluation}
-        tuning = [t for t in tuning_trials(experiment) if t.variant in self.wanted]
-        self.plan = StagePlan(experiment, evaluation, tuning)
+        self.plan = StagePlan(plan.experiment, evaluation, plan.tuning)
         # Selection on resume reads the tuning trials finished by earlier launches back from the store.
         self.finished_runs = {r.key: r.metrics for r in tracker.trial_runs(self.generation) if r.status == "FINISHED"}
         self.finished_before = set(self.finished_runs)
         self.choices = self.plan.choices(self.finished_runs)
         self.known = unique([*self.plan.tuning, *evaluation, *self.plan.chosen(self.choices)], set())
-        self.plotted = plotted_seeds(experiment)
-        judge = options.judge
-        self.rounds = (
-            Rounds(experiment, self.wanted, judge, options.started_at) if experiment.rounds and judge else None
-        )
+        self.plotted = plotted_seeds(plan.experiment)
+        judge, rounds = plan.judge, plan.experiment.rounds
+        self.rounds = Rounds(plan.experiment, self.wanted, judge, plan.started_at) if rounds and judge else None
 
     def run(self) -> RunOutcome:
         todo = self.todo()
@@ -306,7 +259,7 @@ class _Launch:
                 f"{self.biggest:g}"
             )
         extra = self.rounds.finished_trials(self.choices, self.finished_runs) if self.rounds else []  # later rounds'
-        self.grid = grid_document(experiment, unique([*self.trials, *extra], set()))
+        self.grid = grid_document(experiment, unique([*options.grid, *extra], set()))
         self.launch = self.tracker.start_launch(
             self.generation,
             name=f"{experiment.name} {time.strftime('%Y-%m-%d %H:%M:%S')}",
