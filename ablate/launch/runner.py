@@ -248,7 +248,7 @@ class _Launch:
         with ThreadPoolExecutor(1, thread_name_prefix="ablate-record") as pool:
             machine, commit = pool.submit(environment_document, self.kernels), pool.submit(git_commit)
             self.started_ray = scheduler.ensure_ray(options.address)
-            self.environment, self.commit = machine.result(), commit.result()
+            environment, self.commit = machine.result(), commit.result()
         self.biggest = scheduler.largest_node_cpus()
         if experiment.resources_per_trial > self.biggest:  # a joined cluster: no node could ever start a trial
             if self.started_ray:
@@ -273,18 +273,10 @@ class _Launch:
             files={
                 "experiment.toml": Path(experiment.path).read_text(encoding="utf-8-sig"),
                 "grid.json": json.dumps(self.grid, indent=1),
-                "environment.json": json.dumps(self.environment, indent=1),
+                "environment.json": json.dumps(environment, indent=1),
             },
         )
         self.outcome.launch_run_id = self.launch
-        self.cluster = scheduler.ClusterOptions(
-            options.address,
-            options.max_concurrent,
-            experiment.resources_per_trial,
-            experiment.gpus_per_trial,
-            options.storage_path,
-        )
-        self.run_name = tune_run_name(self.tracker.experiment_name, self.launch)
 
     def watch(self, todo: list[GridTrial]) -> list[GridTrial]:
         """The launch's state (stage 2's stand-ins and later rounds counted from the start), its view and the
@@ -387,7 +379,13 @@ class _Launch:
         plan = plan_populations(todo, cap=self.options.population, slots=self.cores, plotted=plotted)
         populations = self.recorder.planned(plan)
         with self.view:
-            self.scheduler.run_trials(populations, self.recorder, self.cluster, run_name=self.run_name, resume=resume)
+            options, experiment = self.options, self.experiment
+            cluster = self.scheduler.ClusterOptions(
+                options.address, options.max_concurrent, experiment.resources_per_trial, experiment.gpus_per_trial,
+                options.storage_path,
+            )  # fmt: skip
+            run_name = tune_run_name(self.tracker.experiment_name, self.launch)
+            self.scheduler.run_trials(populations, self.recorder, cluster, run_name=run_name, resume=resume)
 
     def later(self, trials: list[GridTrial]) -> None:
         """Stage 2, or a round of seeds, after what ran before: seeds interleaved as in stage 1, in the same
