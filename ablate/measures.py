@@ -1,15 +1,19 @@
-"""Each measure of a trial, defined once: the area under its learning curve, its episodes to solve (censored at
-the budget), the primary metric an experiment's claims default to, and what the report reads off a whole curve
-(``trial_measures``: the untrained return, the return at fixed budgets, episodes to a return level). Pure (numpy;
-a curve frame's columns), below every layer.
+"""Each measure of a trial, defined once: the registry (``MEASURES``; ``measure`` maps a name back to its entry),
+the area under its learning curve, its episodes to solve (censored at the budget), the primary metric an
+experiment's claims default to, and what the report reads off a whole curve (``trial_measures``: the untrained
+return, the return at fixed budgets, episodes to a return level). Pure (numpy; a curve frame's columns), below
+every layer.
 
-The trainer records them, the launch's rounds judge on them and the report recomputes them from the curve: all
-through these functions, so the three agree to the bit on the same curve.
+The trainer records them, the launch's rounds and tuning judge on them and the report recomputes them from the
+curve: all through this registry, so they agree to the bit on the same curve.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import math
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -32,6 +36,183 @@ def area_under_curve(rolling_means: Sequence[float] | np.ndarray, budget: int) -
         return float("nan")
     padded = np.concatenate([curve, np.full(max(budget - len(curve), 0), curve[-1])])[:budget]
     return float(padded.mean())
+
+
+@dataclass(frozen=True)
+class Curve:
+    """A trial's learning curve as a measure reads it."""
+
+    rolling: np.ndarray
+    """The rolling mean return over the last ``window`` episodes (fewer at the start), one per episode."""
+    budget: int
+    threshold: float | None
+    """The solve threshold it ran against (``None``: the env has none)."""
+    window: int
+    """The solve window."""
+
+    def first_full(self, level: float) -> float:
+        """The first episode whose rolling mean over a full window reaches ``level`` (the solve rule's test); NaN:
+        never."""
+        hits = np.flatnonzero(np.asarray(self.rolling, float)[self.window - 1 :] >= level)
+        return float(hits[0] + self.window) if len(hits) else math.nan
+
+
+@dataclass(frozen=True)
+class Measure:
+    """One measure of a trial, declared once: what tuning, the rounds, the claims, the tables and the report's
+    words read, never a table of their own."""
+
+    name: str
+    """Its name in experiment files (``[tune] metric``), the trials table, comparisons and claims."""
+    words: str
+    """Its name in the report's sentences."""
+    higher_is_better: bool
+    reached: str | None = None
+    """Censored measures (episodes until something happens): the 0/1 column and summary metric saying it happened;
+    where it did not, the value is the trial's budget, a lower bound. ``None``: never censored."""
+    never: str = ""
+    """A censored measure's words for a seed that never got there (``never solved``)."""
+    column: str = ""
+    """The trials table's column of its values, censored at the budget where censored (default: ``name``)."""
+    summary: str = ""
+    """The trial's summary metric it is read from by tuning and the rounds (default: ``name``)."""
+    curve: Callable[[Curve], float] | None = None
+    """How it is computed from a trial's curve (NaN: a censored measure that never got there); the trainer records
+    it and the report recomputes it. ``None``: tracked otherwise (episodes to solve) or parameterised."""
+    tune: bool = False
+    """Whether ``[tune] metric`` may name it."""
+    claim: str | None = None
+    """Its name as an experiment's ``primary`` (what the claims are made on); ``None``: it cannot be claimed on."""
+    needs_threshold: bool = False
+    """Whether it exists only where the env has a solve threshold."""
+    short: str = ""
+    """Its words where space is short (default: ``words``)."""
+    family: str = ""
+    """A parameterised measure's family (``FAMILIES``); ``""``: an entry of ``MEASURES``."""
+    parameter: float | None = None
+    """A parameterised measure's parameter: the episodes of ``return_at``, the level of ``episodes_to``."""
+
+    def __post_init__(self) -> None:
+        for attribute, default in (("column", self.name), ("summary", self.name), ("short", self.words)):
+            if not getattr(self, attribute):
+                object.__setattr__(self, attribute, default)
+
+    @property
+    def censored(self) -> bool:
+        return self.reached is not None
+
+    @property
+    def direction(self) -> str:
+        """``max`` or ``min``: which way it is better."""
+        return "max" if self.higher_is_better else "min"
+
+    def from_summary(self, metrics: Mapping[str, float], budget: float) -> tuple[float, bool]:
+        """A trial's value from its summary metrics (or a trials table's row) and whether it is censored (never got
+        there: the budget, a lower bound). A missing value of an uncensored measure is NaN."""
+        value = metrics.get(self.summary)
+        if self.reached is None:
+            return (math.nan if value is None else float(value)), False
+        if value is None or not math.isfinite(value) or metrics.get(self.reached, 1.0) != 1.0:
+            return float(budget), True
+        return float(value), False
+
+
+def _auc(curve: Curve) -> float:
+    return area_under_curve(curve.rolling, curve.budget)
+
+
+AUC = Measure("auc", "area under the curve (AUC)", True, curve=_auc, tune=True, claim="auc", short="AUC")
+EPISODES_TO_SOLVE = Measure(
+    "episodes_to_solve",
+    "episodes to solve",
+    False,
+    reached="solved",
+    never="never solved",
+    column="censored_episodes",
+    tune=True,
+    claim="episodes_to_solve",
+    needs_threshold=True,
+)
+FINAL_RETURN = Measure(
+    "final_return",
+    "return at the budget",
+    True,
+    column="final_rolling_mean",
+    summary="final_rolling_mean",
+    tune=True,
+    claim="return",
+)
+"""The rolling mean return when the trial ended; the report claims on it as ``return_at`` the whole budget."""
+
+MEASURES = (EPISODES_TO_SOLVE, AUC, FINAL_RETURN)
+"""Every measure with a name of its own, in the order experiment-file errors list them."""
+
+
+def return_at(episodes: int) -> Measure:
+    """The rolling mean return after ``episodes`` episodes (the last one where the trial stopped sooner)."""
+    return Measure(
+        f"return_at_{episodes}", f"return after {episodes:,} episodes", True, family="return_at", parameter=episodes
+    )
+
+
+def episodes_to(level: float) -> Measure:
+    """The first episode whose rolling mean over a full window (or a quarter of the budget, if shorter) reaches the
+    return ``level``, censored at the budget."""
+    return Measure(
+        f"episodes_to_{level:g}",
+        f"episodes to reach a rolling return of {level:g}",
+        False,
+        reached=f"reached_{level:g}",
+        never=f"never reached {level:g}",
+        family="episodes_to",
+        parameter=level,
+    )
+
+
+FAMILIES: tuple[tuple[re.Pattern[str], Callable[[str], Measure]], ...] = (
+    (re.compile(r"return_at_(\d+)"), lambda p: return_at(int(p))),
+    (re.compile(r"episodes_to_(-?\d+(?:\.\d*)?(?:e[+-]?\d+)?)"), lambda p: episodes_to(float(p))),
+)
+"""Each parameterised family: the pattern of its names and its entry from the parameter."""
+
+
+def lookup(name: str) -> Measure | None:
+    """The entry ``name`` means, by its name or its ``claim`` name, or a parameterised family's; ``None``: none."""
+    for entry in MEASURES:
+        if name in (entry.name, entry.claim):
+            return entry
+    for pattern, make in FAMILIES:
+        match = pattern.fullmatch(name)
+        if match:
+            return make(match[1])
+    return None
+
+
+def measure(name: str) -> Measure:
+    """The entry ``name`` means (``lookup``); a ``KeyError`` where none."""
+    entry = lookup(name)
+    if entry is None:
+        raise KeyError(name)
+    return entry
+
+
+def tunable() -> list[str]:
+    """The names ``[tune] metric`` may take."""
+    return [m.name for m in MEASURES if m.tune]
+
+
+def claimable() -> list[str]:
+    """The names an experiment's ``primary`` may take."""
+    return [m.claim for m in MEASURES if m.claim]
+
+
+def recorded(curve: Curve) -> dict[str, float]:
+    """The measures a trial records among its summary metrics (what tuning and the rounds read): each entry
+    computed from the curve; a censored one only where it got there."""
+    if not len(curve.rolling):
+        return {}
+    values = {m: m.curve(curve) for m in MEASURES if m.curve is not None}
+    return {m.summary: v for m, v in values.items() if not (m.censored and not math.isfinite(v))}
 
 
 def reaches_threshold(rolling_mean: float, window_filled: bool, threshold: float | None) -> bool:
@@ -79,25 +260,48 @@ def fixed_budgets(budget: int) -> list[int]:
     return sorted({max(1, budget // 4), max(1, budget // 2), budget})
 
 
-def trial_measures(curve: pd.DataFrame, budget: int, levels: tuple[float, ...], window: int) -> dict[str, float]:
+def trial_measures(
+    curve: pd.DataFrame,
+    budget: int,
+    levels: tuple[float, ...],
+    window: int,
+    threshold: float | None = None,
+    asked: Sequence[Measure] = (),
+) -> dict[str, float]:
     """What one trial's curve says beyond its summary metrics: AUC, the untrained return, the improvement
-    over it, the rolling return after each fixed budget, and the first episode the rolling mean (over a full
-    window, or a quarter of the budget if shorter) reaches each return level (censored at the budget)."""
+    over it, the rolling return after each fixed budget, the first episode the rolling mean (over a full
+    window, or a quarter of the budget if shorter) reaches each return level (censored at the budget), and each
+    measure of ``asked`` computed from the curve (its column, and where censored its ``reached``)."""
     rolling = curve.rolling_mean.to_numpy(float)
     returns = curve["return"].to_numpy(float)
-    measures: dict[str, float] = {"auc": area_under_curve(rolling, budget)}
+    measures: dict[str, float] = {}
+    for entry in dict.fromkeys((AUC, *(m for m in asked if m.curve is not None))):
+        measures |= curve_columns(entry, Curve(rolling, budget, threshold, window))
     if len(returns) == 0:
         return measures
     initial = float(returns[: min(INITIAL_EPISODES, len(returns))].mean())
     measures["initial_return"] = initial
     measures["improvement"] = float(rolling[-1]) - initial
     for episodes in fixed_budgets(budget):
-        measures[f"return_at_{episodes}"] = float(rolling[min(episodes, len(rolling)) - 1])
+        measures[return_at(episodes).column] = float(rolling[min(episodes, len(rolling)) - 1])
     full = curve["return"].rolling(min(window, max(1, budget // 4)), min_periods=min(window, max(1, budget // 4)))
     full_mean = full.mean().to_numpy(float)
     episodes_axis = curve.episode.to_numpy(int)
     for level in levels:
-        hits = np.flatnonzero(full_mean >= level)
-        measures[f"reached_{level:g}"] = float(len(hits) > 0)
-        measures[f"episodes_to_{level:g}"] = float(episodes_axis[hits[0]]) if len(hits) else float(budget)
+        hits, entry = np.flatnonzero(full_mean >= level), episodes_to(level)
+        measures[entry.reached] = float(len(hits) > 0)
+        measures[entry.column] = float(episodes_axis[hits[0]]) if len(hits) else float(budget)
     return measures
+
+
+def curve_columns(entry: Measure, curve: Curve) -> dict[str, float]:
+    """A curve measure as the trials table holds it: its value (censored: the budget where it never got there)
+    and, where censored, its ``reached`` flag."""
+    assert entry.curve is not None
+    value = entry.curve(curve)
+    if entry.reached is None:
+        return {entry.column: value}
+    return {
+        entry.column: value if math.isfinite(value) else float(curve.budget),
+        entry.reached: float(math.isfinite(value)),
+    }

@@ -68,3 +68,39 @@ def test_seeds_needed_is_the_fewest_count_whose_power_reaches_the_target_and_non
     assert len(asked) < len(SEED_COUNTS)  # a bisection, not a scan
     assert seeds_needed(lambda n: POWER, SEED_COUNTS) == SEED_COUNTS[0]
     assert seeds_needed(lambda n: 0.0, SEED_COUNTS) is None and seeds_needed(power, []) is None
+
+
+def test_each_name_maps_back_to_one_entry_and_a_parameterised_one_to_its_value():
+    from ablate.measures import AUC, EPISODES_TO_SOLVE, FINAL_RETURN, episodes_to, lookup, measure, return_at
+
+    assert measure("auc") is AUC and measure("episodes_to_solve") is EPISODES_TO_SOLVE
+    assert measure("return") is FINAL_RETURN and measure("final_return") is FINAL_RETURN  # a claim's name, a tune's
+    assert measure("return_at_750") == return_at(750) and measure("return_at_750").parameter == 750
+    assert measure("episodes_to_-15") == episodes_to(-15.0) and measure("episodes_to_-15").reached == "reached_-15"
+    assert measure(episodes_to(0.5).name).parameter == 0.5 and measure(episodes_to(1e6).name).parameter == 1e6
+    assert lookup("return_at_x") is None and lookup("speed") is None
+    with pytest.raises(KeyError):
+        measure("speed")
+    assert (AUC.direction, EPISODES_TO_SOLVE.direction, FINAL_RETURN.direction) == ("max", "min", "max")
+
+
+def test_a_censored_measure_read_from_a_summary_is_the_budget_where_it_never_got_there():
+    from ablate.measures import AUC, EPISODES_TO_SOLVE, FINAL_RETURN
+
+    assert EPISODES_TO_SOLVE.from_summary({"solved": 1.0, "episodes_to_solve": 120.0}, 400) == (120.0, False)
+    assert EPISODES_TO_SOLVE.from_summary({"solved": 0.0}, 400) == (400.0, True)
+    assert EPISODES_TO_SOLVE.from_summary({"solved": 0.0, "episodes_to_solve": np.nan}, 400) == (400.0, True)
+    assert FINAL_RETURN.from_summary({"final_rolling_mean": 31.5}, 400) == (31.5, False)
+    value, censored = AUC.from_summary({}, 400)
+    assert math.isnan(value) and not censored
+
+
+def test_the_curves_solve_rule_is_the_trainers():
+    from ablate.measures import Curve, recorded
+
+    curve = Curve(np.array([30.0, 5.0, 20.0, 20.0, 30.0]), budget=8, threshold=20.0, window=3)
+    # episode 1's rolling mean is above 20, but over a window of one: the first full window ends at episode 3
+    assert curve.first_full(20.0) == 3 and curve.first_full(25.0) == 5
+    assert math.isnan(curve.first_full(31.0))
+    assert recorded(curve) == {"auc": area_under_curve(curve.rolling, 8)}
+    assert recorded(Curve(np.array([]), 8, 20.0, 3)) == {}
