@@ -40,27 +40,28 @@ def area_under_curve(rolling_means: Sequence[float] | np.ndarray, budget: int) -
 
 @dataclass(frozen=True)
 class Curve:
-    """A trial's learning curve as a measure reads it."""
+    """A trial's learning curve as a measure reads it: ``rolling``, the rolling mean return over the last ``window``
+    (the solve window) episodes, fewer at the start; its ``budget``; its solve ``threshold`` (``None``: none)."""
 
     rolling: np.ndarray
-    """The rolling mean return over the last ``window`` episodes (fewer at the start), one per episode."""
     budget: int
     threshold: float | None
-    """The solve threshold it ran against (``None``: the env has none)."""
     window: int
-    """The solve window."""
 
     def first_full(self, level: float) -> float:
-        """The first episode whose rolling mean over a full window reaches ``level`` (the solve rule's test); NaN:
-        never."""
+        """The first episode whose rolling mean over a full window reaches ``level`` (the solve rule); NaN: never."""
         hits = np.flatnonzero(np.asarray(self.rolling, float)[self.window - 1 :] >= level)
         return float(hits[0] + self.window) if len(hits) else math.nan
 
 
+def _auc(curve: Curve) -> float:
+    return area_under_curve(curve.rolling, curve.budget)
+
+
 @dataclass(frozen=True)
 class Measure:
-    """One measure of a trial, declared once: what tuning, the rounds, the claims, the tables and the report's
-    words read, never a table of their own."""
+    """One measure of a trial, declared once: tuning, the rounds, the claims, the tables and the report's words
+    read it here, none from a table of its own."""
 
     name: str
     """Its name in experiment files (``[tune] metric``), the trials table, comparisons and claims."""
@@ -68,34 +69,29 @@ class Measure:
     """Its name in the report's sentences."""
     higher_is_better: bool
     reached: str | None = None
-    """Censored measures (episodes until something happens): the 0/1 column and summary metric saying it happened;
-    where it did not, the value is the trial's budget, a lower bound. ``None``: never censored."""
+    """Censored (episodes until something happens): the 0/1 column and summary metric saying it happened; where it
+    did not, its value is the trial's budget, a lower bound. ``None``: never censored."""
     never: str = ""
-    """A censored measure's words for a seed that never got there (``never solved``)."""
+    """A censored measure's words for a seed that never got there."""
     column: str = ""
-    """The trials table's column of its values, censored at the budget where censored (default: ``name``)."""
+    """The trials table's column of its values, censored at the budget (default: ``name``)."""
     summary: str = ""
-    """The trial's summary metric it is read from by tuning and the rounds (default: ``name``)."""
+    """The trial's summary metric tuning and the rounds read it from (default: ``name``)."""
     curve: Callable[[Curve], float] | None = None
-    """How it is computed from a trial's curve (NaN: a censored measure that never got there); the trainer records
-    it and the report recomputes it. ``None``: tracked otherwise (episodes to solve) or parameterised."""
+    """How the trainer records it and the report recomputes it from a trial's curve (NaN: never got there)."""
     tune: bool = False
     """Whether ``[tune] metric`` may name it."""
     claim: str | None = None
-    """Its name as an experiment's ``primary`` (what the claims are made on); ``None``: it cannot be claimed on."""
+    """Its name as an experiment's ``primary``; ``None``: no claim is made on it."""
     needs_threshold: bool = False
     """Whether it exists only where the env has a solve threshold."""
-    short: str = ""
-    """Its words where space is short (default: ``words``)."""
     family: str = ""
-    """A parameterised measure's family (``FAMILIES``); ``""``: an entry of ``MEASURES``."""
+    """A parameterised measure's family (``FAMILIES``) and ``parameter`` (the episodes, the return level)."""
     parameter: float | None = None
-    """A parameterised measure's parameter: the episodes of ``return_at``, the level of ``episodes_to``."""
 
     def __post_init__(self) -> None:
-        for attribute, default in (("column", self.name), ("summary", self.name), ("short", self.words)):
-            if not getattr(self, attribute):
-                object.__setattr__(self, attribute, default)
+        object.__setattr__(self, "column", self.column or self.name)
+        object.__setattr__(self, "summary", self.summary or self.name)
 
     @property
     def censored(self) -> bool:
@@ -108,7 +104,7 @@ class Measure:
 
     def from_summary(self, metrics: Mapping[str, float], budget: float) -> tuple[float, bool]:
         """A trial's value from its summary metrics (or a trials table's row) and whether it is censored (never got
-        there: the budget, a lower bound). A missing value of an uncensored measure is NaN."""
+        there: the budget). A missing value of an uncensored measure is NaN."""
         value = metrics.get(self.summary)
         if self.reached is None:
             return (math.nan if value is None else float(value)), False
@@ -117,11 +113,7 @@ class Measure:
         return float(value), False
 
 
-def _auc(curve: Curve) -> float:
-    return area_under_curve(curve.rolling, curve.budget)
-
-
-AUC = Measure("auc", "area under the curve (AUC)", True, curve=_auc, tune=True, claim="auc", short="AUC")
+AUC = Measure("auc", "area under the curve (AUC)", True, curve=_auc, tune=True, claim="auc")
 EPISODES_TO_SOLVE = Measure(
     "episodes_to_solve",
     "episodes to solve",
@@ -140,10 +132,8 @@ FINAL_RETURN = Measure(
     column="final_rolling_mean",
     summary="final_rolling_mean",
     tune=True,
-    claim="return",
+    claim="return",  # the report claims on it as the return after the whole budget (``return_at``)
 )
-"""The rolling mean return when the trial ended; the report claims on it as ``return_at`` the whole budget."""
-
 MEASURES = (EPISODES_TO_SOLVE, AUC, FINAL_RETURN)
 """Every measure with a name of its own, in the order experiment-file errors list them."""
 
@@ -157,13 +147,14 @@ def return_at(episodes: int) -> Measure:
 
 def episodes_to(level: float) -> Measure:
     """The first episode whose rolling mean over a full window (or a quarter of the budget, if shorter) reaches the
-    return ``level``, censored at the budget."""
+    return ``level``, censored at the budget (``trial_measures``)."""
+    level_words = f"{level:g}"
     return Measure(
-        f"episodes_to_{level:g}",
-        f"episodes to reach a rolling return of {level:g}",
+        f"episodes_to_{level_words}",
+        f"episodes to reach a rolling return of {level_words}",
         False,
-        reached=f"reached_{level:g}",
-        never=f"never reached {level:g}",
+        reached=f"reached_{level_words}",
+        never=f"never reached {level_words}",
         family="episodes_to",
         parameter=level,
     )
@@ -177,41 +168,38 @@ FAMILIES: tuple[tuple[re.Pattern[str], Callable[[str], Measure]], ...] = (
 
 
 def lookup(name: str) -> Measure | None:
-    """The entry ``name`` means, by its name or its ``claim`` name, or a parameterised family's; ``None``: none."""
-    for entry in MEASURES:
-        if name in (entry.name, entry.claim):
-            return entry
-    for pattern, make in FAMILIES:
-        match = pattern.fullmatch(name)
-        if match:
-            return make(match[1])
-    return None
+    """The entry ``name`` means: by its name or its ``claim`` name, or a parameterised family's; ``None``: none."""
+    entry = next((m for m in MEASURES if name in (m.name, m.claim)), None)
+    matches = ((pattern.fullmatch(name), make) for pattern, make in FAMILIES)
+    return entry or next((make(match[1]) for match, make in matches if match), None)
 
 
 def measure(name: str) -> Measure:
     """The entry ``name`` means (``lookup``); a ``KeyError`` where none."""
-    entry = lookup(name)
-    if entry is None:
+    if (entry := lookup(name)) is None:
         raise KeyError(name)
     return entry
 
 
-def tunable() -> list[str]:
+def is_censored(name: str) -> bool:
+    """Whether ``name`` is a censored measure (episodes until something happens: ratios, lower is better)."""
+    return (entry := lookup(name)) is not None and entry.censored
+
+
+def tune_names() -> list[str]:
     """The names ``[tune] metric`` may take."""
     return [m.name for m in MEASURES if m.tune]
 
 
-def claimable() -> list[str]:
+def claim_names() -> list[str]:
     """The names an experiment's ``primary`` may take."""
     return [m.claim for m in MEASURES if m.claim]
 
 
 def recorded(curve: Curve) -> dict[str, float]:
-    """The measures a trial records among its summary metrics (what tuning and the rounds read): each entry
-    computed from the curve; a censored one only where it got there."""
-    if not len(curve.rolling):
-        return {}
-    values = {m: m.curve(curve) for m in MEASURES if m.curve is not None}
+    """What a trial records of the registry among its summary metrics (tuning and the rounds read them): each
+    entry with a curve function, a censored one only where it got there."""
+    values = {m: m.curve(curve) for m in MEASURES if m.curve is not None and len(curve.rolling)}
     return {m.summary: v for m, v in values.items() if not (m.censored and not math.isfinite(v))}
 
 
