@@ -24,7 +24,6 @@ from ablate.config import (
     MAX_VARIANT_NAME_LENGTH,
     SHORTHANDS,
     TUNABLE_KNOBS,
-    TUNE_METRICS,
     TUNE_SEED_START,
     ConfigError,
     TrialConfig,
@@ -33,7 +32,7 @@ from ablate.config import (
     is_number,
 )
 from ablate.env_spec import solve_threshold_or_none
-from ablate.measures import default_primary_metric
+from ablate.measures import claim_names, default_primary_metric, measure, tune_names
 from ablate.seeds import SeedRounds, parse_seeds
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9_-]{1,100}")
@@ -64,14 +63,14 @@ class TuneSpec:
     seeds: tuple[int, ...]
     """Tuning seeds, from ``TUNE_SEED_START`` up: disjoint from every evaluation seed."""
     metric: str = "auc"
-    """A key of ``TUNE_METRICS``."""
+    """A tunable measure's name (``measures.tune_names``)."""
     max_episodes: int | None = None
     """Tuning trials' episode budget; ``None``: the evaluation budget (each variant's ``max_episodes``)."""
 
     @property
     def direction(self) -> str:
         """``max`` or ``min``: which way the metric is better."""
-        return TUNE_METRICS[self.metric]
+        return measure(self.metric).direction
 
     @property
     def knob_names(self) -> tuple[str, ...]:
@@ -112,7 +111,7 @@ class Experiment:
     tune: TuneSpec | None = None
     """``[tune]``: tune each variant's optimisation knobs on tuning seeds first; ``None``: no tuning stage."""
     primary: str | None = None
-    """The metric the report's claims are made on (one of ``PRIMARY_METRICS``); ``None``: episodes to solve
+    """The metric the report's claims are made on (``measures.claim_names``); ``None``: episodes to solve
     where the env has a solve threshold, the area under the learning curve where it has none (Pong). The other
     metrics stay in the report as exploratory. Report-level: it changes no trial."""
 
@@ -290,15 +289,20 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     first_round = len(seeds) if rounds else len(every_seed)  # a tuned variant's base-value trials: round 1's seeds
     tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), tuple(sorted(every_seed)), first_round)
     primary = data.get("primary")
-    if primary is not None and primary not in PRIMARY_METRICS:
+    if primary is not None and primary not in claim_names():
         raise ConfigError(
-            f"{source}: primary = {_clip(primary)} is invalid; valid: one of {', '.join(PRIMARY_METRICS)} (or leave "
+            f"{source}: primary = {_clip(primary)} is invalid; valid: one of {', '.join(claim_names())} (or leave "
             "it out: episodes_to_solve where the env has a solve threshold, else auc)"
         )
-    if primary == "episodes_to_solve" and any(solve_threshold_or_none(v.config) is None for v in variants):
+    if (
+        primary
+        and measure(primary).needs_threshold
+        and any(solve_threshold_or_none(v.config) is None for v in variants)
+    ):
+        without = " or ".join(m for m in claim_names() if not measure(m).needs_threshold)
         raise ConfigError(
-            f"{source}: primary = 'episodes_to_solve' is invalid: {base.env_id} has no solve threshold; valid: auc or "
-            "return, or set solve_threshold in [base]"
+            f"{source}: primary = {primary!r} is invalid: {base.env_id} has no solve threshold; valid: {without}, or "
+            "set solve_threshold in [base]"
         )
     return Experiment(
         name,
@@ -371,8 +375,8 @@ def _parse_tune(
             f"(they are {TUNE_SEED_START}, {TUNE_SEED_START + 1}, ...)"
         )
     metric = table.get("metric", "auc")
-    if metric not in TUNE_METRICS:
-        raise ConfigError(f"{where}.metric = {_clip(metric)} is invalid; valid: one of {', '.join(TUNE_METRICS)}")
+    if metric not in tune_names():
+        raise ConfigError(f"{where}.metric = {_clip(metric)} is invalid; valid: one of {', '.join(tune_names())}")
     budget = table.get("max_episodes")
     if budget is not None and not KNOBS["max_episodes"].check(budget):
         raise ConfigError(f"{where}.max_episodes = {_clip(budget)} is invalid; valid: {KNOBS['max_episodes'].valid}")

@@ -314,7 +314,10 @@ BAD_TUNE = [
     (_V + "[tune]\nlearning_rate = [0.1, 0.1]\n", "valid: distinct candidate values"),
     (_V + "[tune]\nseeds = 3\n", "tune: no knob to tune"),
     (_V + "[tune]\nlearning_rate = [0.1]\nseeds = 0\n", "tune.seeds = 0 is invalid; valid: a count of tuning seeds"),
-    (_V + "[tune]\nlearning_rate = [0.1]\nmetric = 'iqm'\n", "tune.metric = 'iqm' is invalid; valid: one of auc, "),
+    (
+        _V + "[tune]\nlearning_rate = [0.1]\nmetric = 'iqm'\n",
+        "tune.metric = 'iqm' is invalid; valid: one of episodes_to_solve, auc, final_return",
+    ),
     (_V + "[tune]\nlearning_rate = [0.1]\nmax_episodes = 0\n", "tune.max_episodes = 0 is invalid"),
     ("seeds = [0, 10000]\n" + _V + "[tune]\nlearning_rate = [0.1]\n", "seeds: 10000 is invalid with [tune]"),
     (

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from ablate.config import TrialConfig
-from ablate.measures import area_under_curve
+from ablate.measures import Curve, recorded
 
 
 class TrialFailed(RuntimeError):
@@ -79,9 +79,9 @@ class TrialResult:
             "steps_per_s": self.env_steps / self.wall_s if self.wall_s > 0 else 0.0,
             "parameter_count": float(self.parameter_count),
         }
-        if self.episodes:
-            # Here, so that tuning selects from the summary alone; the report recomputes it from the same function.
-            summary["auc"] = area_under_curve([m.rolling_mean for m in self.episodes], self.config.max_episodes)
+        # Here, so that tuning selects from the summary alone; the report recomputes them from the same registry.
+        rolling = np.asarray([m.rolling_mean for m in self.episodes], float)
+        summary |= recorded(Curve(rolling, self.config.max_episodes, self.solve_threshold, self.config.solve_window))
         if solve is not None:
             summary |= {
                 "episodes_to_solve": float(solve.episode),

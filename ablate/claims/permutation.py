@@ -13,6 +13,8 @@ from itertools import combinations
 
 import numpy as np
 
+from ablate.measures import AUC, measure
+
 EXACT_SPLITS = 20_000
 """Up to this many ways to split the pooled seeds, the permutation test enumerates them all (5 and 5: 252)."""
 PERMUTATIONS = 9_999
@@ -50,12 +52,13 @@ class Question:
 
 
 def primary_question(metric: str, smallest_effect: float, budget: float | None = None) -> Question:
-    """The one way a report, the launch's rounds and the A/A calibration ask their claims: episodes to solve as
-    ratios, censored at ``budget``, falling back to the AUC where most seeds are censored; any other metric as
-    differences, higher better."""
-    episodes = metric == "episodes_to_solve"
-    fallback = Question("auc", False, False, smallest_effect) if episodes else None
-    return Question(metric, episodes, episodes, smallest_effect, budget if episodes else None, fallback)
+    """The one way a report, the launch's rounds and the A/A calibration ask their claims: a censored measure
+    (episodes to solve) as ratios, censored at ``budget``, falling back to the AUC where most seeds are censored;
+    any other measure as differences, in its direction (``measures.measure``)."""
+    entry = measure(metric)
+    lower = not entry.higher_is_better
+    fallback = Question(AUC.name, False, not AUC.higher_is_better, smallest_effect) if entry.censored else None
+    return Question(metric, entry.censored, lower, smallest_effect, budget if entry.censored else None, fallback)
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ from typing import Any
 
 from ablate.experiment import Experiment, TuneSpec, Variant
 from ablate.launch.grid import GridTrial, chosen_trials
+from ablate.measures import AUC, measure
 
 RULE = (
     "Each variant takes the candidate with the best mean {metric} over its tuning seeds; where that leaves a tie "
@@ -32,7 +33,8 @@ class TuningResult:
     """The candidate: the tuned knobs' values."""
     seed: int
     metrics: Mapping[str, float]
-    """The trial's summary metrics (``auc``, ``episodes_to_solve`` when solved, ``final_rolling_mean``, ...)."""
+    """The trial's summary metrics (``auc``, ``episodes_to_solve`` when solved, ``final_rolling_mean``, ...): what
+    each measure's ``from_summary`` reads."""
     budget: int
     """The trial's ``max_episodes``: an unsolved trial's episodes to solve are censored here."""
 
@@ -49,15 +51,9 @@ class Choice:
 
 
 def metric_value(metrics: Mapping[str, float], metric: str, budget: int) -> tuple[float, bool]:
-    """A trial's value of ``metric`` and whether it is censored (episodes to solve of a trial that never
-    solved: the budget, a lower bound). A missing or NaN value is NaN (ranked last)."""
-    if metric == "episodes_to_solve":
-        value = metrics.get("episodes_to_solve")
-        if value is None or not math.isfinite(value) or metrics.get("solved", 1.0) != 1.0:
-            return float(budget), True
-        return float(value), False
-    value = metrics.get(SUMMARY_NAMES[metric], float("nan"))
-    return float(value), False
+    """A trial's value of ``metric`` and whether it is censored (``Measure.from_summary``: episodes to solve of a
+    trial that never solved are the budget, a lower bound). A missing or NaN value is NaN (ranked last)."""
+    return measure(metric).from_summary(metrics, budget)
 
 
 def _label(values: Mapping[str, Any]) -> str:
@@ -89,7 +85,7 @@ def choose(spec: TuneSpec, tuned: tuple[str, ...], base: Mapping[str, Any], resu
     keyed = {cand: (sign * v if math.isfinite(v) else math.inf) for cand, (v, _) in scores.items()}
     best = min(keyed.values())
     best_censored = any(scores[c][1] for c, k in keyed.items() if abs(k - best) <= _TOLERANCE * max(1.0, abs(best)))
-    if spec.metric == "episodes_to_solve" and best_censored:
+    if measure(spec.metric).censored and best_censored:
         # The lowest mean uses a never-solved seed: its true mean is higher by an unknown amount, so episodes
         # cannot order the candidates at all.
         tied = list(keyed)
@@ -100,8 +96,8 @@ def choose(spec: TuneSpec, tuned: tuple[str, ...], base: Mapping[str, Any], resu
     if len(tied) == 1:
         chosen, why = tied[0], f"best mean {spec.metric}"
     else:
-        if spec.metric != "auc":
-            auc = {c: mean(by_candidate[c], "auc")[0] for c in tied}
+        if spec.metric != AUC.name:
+            auc = {c: mean(by_candidate[c], AUC.name)[0] for c in tied}
             auc_key = {c: (-v if math.isfinite(v) else math.inf) for c, v in auc.items()}
             top = min(auc_key.values())
             by_auc = [c for c in tied if abs(auc_key[c] - top) <= _TOLERANCE * max(1.0, abs(top))]

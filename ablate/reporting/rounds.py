@@ -12,7 +12,7 @@ from ablate.claims.family import SPENDING_WORDS
 from ablate.config import flatten
 from ablate.experiment import Experiment
 from ablate.launch.rounds import Primary
-from ablate.measures import censored_episodes
+from ablate.measures import AUC, measure
 from ablate.seeds import added_words
 
 SUMMARY_METRIC = {"episodes_to_solve": "episodes_to_solve", "auc": "auc", "return": "final_rolling_mean"}
@@ -36,18 +36,18 @@ def references(experiment: Experiment) -> dict[str, str]:
 
 
 def sample(rows: Sequence[Primary], metric: str):
-    """A variant's finished primary trials as ``claims.Sample`` (episodes: unsolved seeds count as the budget,
-    censored)."""
+    """A variant's finished primary trials as ``claims.Sample`` (a censored measure: seeds that never got there
+    count as the budget, with their AUC to fall back on)."""
     import numpy as np
 
     from ablate.claims import Sample
 
-    if metric == "episodes_to_solve":
-        episodes = np.asarray([r.metrics.get("episodes_to_solve", np.nan) for r in rows], float)
-        solved = np.asarray([r.metrics.get("solved", 0.0) == 1.0 for r in rows], bool) & np.isfinite(episodes)
-        auc = np.asarray([r.metrics.get("auc", np.nan) for r in rows], float)
-        return Sample(censored_episodes(solved, episodes, [r.budget for r in rows]), ~solved, auc)
-    return Sample(np.asarray([r.metrics.get(SUMMARY_METRIC[metric], np.nan) for r in rows], float))
+    entry = measure(metric)
+    values, censored = zip(*(entry.from_summary(r.metrics, r.budget) for r in rows), strict=True)
+    if not entry.censored:
+        return Sample(np.asarray(values, float))
+    auc = np.asarray([AUC.from_summary(r.metrics, r.budget)[0] for r in rows], float)
+    return Sample(np.asarray(values, float), np.asarray(censored, bool), auc)
 
 
 def judge_for(experiment: Experiment, seeds: Sequence[int] | None = None):
