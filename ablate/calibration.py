@@ -18,6 +18,7 @@ from typing import Any
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment, load_experiment
+from ablate.measures import FINAL_RETURN, measure, return_at
 from ablate.seeds import SeedRounds
 
 SEED_START = 20_000
@@ -214,18 +215,14 @@ def aa_reports(
             f"calibrate: {len(trials)} finished seeds cannot fill {variants} variants x {seeds} seeds; valid: --pool "
             f">= {variants * seeds}"
         )
-    censored = (trials.solved != 1).to_numpy() if "solved" in trials else np.zeros(len(trials), bool)
+    entries = {m: measure(m) for m in dict.fromkeys([*metric_names, primary])}
+    columns = {m: trials[e.column].to_numpy(float) for m, e in entries.items()}
     unreached = {
-        m: (trials[f"reached_{m.removeprefix('episodes_to_')}"] != 1).to_numpy()
-        for m in metric_names
-        if m.startswith("episodes_to_") and m != "episodes_to_solve"
+        m: (trials[e.reached] != 1).to_numpy() if e.reached in trials else np.zeros(len(trials), bool)
+        for m, e in entries.items()
     }
-    columns = {m: trials["censored_episodes" if m == "episodes_to_solve" else m].to_numpy(float) for m in metric_names}
-    if primary not in columns:
-        column = "censored_episodes" if primary == "episodes_to_solve" else primary
-        columns[primary] = trials[column].to_numpy(float)
     budget = float(trials.budget.max()) if "budget" in trials else None
-    episodes = primary == "episodes_to_solve"
+    episodes = entries[primary].censored
     question = primary_question(primary, smallest_effect, budget)
     auc = trials["auc"].to_numpy(float) if "auc" in trials else None
     references = {f"v{i}": "v0" for i in range(1, variants)}
@@ -237,7 +234,7 @@ def aa_reports(
         samples = {
             f"v{i}": Sample(
                 columns[primary][order[i]],
-                censored[order[i]] if episodes else None,
+                unreached[primary][order[i]] if episodes else None,
                 auc[order[i]] if episodes and auc is not None else None,
             )
             for i in range(variants)
@@ -252,8 +249,8 @@ def aa_reports(
             y = order[0]
             for i in range(1, variants):
                 x = order[i]
-                if metric.startswith("episodes_to_"):
-                    flags = unreached.get(metric, censored)
+                if entries[metric].censored:
+                    flags = unreached[metric]
                     verdict = _episodes_comparison(values[x], values[y], flags[x], flags[y])[3]
                 else:
                     verdict = _return_comparison(values[x], values[y])[3]
@@ -310,8 +307,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     ablation = api.load(derived, tracking_uri=args.tracking_uri).ablation
     metrics = comparison_metrics(ablation)
     primary = experiment.primary_metric
-    if primary == "return":
-        primary = f"return_at_{ablation.budgets[-1]}"
+    if measure(primary) is FINAL_RETURN:
+        primary = return_at(ablation.budgets[-1]).name
     result = aa_reports(
         ablation.finished,
         metrics,
@@ -329,14 +326,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def print_calibration(experiment, ablation, result: Calibration, variants, seeds, primary, metrics) -> str:
     done = ablation.finished
     solved = int((done.solved == 1).sum()) if "solved" in done else 0
-    names = {"episodes_to_solve": "episodes to solve", "auc": "AUC"}
-    words = [names.get(m, m.replace("return_at_", "return after ") + " episodes") for m in metrics]
-    per = "; ".join(f"{names.get(m, m)} {share:.1%}" for m, share in result.old_per_metric.items())
+    words = [measure(m).words for m in metrics]
+    per = "; ".join(f"{measure(m).words} {share:.1%}" for m, share in result.old_per_metric.items())
     return "\n".join(
         [
             f"{len(done)} seeds finished ({solved} solved); {result.new.reports} A/A reports of {variants} variants x "
             f"{seeds} seeds, each variant the same configuration, dealt from them without overlap",
-            f"  new rule (permutation test of the IQM difference on {names.get(primary, primary)}, Holm over "
+            f"  new rule (permutation test of the IQM difference on {measure(primary).words}, Holm over "
             f"{variants - 1} comparisons at 5%): any better/worse in {result.new.words()}",
             f"  old rule (a 95% bootstrap interval excluding 0 on {', '.join(words)}): any better/worse in "
             f"{result.old.words()}; per comparison: {per}",

@@ -10,6 +10,7 @@ import pandas as pd
 
 from ablate.claims import Design, Question, Round, Sample, decide
 from ablate.claims import primary_question as claims_question
+from ablate.measures import AUC, EPISODES_TO_SOLVE, episodes_to, is_censored, measure, return_at
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import (
     CONFIDENCE,
@@ -72,24 +73,14 @@ def compare_metric(
     """``variant`` against its reference on ``metric``, with a leave-one-seed-out check of the verdict."""
     done, reference = ablation.finished, ablation.reference(variant)
 
+    entry = measure(metric)
+
     def samples(frame: pd.DataFrame):
         v, b = frame[frame.variant == variant], frame[frame.variant == reference]
-        if metric == "episodes_to_solve":
-            return (
-                v.censored_episodes.to_numpy(float),
-                b.censored_episodes.to_numpy(float),
-                (v.solved != 1).to_numpy(),
-                (b.solved != 1).to_numpy(),
-            )
-        if metric.startswith("episodes_to_"):
-            level = metric.removeprefix("episodes_to_")
-            return (
-                v[metric].to_numpy(float),
-                b[metric].to_numpy(float),
-                (v[f"reached_{level}"] != 1).to_numpy(),
-                (b[f"reached_{level}"] != 1).to_numpy(),
-            )
-        return v[metric].to_numpy(float), b[metric].to_numpy(float), None, None
+        x, y = v[entry.column].to_numpy(float), b[entry.column].to_numpy(float)
+        if entry.reached is None:
+            return x, y, None, None
+        return x, y, (v[entry.reached] != 1).to_numpy(), (b[entry.reached] != 1).to_numpy()
 
     def judge(frame: pd.DataFrame):
         x, y, x_cens, y_cens = samples(frame)
@@ -133,13 +124,13 @@ def comparison_metrics(ablation: Ablation) -> list[str]:
     """Which metrics the findings rest on: episodes to solve where a threshold exists and some seed solved;
     always the area under the curve and the return after the whole budget; episodes to reach the env's
     return levels where no seed solved."""
-    metrics = ["episodes_to_solve"] if ablation.any_solved else []
-    metrics.append("auc")
+    metrics = [EPISODES_TO_SOLVE] if ablation.any_solved else []
+    metrics.append(AUC)
     if ablation.budgets:
-        metrics.append(f"return_at_{ablation.budgets[-1]}")
+        metrics.append(return_at(ablation.budgets[-1]))
     if not ablation.any_solved:
-        metrics += [f"episodes_to_{level:g}" for level in ablation.levels]
-    return [m for m in metrics if m == "episodes_to_solve" or m in ablation.trials]
+        metrics += [episodes_to(level) for level in ablation.levels]
+    return [m.name for m in metrics if m is EPISODES_TO_SOLVE or m.column in ablation.trials]
 
 
 def comparisons(
@@ -201,7 +192,7 @@ def in_report_units(frame: pd.DataFrame) -> pd.DataFrame:
     difference of the IQMs. And ``seeds_needed`` past the largest count tried as ``inf`` (more than ``seeds_cap``
     seeds per variant), not ``seeds_cap + 1``."""
     frame = frame.copy()
-    episodes = frame.metric.astype(str).str.startswith("episodes_to_").to_numpy(bool)
+    episodes = np.asarray([is_censored(str(m)) for m in frame.metric], bool)
     point, low, high = (pd.to_numeric(frame[c], errors="coerce").to_numpy(float) for c in ("point", "low", "high"))
     frame["change"] = np.where(episodes, -100 * point, point)
     frame["change_low"] = np.where(episodes, -100 * high, low)
@@ -227,13 +218,12 @@ def _claim_samples(ablation: Ablation, question: Question) -> dict[str, Sample]:
     done = ablation.finished.sort_values("seed")
     samples = {}
     for variant in ablation.variants:
-        rows = done[done.variant == variant]
-        if question.metric == "episodes_to_solve":
-            samples[variant] = Sample(
-                rows.censored_episodes.to_numpy(float), (rows.solved != 1).to_numpy(), rows.auc.to_numpy(float)
-            )
-        elif question.metric in rows:
-            samples[variant] = Sample(rows[question.metric].to_numpy(float))
+        rows, entry = done[done.variant == variant], measure(question.metric)
+        if entry.reached is not None:
+            values, censored = rows[entry.column].to_numpy(float), (rows[entry.reached] != 1).to_numpy()
+            samples[variant] = Sample(values, censored, rows[AUC.column].to_numpy(float))
+        elif entry.column in rows:
+            samples[variant] = Sample(rows[entry.column].to_numpy(float))
     return samples
 
 

@@ -26,7 +26,7 @@ from ablate.reporting.reader import RunReader  # noqa: E402
 from ablate.reporting.results import Ablation  # noqa: E402
 from ablate.reporting.statistics import N_RESAMPLES, curve_band  # noqa: E402
 from ablate.reporting.text import Refs, esc, fmt  # noqa: E402
-from ablate.reporting.tuning import METRICS, chosen_values, knobs, same_value, sensitivity  # noqa: E402
+from ablate.reporting.tuning import chosen_values, knobs, metric_words, same_value, sensitivity  # noqa: E402
 
 # tab10 without its grey, which is the baseline's
 COLOURS = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7]
@@ -434,7 +434,7 @@ def figure_sensitivity(ablation: Ablation, folder: Path) -> Figure | None:
             ax.set_xticks(range(len(candidates)), [", ".join(f"{v:g}" for v in c) for c in candidates], fontsize=7)
     for ax in axes.flat[len(variants) :]:
         ax.set_visible(False)
-    words, direction = METRICS.get(metric, (metric, "max"))
+    words, direction = metric_words(tuning)
     for ax in axes[-1]:
         ax.set_xlabel(", ".join(n.replace("_", " ") for n in names) + (" (log scale)" if numeric else ""))
     for ax in axes[:, 0]:

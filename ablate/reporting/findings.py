@@ -8,6 +8,7 @@ import pandas as pd
 
 from ablate.claims import BETTER, EQUIVALENT, WORSE, Question, advice, family_sentence
 from ablate.claims.family import CENSORED_SHARE
+from ablate.measures import is_censored, measure
 from ablate.reporting.blocks import Block, Item, Items, Paragraph, Table
 from ablate.reporting.comparisons import LOO_MAX_SEEDS, claims_design, claims_table, primary_question
 from ablate.reporting.results import Ablation
@@ -71,7 +72,7 @@ def _estimate(row: pd.Series, table: pd.DataFrame) -> str:
     if row.bound == "censored":
         return " Both sides count seeds that never got there as the budget: episodes cannot separate them."
     stat = stat_name(int(row.n_variant), int(row.n_reference))
-    if row.metric.startswith("episodes_to_"):
+    if is_censored(row.metric):
         return (
             f" {_pair(row, table, stat)} episodes, change "
             f"{_signed_pct(-row.point)} (95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})."
@@ -117,12 +118,11 @@ def _stability(row: pd.Series) -> str:
 def _never_counts(row: pd.Series, table: pd.DataFrame, n: int, m: int) -> str:
     """``3 of 5 a seeds and 5 of 5 b seeds never solved`` (or ``never reached -15``): the seeds an episodes IQM
     counts as the budget, read from the convergence table."""
-    level = row.metric.removeprefix("episodes_to_")
 
     def never(variant: str) -> int:
         return _never(table, variant, row.metric)
 
-    what = "never solved" if row.metric == "episodes_to_solve" else f"never reached {level}"
+    what = measure(row.metric).never
     variant, reference = esc(row.variant), esc(row.reference)
     return f"{never(row.variant)} of {n} {variant} seeds and {never(row.reference)} of {m} {reference} seeds {what}"
 
@@ -136,7 +136,7 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     reading = seeds_reading(row, ablation.smallest_effect)
     if row.verdict == TOO_FEW_SEEDS:
         return f"{name}: *{TOO_FEW_SEEDS}*.{_estimate(row, table)}{reading}"
-    if metric.startswith("episodes_to_"):
+    if is_censored(metric):
         counts = _never_counts(row, table, n, m)
         if row.bound == "censored":
             never = "unsolved seeds" if metric == "episodes_to_solve" else "the seeds that never got there"

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ablate.claims.family import CENSORED_SHARE
 from ablate.launch.secrets import shown_command
+from ablate.measures import is_censored
 from ablate.reporting.blocks import (
     AppendixStart,
     Authored,
@@ -79,7 +80,7 @@ def question(ablation: Ablation) -> str:
         if ablation.primary_metric == "auc"
         else _metric_name(ablation.primary_metric)
     )
-    if ablation.primary_metric.startswith("episodes_to_"):
+    if is_censored(ablation.primary_metric):
         primary += (
             f" (a comparison with more than {CENSORED_SHARE:.0%} of its seeds unsolved at its first look: on the "
             "area under the learning curve)"

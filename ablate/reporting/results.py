@@ -19,7 +19,17 @@ import pandas as pd
 from ablate.config import ConfigError
 from ablate.env_spec import Profile, profile_named, solve_threshold_or_none
 from ablate.experiment import Experiment
-from ablate.measures import censored_episodes, default_primary_metric, fixed_budgets, trial_measures
+from ablate.measures import (
+    FINAL_RETURN,
+    Measure,
+    censored_episodes,
+    claim_names,
+    default_primary_metric,
+    fixed_budgets,
+    lookup,
+    return_at,
+    trial_measures,
+)
 from ablate.reporting import settings
 from ablate.reporting.experiment_file import read_from_disk
 from ablate.reporting.networks import layers
@@ -170,14 +180,11 @@ class Ablation:
     def primary_metric(self) -> str:
         """The metric the primary claims are made on: the file's ``primary`` (``return`` is the return after the
         whole budget), else episodes to solve where a solve threshold exists, else the AUC."""
-        try:
-            value = tomllib.loads(self.launch.get("experiment_text") or "").get("primary")
-        except tomllib.TOMLDecodeError:
-            value = None
-        if value == "return" and self.budgets:
-            return f"return_at_{self.budgets[-1]}"
-        if value in ("episodes_to_solve", "auc") and not (value == "episodes_to_solve" and self.threshold is None):
-            return value
+        entry = _primary(self.launch.get("experiment_text"))
+        if entry is FINAL_RETURN:
+            return return_at(self.budgets[-1]).name if self.budgets else default_primary_metric([self.threshold])
+        if entry is not None and not (entry.needs_threshold and self.threshold is None):
+            return entry.name
         return default_primary_metric([self.threshold])
 
     @property
@@ -230,6 +237,21 @@ def check_store(tracking_uri: str | None) -> str:
     if not path.exists():
         raise ConfigError(f"--tracking-uri {uri}: no MLflow store at {path}; valid: the store `ablate run` wrote")
     return uri
+
+
+def _primary(experiment_text: str | None) -> Measure | None:
+    """The measure the experiment file's ``primary`` names, if any."""
+    try:
+        value = tomllib.loads(experiment_text or "").get("primary")
+    except tomllib.TOMLDecodeError:
+        value = None
+    return lookup(value) if value in claim_names() else None
+
+
+def _threshold(params: dict[str, str], grid: dict[str, Any]) -> float | None:
+    """The solve threshold a run recorded it ran against (else its own, else the base's); ``None``: none."""
+    value = params.get("env.solve_threshold", params.get("solve_threshold", grid["base"].get("solve_threshold")))
+    return None if value in (None, "None", "") else float(value)
 
 
 def load_ablation(name: str, tracking_uri: str | None = None, generation: str | None = None) -> Ablation:
@@ -290,8 +312,9 @@ def _read_launch(
         if current is None or run.status == "FINISHED" or current.status != "FINISHED":
             best_run[run.key] = run
     levels = _profile(grid).return_levels.get(str(grid.get("base", {}).get("env_id", "")), ())
-
+    # The curve measures the file names beside AUC (its primary, its tuning metric) get columns of their own.
     tuning = _tuning_document(tracker, launch_id)
+    asked = tuple(m for m in (_primary(experiment_text), lookup(str((tuning or {}).get("metric")))) if m is not None)
     names = tuning_knobs(tuning) if tuning else []
     planned = planned_trials(grid)
     keys = {trial["key"] for trial in planned}
@@ -326,7 +349,8 @@ def _read_launch(
                 missing.append((trial["variant"], trial["key"]))
             else:
                 window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
-                row |= trial_measures(curve, budget, levels, window)
+                threshold = _threshold(run.params, grid)
+                row |= trial_measures(curve, budget, levels, window, threshold, asked)
             if row.get("stage") != TUNE:
                 if trial["variant"] not in params:  # a user's network is described from its recorded source
                     described = layers(tracker, run.run_id, run.params)
@@ -472,16 +496,5 @@ def select(ablation: Ablation, variants: list[str] | None = None, baseline: str 
     )
 
 
-SUMMARY_COLUMNS = (
-    "solved",
-    "episodes_to_solve",
-    "env_steps_to_solve",
-    "wall_s_to_solve",
-    "final_rolling_mean",
-    "episodes_run",
-    "env_steps",
-    "wall_s",
-    "steps_per_s",
-    "parameter_count",
-    "greedy_return",
-)
+SUMMARY_COLUMNS = ("solved", "episodes_to_solve", "env_steps_to_solve", "wall_s_to_solve", "final_rolling_mean")
+SUMMARY_COLUMNS += ("episodes_run", "env_steps", "wall_s", "steps_per_s", "parameter_count", "greedy_return")

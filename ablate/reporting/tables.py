@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import KNOBS, SETTING_KNOBS, freeze
+from ablate.measures import Measure, episodes_to, is_censored, lookup, measure, return_at
 from ablate.reporting.results import Ablation
 from ablate.reporting.settings import DERIVED, setting
 from ablate.reporting.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
@@ -39,7 +40,8 @@ def trials_table(ablation: Ablation) -> pd.DataFrame:
     after = list(table.columns).index("stage") + 1 + ("at_base_values" in table)
     for position, column in enumerate(c for c in settings.columns if c not in table):
         table.insert(after + position, column, settings[column])
-    columns = [c for c in table if c in INTEGER_COLUMNS or c.startswith(("reached_", "episodes_to_"))]
+    reached = {measure(c).reached for c in table if is_censored(c)}
+    columns = [c for c in table if c in INTEGER_COLUMNS or c in reached or is_censored(c)]
     for column in columns:
         values = pd.to_numeric(table[column], errors="coerce")
         present = values.dropna()
@@ -146,14 +148,14 @@ def convergence_table(ablation: Ablation) -> pd.DataFrame:
             initial = _values(done, "initial_return")
             row["initial_return_iqm"] = float(iqm(initial)) if not np.isnan(initial).all() else np.nan
             for episodes_budget in budgets:
-                column = f"return_at_{episodes_budget}"
+                column = return_at(episodes_budget).column
                 if column in done:
                     _with_interval(row, f"{column}_iqm", done[column].to_numpy(float))
-            for level in ablation.levels:
-                column = f"episodes_to_{level:g}"
+            for level in map(episodes_to, ablation.levels):
+                column = level.column
                 if column in done:
                     values = done[column].to_numpy(float)
-                    unreached = int((done[f"reached_{level:g}"] != 1).sum())
+                    unreached = int((done[level.reached] != 1).sum())
                     row[f"{column}_median"] = float(np.median(values))
                     row[f"{column}_reached"] = len(done) - unreached
                     row[f"{column}_median_censored"] = is_censored_statistic(unreached, len(done), "median")
@@ -169,8 +171,22 @@ def _values(frame: pd.DataFrame, column: str) -> np.ndarray:
     return frame[column].to_numpy(float) if column in frame else np.full(len(frame), np.nan)
 
 
-CHECKPOINTS = ("return_at_", "episodes_to_")
-"""The wide table's columns named by a budget or a level (``return_at_75_iqm``, ``episodes_to_100_median``)."""
+CHECKPOINTS = {
+    "return_at": ("_iqm", "_iqm_ci_low", "_iqm_ci_high"),
+    "episodes_to": ("_median", "_reached", "_median_censored"),
+}
+"""The wide table's columns named by a budget or a level (``return_at_75_iqm``, ``episodes_to_100_median``): each
+parameterised family's statistics."""
+
+
+def checkpoint(column: str) -> tuple[Measure, str] | None:
+    """The parameterised measure and the statistic a wide table's column is named by; ``None``: neither."""
+    for family, statistics in CHECKPOINTS.items():
+        for statistic in statistics:
+            entry = lookup(column.removesuffix(statistic)) if column.endswith(statistic) else None
+            if entry is not None and entry.family == family:
+                return entry, statistic
+    return None
 
 
 def convergence_long(table: pd.DataFrame) -> pd.DataFrame:
@@ -179,28 +195,28 @@ def convergence_long(table: pd.DataFrame) -> pd.DataFrame:
     or a return level (``return_level``, with ``episodes_to_level_median``, ``reached``,
     ``episodes_to_level_median_censored``), the other's columns empty; a variant with neither keeps one row. No
     column is named by a budget or a level, so ablations with different budgets concatenate."""
-    fixed = [c for c in table.columns if not c.startswith(CHECKPOINTS)]
+    named = {c: checkpoint(c) for c in table.columns}
+    fixed = [c for c in table.columns if named[c] is None]
     rows = []
     for _, row in table.iterrows():
         base = {c: row[c] for c in fixed}
         points = []
-        for column in table.columns:
-            if column.startswith("return_at_") and column.endswith("_iqm"):
-                prefix = column
+        for entry, statistic in filter(None, named.values()):
+            key = entry.column
+            if statistic == "_iqm":
                 points.append(
                     {
-                        "episode": int(column.removeprefix("return_at_").removesuffix("_iqm")),
-                        "return_iqm": row[prefix],
-                        "return_iqm_ci_low": row[f"{prefix}_ci_low"],
-                        "return_iqm_ci_high": row[f"{prefix}_ci_high"],
+                        "episode": int(entry.parameter),
+                        "return_iqm": row[f"{key}_iqm"],
+                        "return_iqm_ci_low": row[f"{key}_iqm_ci_low"],
+                        "return_iqm_ci_high": row[f"{key}_iqm_ci_high"],
                     }
                 )
-            elif column.startswith("episodes_to_") and column.endswith("_median"):
-                key = column.removesuffix("_median")
+            elif statistic == "_median":
                 points.append(
                     {
-                        "return_level": float(key.removeprefix("episodes_to_")),
-                        "episodes_to_level_median": row[column],
+                        "return_level": entry.parameter,
+                        "episodes_to_level_median": row[f"{key}_median"],
                         "reached": row[f"{key}_reached"],
                         "episodes_to_level_median_censored": row[f"{key}_median_censored"],
                     }
@@ -239,10 +255,11 @@ def meeting(table: pd.DataFrame, ablation: Ablation, settings: bool = False) -> 
     ``settings``: each row's settings (``settings_of``) after its key columns, as ``trials`` has them."""
     out = table.copy()
     budgets = ablation.budgets
-    names = dict(zip((f"return_at_{b}" for b in budgets), BUDGET_FRACTIONS[-len(budgets) :], strict=True))
+    names = dict(zip((return_at(b).column for b in budgets), BUDGET_FRACTIONS[-len(budgets) :], strict=True))
     out = out.rename(columns={c: f"return_at_{names[c]}" for c in out.columns if c in names})
-    levels = tuple(f"{prefix}{level:g}" for level in ablation.levels for prefix in ("episodes_to_", "reached_"))
-    out = out.drop(columns=[c for c in out.columns if c in levels or (c.startswith("return_at_") and c[10:].isdigit())])
+    levels = {name for entry in map(episodes_to, ablation.levels) for name in (entry.column, entry.reached)}
+    named = {c: lookup(c) for c in out.columns}
+    out = out.drop(columns=[c for c, m in named.items() if c in levels or (m is not None and m.family == "return_at")])
     if settings and "variant" in out and len(out):
         extra = settings_of(ablation, out)
         after = list(out.columns).index("stage") + 1 if "stage" in out else min(3, len(out.columns))

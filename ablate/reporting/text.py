@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from ablate.measures import lookup
+
 
 def esc(text: object) -> str:
     """User text (descriptions, variant names, errors, commands) made inert in Markdown and HTML."""
@@ -84,12 +86,7 @@ def _interval(low: float, high: float, digits: int = 0, n: int | None = None) ->
     return f"[{fmt(low, digits)}, {fmt(high, digits)}]"
 
 
-METRIC_NAMES = {"episodes_to_solve": "episodes to solve", "auc": "area under the curve (AUC)"}
-
-
 def _metric_name(metric: str) -> str:
-    if metric.startswith("return_at_"):
-        return f"return after {int(metric.removeprefix('return_at_')):,} episodes"
-    if metric.startswith("episodes_to_") and metric != "episodes_to_solve":
-        return f"episodes to reach a rolling return of {metric.removeprefix('episodes_to_')}"
-    return METRIC_NAMES.get(metric, metric)
+    """A measure's words in the report (``measures.Measure.words``); a name the registry lacks as written."""
+    entry = lookup(metric)
+    return entry.words if entry else metric

@@ -13,14 +13,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ablate.measures import lookup, measure
+
 STAGE_TAG = "ablate.stage"
 TUNE, EVAL = "tune", "eval"
-METRICS = {
-    "auc": ("area under the curve (AUC)", "max"),
-    "episodes_to_solve": ("episodes to solve", "min"),
-    "final_return": ("return at the budget", "max"),
-}
-"""Tuning metrics: their name in words and which way is better."""
 
 
 def knobs(tuning: dict[str, Any]) -> list[str]:
@@ -60,19 +56,23 @@ def at_values(trials: pd.DataFrame, values_of) -> pd.Series:
     return pd.Series(mask, index=trials.index, dtype=bool)
 
 
+def metric_words(tuning: dict[str, Any]) -> tuple[str, str]:
+    """The tuning metric's words and direction (``max`` or ``min``), from the registry; a name it lacks as written,
+    with the document's direction."""
+    metric = tuning.get("metric", "auc")
+    entry = lookup(metric)
+    return (entry.words, entry.direction) if entry else (metric, tuning.get("direction", "max"))
+
+
 def trial_metric(row: dict[str, Any], metric: str) -> float:
-    """One finished trial's value of the tuning ``metric``: AUC over its own budget, episodes to solve
-    censored at its budget, or the rolling return when it ended."""
+    """One finished trial's value of the tuning ``metric`` (``Measure.from_summary``: AUC over its own budget,
+    episodes to solve censored at its budget, the rolling return when it ended)."""
     if row.get("status") != "FINISHED":
         return float("nan")
     tracked = row.get("tracked", {}).get(metric)
     if tracked is not None:  # what the tuning stage itself recorded and selected on
         return float(tracked)
-    if metric == "episodes_to_solve":
-        return float(row["episodes_to_solve"] if row.get("solved") == 1 else row.get("budget", np.nan))
-    if metric == "final_return":
-        return float(row.get("final_rolling_mean", np.nan))
-    return float(row.get(metric, np.nan))
+    return measure(metric).from_summary(row, row.get("budget", np.nan))[0]
 
 
 def tuning_table(rows: list[dict[str, Any]], tuning: dict[str, Any], variants: list[str]) -> pd.DataFrame:

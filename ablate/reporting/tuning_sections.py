@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import pandas as pd
 
+from ablate.measures import is_censored
 from ablate.reporting.blocks import Block, Items, Paragraph, Table
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import SEPARATED, TOO_FEW_SEEDS
 from ablate.reporting.text import NO_REFS, Refs, _metric_name, _signed, _signed_pct, esc, fmt
-from ablate.reporting.tuning import METRICS, base_values, chosen_values, edge, knobs, same_value, sensitivity
+from ablate.reporting.tuning import base_values, chosen_values, edge, knobs, metric_words, same_value, sensitivity
 
 
 def _value(value) -> str:
@@ -41,8 +42,7 @@ def knob_words(ablation: Ablation) -> str:
 def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> list[Block]:
     """The Tuning section: how each variant's values were chosen, on seeds the comparison never sees."""
     tuning = ablation.tuning or {}
-    metric = tuning.get("metric", "auc")
-    words, direction = METRICS.get(metric, (metric, tuning.get("direction", "max")))
+    words, direction = metric_words(tuning)
     seeds = tuning.get("seeds", [])
     evaluation = sorted(set(ablation.trials.seed)) if len(ablation.trials) else ablation.grid.get("seeds", [])
     budget = int(ablation.grid["base"].get("max_episodes", 0))
@@ -119,7 +119,7 @@ def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> list[Block]:
 def _verdict_words(row: pd.Series) -> str:
     if row is None:
         return "not compared"
-    estimate = f"{_signed_pct(-row.point)} episodes" if row.metric.startswith("episodes_to_") else _signed(row.point)
+    estimate = f"{_signed_pct(-row.point)} episodes" if is_censored(row.metric) else _signed(row.point)
     word = f"**{row.verdict}**" if row.verdict in SEPARATED else f"*{row.verdict}*"  # the table's own words
     return f"{word} ({estimate})"
 
@@ -176,7 +176,7 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
 
 
 def _estimate(row: pd.Series) -> str:
-    return f"{_signed_pct(-row.point)} episodes" if row.metric.startswith("episodes_to_") else _signed(row.point)
+    return f"{_signed_pct(-row.point)} episodes" if is_censored(row.metric) else _signed(row.point)
 
 
 def unchanged_words(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFrame) -> str:
