@@ -44,10 +44,6 @@ ACTION_SETS = ("all", "move")
 """``all``: the game's minimal action set (Pong's 6); ``move``: its RIGHT and LEFT (or UP and DOWN) only, as in
 Karpathy's pg-pong (``envs.MOVES``)."""
 # --- tuning (issue 19) ---
-TUNE_METRICS = {"auc": "max", "episodes_to_solve": "min", "final_return": "max"}
-"""What "best" means for a tuning candidate, and its direction: ``auc`` (mean rolling return over the budget),
-``episodes_to_solve`` (censored at the budget when a seed never solves), ``final_return`` (the rolling mean
-return at the end of the budget)."""
 TUNE_SEED_START = 10_000
 """Tuning seeds are ``TUNE_SEED_START``, ``+1``, ...; evaluation seeds must stay below it, so the comparison
 never sees a seed its settings were chosen on."""

@@ -147,14 +147,6 @@ class Experiment:
         return storage_name(self.name)
 
 
-PRIMARY_METRICS = {
-    "episodes_to_solve": "episodes to solve (unsolved seeds counted as the budget)",
-    "auc": "area under the learning curve",
-    "return": "return after the whole budget",
-}
-"""The metrics a report's claims can be made on, in words."""
-
-
 EXPERIMENT_KEYS = (
     "name",
     "description",

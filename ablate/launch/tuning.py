@@ -19,8 +19,6 @@ RULE = (
     "the tied candidates are ranked by mean AUC, then by nearness to the base value (distance in log space, the "
     "smaller value first on equal distance). A variant that sets a tuned knob itself keeps its value."
 )
-SUMMARY_NAMES = {"auc": "auc", "episodes_to_solve": "episodes_to_solve", "final_return": "final_rolling_mean"}
-"""Each tuning metric's name among a trial's summary metrics (``TrialResult.summary``)."""
 _TOLERANCE = 1e-9
 
 

@@ -15,9 +15,6 @@ from ablate.launch.rounds import Primary
 from ablate.measures import AUC, measure
 from ablate.seeds import added_words
 
-SUMMARY_METRIC = {"episodes_to_solve": "episodes_to_solve", "auc": "auc", "return": "final_rolling_mean"}
-"""Each primary metric's name among a trial's summary metrics."""
-
 
 def references(experiment: Experiment) -> dict[str, str]:
     """Each compared variant -> its reference, by the report's own rule (``Ablation.reference``)."""
