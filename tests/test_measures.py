@@ -102,5 +102,5 @@ def test_the_curves_solve_rule_is_the_trainers():
     # episode 1's rolling mean is above 20, but over a window of one: the first full window ends at episode 3
     assert curve.first_full(20.0) == 3 and curve.first_full(25.0) == 5
     assert math.isnan(curve.first_full(31.0))
-    assert recorded(curve) == {"auc": area_under_curve(curve.rolling, 8)}
+    assert recorded(curve)["auc"] == area_under_curve(curve.rolling, 8)  # each entry with a curve function
     assert recorded(Curve(np.array([]), 8, 20.0, 3)) == {}
