@@ -134,7 +134,18 @@ FINAL_RETURN = Measure(
     tune=True,
     claim="return",  # the report claims on it as the return after the whole budget (``return_at``)
 )
-MEASURES = (EPISODES_TO_SOLVE, AUC, FINAL_RETURN)
+EPISODES_TO_NEAR = Measure(
+    "episodes_to_90pct_threshold",
+    "episodes to reach 90% of the solve threshold",
+    False,
+    reached="reached_90pct_threshold",
+    never="never reached 90% of the solve threshold",
+    curve=lambda c: c.first_full(0.9 * c.threshold) if c.threshold is not None else math.nan,
+    tune=True,
+    claim="episodes_to_90pct_threshold",
+    needs_threshold=True,
+)
+MEASURES = (EPISODES_TO_SOLVE, AUC, FINAL_RETURN, EPISODES_TO_NEAR)
 """Every measure with a name of its own, in the order experiment-file errors list them."""
 
 

@@ -104,3 +104,47 @@ def test_the_curves_solve_rule_is_the_trainers():
     assert math.isnan(curve.first_full(31.0))
     assert recorded(curve)["auc"] == area_under_curve(curve.rolling, 8)  # each entry with a curve function
     assert recorded(Curve(np.array([]), 8, 20.0, 3)) == {}
+
+
+def test_a_measure_added_as_one_entry_is_recorded_tuned_and_claimed_on_by_name(tmp_path):
+    # Episodes until the full-window rolling mean first reaches 90% of the solve threshold, censored at the budget:
+    # one registry entry; an experiment file tunes and claims on it by name, the trainer records it, the report
+    # recomputes it from the same curve.
+    from ablate.claims import primary_question
+    from ablate.config import ConfigError
+    from ablate.experiment import load_experiment
+    from ablate.measures import measure
+
+    name, reached = "episodes_to_90pct_threshold", "reached_90pct_threshold"
+    path = tmp_path / "exp.toml"
+    path.write_text(
+        f"primary = '{name}'\n[base]\nsolve_threshold = 21\n[tune]\nlearning_rate = [0.01, 0.1]\nmetric = '{name}'\n"
+        "[[variants]]\nname = 'a'\n"
+    )
+    experiment = load_experiment(path)
+    assert experiment.primary_metric == name and experiment.tune.metric == name and experiment.tune.direction == "min"
+    question = primary_question(name, 0.1, 40.0)
+    assert question.relative and question.lower_is_better and question.budget == 40.0
+    assert question.fallback is not None and question.fallback.metric == "auc"
+    path.write_text(f"primary = '{name}'\n[base]\nenv_id = 'ALE/Pong-v5'\n[[variants]]\nname = 'a'\n")
+    with pytest.raises(ConfigError, match="has no solve threshold"):
+        load_experiment(path)
+
+    # window 4: full-window rolling means 13, 15, 17.5, 20.25, 23.75 at episodes 4-8; 90% of 21 is 18.9
+    window, budget, returns = 4, 10, [10.0, 12.0, 14.0, 16.0, 18.0, 22.0, 25.0, 30.0]
+    rolling = [math.fsum(returns[max(0, i - window + 1) : i + 1]) / min(i + 1, window) for i in range(len(returns))]
+    episodes = [
+        EpisodeMetrics(i + 1, r, 10, 0.0, 0.0, m, 10 * (i + 1), 0.1, i + 1)
+        for i, (r, m) in enumerate(zip(returns, rolling, strict=True))
+    ]
+    config = TrialConfig(max_episodes=budget, solve_window=window, solve_threshold=21.0)
+    summary = TrialResult(config, episodes, 8, 21.0, 80, 1.0, 10).summary()
+    assert summary[name] == 7 and summary["episodes_to_solve"] == 8
+    curve = pd.DataFrame({"episode": range(1, len(returns) + 1), "return": returns})
+    curve["rolling_mean"] = curve["return"].rolling(window, min_periods=1).mean()
+    assert trial_measures(curve, budget, (), window, 21.0, [measure(name)])[name] == summary[name]
+    # never there (a threshold of 30): not recorded, so tuning and the rounds read the budget, censored
+    unsolved = TrialResult(config, episodes, None, 30.0, 80, 1.0, 10).summary()
+    assert name not in unsolved and measure(name).from_summary(unsolved, budget) == (budget, True)
+    far = trial_measures(curve, budget, (), window, 30.0, [measure(name)])
+    assert far[name] == budget and far[reached] == 0
