@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import KNOBS, SETTING_KNOBS, freeze
-from ablate.measures import Measure, episodes_to, is_censored, lookup, measure, return_at
+from ablate.measures import episodes_to, is_censored, lookup, measure, return_at
 from ablate.reporting.results import Ablation
 from ablate.reporting.settings import DERIVED, setting
 from ablate.reporting.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
@@ -171,39 +171,22 @@ def _values(frame: pd.DataFrame, column: str) -> np.ndarray:
     return frame[column].to_numpy(float) if column in frame else np.full(len(frame), np.nan)
 
 
-CHECKPOINTS = {
-    "return_at": ("_iqm", "_iqm_ci_low", "_iqm_ci_high"),
-    "episodes_to": ("_median", "_reached", "_median_censored"),
-}
-"""The wide table's columns named by a budget or a level (``return_at_75_iqm``, ``episodes_to_100_median``): each
-parameterised family's statistics."""
-
-
-def checkpoint(column: str) -> tuple[Measure, str] | None:
-    """The parameterised measure and the statistic a wide table's column is named by; ``None``: neither."""
-    for family, statistics in CHECKPOINTS.items():
-        for statistic in statistics:
-            entry = lookup(column.removesuffix(statistic)) if column.endswith(statistic) else None
-            if entry is not None and entry.family == family:
-                return entry, statistic
-    return None
-
-
 def convergence_long(table: pd.DataFrame) -> pd.DataFrame:
     """``convergence_table`` in long form, as ``ablate.load(...).convergence`` gives it: the per-variant columns
     repeated on one row per checkpoint, a fixed episode budget (``episode``, with ``return_iqm`` and its interval)
     or a return level (``return_level``, with ``episodes_to_level_median``, ``reached``,
     ``episodes_to_level_median_censored``), the other's columns empty; a variant with neither keeps one row. No
     column is named by a budget or a level, so ablations with different budgets concatenate."""
-    named = {c: checkpoint(c) for c in table.columns}
-    fixed = [c for c in table.columns if named[c] is None]
+    named = {c: lookup(c.rsplit("_", 1)[0]) for c in table.columns if c.endswith(("_iqm", "_median"))}
+    checkpoints = {c: entry for c, entry in named.items() if entry is not None and entry.family}
+    fixed = [c for c in table.columns if not any(c.startswith(f"{m.column}_") for m in checkpoints.values())]
     rows = []
     for _, row in table.iterrows():
         base = {c: row[c] for c in fixed}
         points = []
-        for entry, statistic in filter(None, named.values()):
+        for entry in checkpoints.values():
             key = entry.column
-            if statistic == "_iqm":
+            if entry.family == "return_at":
                 points.append(
                     {
                         "episode": int(entry.parameter),
@@ -212,7 +195,7 @@ def convergence_long(table: pd.DataFrame) -> pd.DataFrame:
                         "return_iqm_ci_high": row[f"{key}_iqm_ci_high"],
                     }
                 )
-            elif statistic == "_median":
+            else:
                 points.append(
                     {
                         "return_level": entry.parameter,
