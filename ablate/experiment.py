@@ -286,11 +286,8 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             f"{source}: primary = {_clip(primary)} is invalid; valid: one of {', '.join(claim_names())} (or leave "
             "it out: episodes_to_solve where the env has a solve threshold, else auc)"
         )
-    if (
-        primary
-        and measure(primary).needs_threshold
-        and any(solve_threshold_or_none(v.config) is None for v in variants)
-    ):
+    needs_threshold = primary is not None and measure(primary).needs_threshold
+    if needs_threshold and any(solve_threshold_or_none(v.config) is None for v in variants):
         without = " or ".join(m for m in claim_names() if not measure(m).needs_threshold)
         raise ConfigError(
             f"{source}: primary = {primary!r} is invalid: {base.env_id} has no solve threshold; valid: {without}, or "

@@ -31,8 +31,7 @@ class TuningResult:
     """The candidate: the tuned knobs' values."""
     seed: int
     metrics: Mapping[str, float]
-    """The trial's summary metrics (``auc``, ``episodes_to_solve`` when solved, ``final_rolling_mean``, ...): what
-    each measure's ``from_summary`` reads."""
+    """The trial's summary metrics (``auc``, ``episodes_to_solve`` when solved, ``final_rolling_mean``, ...)."""
     budget: int
     """The trial's ``max_episodes``: an unsolved trial's episodes to solve are censored here."""
 
