@@ -18,7 +18,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout, installed or not
 
-from ablate import config, experiment  # noqa: E402
+from ablate import config, experiment, measures  # noqa: E402
 from ablate.cli import TEST_ONLY_KNOBS, field_docs, format_value, knob_defaults  # noqa: E402
 
 PAGE = ROOT / "docs" / "experiments.md"
@@ -68,7 +68,10 @@ TOP_LEVEL_VALID = {
     "cpus_per_trial": "a number in (0, 64]",
     "gpus_per_trial": "a number in [0, 16]",
     "smallest_effect": "a fraction in (0, 1)",
-    "primary": "`episodes_to_solve` (needs a solve threshold), `auc` or `return`",
+    "primary": ", ".join(  # the measures registry's claimable names
+        f"`{name}`" + (" (needs a solve threshold)" if measures.measure(name).needs_threshold else "")
+        for name in measures.claim_names()
+    ),
     "base": "knobs",
     "variants": f"names up to {config.MAX_VARIANT_NAME_LENGTH} characters, each unique",
     "grid": f"non-empty lists; at most {config.MAX_TRIALS:,} trials in all",
