@@ -71,9 +71,7 @@ def compare_metric(
     ablation: Ablation, variant: str, metric: str, stability: bool = True, power: bool = True
 ) -> Comparison:
     """``variant`` against its reference on ``metric``, with a leave-one-seed-out check of the verdict."""
-    done, reference = ablation.finished, ablation.reference(variant)
-
-    entry = measure(metric)
+    done, reference, entry = ablation.finished, ablation.reference(variant), measure(metric)
 
     def samples(frame: pd.DataFrame):
         v, b = frame[frame.variant == variant], frame[frame.variant == reference]

@@ -312,8 +312,8 @@ def claim_line(row: pd.Series, primary: Question, pace: float | None = None) -> 
     question = primary if row.metric == primary.metric or primary.fallback is None else primary.fallback
     switched = (
         f" Judged on {_metric_name(row.metric)}, not {_metric_name(primary.metric)}: {_pct(row.censored)} of its "
-        f"seeds never solved within the budget, so episodes cannot rank them (the rule, fixed before the data: "
-        f"more than {_pct(CENSORED_SHARE)} unsolved)."
+        f"seeds {measure(primary.metric).never} within the budget, so episodes cannot rank them (the rule, fixed "
+        f"before the data: more than {_pct(CENSORED_SHARE)} unsolved)."
         if question is not primary
         else ""
     )
