@@ -18,8 +18,8 @@ from typing import Any
 
 KEY_VERSION = 4
 """The newest key generation: 1, the knobs keyed from the start; 2, a user's own network and env (issue 40);
-3, ``layer_norm``; 4, ``env_profile``. A knob that joins the key in a later generation is in it only where set away from its default,
-so every key an earlier version made (users' resume state) stays as it was."""
+3, ``layer_norm``; 4, ``env_profile``. A knob that joins the key in a later generation is in it only where set away
+from its default, so every key an earlier version made (users' resume state) stays as it was."""
 
 
 RESULTS_VERSION = 2

@@ -105,7 +105,8 @@ BAD_EXPERIMENTS = [
     # a Pong-only knob on another game (issue 56): refused, not silently ignored
     (
         "[base]\nenv_id = 'ALE/Breakout-v5'\naction_set = 'move'\n[[variants]]\nname='a'\n",
-        "base.action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5' (profile 'atari', which ignores it); valid: only with env_profile 'pong'",
+        "base.action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5' (profile 'atari', which ignores it); "
+        "valid: only with env_profile 'pong'",
     ),
 ]
 

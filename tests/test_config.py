@@ -110,7 +110,8 @@ BAD_FILES = [
     ("seeds = 2\n", "the grid is empty"),
     (  # Breakout's env acts on its own actions: the knob was silently ignored (3e01923)
         "[base]\nenv_id = 'ALE/Breakout-v5'\n[[variants]]\nname='a'\naction_set = 'move'\n",
-        "variants[0].action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5' (profile 'atari', which ignores it); valid: only with env_profile 'pong'",
+        "variants[0].action_set = 'move' is invalid for env_id = 'ALE/Breakout-v5' (profile 'atari', which ignores "
+        "it); valid: only with env_profile 'pong'",
     ),
     ("[grid]\ndropout = []\n", "grid.dropout = [] is invalid; valid: a non-empty list"),
     (
