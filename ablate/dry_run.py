@@ -23,6 +23,11 @@ GUESS = "a guess, measured once on a quickstart on 2 cores"
 REPORT_S = 46.0
 """Seconds ``ablate run`` spends writing the report at the end (Markdown, HTML, PDF): measured as ``ablate report``
 of the same quickstart store (PDF of 9 pages), on the same 2 cores while other work ran."""
+SECONDS_PER_EPISODE = {"CartPole-v0": 0.021, "CartPole-v1": 0.021, "ALE/Pong-v5": 0.8}
+"""Seconds a trial the store has never run costs per episode of its budget, as the store would record it (its
+run's start to end, in a population on 2 shared cores): CartPole from a fresh launch of 4 variants x 3 seeds x 300
+episodes (12 trials of 5.6-7.9 s, 2026-12-06), Pong from pong.toml's (48:30 of trials, docs/pong.md). Any other
+env is costed at CartPole-v1's rate, and says so."""
 
 
 def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, report: bool = True) -> str:
@@ -35,26 +40,25 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     report_s = (report_s if measured else REPORT_S) or 0.0
     overhead = start_s + (report_s if report else 0.0)
     parts = f"~{clock(start_s)} to start" + (f" and ~{clock(report_s)} for the report" if report else "")
-    how = (
-        "as this store's last launch of it took them"
-        if measured
-        else "a guess, measured once on a quickstart on 2 cores"
-    )
+    how = "as this store's last launch of it took them" if measured else GUESS
     guess = f"{parts}: {how}"
     trials_words, left, most = trial_time(experiment, trials, tracking_uri)
-    if left is None:
-        return f"time: {trials_words}; plus {guess}"
     total = f"~{clock(left + overhead)}" + (f", at most ~{clock(most + overhead)}" if most is not None else "")
+    budget = experiment.rounds.max_minutes if experiment.rounds else None
+    if most is not None and budget is not None and most + start_s > 60 * budget:  # ``Rounds.past_budget``
+        most = max(60 * budget - start_s, left)  # from the command's start, the report after
+        total = f"~{clock(left + overhead)}, at most ~{clock(most + overhead)}"
+        total += f" (max_minutes = {budget:g}: no round starts that would end later)"
     return f"time: {total} in all: {trials_words}; {guess}"
 
 
 def trial_time(
     experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None
-) -> tuple[str, float | None, float | None]:
-    """The trials' time in words, with the two figures a launch's progress line gives, before anything runs (both
-    None without earlier runs to cost them from): the time of round 1 (with its
-    tuning) and the most the launch can take (every comparison to ``max`` seeds, round after round), from the
-    store's earlier runs of these trials (and of their variants); without any, a guess in trial counts."""
+) -> tuple[str, float, float | None]:
+    """The trials' time in words, with the two figures a launch's progress line gives, before anything runs: the
+    time of round 1 (with its tuning) and the most the launch can take (every comparison to ``max`` seeds, round
+    after round; None without rounds), from the store's earlier runs of these trials (and of their variants);
+    without any, ``guessed_s``."""
     from ablate.launch.estimate import estimate
     from ablate.launch.plan import population_keys
     from ablate.launch.state import LaunchState
@@ -75,27 +79,19 @@ def trial_time(
     if experiment.rounds is not None:
         possible = Rounds(experiment, wanted, judge=lambda samples: None).possible({}, known)  # type: ignore[arg-type, return-value]
     every = [*todo, *later, *(t for r in possible for t in r)]
-    prior = costed(every, earlier_costs(experiment, tracking_uri, [t.key for t in every]))
+    earlier = earlier_costs(experiment, tracking_uri, [t.key for t in every])
+    prior = costed(every, earlier) or {t.key: guessed_s(t) for t in every}
     state = LaunchState(experiment.name, todo, 0, slots, 0.0, prior, groups=groups(todo), later=later,
                         later_groups=groups(later))  # fmt: skip
     state.set_possible(possible, groups([t for r in possible for t in r]))
-    left, most = estimate(state, state.start) if prior else (None, None)
+    left, most = estimate(state, state.start)
     more = sum(len(r) for r in possible)
     rounds = f" and at most {more} more in later rounds" if more else ""
-    if left is None or most is None:
-        words = (
-            f"no earlier run of these trials in the store to cost them from; a guess in trials: round 1 runs "
-            f"{len(todo) + len(later)} trials{rounds} on {slots} slot(s)"
-            + (
-                f", so at most ~{(len(todo) + len(later) + more) / (len(todo) + len(later)):.1f}x round 1's time"
-                if more
-                else ""
-            )
-        )
-        return words, None, None
+    assert left is not None and most is not None  # every trial has a prior cost
     words = f"trials ~{clock(left)} for round 1" if more else f"trials ~{clock(left)}"
     upper = f", at most ~{clock(most)}" if more else ""
-    source = f"from the store's earlier runs, on {slots} slot(s)"
+    source = "from the store's earlier runs" if earlier else guess_words(every)
+    source += f", on {slots} slot(s)"
     return f"{words}{upper} ({len(todo) + len(later)} trials{rounds}; {source})", left, most if more else None
 
 
@@ -113,6 +109,21 @@ def costed(trials: list[GridTrial], earlier: dict[str, float]) -> dict[str, floa
         t.key: earlier[t.key] if t.key in earlier else statistics.fmean(by_variant.get(t.variant) or [overall])
         for t in trials
     }
+
+
+def guessed_s(trial: GridTrial) -> float:
+    """Seconds a trial no launch has run yet costs: its budget at its env's ``SECONDS_PER_EPISODE``."""
+    return SECONDS_PER_EPISODE.get(trial.config.env_id, SECONDS_PER_EPISODE["CartPole-v1"]) * trial.config.max_episodes
+
+
+def guess_words(trials: list[GridTrial]) -> str:
+    """How ``guessed_s`` costed ``trials``: each env's seconds per episode, CartPole-v1's for an env not measured."""
+    rates = ", ".join(
+        f"{SECONDS_PER_EPISODE.get(e, SECONDS_PER_EPISODE['CartPole-v1']):g} s per {e} episode"
+        + ("" if e in SECONDS_PER_EPISODE else " (CartPole-v1's: never measured)")
+        for e in sorted({t.config.env_id for t in trials})
+    )
+    return f"no earlier run in the store: a guess at {rates} of budget, measured once on 2 cores"
 
 
 def _store(experiment: Experiment, tracking_uri: str | None):

@@ -470,6 +470,27 @@ def test_dry_run_prints_its_cost_first_with_the_start_and_the_report(tmp_path, c
     assert "to start" in first and "report" not in first, first
 
 
+def test_dry_run_gives_a_never_run_plan_a_time_from_its_budget_not_just_counts(tmp_path, capsys):
+    """Issue 56: with no earlier run in the store it said "a guess in trials: round 1 runs 9 trials", no time.
+    A never-run trial now costs its budget at its env's measured seconds per episode."""
+    from ablate.dry_run import SECONDS_PER_EPISODE, guessed_s
+    from ablate.launch.grid import expand
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    assert main(["run", str(path), "--dry-run", "--no-report"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert re.match(r"time: ~\d+:\d\d in all: trials ~\d+:\d\d \(9 trials; no earlier run in the store: ", first), first
+    assert f"a guess at {SECONDS_PER_EPISODE['CartPole-v1']:g} s per CartPole-v1 episode of budget" in first, first
+    trial = expand(load_experiment(path))[0]
+    assert guessed_s(trial) == SECONDS_PER_EPISODE["CartPole-v1"] * trial.config.max_episodes
+    # An env without a calibration is costed at CartPole-v1's rate, and says so.
+    path.write_text(TINY.replace('"CartPole-v1"', '"Acrobot-v1"'))
+    assert main(["run", str(path), "--dry-run", "--no-report"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "a guess at 0.021 s per Acrobot-v1 episode (CartPole-v1's: never measured) of budget" in first, first
+
+
 def test_dry_run_costs_the_start_and_the_report_as_the_stores_last_launch_took_them(tmp_path, capsys):
     """It said "~0:31 to start and ~0:46 for the report: a guess" beside a store whose launches had taken 0:06-0:11
     and 0:02-0:11 (3e01923). A launch records both (``start_s``, ``report_s``); the dry run reads the newest."""

@@ -126,9 +126,15 @@ def test_the_dry_run_prints_the_first_round_and_the_most(tmp_path, capsys):
     assert "at most 3 rounds and 45 evaluation trials; no round that would end after 20 minutes" in out
     assert all(f"-s{seed}-" in out for seed in range(5)) and "-s5-" not in out
     assert not (tmp_path / "mlflow.db").exists()
-    # No store: the two figures as a guess in trials (round 1's 15, at most 30 more: ~3x round 1's time).
-    assert "a guess in trials: round 1 runs 15 trials and at most 30 more in later rounds" in out
-    assert "so at most ~3.0x round 1's time" in out
+    # No store: the two figures from a guess per episode of budget, the most held to the rounds' max_minutes.
+    first = out.splitlines()[0]
+    assert "(15 trials and at most 30 more in later rounds; no earlier run in the store: a guess at" in first, first
+    assert re.match(r"time: ~\d+:\d\d, at most ~\d+:\d\d in all: trials ~\d+:\d\d for round 1", first), first
+    assert "max_minutes" not in first  # 20 minutes is more than every round takes
+    path.write_text(ROUNDS.replace("max = 15 }", "max = 15, max_minutes = 1 }"))  # less: the rounds stop there
+    assert main(["run", str(path), "--dry-run", "--no-report"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert re.search(r"at most ~\d:\d\d \(max_minutes = 1: no round starts that would end later\) in all", first)
 
 
 # --- launches: a fake scheduler, planted results, the report's own sequential rule ----------------------------
