@@ -25,7 +25,7 @@ from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows
 from ablate.config import TrialConfig, config_document, config_from_document
 from ablate.envs import describe, make_trial_env, profile_of, sample_frames
-from ablate.videos import as_frame, video_writer
+from ablate.videos import rendered, video_writer
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -44,7 +44,7 @@ def record_episode(config: TrialConfig, model: nn.Module, on_frame: Callable[[np
     seen: list[np.ndarray] = []
 
     def frame() -> None:
-        on_frame(np.ascontiguousarray(as_frame(env.render())[::scale, ::scale]))
+        on_frame(np.ascontiguousarray(rendered(env.render)[::scale, ::scale]))
 
     def policy_input(observation: np.ndarray) -> np.ndarray:
         if not history:

@@ -4,6 +4,7 @@ trains (``TrainingVideos``, fed frame by frame by the trainer's env slots).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -21,6 +22,19 @@ def as_frame(image: np.ndarray) -> np.ndarray:
         peak = 1.0 if image.size == 0 or float(np.nanmax(image)) <= 1.0 else 255.0
         return np.clip(np.nan_to_num(image) * (255.0 / peak), 0, 255).round().astype(np.uint8)
     return np.clip(image, 0, 255).astype(np.uint8)
+
+
+RENDER_WARNINGS = ("No render fps was declared", "RGB-array rendering should return a numpy array with dtype uint8")
+"""What Gymnasium's checker prints at an env's first render that ablate answers itself (a video has its own fps,
+``as_frame`` makes 8-bit frames): MinAtar's, printed in every trial that records a video, nothing a user can do."""
+
+
+def rendered(render: Callable[[], np.ndarray]) -> np.ndarray:
+    """``render()``'s image as a video frame (``as_frame``), without ``RENDER_WARNINGS``."""
+    with warnings.catch_warnings():
+        for message in RENDER_WARNINGS:
+            warnings.filterwarnings("ignore", f".*{message}", UserWarning)
+        return as_frame(render())
 
 
 def video_writer(path: Path, fps: int):
@@ -67,7 +81,7 @@ class TrainingVideos:
     def frame(self, frame: Callable[[], np.ndarray], done: bool) -> None:
         if self.writer is None:
             return
-        self.writer.append_data(as_frame(frame()))
+        self.writer.append_data(rendered(frame))
         self.frames += 1
         if done or self.frames >= self.max_frames:
             self.close()

@@ -82,3 +82,40 @@ def test_a_float_rendering_env_is_written_as_8_bit_frames_without_warnings(tmp_p
 
     assert "Lossy conversion" in written([rendered] * 3)  # what a float frame printed, so the check can fail
     assert "Lossy conversion" not in written([as_frame(rendered)] * 3)
+
+
+def test_a_minatar_like_envs_render_warnings_are_not_printed(recwarn):
+    """MinAtar declares no ``render_fps`` and renders float64 RGB: Gymnasium's checker warned of both at each trial's
+    first render (issue 56), nothing a user can act on (a video has its own fps; ``as_frame`` makes 8-bit frames)."""
+    import gymnasium as gym
+
+    from ablate.videos import RENDER_WARNINGS, rendered
+
+    class FloatRender(gym.Env):  # MinAtar's metadata and rendering, without MinAtar
+        metadata = {"render_modes": ["rgb_array"]}
+        observation_space = gym.spaces.Box(0, 1, (2,))
+        action_space = gym.spaces.Discrete(2)
+
+        def __init__(self, render_mode=None):
+            self.render_mode = render_mode
+
+        def reset(self, *, seed=None, options=None):
+            return np.zeros(2, np.float32), {}
+
+        def render(self):
+            return np.random.default_rng(0).random((10, 10, 3))
+
+    gym.register("FloatRender-v0", entry_point=FloatRender)
+    try:
+        env = gym.make("FloatRender-v0", render_mode="rgb_array")
+        env.reset(seed=0)
+        env.render()  # as a trial rendered before: both warnings, so the check can fail
+        assert all(any(m in str(w.message) for w in recwarn) for m in RENDER_WARNINGS), [str(w) for w in recwarn]
+        recwarn.clear()
+        env = gym.make("FloatRender-v0", render_mode="rgb_array")
+        env.reset(seed=0)
+        frame = rendered(env.render)
+        assert frame.dtype == np.uint8 and frame.shape == (10, 10, 3)
+        assert not [str(w.message) for w in recwarn]
+    finally:
+        gym.registry.pop("FloatRender-v0")
