@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 import os
 import statistics
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from ablate.config import DEFAULT_POPULATION
 from ablate.experiment import Experiment
@@ -15,6 +17,7 @@ from ablate.launch.clock import clock
 from ablate.launch.grid import GridTrial, expand, tuning_trials
 from ablate.launch.rounds import Rounds, dry_run_lines
 
+T = TypeVar("T")
 START_S = 31.0
 """Seconds a launch spends outside its trials (starting a local Ray and opening the store, then shutting Ray
 down): measured as ``ablate.run`` of experiments/quickstart.toml on 2 shared cores, 1:37 against the progress
@@ -34,7 +37,7 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     """The whole command's time, first: the trials' (``trial_time``), the start's and the report's, each with
     how it was estimated: the start and the report as this store's newest launch of the experiment took them
     (``Tracker.launch_times``), else ``START_S`` and ``REPORT_S``."""
-    start_s, report_s = launch_times(experiment, tracking_uri)
+    start_s, report_s = from_store(experiment, tracking_uri, lambda store: store.launch_times(), (None, None))
     measured = start_s is not None and (report_s is not None or not report)
     start_s = start_s if measured else START_S
     report_s = (report_s if measured else REPORT_S) or 0.0
@@ -79,7 +82,8 @@ def trial_time(
     if experiment.rounds is not None:
         possible = Rounds(experiment, wanted, judge=lambda samples: None).possible({}, known)  # type: ignore[arg-type, return-value]
     every = [*todo, *later, *(t for r in possible for t in r)]
-    earlier = earlier_costs(experiment, tracking_uri, [t.key for t in every])
+    # Seconds each took when an earlier launch, of any generation, finished it.
+    earlier = from_store(experiment, tracking_uri, lambda store: store.earlier_runs([t.key for t in every])[0], {})
     prior = costed(every, earlier) or {t.key: guessed_s(t) for t in every}
     state = LaunchState(experiment.name, todo, 0, slots, 0.0, prior, groups=groups(todo), later=later,
                         later_groups=groups(later))  # fmt: skip
@@ -126,44 +130,20 @@ def guess_words(trials: list[GridTrial]) -> str:
     return f"no earlier run in the store: a guess at {rates} of budget, measured once on 2 cores"
 
 
-def _store(experiment: Experiment, tracking_uri: str | None):
-    """The experiment's store opened to read, or None where it does not exist yet (MLflow not imported for
-    nothing) or cannot be read."""
+def from_store(experiment: Experiment, tracking_uri: str | None, read: Callable[[Any], T], nothing: T) -> T:
+    """``read`` of the experiment's store opened to read (its ``Tracker``), or ``nothing`` where the store does not
+    exist yet (MLflow not imported for nothing) or cannot be read."""
     from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
 
     path = sqlite_path(resolve_uri(tracking_uri))
     if path is not None and not path.exists():
-        return None
+        return nothing
     from ablate.launch.tracking import Tracker
 
     try:
-        return Tracker(tracking_uri, experiment.name, write=False)
+        return read(Tracker(tracking_uri, experiment.name, write=False))
     except TrackingError:
-        return None
-
-
-def launch_times(experiment: Experiment, tracking_uri: str | None) -> tuple[float | None, float | None]:
-    """(start, report) seconds of the store's newest launch of ``experiment`` (``Tracker.launch_times``); Nones
-    where there is no store or its launch recorded none."""
-    from ablate.launch.store import TrackingError
-
-    store = _store(experiment, tracking_uri)
-    try:
-        return store.launch_times() if store is not None else (None, None)
-    except TrackingError:
-        return None, None
-
-
-def earlier_costs(experiment: Experiment, tracking_uri: str | None, keys: list[str]) -> dict[str, float]:
-    """Seconds each of ``keys`` took when an earlier launch finished it, read from the store without writing
-    to it (none where the store does not exist yet or cannot be read)."""
-    from ablate.launch.store import TrackingError
-
-    store = _store(experiment, tracking_uri)
-    try:
-        return store.earlier_runs(keys)[0] if store is not None else {}
-    except TrackingError:
-        return {}
+        return nothing
 
 
 def dry_run(
