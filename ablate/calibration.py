@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ablate.config import ConfigError
+from ablate.design import ALPHA, CONFIDENCE, percent
 from ablate.experiment import Experiment, load_experiment
 from ablate.measures import FINAL_RETURN, measure, return_at
 from ablate.seeds import SeedRounds
@@ -35,8 +36,8 @@ def add_parser(commands: Any) -> None:
         description="Run (or reuse from the store) at least 60 seeds of the experiment's reference variant, at its "
         "tuned value where the experiment tunes, deal them into A/A reports of the experiment's own design (its "
         "variants and seeds, every one the same configuration), and print the share of reports claiming any "
-        "difference under the primary-claims rule and under the old per-comparison bootstrap rule, with 95% "
-        "intervals. Its seeds are the experiment <name>-calibrate, seeds 20000 up.",
+        "difference under the primary-claims rule and under the old per-comparison bootstrap rule, with "
+        f"{percent(CONFIDENCE)} intervals. Its seeds are the experiment <name>-calibrate, seeds 20000 up.",
     )
     calibrate.add_argument("experiment", help="experiment file, e.g. experiments/cartpole.toml")
     calibrate.add_argument(
@@ -161,7 +162,8 @@ class Share:
 
     def words(self) -> str:
         low, high = self.interval
-        return f"{self.claims} of {self.reports} reports, {self.rate:.1%} (95% CI {low:.1%} to {high:.1%})"
+        interval = f"{percent(CONFIDENCE)} CI {low:.1%} to {high:.1%}"
+        return f"{self.claims} of {self.reports} reports, {self.rate:.1%} ({interval})"
 
 
 def wilson(successes: int, trials: int, z: float = 1.959963984540054) -> tuple[float, float]:
@@ -333,8 +335,9 @@ def print_calibration(experiment, ablation, result: Calibration, variants, seeds
             f"{len(done)} seeds finished ({solved} solved); {result.new.reports} A/A reports of {variants} variants x "
             f"{seeds} seeds, each variant the same configuration, dealt from them without overlap",
             f"  new rule (permutation test of the IQM difference on {measure(primary).words}, Holm over "
-            f"{variants - 1} comparisons at 5%): any better/worse in {result.new.words()}",
-            f"  old rule (a 95% bootstrap interval excluding 0 on {', '.join(words)}): any better/worse in "
+            f"{variants - 1} comparisons at {percent(ALPHA)}): any better/worse in {result.new.words()}",
+            f"  old rule (a {percent(CONFIDENCE)} bootstrap interval excluding 0 on {', '.join(words)}): any "
+            "better/worse in "
             f"{result.old.words()}; per comparison: {per}",
             f"  (the new rule called some variant equivalent in {result.equivalent.words()}: true in an A/A test)",
         ]

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ablate.config import ConfigError
 from ablate.launch.clock import clock, stage
+from ablate.launch.mlflow_store import ui_hint
 from ablate.launch.plan import LaunchPlan
 from ablate.launch.runner import raise_interrupted, run_plan, signals_received
 from ablate.reporting.rounds import judge_for
@@ -65,8 +66,7 @@ def _cmd_run(args: argparse.Namespace, plan: LaunchPlan) -> int:
         print(f"{len(outcome.finished)} finished, {len(outcome.failed)} failed, {outcome.skipped} finished before")
     for key, message in outcome.failed.items():
         print(f"  FAILED {key}: {message}")
-    hint = "" if outcome.ui_served else "   (start the UI with: make mlflow-ui)"
-    print(f"MLflow, the variants compared: {outcome.ui_link}{hint}")
+    print(f"MLflow, the variants compared: {outcome.ui_link}{ui_hint(outcome.ui_served)}")
     if not outcome.interrupted and not outcome.error and getattr(args, "report", True):
         from ablate.reporting.document import NoResults, build_report, terminal_summary  # after the trials: heavy
 

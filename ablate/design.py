@@ -8,9 +8,16 @@ from __future__ import annotations
 
 import math
 
-CONFIDENCE = 0.95
-"""The report's confidence level for a claim."""
+ALPHA = 0.05
+"""The chance of a false claim the report allows: a family's primary claims' together, and each comparison's alone."""
+CONFIDENCE = 1 - ALPHA
+"""The report's confidence level for a claim and its intervals (0.95, the same float as the literal)."""
 MAX_SEEDS_ASKED = 1000
+
+
+def percent(share: float) -> str:
+    """A share as the report's prose writes it: ``percent(CONFIDENCE)`` is "95%"."""
+    return f"{share:.0%}"
 
 
 def smallest_p_value(n: int, m: int) -> float:

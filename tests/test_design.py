@@ -42,3 +42,24 @@ def test_the_rule_is_the_reports_own():
     assert statistics.smallest_p_value is design.smallest_p_value and statistics.CONFIDENCE == design.CONFIDENCE
     assert comparisons.smallest_p_value is design.smallest_p_value
     assert claims.smallest_p is design.smallest_permutation_p
+
+
+def test_the_confidence_level_is_one_fact_and_prose_writes_it_from_there():
+    """Issue 57: "95%" was written 62 times in ``ablate/``. ``ALPHA`` is the fact, ``CONFIDENCE`` the same float as
+    the literal 0.95, and no string outside a docstring writes the level or the power as a literal."""
+    import io
+    import tokenize
+    from pathlib import Path
+
+    import ablate
+    from ablate.claims import ALPHA as family_alpha
+    from ablate.design import ALPHA, CONFIDENCE, percent
+
+    assert CONFIDENCE == 0.95 and family_alpha is ALPHA and percent(CONFIDENCE) == "95%"
+    literals = []
+    for path in sorted(Path(ablate.__file__).parent.rglob("*.py")):
+        for token in tokenize.generate_tokens(io.StringIO(path.read_text()).readline):
+            docstring = token.string.lstrip("rbfuRBFU").startswith(('"""', "'''"))
+            if token.type == tokenize.STRING and not docstring and ("95%" in token.string or "80%" in token.string):
+                literals.append(f"{path.name}:{token.start[0]}")
+    assert not literals

@@ -18,13 +18,12 @@ from scipy import stats
 
 from ablate.claims.permutation import Question, Sample, iqm
 from ablate.design import smallest_permutation_p
+from ablate.measures import POWER  # the share of experiments in which the named number of seeds decides
 
 SEED_COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 80, 100)
 SEED_COUNTS += (120, 160, 200, 250, 320, 400, 500, 640, 800, 1000)
 """Seeds per variant the advice names, smallest first; past the last it says "more than 1,000"."""
 SEEDS_CAP = SEED_COUNTS[-1]
-POWER = 0.8
-"""The share of experiments in which the named number of seeds decides the comparison."""
 MIN_SEEDS = 10
 """Fewer seeds a side support no prediction (a bootstrap standard error of 3 or 5 seeds is itself a guess): the
 advice is then to run this many first. Measured from 10 up (tools/seed_advice.py, docs/report.md): 10 seeds a

@@ -11,10 +11,8 @@ from functools import lru_cache
 import numpy as np
 from scipy import optimize, stats
 
+from ablate.design import ALPHA
 from ablate.seeds import seed_looks
-
-ALPHA = 0.05
-"""The family-wise error rate of a report's primary claims."""
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,11 @@ VARIANTS_FILTER = f'tags.`{TAG_ROLE}` = "{ROLE_VARIANT}"'
 """The MLflow search that shows the variant runs alone: the launch's link (``Store.ui_link``), docs/mlflow-ui.md."""
 
 
+def ui_hint(served: bool) -> str:
+    """What follows a store's UI link where the store serves no UI of its own (``Store.serves_ui``)."""
+    return "" if served else "   (start the UI with: make mlflow-ui)"
+
+
 def ui_port() -> int:
     """The port ``make mlflow-ui`` serves on: ``PORT`` (the Makefile passes it through), else 5000."""
     try:

@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from ablate.design import CONFIDENCE, percent  # noqa: E402
 from ablate.reporting.reader import RunReader  # noqa: E402
 from ablate.reporting.results import Ablation  # noqa: E402
 from ablate.reporting.statistics import N_RESAMPLES, curve_band  # noqa: E402
@@ -107,7 +108,8 @@ def _band_text(ablation: Ablation) -> str:
     seeds = len(ablation.grid["seeds"])
     return (
         f"Lines: interquartile mean (IQM) across {seeds} seed{'s' if seeds != 1 else ''} of the rolling mean "
-        f"return over {ablation_window(ablation)} episodes; bands: 95% percentile bootstrap interval of that IQM "
+        f"return over {ablation_window(ablation)} episodes; bands: {percent(CONFIDENCE)} percentile bootstrap interval "
+        "of that IQM "
         f"({N_RESAMPLES // 4} resamples of the seeds, at each point)" + (" (one seed: no band)." if seeds < 2 else ".")
     )
 
@@ -214,7 +216,7 @@ def variant_band_png(ablation: Ablation, variant: str) -> bytes | None:
         ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
     ax.set_title(f"{variant} vs {reference}" if reference else variant, fontsize=10)
     ax.set_xlabel("episode")
-    ax.set_ylabel("rolling mean return (IQM, 95% band)")
+    ax.set_ylabel(f"rolling mean return (IQM, {percent(CONFIDENCE)} band)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
@@ -328,7 +330,8 @@ def figure_improvement(ablation: Ablation, compare: pd.DataFrame, folder: Path) 
     caption = (
         f"Probability of improvement over {esc(against)}: the chance that a random seed of the variant "
         f"needs fewer episodes to solve than a random seed of {other} (ties, such as two unsolved seeds, count one "
-        "half). Dots: the estimate over all seed pairs; bars: 95% percentile bootstrap interval, or, where every "
+        f"half). Dots: the estimate over all seed pairs; bars: {percent(CONFIDENCE)} percentile bootstrap interval, "
+        "or, where every "
         "pair is ordered the same way, the exact bound for that many seeds (see the glossary). Dashed: 0.5, no "
         "difference."
     )
@@ -355,7 +358,8 @@ def figure_parameters(ablation: Ablation, table: pd.DataFrame, folder: Path) -> 
     caption = (
         "Performance against model size: the area under the learning curve (the mean rolling return over the "
         "whole episode budget; higher is better and rewards learning early) of each variant, IQM over seeds, "
-        "with its 95% percentile bootstrap interval, against the policy's number of trainable parameters (log "
+        f"with its {percent(CONFIDENCE)} percentile bootstrap interval, against the policy's number of trainable "
+        "parameters (log "
         "axis). Variants with the same count differ in a setting other than size (dropout, L2, the training "
         "setting)."
     )

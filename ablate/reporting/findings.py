@@ -8,6 +8,7 @@ import pandas as pd
 
 from ablate.claims import BETTER, EQUIVALENT, WORSE, Question, advice, family_sentence
 from ablate.claims.family import CENSORED_SHARE
+from ablate.design import CONFIDENCE, percent
 from ablate.measures import is_censored, measure
 from ablate.reporting.blocks import Block, Item, Items, Paragraph, Table
 from ablate.reporting.comparisons import LOO_MAX_SEEDS, claims_design, claims_table, primary_question
@@ -31,7 +32,8 @@ def _no_claim_reason(n: int, m: int) -> str:
     if min(n, m) < 2:
         return f"{min(n, m)} seed{'s give' if min(n, m) != 1 else ' gives'} no interval"
     return (
-        f"with {n} and {m} seeds no ordering of the seeds can reach 95% confidence (smallest possible "
+        f"with {n} and {m} seeds no ordering of the seeds can reach {percent(CONFIDENCE)} confidence (smallest "
+        "possible "
         f"p = {smallest_p_value(n, m):.2f})"
     )
 
@@ -75,11 +77,12 @@ def _estimate(row: pd.Series, table: pd.DataFrame) -> str:
     if is_censored(row.metric):
         return (
             f" {_pair(row, table, stat)} episodes, change "
-            f"{_signed_pct(-row.point)} (95% bootstrap CI {_signed_pct(-row.high)} to {_signed_pct(-row.low)})."
+            f"{_signed_pct(-row.point)} ({percent(CONFIDENCE)} bootstrap CI {_signed_pct(-row.high)} to "
+            f"{_signed_pct(-row.low)})."
         )
     return (
         f" {stat} {fmt(row.variant_value, 1)} vs {fmt(row.reference_value, 1)}, {_signed(row.point)} "
-        f"(95% bootstrap CI {_signed(row.low)} to {_signed(row.high)})."
+        f"({percent(CONFIDENCE)} bootstrap CI {_signed(row.low)} to {_signed(row.high)})."
     )
 
 
@@ -124,7 +127,8 @@ def _never_counts(row: pd.Series, table: pd.DataFrame, n: int, m: int) -> str:
 
     what = measure(row.metric).never
     variant, reference = esc(row.variant), esc(row.reference)
-    return f"{never(row.variant)} of {n} {variant} seeds and {never(row.reference)} of {m} {reference} seeds {what}"
+    counts = f"{never(row.variant):,} of {n:,} {variant} seeds and {never(row.reference):,} of {m:,} {reference} seeds"
+    return f"{counts} {what}"
 
 
 def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
@@ -149,35 +153,37 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
             return (
                 f"{name}: *{row.verdict}*, **at least {_pct(row.point)} fewer** than {base} ({change}; a bound: "
                 f"{base}'s IQM counts "
-                f"unsolved seeds as the budget ({counts}), so the true gap is larger; 95% lower bound "
+                f"unsolved seeds as the budget ({counts}), so the true gap is larger; {percent(CONFIDENCE)} lower "
+                "bound "
                 f"{_pct(row.low)} fewer).{_stability(row)}"
             )
         if row.verdict == EXPLORATORY_WORSE and row.bound:
             return (
                 f"{name}: *{row.verdict}*, **at least {_pct(-row.point)} more** than {base} ({change}; a lower bound, "
                 "since unsolved "
-                f"seeds count as the budget: {counts}; 95% lower bound {_pct(-row.high)} more; no upper bound can be "
+                f"seeds count as the budget: {counts}; {percent(CONFIDENCE)} lower bound {_pct(-row.high)} more; no "
+                "upper bound can be "
                 f"given).{_stability(row)}"
             )
         if row.verdict == EXPLORATORY_BETTER:
             return (
-                f"{name}: *{row.verdict}*, **{_pct(row.point)} fewer** than {base} ({change}; 95% CI "
+                f"{name}: *{row.verdict}*, **{_pct(row.point)} fewer** than {base} ({change}; {percent(CONFIDENCE)} CI "
                 f"{_pct(row.low)} to "
                 f"{_pct(row.high)} fewer).{_stability(row)}"
             )
         if row.verdict == EXPLORATORY_WORSE:
             return (
-                f"{name}: *{row.verdict}*, **{_pct(-row.point)} more** than {base} ({change}; 95% CI "
+                f"{name}: *{row.verdict}*, **{_pct(-row.point)} more** than {base} ({change}; {percent(CONFIDENCE)} CI "
                 f"{_pct(-row.high)} to "
                 f"{_pct(-row.low)} more).{_stability(row)}"
             )
         bound = ", ≥: a lower bound" if row.bound else ""
         return (
-            f"{name}: *{NOT_SEPARATED}* ({change}{bound}; change {_signed_pct(-row.point)}, 95% CI "
+            f"{name}: *{NOT_SEPARATED}* ({change}{bound}; change {_signed_pct(-row.point)}, {percent(CONFIDENCE)} CI "
             f"{_signed_pct(-row.high)} to {_signed_pct(-row.low)}{'; ' + counts if counts else ''}).{reading}"
         )
     x, y = fmt(row.variant_value, 1), fmt(row.reference_value, 1)
-    interval = f"95% CI {_signed(row.low)} to {_signed(row.high)}"
+    interval = f"{percent(CONFIDENCE)} CI {_signed(row.low)} to {_signed(row.high)}"
     if row.verdict == EXPLORATORY_BETTER:
         return f"{name}: *{row.verdict}*, **higher**, {x} vs {y} ({_signed(row.point)}; {interval}).{_stability(row)}"
     if row.verdict == EXPLORATORY_WORSE:
@@ -190,7 +196,8 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
     for every comparison (too few seeds for any claim) is said once, first."""
     blocks: list[Block] = [
         Paragraph(
-            "*Exploratory:* every metric, each comparison judged on its own by its 95% bootstrap interval "
+            f"*Exploratory:* every metric, each comparison judged on its own by its {percent(CONFIDENCE)} bootstrap "
+            "interval "
             "(unadjusted for the others: about one in twenty true nulls reads as a difference here). The report's "
             "claims are the primary ones, above."
         )
@@ -224,7 +231,8 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
             )
         if len(many):
             notes.append(
-                f"Where a side has more than {LOO_MAX_SEEDS} seeds, one seed is under 2% of its sample and the "
+                f"Where a side has more than {LOO_MAX_SEEDS} seeds, one seed is under {percent(1 / LOO_MAX_SEEDS)} of "
+                "its sample and the "
                 "check is not made."
             )
         blocks.append(Paragraph(" ".join(notes)))
@@ -249,7 +257,7 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
         if row.seeds_run and ablation.threshold is not None and row.solved < row.seeds_run:
             items.append(
                 Item(
-                    f"**{esc(row.variant)}**: {int(row.seeds_run - row.solved)} of {int(row.seeds_run)} seeds did "
+                    f"**{esc(row.variant)}**: {int(row.seeds_run - row.solved):,} of {int(row.seeds_run):,} seeds did "
                     f"not solve within {fmt(row.budget)} episodes."
                 )
             )
@@ -367,7 +375,7 @@ def claims(ablation: Ablation, table: pd.DataFrame | None = None) -> list[Block]
     intro = (
         f"{family_sentence(k, sequential=design.max > design.start, spending=design.spending)} The claims are on "
         f"{_metric_name(question.metric)} (the experiment's primary question); each interval is simultaneous "
-        f"over the {k} (95% for all of them together); "
+        f"over the {k} ({percent(CONFIDENCE)} for all of them together); "
         f"*equivalent* means within ±{_pct(question.smallest_effect)} of the reference{_margin_why(ablation, table)}."
     )
     pace = seconds_per_trial((ablation.launch or {}).get("rounds"))
@@ -419,8 +427,10 @@ def summary(
         if ablation.threshold is not None:
             entry["solved"] = f"{int(row.solved)}/{int(row.seeds_run)}"
         if ablation.any_solved:
-            entry["episodes to solve, IQM [95% CI]"] = _episodes_cell(row, "iqm")
-        entry["AUC, IQM [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
+            entry[f"episodes to solve, IQM [{percent(CONFIDENCE)} CI]"] = _episodes_cell(row, "iqm")
+        entry[f"AUC, IQM [{percent(CONFIDENCE)} CI]"] = _stat_cell(
+            row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high"
+        )
         entry["primary claim"] = verdict
         rows.append(entry)
     how = (
@@ -431,7 +441,8 @@ def summary(
     return [
         *claims(ablation, claimed),
         Paragraph(
-            f"*Exploratory:* the variants ranked by {how}, each interval a 95% bootstrap interval of that variant "
+            f"*Exploratory:* the variants ranked by {how}, each interval a {percent(CONFIDENCE)} bootstrap interval of "
+            "that variant "
             f"alone (unadjusted: not a claim). A rank orders point estimates only; the last column repeats the "
             f"primary claim on {_metric_name(primary)}."
         ),

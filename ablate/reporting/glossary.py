@@ -3,7 +3,8 @@ rest on (the algorithm, the course's lab, the protocol, the statistics of the cl
 
 from __future__ import annotations
 
-from ablate.measures import INITIAL_EPISODES
+from ablate.design import ALPHA, percent
+from ablate.measures import INITIAL_EPISODES, POWER
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP
 
@@ -23,7 +24,7 @@ GLOSSARY = [
     (
         "At least",
         "A difference sized by a bound: censoring can only make the true gap larger, so the report gives "
-        "its lower end (and the 95% lower bound of that), never an upper end.",
+        f"its lower end (and the {percent(CONFIDENCE)} lower bound of that), never an upper end.",
     ),
     (
         "IQM (interquartile mean)",
@@ -32,7 +33,7 @@ GLOSSARY = [
         "With fewer than 4 seeds it trims nothing and is the plain mean: the findings then say mean.",
     ),
     (
-        "95% CI (percentile bootstrap)",
+        f"{percent(CONFIDENCE)} CI (percentile bootstrap)",
         f"Resample the seeds with replacement {N_RESAMPLES:,} times (seeded), "
         "recompute the statistic each time, and take the 2.5th and 97.5th percentiles. Two variants are resampled "
         "independently. With few seeds these intervals are optimistic.",
@@ -62,18 +63,23 @@ GLOSSARY = [
     (
         "Exploratory: better, worse, not separated, too few seeds",
         "The words of the appendix's comparisons (and of the `verdict` column of tables/comparisons.csv), each "
-        "comparison on its own 95% bootstrap interval, unadjusted for the others: never a claim (the claims are "
+        f"comparison on its own {percent(CONFIDENCE)} bootstrap interval, unadjusted for the others: never a claim "
+        "(the claims are "
         "*better*, *worse*, *equivalent* or *undetermined*, tables/claims.csv). *Exploratory: too few seeds*: a rank "
-        "test could not reach 95% confidence even with the seeds perfectly ordered (smallest two-sided p = "
+        f"test could not reach {percent(CONFIDENCE)} confidence even with the seeds perfectly ordered (smallest "
+        "two-sided p = "
         f"2 / C(n+m, n) > {1 - CONFIDENCE:.2f}, e.g. 3 seeds against 3), or one side has one seed; the estimate is "
         "shown, no direction is read from it.",
     ),
     (
         "Seeds needed",
         "On the primary metric, the claims' figure: how many seeds per variant would decide an undetermined claim "
-        "in 80% of experiments resampled from the observed seeds. On the other metrics, for a comparison not "
-        "separated: how many seeds per variant the exploratory rule (the 95% interval excludes no difference, "
-        "censoring permitting) would need to separate the difference in 80% of experiments, found by drawing that "
+        f"in {percent(POWER)} of experiments resampled from the observed seeds. On the other metrics, for a comparison "
+        "not "
+        f"separated: how many seeds per variant the exploratory rule (the {percent(CONFIDENCE)} interval excludes no "
+        "difference, "
+        f"censoring permitting) would need to separate the difference in {percent(POWER)} of experiments, found by "
+        "drawing that "
         f"many seeds with replacement from the observed ones, 100 times. More than {SEEDS_CAP}: no effect this "
         "large is in sight; fewer: the experiment had too few seeds.",
     ),
@@ -114,7 +120,7 @@ REFERENCES = [
     "Good, P. (2005). *Permutation, Parametric and Bootstrap Tests of Hypotheses* (3rd ed.). Springer. (The "
     "permutation test of each primary claim.)",
     "Holm, S. (1979). A simple sequentially rejective multiple test procedure. *Scandinavian Journal of "
-    "Statistics*, 6(2), 65-70. (The primary claims as one family at 5%.)",
+    f"Statistics*, 6(2), 65-70. (The primary claims as one family at {percent(ALPHA)}.)",
     "Schuirmann, D. J. (1987). A comparison of the two one-sided tests procedure and the power approach for "
     "assessing the equivalence of average bioavailability. *Journal of Pharmacokinetics and Biopharmaceutics*, "
     "15(6), 657-680. (*Equivalent*: two one-sided tests within the smallest effect of interest.)",

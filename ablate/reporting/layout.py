@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from ablate.claims.family import CENSORED_SHARE
+from ablate.design import ALPHA, CONFIDENCE, percent
 from ablate.launch.secrets import shown_command
 from ablate.measures import is_censored
 from ablate.reporting.blocks import (
@@ -132,9 +133,11 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
         "REINFORCE (Williams, 1992), the vanilla policy gradient of the course's lab (MIT 6.S191, Lab 3), trains "
         f"each variant's policy from {seeds} on `{esc(ablation.env_id)}`: "
         f"{solve}. A variant changes only the knobs it names (Appendix {letters['method']}).{tuned} Every number "
-        "is over seeds: interquartile means with 95% percentile bootstrap intervals (Agarwal et al., 2021); unsolved "
+        f"is over seeds: interquartile means with {percent(CONFIDENCE)} percentile bootstrap intervals (Agarwal et "
+        "al., 2021); unsolved "
         "seeds count as the budget and make a statistic a bound (≥), never dropped. The primary claims are one family "
-        "at a family-wise 5%: a permutation test of the IQM difference per comparison, Holm's step-down, and "
+        f"at a family-wise {percent(ALPHA)}: a permutation test of the IQM difference per comparison, Holm's "
+        "step-down, and "
         "*equivalent* by two one-sided tests within the smallest effect of interest (Good, 2005; Holm, 1979; "
         "Schuirmann, 1987); no claim is made where the seeds could not support one (Colas et al., 2019)."
     )
@@ -220,7 +223,7 @@ def build_document(
     if len(failed):
         doc.append(
             Note(
-                f"{len(failed)} of {len(ablation.trials)} trials did not finish (failed, killed or not run); "
+                f"{len(failed):,} of {len(ablation.trials):,} trials did not finish (failed, killed or not run); "
                 f"they are left out of the statistics and listed in Appendix {letters['failed']}."
             )
         )
@@ -262,7 +265,7 @@ def build_document(
         Paragraph(
             " ".join(comparison_intro(ablation, full=True))
             + f", on {metrics}. Episodes: the relative change of the IQM; returns: the difference of the IQMs; each "
-            "with its 95% interval, sized as a bound where censoring makes it one."
+            f"with its {percent(CONFIDENCE)} interval, sized as a bound where censoring makes it one."
         ),
         *findings(ablation, table, compare),
     ]

@@ -135,7 +135,7 @@ def _generation_note(ablation: Ablation) -> str:
     if done >= total:
         return ""
     others = [g for g in generations if g["generation"] != current and g["finished"] > done]
-    note = f"This report covers generation {esc(current)}, where {done} of {total} trials finished."
+    note = f"This report covers generation {esc(current)}, where {done:,} of {total:,} trials finished."
     if others:
         note += (
             f" Generation {esc(others[0]['generation'])} has {others[0]['finished']} finished trials: "

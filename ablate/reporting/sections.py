@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import ARCHITECTURE_KNOBS, KNOBS, SETTING_KNOBS, TUNABLE_KNOBS, freeze
+from ablate.design import ALPHA, CONFIDENCE, percent
 from ablate.measures import INITIAL_EPISODES
 from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.comparisons import LOO_MAX_SEEDS
@@ -135,7 +136,8 @@ def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS)
         )
     blocks.append(
         Paragraph(
-            "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with 95% percentile "
+            "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with "
+            f"{percent(CONFIDENCE)} percentile "
             f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, "
             "never dropped: a statistic that uses one is a lower bound, marked ≥. "
             f"{refs.appendix('glossary')} defines each term."
@@ -171,8 +173,8 @@ def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
                 "variant": esc(row.variant),
                 "seeds": int(row.seeds_run),
                 "solved": f"{int(row.solved)}/{int(row.seeds_run)}",
-                "episodes to solve, median [95% CI]": _episodes_cell(row, "median"),
-                "episodes to solve, IQM [95% CI]": _episodes_cell(row, "iqm"),
+                f"episodes to solve, median [{percent(CONFIDENCE)} CI]": _episodes_cell(row, "median"),
+                f"episodes to solve, IQM [{percent(CONFIDENCE)} CI]": _episodes_cell(row, "iqm"),
                 "env steps to solve (median of solved)": fmt(row.env_steps_to_solve_median),
                 "seconds to solve (median of solved)": fmt(row.wall_s_to_solve_median, 1),
             }
@@ -194,9 +196,13 @@ def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
             f"untrained (first {INITIAL_EPISODES} episodes)": fmt(row.get("initial_return_iqm", np.nan), 1),
         }
         for episodes in budgets:
-            entry[f"after {episodes:,} episodes [95% CI]"] = _stat_cell(row, f"return_at_{episodes}_iqm")
-        entry["improvement over untrained [95% CI]"] = _stat_cell(row, "improvement_iqm")
-        entry["AUC [95% CI]"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
+            entry[f"after {episodes:,} episodes [{percent(CONFIDENCE)} CI]"] = _stat_cell(
+                row, f"return_at_{episodes}_iqm"
+            )
+        entry[f"improvement over untrained [{percent(CONFIDENCE)} CI]"] = _stat_cell(row, "improvement_iqm")
+        entry[f"AUC [{percent(CONFIDENCE)} CI]"] = _stat_cell(
+            row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high"
+        )
         rows.append(entry)
     parts += [
         Paragraph(
@@ -310,7 +316,8 @@ def limitations(
         )
     elif claims and seeds > LOO_MAX_SEEDS:
         survive = (
-            f"with more than {LOO_MAX_SEEDS} seeds a side, one seed is under 2% of a sample, and the check of "
+            f"with more than {LOO_MAX_SEEDS} seeds a side, one seed is under {percent(1 / LOO_MAX_SEEDS)} of a sample, "
+            "and the check of "
             "leaving each out is not made: each claim rests on every seed, under the family's correction."
         )
     elif claims:
@@ -333,7 +340,8 @@ def limitations(
                     else ". "
                 )
             )
-            + "Percentile bootstrap intervals (the exploratory ones) over few seeds are too narrow more often than 5% "
+            + "Percentile bootstrap intervals (the exploratory ones) over few seeds are too narrow more often than "
+            f"{percent(ALPHA)} "
             "of the time, and one unusual seed can move an IQM; "
             + survive
             + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else ""),
@@ -396,7 +404,7 @@ def limitations(
         out.append(
             (
                 "censoring",
-                f"**Censoring.** {unsolved} of {len(finished)} trials did not solve within the budget; for them "
+                f"**Censoring.** {unsolved:,} of {len(finished):,} trials did not solve within the budget; for them "
                 "episodes to solve is only known to exceed it, so statistics that use them are bounds, and a longer "
                 "budget could reorder those variants.",
             )

@@ -15,6 +15,7 @@ from typing import Any
 from ablate.config import ConfigError
 from ablate.experiment import Experiment, storage_name
 from ablate.launch.grid import chosen_trials, expand, tuning_trials
+from ablate.launch.mlflow_store import ui_hint
 from ablate.launch.secrets import shown_uri
 from ablate.launch.store import resolve_uri
 from ablate.reporting.planned import earlier_trials, plan_keys
@@ -105,11 +106,10 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     for launch in launches:
         by_generation[launch.generation].append(launch)
     runs = tracker.trial_runs()
-    hint = "" if tracker.serves_ui else " (start the UI with: make mlflow-ui)"
     counts = f"{_count(len(launches), 'launch')} in {_count(len(by_generation), 'generation')}"
     lines = [
         f"{name}: {counts} (MLflow store: {uri})",
-        f"MLflow, the variants compared (the last report's): {tracker.ui_link()}{hint}",
+        f"MLflow, the variants compared (the last report's): {tracker.ui_link()}{ui_hint(tracker.serves_ui)}",
     ]
     newest_generation = launches[-1].generation
     for generation in sorted(by_generation, key=lambda g: by_generation[g][-1].start_time_ms, reverse=True):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from ablate.design import CONFIDENCE, percent
 from ablate.measures import is_censored
 from ablate.reporting.blocks import Block, Items, Paragraph, Table
 from ablate.reporting.results import Ablation
@@ -160,7 +161,8 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
             f"{_verdict_words(row)}: {label}."
         )
     head = (
-        "*Exploratory* (unadjusted 95% intervals, each comparison on its own; the claims are the primary ones). "
+        f"*Exploratory* (unadjusted {percent(CONFIDENCE)} intervals, each comparison on its own; the claims are the "
+        "primary ones). "
         "The same comparisons on the same evaluation seeds and budget, once with every variant at the shared base "
         "value (as an untuned ablation runs them) and once at each variant's chosen value. "
     )
