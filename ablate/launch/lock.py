@@ -1,7 +1,7 @@
 """One launch at a time per experiment and store, wherever its drivers run: a lock on a file, and a lease kept
 in the store itself; each refusal names the holder (host, pid, start, its command without secrets).
 
-Standard library only. The lock is ``flock`` on a file beside the SQLite store, or in this user's cache for a
+The lock is filelock's ``FileLock`` (``flock``) on a file beside the SQLite store, or in this user's cache for a
 store other machines reach, keyed on the store's one spelling (``store.store_key``): the kernel releases it
 when the holder exits in any way, ``kill -9`` included. That serialises the launches of one machine; for a
 server or a database, ``StoreLease`` then excludes the other machines' (and any spelling of the URI): an
@@ -12,7 +12,6 @@ MLflow experiment of its own, which MLflow creates at most once per name, renewe
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import os
 import socket
@@ -24,6 +23,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from filelock import FileLock, Timeout
+
 from ablate.launch.secrets import shown
 
 
@@ -31,22 +32,12 @@ class LaunchLocked(RuntimeError):
     """Another live launch holds the lock (the message names it), or the lock file cannot be opened: one line."""
 
 
-def _holder_text(fd: int) -> str:
+def _holder_text(path: Path) -> str:
     try:
-        info = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
+        info = json.loads(path.read_text() or "{}")
     except (OSError, ValueError):
         info = {}
-    if not info:
-        return "a launch that is starting"
-    alive = ""
-    if info.get("host") == socket.gethostname() and not _pid_alive(int(info.get("pid", 0))):
-        # flock says held but the recorded process is gone: a child it started without closing the file
-        # still holds it. Naming the pid lets the user find it.
-        alive = ", gone, but a process it started still holds the lock"
-    return (
-        f"pid {info.get('pid')} on {info.get('host')}{alive}, started {info.get('started')}"
-        f" ({shown(info.get('command') or 'ablate run')})"
-    )
+    return _holder_line(info) if info else "a launch that is starting"
 
 
 def _pid_alive(pid: int) -> bool:
@@ -64,30 +55,23 @@ def _pid_alive(pid: int) -> bool:
 @contextlib.contextmanager
 def launch_lock(path: Path, what: str, command: str = "") -> Iterator[None]:
     """Hold the lock at ``path`` for the body, or raise ``LaunchLocked`` at once naming the launch that has it."""
+    lock = FileLock(path, mode=0o600)  # its holder's command: this user's only
     try:
         path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)  # the per-user folder of a server's locks
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)  # its holder's command: this user's only
+        lock.acquire(timeout=0)
+    except Timeout:
+        raise LaunchLocked(
+            f"{what} is already being run on this store by {_holder_text(path)}; wait for it to end or stop it "
+            f"(lock: {path})"
+        ) from None
     except OSError as error:
         raise LaunchLocked(f"cannot open the launch lock {path}: {error.strerror}") from None
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise LaunchLocked(
-                f"{what} is already being run on this store by {_holder_text(fd)}; wait for it to end or stop it "
-                f"(lock: {path})"
-            ) from None
-        info = {
-            "pid": os.getpid(),
-            "host": socket.gethostname(),
-            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
-            "command": shown(command),
-        }
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, json.dumps(info).encode(), 0)
+        info = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.strftime("%Y-%m-%d %H:%M:%S")}
+        path.write_text(json.dumps({**info, "command": shown(command)}))  # flock is the file's, not this open's
         yield
     finally:
-        os.close(fd)
+        lock.release()
 
 
 LEASE_EXPIRY_S = 120.0
@@ -99,8 +83,8 @@ holder): MLflow refuses a second experiment of one name, in any store, which mak
 _HOLDER = ("host", "pid", "started", "heartbeat", "command")
 
 
-def _holder_line(info: dict[str, str]) -> str:
-    command = info.get("command") or "ablate run"
+def _holder_line(info: dict[str, Any]) -> str:
+    command = shown(info.get("command") or "ablate run")
     return f"pid {info.get('pid')} on {info.get('host')}, started {info.get('started')} ({command})"
 
 
