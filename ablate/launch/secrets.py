@@ -5,12 +5,15 @@ A URI's userinfo is masked up to the last ``@`` before its host, whatever it hol
 percent-encoded ones); so are query and keyword credentials (``?password=``, ``sslpassword=``, ``token=``)
 and every secret this process holds: the values of ``SECRET_ENV``, Ray's token file, the password of
 ``~/.mlflow/credentials`` and whatever ``remember`` was told (the password of the URI being used).
+Not SQLAlchemy's ``render_as_string(hide_password=True)`` nor urllib's ``urlsplit``: both end the userinfo at a
+raw ``/`` (shown: ``mlflow:***@nted/pw%3A9x...``), SQLAlchemy keeps ``?password=`` and neither reads free text.
 """
 
 from __future__ import annotations
 
 import configparser
 import contextlib
+import functools
 import os
 import re
 import shlex
@@ -44,7 +47,6 @@ _USERINFO = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://)(?P<userinfo>[^\s'\
 _KEY = r"[A-Za-z0-9_.-]*(?:password|passwd|pwd|secret|token|api[_-]?key|access[_-]?key|credential)[A-Za-z0-9_.-]*"
 _KEYWORD = re.compile(rf"(?P<head>(?:^|[?&;\s,])(?i:{_KEY})=)(?P<value>'[^']*'|\"[^\"]*\"|[^&\s'\";,#]*)")
 _remembered: set[str] = set()
-_file_cache: dict[tuple[str, float], str] = {}
 
 
 def remember(*values: str | None) -> None:
@@ -112,16 +114,16 @@ def shown_uri(uri: str) -> str:
 
 
 def _read_cached(path: str) -> str:
-    try:
-        key = (path, os.stat(path).st_mtime)
-    except OSError:
-        return ""
-    if key not in _file_cache:
-        try:
-            _file_cache[key] = Path(path).read_text(errors="replace")
-        except OSError:
-            _file_cache[key] = ""
-    return _file_cache[key]
+    """The text of ``path`` ("" when it cannot be read), read again only when its mtime changes: ``shown`` runs
+    on every line the CLI prints."""
+    with contextlib.suppress(OSError):
+        return _read(path, os.stat(path).st_mtime)
+    return ""
+
+
+@functools.lru_cache(maxsize=8)
+def _read(path: str, mtime: float) -> str:
+    return Path(path).read_text(errors="replace")
 
 
 def secret_values() -> list[str]:
@@ -180,16 +182,7 @@ class MaskedStream:
         self._stream.write(shown(text))
         return len(text)
 
-    def flush(self) -> None:
-        self._stream.flush()
-
-    def isatty(self) -> bool:
-        return self._stream.isatty()
-
-    def fileno(self) -> int:
-        return self._stream.fileno()
-
-    def __getattr__(self, name: str) -> Any:
+    def __getattr__(self, name: str) -> Any:  # flush, isatty, fileno, encoding: the stream's own
         return getattr(self._stream, name)
 
 
