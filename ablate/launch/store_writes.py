@@ -1,5 +1,8 @@
 """A store mid-run: the driver's writes retried for a bounded time while the store does not answer, and a store
 that answers with an error (permission, a full disk, a refused login) named at once, in one line.
+Not MLflow's own retries (``MLFLOW_HTTP_REQUEST_MAX_RETRIES``, ``..._BACKOFF_FACTOR``): they reach a tracking
+server only, never an SQL store (SQLite, PostgreSQL, MySQL: MLflow retries its deadlocks alone). Not tenacity:
+not installed (torch, Ray and MLflow do not pull it), and the loop is 25 lines.
 """
 
 from __future__ import annotations
