@@ -56,13 +56,43 @@ def test_the_mlflow_patch_turns_off_raise_on_status_in_its_process_only():
     assert out == ["True", "False"], out
 
 
+def test_raylet_errors_go_to_the_route_once_per_process_and_the_rest_print_as_ray_prints(monkeypatch):
+    import ray._private.worker as worker
+
+    assert list(inspect.signature(worker.print_to_stdstream).parameters) == ["data", "ignore_prefix"]
+    assert "print_to_stdstream(" in inspect.getsource(worker.listen_error_messages)  # where Ray calls it
+    printed, routed = [], []
+    monkeypatch.setattr(worker, "print_to_stdstream", lambda data, ignore_prefix: printed.append(data))
+    patches.ray_raylet_errors_to(lambda lines: routed.append(lines) or len(routed) > 1)
+    patches.ray_raylet_errors_to(lambda lines: 1 / 0)  # once per process: a second launch does not wrap it again
+    raylet, other = {"lines": ["died", " "], "pid": "raylet", "is_err": False}, {"lines": ["hi"], "pid": 42}
+    for data in (raylet, raylet, other):
+        worker.print_to_stdstream(data, ignore_prefix=False)
+    assert routed == [["died"], ["died"]] and printed == [raylet, other]  # the first declined: printed by Ray
+
+
+def test_the_loopback_node_names_have_the_shapes_it_uses():
+    import ray._private.node as node
+    import ray._private.parameter as parameter
+
+    params = parameter.RayParams(
+        node_ip_address="127.0.0.1", num_cpus=1, num_gpus=0, object_store_memory=2**27, min_worker_port=0,
+        max_worker_port=0, include_dashboard=False, temp_dir=None,
+    )  # fmt: skip
+    params.update(gcs_server_port=1, gcs_address="127.0.0.1:1", include_log_monitor=False, node_manager_port=0)
+    assert hasattr(params, "dashboard_agent_listen_port")
+    assert {"ray_params", "head", "shutdown_at_exit", "spawn_reaper"} <= set(inspect.signature(node.Node).parameters)
+    assert {"node_id", "gcs_address", "kill_all_processes"} <= set(dir(node.Node))
+
+
 def test_no_other_module_names_a_private_library_internal():
     from pathlib import Path
 
-    root = Path(patches.__file__).parents[1]
+    root = Path(patches.__file__).parents[2]
     offenders = [
         str(path.relative_to(root))
-        for path in root.rglob("*.py")
+        for folder in ("ablate", "tools", "benchmarks")
+        for path in (root / folder).rglob("*.py")
         if path.name != "patches.py"
         for line in path.read_text().splitlines()
         if ("ray._private" in line or "__defaults__ =" in line) and not line.strip().startswith(("#", "(", '"'))

@@ -1,7 +1,5 @@
 """Ray's own messages into the launch's log: a raylet's error (a dead worker) as one line on the terminal."""
 
-from types import SimpleNamespace
-
 from ablate.launch import ray_logs
 
 RAYLET = (
@@ -13,21 +11,12 @@ RAYLET = (
 
 
 def test_a_raylet_error_goes_to_the_launchs_log_and_one_line_to_the_terminal(tmp_path, monkeypatch, capsys):
-    printed = []
-    worker = SimpleNamespace(print_to_stdstream=lambda data, ignore_prefix: printed.append(data))
     monkeypatch.setattr(ray_logs, "_launch_log", None)
-    ray_logs.route_raylet_errors(worker)
-    ray_logs.route_raylet_errors(worker)  # once per process: a second launch does not wrap it again
-    raylet = {"lines": [RAYLET], "pid": "raylet", "is_err": False}
-    worker.print_to_stdstream(raylet, ignore_prefix=False)  # before any launch: as Ray prints it
-    assert printed == [raylet]
+    assert ray_logs.log_raylet_errors([RAYLET]) is False  # before any launch: Ray prints it as it does
     log = tmp_path / "ray_results" / "x-1.log"
     with ray_logs.tune_logs_to(log):
-        worker.print_to_stdstream(raylet, ignore_prefix=False)
-    worker.print_to_stdstream(raylet, ignore_prefix=False)  # after the trials: still the launch's log
-    other = {"lines": ["hello"], "pid": 42, "is_err": False}
-    worker.print_to_stdstream(other, ignore_prefix=False)
-    assert printed == [raylet, other]
+        assert ray_logs.log_raylet_errors([RAYLET]) is True
+    assert ray_logs.log_raylet_errors([RAYLET]) is True  # after the trials: still the launch's log
     assert log.read_text().count("raylet ERROR A worker died") == 2 and "Worker exit detail" in log.read_text()
     lines = capsys.readouterr().err.splitlines()
     assert (

@@ -38,30 +38,10 @@ def free_port() -> int:
 def run_node(head: bool, address: str | None, port: int, cpus: float, temp_dir: str | None, detached: bool) -> int:
     """Start one node bound to 127.0.0.1, print ``ready <node id> <gcs address>``, wait for SIGTERM or SIGINT
     (or, unless ``detached``, the end of stdin: the parent died), then kill the node's processes."""
-    import ray._private.ray_constants as ray_constants
+    sys.path.insert(0, str(ROOT))  # run from a checkout, installed or not
+    from ablate.launch.patches import ray_loopback_node  # Ray's private node API, behind ablate's one fence
 
-    # With clusters "disabled" (Ray's macOS default) 127.0.0.1 stays the node's address and every server of
-    # the node binds to it alone; on Linux Ray would take the machine's address and bind to all interfaces.
-    ray_constants.ENABLE_RAY_CLUSTER = False
-    from ray._private.node import Node
-    from ray._private.parameter import RayParams
-
-    params = RayParams(
-        node_ip_address="127.0.0.1",
-        num_cpus=cpus,
-        num_gpus=0,
-        object_store_memory=150 * 2**20,
-        min_worker_port=0,
-        max_worker_port=0,
-        include_dashboard=False,
-        temp_dir=temp_dir,
-    )
-    if head:
-        params.update(gcs_server_port=port)
-    else:
-        params.update(gcs_address=address, include_log_monitor=False, node_manager_port=0)
-        params.dashboard_agent_listen_port = None
-    node = Node(params, head=head, shutdown_at_exit=True, spawn_reaper=True)
+    node = ray_loopback_node(head, address, port, cpus, temp_dir)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())

@@ -4,8 +4,8 @@ names). ``tests/test_patches.py`` fails loudly when a library changes under one 
 the change as a silent loss (a password on Ray's job table, a server's answer dropped).
 
 Each function here touches one private name and says why; the modules that need them (``scheduler``,
-``ray_logs``, ``tracking``) call these, never the private names. Ray is imported only inside the Ray patches,
-so the tracker's process pays nothing for them.
+``tracking``, ``tools/local_cluster.py``) call these, never the private names. Ray is imported only inside the
+Ray patches, so the tracker's process pays nothing for them.
 """
 
 from __future__ import annotations
@@ -93,12 +93,53 @@ def ray_lean_local_start() -> Iterator[None]:
         parameter.RayParams.__init__, node.Node.start_api_server = params_init, api_server
 
 
-def ray_error_printer() -> Any:
-    """The module whose ``print_to_stdstream`` Ray's driver prints raylet errors through, from a thread of its
-    own past logging and ``log_to_driver=False`` (``ray_logs.route_raylet_errors`` replaces that function)."""
+def ray_raylet_errors_to(route: Callable[[list[str]], bool]) -> None:
+    """Ray's driver prints the errors its raylets publish (``(raylet) A worker died or was killed ...``) to stdout
+    from a thread of its own (``listen_error_messages``), past logging and ``log_to_driver=False``, through
+    ``ray._private.worker.print_to_stdstream``: replaced once per process by one that hands a raylet's lines to
+    ``route`` (``ray_logs.log_raylet_errors``) first. What ``route`` declines (returns False) and every other
+    message print as Ray prints them."""
     import ray._private.worker as worker
 
-    return worker
+    original = worker.print_to_stdstream
+    if getattr(original, "ablate_routed", False):
+        return
+
+    def print_to_stdstream(data: dict[str, Any], *args: Any, **kwargs: Any) -> None:
+        lines = [line for line in data.get("lines", []) if line.strip()]
+        if data.get("pid") != "raylet" or not lines or not route(lines):
+            original(data, *args, **kwargs)
+
+    print_to_stdstream.ablate_routed = True  # type: ignore[attr-defined]
+    worker.print_to_stdstream = print_to_stdstream
+
+
+def ray_loopback_node(head: bool, address: str | None, port: int, cpus: float, temp_dir: str | None) -> Any:
+    """One Ray node of this machine with every server on 127.0.0.1 (``tools/local_cluster.py``'s head and workers),
+    built as ``ray start`` builds it (``RayParams``, ``Node``) with clusters disabled (``ray_loopback_only``):
+    ``ray start`` binds a worker node to the machine's address on every interface and has no bind option. A head
+    listens on ``port``; a worker joins the GCS at ``address``. Returns the running ``Node`` (``node_id``,
+    ``gcs_address``, ``kill_all_processes``)."""
+    ray_loopback_only(True)
+    from ray._private.node import Node
+    from ray._private.parameter import RayParams
+
+    params = RayParams(
+        node_ip_address="127.0.0.1",
+        num_cpus=cpus,
+        num_gpus=0,
+        object_store_memory=150 * 2**20,
+        min_worker_port=0,
+        max_worker_port=0,
+        include_dashboard=False,
+        temp_dir=temp_dir,
+    )
+    if head:
+        params.update(gcs_server_port=port)
+    else:
+        params.update(gcs_address=address, include_log_monitor=False, node_manager_port=0)
+        params.dashboard_agent_listen_port = None
+    return Node(params, head=head, shutdown_at_exit=True, spawn_reaper=True)
 
 
 def mlflow_answers_kept() -> None:

@@ -11,7 +11,6 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 from ablate.launch.secrets import shown
 
@@ -74,34 +73,23 @@ def one_line(error: BaseException, log_path: Path) -> Exception:
     return SchedulerFailed(f"{shown(last)[:300]}{where}")
 
 
-def route_raylet_errors(worker_module: Any) -> None:
-    """Send the errors Ray's raylets publish to the driver (``(raylet) A worker died or was killed ...``: one
-    line of ~1,000 characters per dead worker) to the launch's log file, and one short line naming it to the
-    terminal. Ray's driver prints them to stdout from a thread of its own (``listen_error_messages``), past
-    logging and ``log_to_driver=False``, through ``print_to_stdstream`` of ``worker_module``
-    (``patches.ray_error_printer``, handed in by the scheduler); that function is replaced once per process. Other
-    messages, and raylet errors before any launch, print as Ray prints them."""
-    original = getattr(worker_module, "print_to_stdstream", None)
-    if original is None or getattr(original, "ablate_routed", False):
-        return
-
-    def print_to_stdstream(data: dict[str, Any], *args: Any, **kwargs: Any) -> None:
-        path = _launch_log
-        lines = [line for line in data.get("lines", []) if line.strip()]
-        if path is None or data.get("pid") != "raylet" or not lines:
-            return original(data, *args, **kwargs)
-        try:
-            log = path.open("a")
-        except OSError:
-            return original(data, *args, **kwargs)
-        with log:  # the terminal's line first: a message seen in the log has been told
-            for line in lines:
-                sys.stderr.write(f"{raylet_summary(line)}; Ray's message in full: {path}\n")
-            for line in lines:
-                log.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} raylet ERROR {shown(line)}\n")
-
-    print_to_stdstream.ablate_routed = True  # type: ignore[attr-defined]
-    worker_module.print_to_stdstream = print_to_stdstream
+def log_raylet_errors(lines: list[str]) -> bool:
+    """A raylet's errors (``A worker died or was killed ...``: ~1,000 characters per dead worker) written to the
+    launch's log file, and one short line naming it to the terminal; False (not taken: Ray prints them as it
+    does) before any launch or when the log cannot be opened. ``patches.ray_raylet_errors_to`` hands them in."""
+    path = _launch_log
+    if path is None:
+        return False
+    try:
+        log = path.open("a")
+    except OSError:
+        return False
+    with log:  # the terminal's line first: a message seen in the log has been told
+        for line in lines:
+            sys.stderr.write(f"{raylet_summary(line)}; Ray's message in full: {path}\n")
+        for line in lines:
+            log.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} raylet ERROR {shown(line)}\n")
+    return True
 
 
 def raylet_summary(message: str) -> str:

@@ -40,9 +40,9 @@ from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from ablate.launch.curve import CurvePoint, CurveReducer
 from ablate.launch.event_writer import EventWriter
-from ablate.launch.patches import ray_entrypoint_shown, ray_error_printer, ray_lean_local_start, ray_loopback_only
+from ablate.launch.patches import ray_entrypoint_shown, ray_lean_local_start, ray_loopback_only, ray_raylet_errors_to
 from ablate.launch.plan import Population
-from ablate.launch.ray_logs import one_line, route_raylet_errors, tune_logs_to
+from ablate.launch.ray_logs import log_raylet_errors, one_line, tune_logs_to
 from ablate.launch.secrets import shown
 
 REPORT_EVERY_S = 2.0
@@ -206,7 +206,7 @@ def run_trials(
     os.environ["TUNE_DISABLE_SIGINT_HANDLER"] = "1"
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     started_here = ensure_ray(options.address)
-    route_raylet_errors(ray_error_printer())  # a dead worker: one line
+    ray_raylet_errors_to(log_raylet_errors)  # a dead worker: one line
     by_key = {p.key: p for p in plan}
     checkpoints = None
     if resume or any(t.config.checkpoint_interval for p in plan for t in p.members):
