@@ -246,9 +246,9 @@ class Store:
         target = str(destination or download_folder())
         try:
             if artifact_uri:
-                from mlflow.store.artifact.artifact_repository_registry import get_artifact_repository
+                from mlflow.artifacts import download_artifacts
 
-                return get_artifact_repository(artifact_uri, tracking_uri=self.uri).download_artifacts(path, target)
+                return download_artifacts(f"{artifact_uri.rstrip('/')}/{path}", dst_path=target, tracking_uri=self.uri)
             return self.client.download_artifacts(run_id, path, target)
         except Exception as error:  # noqa: BLE001 - MLflow's, the artifact store's and the file system's alike
             problem = f"MLflow store {self.shown_uri}: artifact {path!r} of run {run_id} cannot be read"

@@ -29,7 +29,7 @@ from ablate.launch.mlflow_store import (
     Store,
     param_text,
 )
-from ablate.launch.patches import mlflow_answers_kept, mlflow_insert_metrics, mlflow_sql_store
+from ablate.launch.patches import mlflow_answers_kept, mlflow_insert_metrics, mlflow_log_artifacts, mlflow_sql_store
 from ablate.launch.secrets import shown as redact
 from ablate.launch.store_writes import RetryingClient, fail_fast_writes
 
@@ -282,13 +282,11 @@ class Tracker(Store):
         self.client.set_terminated(run_id, "FINISHED")
 
     def _log_artifacts(self, run_id: str, folder: Path) -> None:
-        from mlflow.store.artifact.artifact_repository_registry import get_artifact_repository
-
         uri = self._artifact_uris.pop(run_id, None)
         if uri is None:
             self.client.log_artifacts(run_id, str(folder))
         else:
-            get_artifact_repository(uri, tracking_uri=self.uri).log_artifacts(str(folder))
+            mlflow_log_artifacts(uri, self.uri, folder)
 
     def _close(self, key: str, last: Sequence[Any] = ()) -> str:
         """Write the trial's pending points (and ``last``: its summary metrics, in the same write) and forget it as
