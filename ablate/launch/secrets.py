@@ -189,9 +189,5 @@ class MaskedStream:
 @contextlib.contextmanager
 def masked_output() -> Iterator[None]:
     """``sys.stdout`` and ``sys.stderr`` masked for the body (the CLI's whole command), then as they were."""
-    saved = sys.stdout, sys.stderr
-    sys.stdout, sys.stderr = MaskedStream(sys.stdout), MaskedStream(sys.stderr)
-    try:
+    with contextlib.redirect_stdout(MaskedStream(sys.stdout)), contextlib.redirect_stderr(MaskedStream(sys.stderr)):
         yield
-    finally:
-        sys.stdout, sys.stderr = saved
