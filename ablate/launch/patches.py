@@ -125,16 +125,8 @@ def ray_loopback_node(head: bool, address: str | None, port: int, cpus: float, t
     from ray._private.node import Node
     from ray._private.parameter import RayParams
 
-    params = RayParams(
-        node_ip_address="127.0.0.1",
-        num_cpus=cpus,
-        num_gpus=0,
-        object_store_memory=150 * 2**20,
-        min_worker_port=0,
-        max_worker_port=0,
-        include_dashboard=False,
-        temp_dir=temp_dir,
-    )
+    params = RayParams(node_ip_address="127.0.0.1", num_cpus=cpus, num_gpus=0, object_store_memory=150 * 2**20,
+                       min_worker_port=0, max_worker_port=0, include_dashboard=False, temp_dir=temp_dir)  # fmt: skip
     if head:
         params.update(gcs_server_port=port)
     else:
