@@ -33,7 +33,9 @@ episodes (12 trials of 5.6-7.9 s, 2026-12-06), Pong from pong.toml's (48:30 of t
 env is costed at CartPole-v1's rate, and says so."""
 
 
-def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, report: bool = True) -> str:
+def time_line(
+    experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, report: bool = True, fresh: bool = False
+) -> str:
     """The whole command's time, first: the trials' (``trial_time``), the start's and the report's, each with
     how it was estimated: the start and the report as this store's newest launch of the experiment took them
     (``Tracker.launch_times``), else ``START_S`` and ``REPORT_S``."""
@@ -45,7 +47,7 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
     parts = f"~{clock(start_s)} to start" + (f" and ~{clock(report_s)} for the report" if report else "")
     how = "as this store's last launch of it took them" if measured else GUESS
     guess = f"{parts}: {how}"
-    trials_words, left, most = trial_time(experiment, trials, tracking_uri)
+    trials_words, left, most = trial_time(experiment, trials, tracking_uri, fresh)
     total = f"~{clock(left + overhead)}" + (f", at most ~{clock(most + overhead)}" if most is not None else "")
     budget = experiment.rounds.max_minutes if experiment.rounds else None
     if most is not None and budget is not None and most + start_s > 60 * budget:  # ``Rounds.past_budget``
@@ -56,12 +58,13 @@ def time_line(experiment: Experiment, trials: list[GridTrial], tracking_uri: str
 
 
 def trial_time(
-    experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None
+    experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, fresh: bool = False
 ) -> tuple[str, float, float | None]:
     """The trials' time in words, with the two figures a launch's progress line gives, before anything runs: the
     time of round 1 (with its tuning) and the most the launch can take (every comparison to ``max`` seeds, round
     after round; None without rounds), from the store's earlier runs of these trials (and of their variants);
-    without any, ``guessed_s``."""
+    without any, ``guessed_s``. Trials finished in the newest generation are skipped, as the run skips them
+    (``fresh``: none)."""
     from ablate.launch.estimate import estimate
     from ablate.launch.plan import population_keys
     from ablate.launch.state import LaunchState
@@ -69,10 +72,11 @@ def trial_time(
 
     wanted = {t.variant for t in trials}
     plan = StagePlan(experiment, trials, [t for t in tuning_trials(experiment) if t.variant in wanted])
-    todo = unique([*plan.tuning, *trials], set())
-    known = {t.key for t in todo}
+    done = set() if fresh else from_store(experiment, tracking_uri, finished_keys, set())
+    known = {t.key for t in [*plan.tuning, *trials]}
+    todo = unique([*plan.tuning, *trials], done)
     tuned = {t.variant for t in plan.tuning}
-    later = [t for t in trials if t.variant in tuned]  # stage 2's stand-ins: as many, at the base values
+    later = [t for t in trials if t.variant in tuned and t.key not in done]  # stage 2's stand-ins, at the base values
     slots = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
 
     def groups(ts: list[GridTrial]) -> list[list[str]]:
@@ -82,8 +86,10 @@ def trial_time(
     if experiment.rounds is not None:
         possible = Rounds(experiment, wanted, judge=lambda samples: None).possible({}, known)  # type: ignore[arg-type, return-value]
     every = [*todo, *later, *(t for r in possible for t in r)]
-    # Seconds each took when an earlier launch, of any generation, finished it.
-    earlier = from_store(experiment, tracking_uri, lambda store: store.earlier_runs([t.key for t in every])[0], {})
+    # Seconds each took when an earlier launch, of any generation, finished it (the ones skipped here too: they
+    # cost their variant's others).
+    looked_up = [*known, *(t.key for t in every)]
+    earlier = from_store(experiment, tracking_uri, lambda store: store.earlier_runs(looked_up)[0], {})
     prior = costed(every, earlier) or {t.key: guessed_s(t) for t in every}
     state = LaunchState(experiment.name, todo, 0, slots, 0.0, prior, groups=groups(todo), later=later,
                         later_groups=groups(later))  # fmt: skip
@@ -96,7 +102,14 @@ def trial_time(
     upper = f", at most ~{clock(most)}" if more else ""
     source = "from the store's earlier runs" if earlier else guess_words(every)
     source += f", on {slots} slot(s)"
-    return f"{words}{upper} ({len(todo) + len(later)} trials{rounds}; {source})", left, most if more else None
+    before = f", {len(known & done)} finished before" if known & done else ""
+    return f"{words}{upper} ({len(todo) + len(later)} trials{before}{rounds}; {source})", left, most if more else None
+
+
+def finished_keys(store: Any) -> set[str]:
+    """The trials finished in the store's newest generation: what a run that continues it skips."""
+    generation = store.latest_generation()
+    return {r.key for r in store.trial_runs(generation) if r.status == "FINISHED"} if generation else set()
 
 
 def costed(trials: list[GridTrial], earlier: dict[str, float]) -> dict[str, float]:
@@ -147,14 +160,18 @@ def from_store(experiment: Experiment, tracking_uri: str | None, read: Callable[
 
 
 def dry_run(
-    experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None = None, report: bool = True
+    experiment: Experiment,
+    trials: list[GridTrial],
+    tracking_uri: str | None = None,
+    report: bool = True,
+    fresh: bool = False,
 ) -> int:
     """``ablate run --dry-run``: the trials a run would consider, and nothing started or written. With
     ``[tune]``: stage 1 (every candidate on the tuning seeds), then stage 2, whose chosen values are known only
     after tuning (listed "after tuning"; the base-value trials are the untuned ones, with their keys)."""
     overrides = {v.name: ", ".join(f"{k}={json.dumps(x)}" for k, x in v.overrides) for v in experiment.variants}
     total = len(expand(experiment))
-    print(time_line(experiment, trials, tracking_uri, report))  # first: `| head` keeps it
+    print(time_line(experiment, trials, tracking_uri, report, fresh))  # first: `| head` keeps it
     rows = [("variant", "seed", "key", "overrides")]
     if experiment.tune is None:
         print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")

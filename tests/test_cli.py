@@ -510,6 +510,32 @@ def test_dry_run_costs_the_start_and_the_report_as_the_stores_last_launch_took_t
     assert "~0:07 to start and ~0:12 for the report: as this store's last launch of it took them" in first, first
 
 
+def test_dry_run_costs_only_what_the_run_would_run_not_the_trials_finished_in_the_newest_generation(tmp_path, capsys):
+    """Its trials' time counted every trial, the 12 finished before among them, where a rerun ran 12 (a rerun at
+    6 seeds said ~0:50 and took 1:52, and at 9 counted 36 trials). A run skips the newest generation's finished
+    trials; so does the dry run, and ``--fresh`` skips none."""
+    from stores import fresh_store
+
+    from ablate.launch.grid import expand
+    from ablate.launch.tracking import Tracker
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY)
+    uri = fresh_store(tmp_path / "mlflow.db")
+    tracker = Tracker(uri, "tiny")
+    launch = tracker.start_launch("g", "tiny launch", {}, {})
+    for trial in expand(load_experiment(path))[:3]:
+        tracker.start_trial(launch, "g", trial.key, trial.variant, trial.seed, {}, "")
+        tracker.finish_trial(trial.key, {"episodes_run": 16.0}, None)
+    tracker.finish_launch(launch, "FINISHED", {"trials_finished": 3.0, "start_s": 7.0})
+    assert main(["run", str(path), "--dry-run", "--no-report", "--tracking-uri", uri]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "(6 trials, 3 finished before; from the store's earlier runs" in first, first
+    assert main(["run", str(path), "--dry-run", "--no-report", "--fresh", "--tracking-uri", uri]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "(9 trials; from the store's earlier runs" in first, first
+
+
 def test_train_flags_for_a_users_env_module_refuse_one_that_registers_nothing_in_one_line(
     tmp_path, monkeypatch, capsys
 ):
