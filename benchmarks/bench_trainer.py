@@ -74,7 +74,7 @@ def _child(case: str) -> None:
         if change.endswith(".py"):  # the variant's settings with a user's network
             config = apply_knobs(config, {"model": f"{MODELS / change}:create_model"})
         else:
-            config = apply_knobs(config, {"env_id": change})
+            config = apply_knobs(config, {"env_id": change, "action_set": "all"})  # Pong's two moves stay Pong's
     config = replace(config, record_video=False, video_every=0, max_episodes=episodes, checkpoint_every=0)
     configs = [replace(config, seed=seed) for seed in range(members)]
     started = time.perf_counter()
