@@ -127,12 +127,12 @@ def check_seeds(text: str, data: ReportData) -> list[str]:
             problems.append(f"rounds table: {variant} {seeds} seeds, the data: {counts.get(variant)}")
         if verdict and claims and claims.get(variant) != verdict:
             problems.append(f"rounds table: {variant} {verdict}, the claims: {claims.get(variant)}")
-    censored = re.search(r"\*\*Censoring\.\*\* (\d+) of (\d+) trials did not solve", text)
+    censored = re.search(r"\*\*Censoring\.\*\* ([\d,]+) of ([\d,]+) trials did not solve", text)
     unsolved = sum(data.unsolved(v) for v in counts)
-    if censored and (int(censored[1]), int(censored[2])) != (unsolved, len(data.trials)):
+    if censored and tuple(int(n.replace(",", "")) for n in censored.groups()) != (unsolved, len(data.trials)):
         problems.append(f"censoring: {censored[0]!r}, the data: {unsolved} of {len(data.trials)}")
-    for variant, k, n in re.findall(r"^- \*\*(\S+)\*\*: (\d+) of (\d+) seeds did not solve", text, flags=re.M):
-        if (int(k), int(n)) != (data.unsolved(variant), counts.get(variant)):
+    for variant, k, n in re.findall(r"^- \*\*(\S+)\*\*: ([\d,]+) of ([\d,]+) seeds did not solve", text, flags=re.M):
+        if (int(k.replace(",", "")), int(n.replace(",", ""))) != (data.unsolved(variant), counts.get(variant)):
             problems.append(f"{variant}: {k} of {n} unsolved, the data: {data.unsolved(variant)} of {counts[variant]}")
     return problems
 

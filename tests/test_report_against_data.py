@@ -86,7 +86,7 @@ def test_a_pong_sentence_other_than_its_tables_is_caught(old, new):
         ("trains each variant's policy from 10 to 640 seeds", "trains each variant's policy from 10 seeds", "method"),
         ("- **10 to 640 seeds per variant**", "- **20 to 640 seeds per variant**", "limitations"),
         ("| narrow | 160 | worse, decided at round 5", "| narrow | 80 | worse, decided at round 5", "rounds table"),
-        ("**Censoring.** 254 of 2510", "**Censoring.** 253 of 2510", "censoring"),
+        ("**Censoring.** 254 of 2,510", "**Censoring.** 253 of 2,510", "censoring"),
         ("- **l2**: 15 of 40 seeds", "- **l2**: 14 of 40 seeds", "l2"),
     ],
 )
