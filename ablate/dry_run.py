@@ -18,14 +18,23 @@ from ablate.launch.grid import GridTrial, expand, tuning_trials
 from ablate.launch.rounds import Rounds, dry_run_lines
 
 T = TypeVar("T")
-START_S = 31.0
+START_S = 14.0
 """Seconds a launch spends outside its trials (starting a local Ray and opening the store, then shutting Ray
-down): measured as ``ablate.run`` of experiments/quickstart.toml on 2 shared cores, 1:37 against the progress
-line's 1:06 of trials. Nothing in the store records it, so the dry run says it is a guess."""
-GUESS = "a guess, measured once on a quickstart on 2 cores"
-REPORT_S = 46.0
-"""Seconds ``ablate run`` spends writing the report at the end (Markdown, HTML, PDF): measured as ``ablate report``
-of the same quickstart store (PDF of 9 pages), on the same 2 cores while other work ran."""
+down), where the store has no launch of the experiment yet: 0:11-0:14 for a fresh store's launch on 2 idle cores
+(a student's 12 trials and the default ablation's 2,642, 2026-12-06). Nothing records it before a first launch,
+so the dry run says it is a guess."""
+GUESS = "a guess, measured on 2 idle cores"
+REPORT_S = 15.0
+"""Seconds ``ablate run`` spends writing the report (Markdown, HTML, PDF) of a first trial, plus ``REPORT_S_TRIAL``
+a trial: 0:16 for 12 trials, 1:29 for 2,642 (the same two launches)."""
+REPORT_S_TRIAL = 0.028
+
+
+def report_guess(trials: int) -> float:
+    """Seconds the report of ``trials`` trials takes where the store has no launch of it yet."""
+    return REPORT_S + REPORT_S_TRIAL * trials
+
+
 SECONDS_PER_EPISODE = {"CartPole-v0": 0.021, "CartPole-v1": 0.021, "ALE/Pong-v5": 0.8}
 """Seconds a trial the store has never run costs per episode of its budget, as the store would record it (its
 run's start to end, in a population on 2 shared cores): CartPole from a fresh launch of 4 variants x 3 seeds x 300
@@ -38,11 +47,11 @@ def time_line(
 ) -> str:
     """The whole command's time, first: the trials' (``trial_time``), the start's and the report's, each with
     how it was estimated: the start and the report as this store's newest launch of the experiment took them
-    (``Tracker.launch_times``), else ``START_S`` and ``REPORT_S``."""
+    (``Tracker.launch_times``), else ``START_S`` and ``report_guess``."""
     start_s, report_s = from_store(experiment, tracking_uri, lambda store: store.launch_times(), (None, None))
     measured = start_s is not None and (report_s is not None or not report)
     start_s = start_s if measured else START_S
-    report_s = (report_s if measured else REPORT_S) or 0.0
+    report_s = (report_s if measured else report_guess(len(trials))) or 0.0
     overhead = start_s + (report_s if report else 0.0)
     parts = f"~{clock(start_s)} to start" + (f" and ~{clock(report_s)} for the report" if report else "")
     how = "as this store's last launch of it took them" if measured else GUESS

@@ -457,14 +457,14 @@ def test_dry_run_into_a_pipe_its_reader_closed_exits_quietly(tmp_path, seeds):
 
 def test_dry_run_prints_its_cost_first_with_the_start_and_the_report(tmp_path, capsys):
     # issue 46: the cost came last (`| head` lost it) and left out the start and the report (~0:44 said, 1:18 taken)
-    from ablate.dry_run import REPORT_S, START_S
+    from ablate.dry_run import START_S, report_guess
 
     path = tmp_path / "tiny.toml"
     path.write_text(TINY)
     assert main(["run", str(path), "--dry-run"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert first.startswith("time: ") and "a guess" in first, first
-    assert f"~{clock(START_S)} to start" in first and f"~{clock(REPORT_S)} for the report" in first, first
+    assert f"~{clock(START_S)} to start" in first and f"~{clock(report_guess(9))} for the report" in first, first
     assert main(["run", str(path), "--dry-run", "--no-report"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert "to start" in first and "report" not in first, first
