@@ -21,7 +21,6 @@ LAYERS = {
     "claims": 0,
     "env_spec": 0,
     "envs": 0,
-    "env_internals": 0,
     "videos": 0,
     "measures": 0,
     "agent": 1,
