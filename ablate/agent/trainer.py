@@ -22,8 +22,7 @@ from pathlib import Path
 import torch
 from threadpoolctl import threadpool_limits
 
-from ablate.agent.checkpoints import checkpoint, restore
-from ablate.agent.population import Member, Population
+from ablate.agent.population import Member, Population, checkpoint, restore
 from ablate.agent.records import Batch, EpisodeMetrics, TrialFailed, TrialResult
 from ablate.config import TrialConfig, can_share, population_group
 from ablate.envs import profile_of, record
