@@ -52,7 +52,7 @@ def check_model(config: TrialConfig, env) -> None:
     from ablate.agent.models import ModelError, build_model, history
 
     network = build_model(config, env)
-    steps = history(config)
+    steps = history(config.model, env)
     shape = (2, steps, *env.observation_shape) if steps else (2, *env.observation_shape)
     try:
         with torch.no_grad():

@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 
 from ablate.config import TrialConfig, env_facts
-from ablate.env_spec import EnvError, profile_of, register, versions  # noqa: F401 - EnvError: what describe raises
+from ablate.env_spec import EnvError, Profile, profile_of, register, versions  # noqa: F401 - EnvError: what describe raises
 
 # Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
 # display and prints "XDG_RUNTIME_DIR is invalid or not set" on a headless machine.
@@ -197,10 +197,6 @@ def make_native_vector(env_id: str, num_envs: int, max_episode_steps: int) -> gy
     return env
 
 
-def is_native_vector(config) -> bool:
-    return config.env_id in NATIVE_VECTOR and not config.env_args
-
-
 class AtariFrameDifference(gym.ObservationWrapper):
     """A grayscale 84x84 frame (``AtariPreprocessing``) minus the previous one, scaled to [-1, 1], (1, 84, 84):
     the frame difference the course feeds its Pong CNN, for any other Atari game."""
@@ -259,8 +255,13 @@ def make_gym_trial_env(config, render: bool = False) -> gym.Env:
 
 @dataclass(frozen=True)
 class Described:
-    """What the trainer needs to know of a trial's env."""
+    """What the trainer needs to know of a trial's env, read once from its config (``describe``)."""
 
+    env_id: str
+    profile: Profile
+    """Its family: how its env is made, its return rule, its arrays' size (``env_spec.PROFILES``)."""
+    native_vector: bool
+    """Gymnasium's own vector form steps every slot in one call (one of ``NATIVE_VECTOR``, no ``env_args``)."""
     observation_shape: tuple[int, ...]
     n_actions: int
     reward_threshold: float | None
@@ -294,11 +295,13 @@ def describe(config) -> Described:
             raise EnvError(f"env_id = {config.env_id!r} has {type(actions).__name__} actions; valid: Discrete ones")
         if not isinstance(observations, gym.spaces.Box):
             raise EnvError(f"env_id = {config.env_id!r} has a {type(observations).__name__} observation; valid: a Box")
-        limit = config.max_episode_steps or (
-            spec.max_episode_steps or 0 if profile_of(config).episode_limit_from_spec else 0
-        )
+        profile = profile_of(config)
+        limit = config.max_episode_steps or (spec.max_episode_steps or 0 if profile.episode_limit_from_spec else 0)
         cartpole = config.env_id in NATIVE_VECTOR
         described = Described(
+            config.env_id,
+            profile,
+            cartpole and not config.env_args,
             tuple(observations.shape),
             int(actions.n),
             spec.reward_threshold,
@@ -324,14 +327,14 @@ def _action_names(env: gym.Env) -> tuple[str, ...]:
     return tuple(meanings()) if meanings else ()
 
 
-def record(config, described: Described, threshold: float | None) -> dict[str, str]:
+def record(described: Described, threshold: float | None) -> dict[str, str]:
     """What a trial ran against, as its run's ``env.*`` params: the env id, its spec's reward threshold and
     episode limit, its observation's shape and dtype, its action count, the solve threshold the trial stopped
     at (``None``: it ran its budget), and the env libraries' versions. The report and the launch read these, not
     the env's name."""
     libraries = versions()
     return {
-        "env.id": config.env_id,
+        "env.id": described.env_id,
         "env.reward_threshold": str(described.reward_threshold),
         "env.max_episode_steps": str(described.max_episode_steps),
         "env.obs_shape": "x".join(map(str, described.observation_shape)),

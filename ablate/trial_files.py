@@ -36,7 +36,8 @@ def record_episode(config: TrialConfig, model: nn.Module, on_frame: Callable[[np
     ``video_stride``-th step, downscaled, up to ``video_max_frames``); returns its return. Greedy (argmax), except
     on Pong, where a greedy agent that has not learnt much presses one button for the whole video: there the
     sampling policy plays."""
-    info, history, max_frames = describe(config), window_of(config), config.video_max_frames
+    info, max_frames = describe(config), config.video_max_frames
+    history = window_of(config.model, info)
     env = make_trial_env(config, render=True)
     greedy = not profile_of(config).sampling_video
     rng = np.random.default_rng(config.seed + 1_000_003)

@@ -107,8 +107,9 @@ def _network_costs(configs: list) -> dict[str, float]:
     from ablate.agent.population import Population
     from ablate.agent.records import Batch
     from ablate.agent.reinforce import choose_action
+    from ablate.envs import describe
 
-    population = Population(configs, torch.device("cpu"), [None] * len(configs))
+    population = Population(configs, describe(configs[0]), torch.device("cpu"), [None] * len(configs))
     try:
         for position in range(len(configs)):
             population.start(position)

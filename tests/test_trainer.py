@@ -12,6 +12,7 @@ from ablate.agent.population import PACK_SHARE, Population
 from ablate.agent.records import TrialFailed, TrialResult
 from ablate.agent.trainer import run_population, run_trial
 from ablate.config import DEFAULT, ModelConfig, apply_knobs, can_share
+from ablate.envs import describe
 
 SHORT = replace(DEFAULT, env_id="CartPole-v1", max_episodes=48, episodes_per_update=8, record_video=False)
 DEEP = replace(SHORT, model=ModelConfig(hidden_sizes=(16, 16), dropout=0.2), l2=0.001)
@@ -280,7 +281,7 @@ def test_continuous_slots_draw_one_uniform_per_playing_slot_and_a_resting_one_dr
     import numpy as np
 
     config = replace(SHORT, num_envs=4, seed=5)
-    population = Population([config, replace(config, seed=6)], torch.device("cpu"), [None, None])
+    population = Population([config, replace(config, seed=6)], describe(config), torch.device("cpu"), [None, None])
     for position in range(2):
         population.start(position)
     population.set_counting(0, population.slots_of(0)[[1, 3]])  # member 0: two slots rest
@@ -303,7 +304,7 @@ def test_the_batched_update_a_gpu_takes_is_each_members_own_update_to_float_tole
     configs = [
         replace(base, seed=s, learning_rate=lr, l2=l2) for s, lr, l2 in ((0, 0.03, 0.0), (1, 0.1, 1e-3), (2, 0.01, 0.0))
     ]
-    populations = [Population(configs, torch.device("cpu"), [None] * 3) for _ in range(2)]
+    populations = [Population(configs, describe(configs[0]), torch.device("cpu"), [None] * 3) for _ in range(2)]
     batches = []
     for population in populations:  # the same seeds, the same collections: each member's first batch
         for position in range(3):

@@ -75,13 +75,7 @@ def build_model(config: TrialConfig, env: Described) -> nn.Module:
     return factory(n_actions=env.n_actions, **sizes, **knobs)
 
 
-def history(config: TrialConfig) -> int:
+def history(model: ModelConfig, env: Described) -> int:
     """Observations a step's input holds (a built-in ``cnn`` over a vector observation reads a window); 0: one."""
-    model = config.model
-    return model.history if not model.factory and model.architecture == "cnn" and not _image(config) else 0
-
-
-def _image(config: TrialConfig) -> bool:
-    from ablate.envs import describe
-
-    return len(describe(config).observation_shape) == 3
+    image = len(env.observation_shape) == 3
+    return model.history if not model.factory and model.architecture == "cnn" and not image else 0

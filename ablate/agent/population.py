@@ -23,7 +23,7 @@ from ablate.agent.slots import CartPoleSlots, EnvSlots, Episode
 from ablate.agent.stacking import Members, dropout_seed
 from ablate.config import TrialConfig
 from ablate.env_spec import solve_threshold
-from ablate.envs import Described, describe, is_native_vector, make_trial_env
+from ablate.envs import Described, make_trial_env
 from ablate.videos import TrainingVideos
 
 UNIFORM_BLOCK = 64
@@ -80,14 +80,16 @@ class Member:
 class Population:
     """The members, their slots and their batched acting: ``run_population``'s state."""
 
-    def __init__(self, configs: Sequence[TrialConfig], device: torch.device, folders: Sequence[Path | None]) -> None:
+    def __init__(
+        self, configs: Sequence[TrialConfig], env: Described, device: torch.device, folders: Sequence[Path | None]
+    ) -> None:
         first = configs[0]
-        self.env: Described = describe(first)
+        self.env = env
         self.continuous = first.num_envs > 0
         """Slots play on into the next update (``num_envs`` set: Pong's emulators never idle); else each update's
         episodes start together from a reset, one per slot, so every one is sampled from the current policy."""
         self.per_member = first.num_envs or first.episodes_per_update
-        self.history = history(first)
+        self.history = history(first.model, env)
         self.device = device
         started = time.perf_counter()
         self.members = []
@@ -113,10 +115,8 @@ class Population:
         self.optimizer = Adam(self.network.flat, lr=[c.learning_rate for c in configs])
         self.l2 = np.array([c.l2 for c in configs], np.float32)
         seeds = [c.seed for c in configs]
-        if is_native_vector(first) and not self.continuous:
-            self.slots = CartPoleSlots(
-                seeds, self.per_member, self.env.max_episode_steps, self.history, env_id=first.env_id
-            )
+        if env.native_vector and not self.continuous:
+            self.slots = CartPoleSlots(seeds, self.per_member, env.max_episode_steps, self.history, env_id=env.env_id)
         else:
 
             def make(m: int, j: int):  # a member's first env renders where it records training videos
@@ -249,7 +249,7 @@ class Population:
             member.episodes = {}
         config = member.config
         rewards = taken.rewards.astype(np.float64)
-        returns = discount_rewards(rewards, config.gamma, config.reset_on_score, lengths=lengths)
+        returns = discount_rewards(rewards, config.gamma, self.env.profile.resets_on_score, lengths=lengths)
         return Batch(
             lengths,
             np.add.reduceat(rewards, np.cumsum(lengths) - lengths),

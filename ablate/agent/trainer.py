@@ -25,7 +25,7 @@ from threadpoolctl import threadpool_limits
 from ablate.agent.population import Member, Population, checkpoint, restore
 from ablate.agent.records import Batch, EpisodeMetrics, TrialFailed, TrialResult
 from ablate.config import TrialConfig, can_share, population_group
-from ablate.envs import profile_of, record
+from ablate.envs import describe, record
 from ablate.measures import reaches_threshold
 
 MemberOutcome = TrialResult | TrialFailed
@@ -91,10 +91,11 @@ def run_population(
         _inject_fault(config)
     torch.set_num_threads(1)  # small networks: threads cost more than they give, and trials run side by side
     threadpool_limits(1, user_api="blas")  # the same for numpy's (OpenBLAS would spin 2 threads)
-    _set_malloc(large_frames=profile_of(configs[0]).large_frames)
+    env = describe(configs[0])  # the population's env, read once: every layer below is handed this
+    _set_malloc(large_frames=env.profile.large_frames)
     torch_device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     folders = [Path(d) if d is not None else None for d in (artifacts_dirs or [None] * len(configs))]
-    population = Population(configs, torch_device, folders)
+    population = Population(configs, env, torch_device, folders)
     for position, blob in enumerate(resume_from or [None] * len(configs)):
         member = population.members[position]
         if blob is not None:
@@ -200,7 +201,7 @@ def _finish(population: Population, outcomes: dict, on_outcome) -> None:
             wall_s=time.perf_counter() - member.started,
             parameter_count=population.network.flat.shape[1],  # a member's row: each of its parameters once
             state_dict=population.network.state_dict(position),
-            env=record(member.config, population.env, member.threshold),
+            env=record(population.env, member.threshold),
         )
         if member.videos is not None:
             member.videos.close()  # the trial is over: its last video ends here
