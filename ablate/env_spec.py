@@ -125,7 +125,8 @@ def profile_named(env_id: str, env_profile: str = "") -> Profile:
 
 def register(config: EnvConfig) -> None:
     """Make ``config.env_id`` known to Gymnasium: the user's ``env_module`` imported (from its shipped files where
-    it is local) and its function called where it names one, ale-py's games registered."""
+    it is local) and its function called where it names one, ale-py's games registered; an id that is still not
+    known is an ``EnvError``."""
     import gymnasium as gym
 
     if config.env_module:
@@ -140,12 +141,15 @@ def register(config: EnvConfig) -> None:
         import ale_py  # imported lazily: CartPole-only users never pay for the emulator
 
         gym.register_envs(ale_py)
-    if config.env_module and config.env_id not in gym.registry:
+    if config.env_id in gym.registry:
+        return
+    if config.env_module:
         named = ", ".join(added[:5]) + (", ..." if len(added) > 5 else "") or "none"
         raise EnvError(
             f"env_module = {config.env_module!r} ran, but env_id = {config.env_id!r} is still not a registered "
             f"Gymnasium env; it registered {named}"
         )
+    raise EnvError(f"env_id = {config.env_id!r} is not a registered Gymnasium env (e.g. CartPole-v1, Acrobot-v1)")
 
 
 _REGISTERED_BY: dict[str, list[str]] = {}
@@ -157,8 +161,6 @@ def reward_threshold(config: EnvConfig) -> float | None:
     import gymnasium as gym
 
     register(config)
-    if config.env_id not in gym.registry:
-        raise EnvError(f"env_id = {config.env_id!r} is not a registered Gymnasium env (e.g. CartPole-v1, Acrobot-v1)")
     threshold = gym.spec(config.env_id).reward_threshold
     return None if threshold is None else float(threshold)
 

@@ -220,7 +220,7 @@ class AtariFrameDifference(gym.ObservationWrapper):
 def make_trial_env(config, render: bool = False) -> gym.Env:
     """One env of a trial, its observations what the policy takes, as its profile makes it (``env_spec.PROFILES``):
     Pong's frame differences of ``pre_process``-ed frames; another Atari game's grayscale 84x84 frame differences;
-    any other env as ``gym.make(env_id, **env_args)``."""
+    any other env as ``gym.make(env_id, **env_args)``. Registers ``config``'s env first (``env_spec.register``)."""
     register(config)
     try:
         return profile_of(config).maker()(config, render)
@@ -284,11 +284,8 @@ def describe(config) -> Described:
     key = env_facts(config)
     if key in _DESCRIBED:
         return _DESCRIBED[key]
-    register(config)
-    if config.env_id not in gym.registry:
-        raise EnvError(f"env_id = {config.env_id!r} is not a registered Gymnasium env (e.g. CartPole-v1, Acrobot-v1)")
-    spec = gym.spec(config.env_id)
     env = make_trial_env(config)
+    spec = gym.spec(config.env_id)
     try:
         actions, observations = env.action_space, env.observation_space
         if not isinstance(actions, gym.spaces.Discrete):
