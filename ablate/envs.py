@@ -1,6 +1,7 @@
 """Environments: any Gymnasium env with discrete actions, as the trainer makes and describes it, through its
 profile (``env_spec.PROFILES``): the course's Pong pipeline (``pre_process``, the frame difference), for any Atari
-game; other Atari games' standard one; any other env as Gymnasium makes it.
+game; other Atari games' standard one; any other env as Gymnasium makes it. Then an env's state, saved and restored
+for a checkpoint, and, fenced at the end, every write to an env's internals that no public API offers.
 """
 
 from __future__ import annotations
