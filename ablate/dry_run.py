@@ -12,6 +12,7 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from ablate.config import DEFAULT_POPULATION
+from ablate.env_spec import profile_named
 from ablate.experiment import Experiment
 from ablate.launch.clock import clock
 from ablate.launch.grid import GridTrial, expand, tuning_trials
@@ -35,11 +36,13 @@ def report_guess(trials: int) -> float:
     return REPORT_S + REPORT_S_TRIAL * trials
 
 
-SECONDS_PER_EPISODE = {"CartPole-v0": 0.021, "CartPole-v1": 0.021, "ALE/Pong-v5": 0.8}
-"""Seconds a trial the store has never run costs per episode of its budget, as the store would record it (its
-run's start to end, in a population on 2 shared cores): CartPole from a fresh launch of 4 variants x 3 seeds x 300
-episodes (12 trials of 5.6-7.9 s, 2026-12-06), Pong from pong.toml's (48:30 of trials, docs/pong.md). Any other
-env is costed at CartPole-v1's rate, and says so."""
+FALLBACK_ENV = "CartPole-v1"
+"""The env whose seconds per episode (``env_spec.Profile.episode_seconds``) cost an env never measured."""
+
+
+def episode_seconds(env_id: str, env_profile: str = "") -> float | None:
+    """Seconds per episode of budget its profile measured for ``env_id`` (``None``: never measured)."""
+    return profile_named(env_id, env_profile).episode_seconds.get(env_id)
 
 
 def time_line(
@@ -138,16 +141,20 @@ def costed(trials: list[GridTrial], earlier: dict[str, float]) -> dict[str, floa
 
 
 def guessed_s(trial: GridTrial) -> float:
-    """Seconds a trial no launch has run yet costs: its budget at its env's ``SECONDS_PER_EPISODE``."""
-    return SECONDS_PER_EPISODE.get(trial.config.env_id, SECONDS_PER_EPISODE["CartPole-v1"]) * trial.config.max_episodes
+    """Seconds a trial no launch has run yet costs: its budget at its env's seconds per episode, ``FALLBACK_ENV``'s
+    where its profile never measured its env."""
+    config = trial.config
+    rate = episode_seconds(config.env_id, config.env_profile) or episode_seconds(FALLBACK_ENV)
+    return rate * config.max_episodes
 
 
 def guess_words(trials: list[GridTrial]) -> str:
-    """How ``guessed_s`` costed ``trials``: each env's seconds per episode, CartPole-v1's for an env not measured."""
+    """How ``guessed_s`` costed ``trials``: each env's seconds per episode, ``FALLBACK_ENV``'s for one not measured."""
+    envs = sorted({(t.config.env_id, t.config.env_profile) for t in trials})
     rates = ", ".join(
-        f"{SECONDS_PER_EPISODE.get(e, SECONDS_PER_EPISODE['CartPole-v1']):g} s per {e} episode"
-        + ("" if e in SECONDS_PER_EPISODE else " (CartPole-v1's: never measured)")
-        for e in sorted({t.config.env_id for t in trials})
+        f"{episode_seconds(e, p) or episode_seconds(FALLBACK_ENV):g} s per {e} episode"
+        + ("" if episode_seconds(e, p) else f" ({FALLBACK_ENV}'s: never measured)")
+        for e, p in envs
     )
     return f"no earlier run in the store: a guess at {rates} of budget, measured once on 2 cores"
 

@@ -67,6 +67,9 @@ class Profile:
     """An Atari game: the report cites the Arcade Learning Environment."""
     return_levels: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
     """Return levels the report counts episodes to, by game (no solve threshold there)."""
+    episode_seconds: Mapping[str, float] = field(default_factory=dict)
+    """Seconds a trial no launch has run yet costs per episode of its budget, by env id, as the store would record
+    it (its run's start to end, in a population on 2 shared cores): ``ablate run --dry-run``'s guess."""
 
     def maker(self):
         module, function = self.make.split(":")
@@ -93,6 +96,7 @@ PROFILES = {
             checkpoint_every=50,
             atari=True,
             return_levels={"ALE/Pong-v5": (-15.0, -10.0)},
+            episode_seconds={"ALE/Pong-v5": 0.8},  # pong.toml's launch: 48:30 of trials (docs/pong.md)
         ),
         Profile(
             "atari",
@@ -104,7 +108,11 @@ PROFILES = {
             atari=True,
         ),
         Profile(
-            "gym", "gym.make(env_id, **env_args), observations as the env gives them", "ablate.envs:make_gym_trial_env"
+            "gym",
+            "gym.make(env_id, **env_args), observations as the env gives them",
+            "ablate.envs:make_gym_trial_env",
+            # A fresh launch of 4 variants x 3 seeds x 300 episodes: 12 trials of 5.6-7.9 s (2026-12-06).
+            episode_seconds={"CartPole-v0": 0.021, "CartPole-v1": 0.021},
         ),
     )
 }

@@ -473,7 +473,7 @@ def test_dry_run_prints_its_cost_first_with_the_start_and_the_report(tmp_path, c
 def test_dry_run_gives_a_never_run_plan_a_time_from_its_budget_not_just_counts(tmp_path, capsys):
     """Issue 56: with no earlier run in the store it said "a guess in trials: round 1 runs 9 trials", no time.
     A never-run trial now costs its budget at its env's measured seconds per episode."""
-    from ablate.dry_run import SECONDS_PER_EPISODE, guessed_s
+    from ablate.dry_run import episode_seconds, guessed_s
     from ablate.launch.grid import expand
 
     path = tmp_path / "tiny.toml"
@@ -481,9 +481,10 @@ def test_dry_run_gives_a_never_run_plan_a_time_from_its_budget_not_just_counts(t
     assert main(["run", str(path), "--dry-run", "--no-report"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert re.match(r"time: ~\d+:\d\d in all: trials ~\d+:\d\d \(9 trials; no earlier run in the store: ", first), first
-    assert f"a guess at {SECONDS_PER_EPISODE['CartPole-v1']:g} s per CartPole-v1 episode of budget" in first, first
+    rate = episode_seconds("CartPole-v1")  # the gym profile's measurement
+    assert rate and f"a guess at {rate:g} s per CartPole-v1 episode of budget" in first, first
     trial = expand(load_experiment(path))[0]
-    assert guessed_s(trial) == SECONDS_PER_EPISODE["CartPole-v1"] * trial.config.max_episodes
+    assert guessed_s(trial) == rate * trial.config.max_episodes
     # An env without a calibration is costed at CartPole-v1's rate, and says so.
     path.write_text(TINY.replace('"CartPole-v1"', '"Acrobot-v1"'))
     assert main(["run", str(path), "--dry-run", "--no-report"]) == 0
