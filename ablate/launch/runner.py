@@ -194,7 +194,6 @@ class _Launch:
         self.finished_before = set(self.finished_runs)
         self.choices = self.plan.choices(self.finished_runs)
         self.known = unique([*self.plan.tuning, *evaluation, *self.plan.chosen(self.choices)], set())
-        self.plotted = plotted_seeds(plan.experiment)
         judge, rounds = plan.judge, plan.experiment.rounds
         self.rounds = Rounds(plan.experiment, self.wanted, judge, plan.started_at) if rounds and judge else None
 
@@ -240,7 +239,6 @@ class _Launch:
         MLflow run with the files the report reads: the experiment, the grid, the machine."""
         from ablate.launch import scheduler
 
-        self.scheduler = scheduler
         experiment, options = self.experiment, self.options
         if options.show_progress:
             print(f"trials to run: {total_words(len(todo), *self.most(todo))}; starting Ray ...", flush=True)
@@ -375,17 +373,20 @@ class _Launch:
         """Run ``todo`` as populations; trials a killed launch left with a checkpoint continue from it."""
         self.recorder.trials |= {t.key: t for t in todo}
         resume = self.tracker.latest_checkpoints(self.generation, (t.key for t in todo))
-        plotted = {t.key for t in todo if t.seed in self.plotted.get(t.variant, ())}
+        from ablate.launch import scheduler
+
+        seeds = plotted_seeds(self.experiment)
+        plotted = {t.key for t in todo if t.seed in seeds.get(t.variant, ())}
         plan = plan_populations(todo, cap=self.options.population, slots=self.cores, plotted=plotted)
         populations = self.recorder.planned(plan)
         with self.view:
             options, experiment = self.options, self.experiment
-            cluster = self.scheduler.ClusterOptions(
+            cluster = scheduler.ClusterOptions(
                 options.address, options.max_concurrent, experiment.resources_per_trial, experiment.gpus_per_trial,
                 options.storage_path,
             )  # fmt: skip
             run_name = tune_run_name(self.tracker.experiment_name, self.launch)
-            self.scheduler.run_trials(populations, self.recorder, cluster, run_name=run_name, resume=resume)
+            scheduler.run_trials(populations, self.recorder, cluster, run_name=run_name, resume=resume)
 
     def later(self, trials: list[GridTrial]) -> None:
         """Stage 2, or a round of seeds, after what ran before: seeds interleaved as in stage 1, in the same
@@ -427,4 +428,6 @@ class _Launch:
                 counts[START_METRIC] = round(self.state.first_start - self.state.start, 3)
             tracker.finish_launch(self.launch, status, counts, note=outcome.note())
             if self.started_ray:
-                self.scheduler.stop_ray()
+                from ablate.launch import scheduler
+
+                scheduler.stop_ray()
