@@ -7,8 +7,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ablate.claims.family import CENSORED_SHARE
-from ablate.design import ALPHA, CONFIDENCE, percent
 from ablate.launch.secrets import shown_command
 from ablate.measures import is_censored
 from ablate.reporting.blocks import (
@@ -29,6 +27,7 @@ from ablate.reporting.discussion import Discussion, missing_line
 from ablate.reporting.figures import Figure
 from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
+from ablate.reporting.prose import say
 from ablate.reporting.provenance import (
     _generation_note,
     _reproducibility,
@@ -44,7 +43,7 @@ from ablate.reporting.sections import (
     limitations,
     method_blocks,
 )
-from ablate.reporting.text import Refs, _metric_name, esc
+from ablate.reporting.text import Refs, esc
 from ablate.reporting.tuning_sections import dependence_section, knob_words, tuning_section
 
 BODY_FIGURES = (
@@ -75,71 +74,36 @@ def body_figures(figures: list[Figure]) -> list[Figure]:
 
 def question(ablation: Ablation) -> str:
     others = [v for v in ablation.variants if v != ablation.baseline]
-    # The claims' own metric (``Ablation.primary_metric``), and their rule for censored comparisons.
-    primary = (
-        "the area under the learning curve"
-        if ablation.primary_metric == "auc"
-        else _metric_name(ablation.primary_metric)
-    )
-    if is_censored(ablation.primary_metric):
-        primary += (
-            f" (a comparison with more than {CENSORED_SHARE:.0%} of its seeds unsolved at its first look: on the "
-            "area under the learning curve)"
-        )
-    learns = (
-        f"learns to reach a rolling mean return of {ablation.threshold:g}"
-        if ablation.threshold is not None
-        else "learns"
-    )
-    description = esc(ablation.grid.get("description") or "").strip()
-    lead = (description if description[-1] in ".?!" else f"{description}.") + " " if description else ""
-    varied = any(ablation.reference(v) != ablation.baseline for v in others)
-    against = "its reference (the baseline, or the variant it extends)" if varied else esc(ablation.baseline)
-    listed = ", ".join(esc(v) for v in others) or "none"
-    return (
-        f"{lead}Does each change to the baseline's settings change how fast REINFORCE {learns} on "
-        f"`{esc(ablation.env_id)}`? {len(others)} variant{'s' if len(others) != 1 else ''} ({listed}) "
-        f"{'are each' if len(others) != 1 else 'is'} compared with {against}, first on {primary}."
+    return say(
+        "layout.question",
+        description=ablation.grid.get("description") or "",
+        env=ablation.env_id,
+        threshold=ablation.threshold,
+        others=others,
+        varied=any(ablation.reference(v) != ablation.baseline for v in others),
+        baseline=ablation.baseline,
+        # The claims' own metric (``Ablation.primary_metric``), and their rule for censored comparisons.
+        primary_metric=ablation.primary_metric,
+        censored=is_censored(ablation.primary_metric),
     )
 
 
 def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
-    base = ablation.grid["base"]
+    base, tuning = ablation.grid["base"], ablation.tuning or {}
     fewest, most = ablation.seed_span
-    seeds = (
-        f"{most} seed{'s' if most != 1 else ''}"
-        if fewest == most
-        else f"{fewest} to {most} seeds"
-        + (" (added in rounds while its primary comparison was open)" if ablation.launch.get("rounds") else "")
-    )
-    budget = int(base.get("max_episodes", 0))
-    window = int(base.get("solve_window", 100))
-    solve = (
-        f"a trial is solved when its mean return over {window} consecutive episodes reaches {ablation.threshold:g}, "
-        f"and stops then or after {budget:,} episodes"
-        if ablation.threshold is not None
-        else f"every trial runs {budget:,} episodes (no solve threshold)"
-    )
-    tuned = ""
-    if ablation.tuning:
-        tuning = ablation.tuning
-        tuned = (
-            f" Each variant's {knob_words(ablation).removeprefix('the ')} was chosen among "
-            f"{max((len(c) for c in tuning.get('knobs', {}).values()), default=0)} candidates on "
-            f"{len(tuning.get('seeds', []))} tuning seeds of its own, and the variants are compared at their chosen "
-            "values on evaluation seeds tuning never saw (Patterson et al., 2024; Eimer et al., 2023)."
-        )
-    return (
-        "REINFORCE (Williams, 1992), the vanilla policy gradient of the course's lab (MIT 6.S191, Lab 3), trains "
-        f"each variant's policy from {seeds} on `{esc(ablation.env_id)}`: "
-        f"{solve}. A variant changes only the knobs it names (Appendix {letters['method']}).{tuned} Every number "
-        f"is over seeds: interquartile means with {percent(CONFIDENCE)} percentile bootstrap intervals (Agarwal et "
-        "al., 2021); unsolved "
-        "seeds count as the budget and make a statistic a bound (≥), never dropped. The primary claims are one family "
-        f"at a family-wise {percent(ALPHA)}: a permutation test of the IQM difference per comparison, Holm's "
-        "step-down, and "
-        "*equivalent* by two one-sided tests within the smallest effect of interest (Good, 2005; Holm, 1979; "
-        "Schuirmann, 1987); no claim is made where the seeds could not support one (Colas et al., 2019)."
+    return say(
+        "layout.method",
+        env=ablation.env_id,
+        fewest=fewest,
+        most=most,
+        rounds=bool(ablation.launch.get("rounds")),
+        threshold=ablation.threshold,
+        window=int(base.get("solve_window", 100)),
+        budget=int(base.get("max_episodes", 0)),
+        appendix=f"Appendix {letters['method']}",
+        knobs=knob_words(ablation).removeprefix("the ") if ablation.tuning else None,
+        candidates=max((len(c) for c in tuning.get("knobs", {}).values()), default=0),
+        tuning_seeds=len(tuning.get("seeds", [])),
     )
 
 
@@ -148,13 +112,15 @@ def _discussion(discussion: Discussion, where: str, launched_ms: int | None = No
         title = f"Discussion{f' — {esc(discussion.author)}' if discussion.author else ''}"
         return [Heading(title), Paragraph(missing_line(where))]
     author = esc(discussion.author or "the author (no Author line in discussion.md)")
-    note = f"*Written by {author}; printed as written.*"
-    if discussion.edited_ms is not None and launched_ms is not None and discussion.edited_ms < launched_ms:
-        note = (
-            f"*Written by {author}; printed as written. **Written about other data:** {esc(Path(where).name)} was "
-            f"last saved {_when(discussion.edited_ms)}, before the launch of {_when(launched_ms)} whose trials this "
-            "report shows; its numbers may not be these. Check them against the claims above, and save the file again.*"
-        )
+    edited = discussion.edited_ms
+    stale = edited is not None and launched_ms is not None and edited < launched_ms
+    note = say(
+        "layout.discussion_note",
+        author=author,
+        stale_file=Path(where).name if stale else None,
+        saved=_when(edited) if stale else None,
+        launched=_when(launched_ms) if stale else None,
+    )
     return [Heading(f"Discussion — {author}"), Paragraph(note), Authored(discussion.text)]
 
 
@@ -169,21 +135,9 @@ def _videos_intro(ablation: Ablation, videos: list[dict[str, str]], letter: str)
         frames = int(ablation.grid["base"].get("video_max_frames", 500))
         return [
             Heading("Videos of the trained agent", 3, True, letter),
-            Paragraph(
-                "Each video is the trained policy sampling its actions, as in training, on a seed training never "
-                f"used: up to {frames:,} frames ({frames / 30:.0f} s at 30 frames/s), for two seeds per variant chosen "
-                "as the captions say. Not greedy: a Pong agent that has not learnt much holds one button for the whole "
-                "video when it always takes its most likely action. Each trial's MLflow run also holds videos of it "
-                "playing during training (`videos/`)."
-            ),
+            Paragraph(say("layout.sampling_videos", frames=frames)),
         ]
-    return [
-        Heading("Videos of the greedy agent", 3, True, letter),
-        Paragraph(
-            "Each video is one greedy episode (the most likely action at every step) of a trained agent, for two "
-            "seeds per variant chosen as the captions say."
-        ),
-    ]
+    return [Heading("Videos of the greedy agent", 3, True, letter), Paragraph(say("layout.greedy_videos"))]
 
 
 def build_document(
@@ -214,31 +168,18 @@ def build_document(
     doc: list[Block] = [Heading(f"Ablation report: {esc(ablation.name)}", 1)]
     notes = (_generation_note(ablation), changed_file_note(ablation), earlier_note(ablation.earlier))
     doc += [Note(n) for n in notes if n]
-    doc.append(
-        Paragraph(
-            f"*Every section marked {GENERATED} is written by ablate from the tracking store; the Discussion is "
-            f"{author}'s own. The appendix holds every table and comparison.*"
-        )
-    )
+    doc.append(Paragraph(say("layout.authorship", marked=GENERATED, author=author)))
     if len(failed):
-        doc.append(
-            Note(
-                f"{len(failed):,} of {len(ablation.trials):,} trials did not finish (failed, killed or not run); "
-                f"they are left out of the statistics and listed in Appendix {letters['failed']}."
-            )
-        )
+        appendix = refs.appendix("failed")
+        doc.append(Note(say("layout.unfinished", failed=len(failed), trials=len(ablation.trials), appendix=appendix)))
     lost = missing_artifacts_note(ablation)
     doc += [Note(lost)] if lost else []
     doc += [Heading("Question", generated=True), Paragraph(question(ablation))]
     doc += [Heading("Method", generated=True), Paragraph(method_paragraph(ablation, letters))]
     doc += [Heading("Claims", generated=True), *summary(ablation, table, compare, claimed)]
     doc += paragraphs(" ".join(line for line in comparison_intro(ablation) if line))
-    doc.append(
-        Paragraph(
-            f"Every comparison on every metric, with its interval: Appendix {letters['comparisons']}; every table: "
-            f"Appendix {letters['results']}."
-        )
-    )
+    see = say("layout.see_appendix", comparisons=refs.appendix("comparisons"), results=refs.appendix("results"))
+    doc.append(Paragraph(see))
     shown = body_figures(figures)
     doc += [Heading("Figures", generated=True), *(Picture(f) for f in shown)] if shown else []
     kept = [
@@ -253,20 +194,12 @@ def build_document(
     if ablation.tuning:
         doc += [Heading("Tuning", 3, True, letters["tuning"]), *tuning_section(ablation, refs)]
     doc += [Heading("Results", 3, True, letters["results"]), *convergence_blocks(ablation, table)]
-    doc.append(
-        Paragraph(
-            "Tables as CSV: tables/convergence.csv, tables/comparisons.csv, tables/trials.csv"
-            + (", tables/tuning.csv." if ablation.tuning else ".")
-        )
-    )
-    metrics = ", ".join(_metric_name(m) for m in dict.fromkeys(compare.metric) if isinstance(m, str))
+    doc.append(Paragraph(say("layout.tables_as_csv", tuned=bool(ablation.tuning))))
+    metrics = [m for m in dict.fromkeys(compare.metric) if isinstance(m, str)]
+    intro = " ".join(comparison_intro(ablation, full=True))
     doc += [
         Heading("Every comparison", 3, True, letters["comparisons"]),
-        Paragraph(
-            " ".join(comparison_intro(ablation, full=True))
-            + f", on {metrics}. Episodes: the relative change of the IQM; returns: the difference of the IQMs; each "
-            f"with its {percent(CONFIDENCE)} interval, sized as a bound where censoring makes it one."
-        ),
+        Paragraph(say("layout.every_comparison", intro=intro, metrics=metrics)),
         *findings(ablation, table, compare),
     ]
     if tuned_dependence:
