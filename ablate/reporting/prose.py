@@ -55,6 +55,7 @@ def _environment() -> jinja2.Environment:
         fmt=fmt,
         spec=format,
         pct=_pct,
+        percent=percent,
         signed=_signed,
         signed_pct=_signed_pct,
         interval=_interval,
