@@ -7,16 +7,17 @@ import numpy as np
 import pandas as pd
 
 from ablate.config import ARCHITECTURE_KNOBS, KNOBS, SETTING_KNOBS, TUNABLE_KNOBS, freeze
-from ablate.design import ALPHA, CONFIDENCE, percent
+from ablate.design import CONFIDENCE, percent
 from ablate.measures import INITIAL_EPISODES
 from ablate.reporting.blocks import Block, Paragraph, Table
 from ablate.reporting.comparisons import LOO_MAX_SEEDS
 from ablate.reporting.figures import ablation_window
 from ablate.reporting.networks import architecture
+from ablate.reporting.prose import say
 from ablate.reporting.results import Ablation
 from ablate.reporting.settings import own_changes
 from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
-from ablate.reporting.text import NO_REFS, Refs, _interval, esc, fmt, joined, setting_value
+from ablate.reporting.text import NO_REFS, Refs, _interval, esc, fmt, setting_value
 
 
 def _setting_groups(overrides: dict) -> list[str]:
@@ -80,33 +81,13 @@ def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS)
     threshold = ablation.threshold
     seeds = ablation.grid["seeds"]
     budget = int(base.get("max_episodes", 0))
-    if threshold is not None:
-        env = (
-            f"**Environment.** `{esc(base['env_id'])}`. Solved when the mean return over "
-            f"{ablation_window(ablation)} consecutive episodes reaches {threshold:g}; a trial stops then, or at "
-            f"its budget of {budget:,} episodes."
-        )
-    else:
-        env = (
-            f"**Environment.** `{esc(base['env_id'])}`. No solve threshold: every trial runs its whole budget of "
-            f"{budget:,} episodes, and variants are compared on their returns (area under the curve, the return "
-            "after fixed budgets, episodes to reach return levels, the improvement over the untrained policy)."
-        )
-    reset = " The discounted return restarts at every point scored." if ablation.profile.resets_on_score else ""
+    window, episodes = ablation_window(ablation), _episodes(base.get("episodes_per_update", "?"))
+    gamma, resets = base.get("gamma", "?"), ablation.profile.resets_on_score
     blocks: list[Block] = [
-        Paragraph(env),
-        Paragraph(
-            "**Algorithm.** REINFORCE (Williams, 1992), the vanilla policy gradient: actions sampled from the softmax "
-            "of the policy's logits; each episode's rewards discounted (gamma "
-            f"{base.get('gamma', '?')}), the returns normalised by mean and standard deviation across the update's "
-            "batch; loss = softmax cross-entropy of the taken actions weighted by those returns; one Adam step per "
-            f"update of {_episodes(base.get('episodes_per_update', '?'))}. L2 is a loss term over weight matrices; "
-            f"dropout is active in updates and off while acting.{reset}"
-        ),
-        Paragraph(
-            f"**Seeds.** {_seeds_ran(ablation, seeds)}: each seeds torch, the action sampler and the environment."
-        ),
-        Paragraph("**Variants.** Each changes the listed knobs over the base; every other knob is the base's."),
+        Paragraph(say("sections.environment", env=base["env_id"], window=window, threshold=threshold, budget=budget)),
+        Paragraph(say("sections.algorithm", gamma=gamma, episodes=episodes, resets=resets)),
+        Paragraph(say("sections.seeds", ran=_seeds_ran(ablation, seeds))),
+        Paragraph(say("sections.variants")),
     ]
     rows = []
     for variant in ablation.grid["variants"]:
@@ -128,25 +109,11 @@ def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS)
     blocks.append(Table(pd.DataFrame([{k: base[k] for k in keep if k in base}]), "Base hyper-parameters"))
     if ablation.tuning:
         tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
-        blocks.append(
-            Paragraph(
-                f"Tuned per variant (see {refs.appendix('tuning')}): {esc(tuned_knobs)}; the base value above is "
-                "the untuned one."
-            )
-        )
+        blocks.append(Paragraph(say("sections.tuned_knobs", appendix=refs.appendix("tuning"), knobs=tuned_knobs)))
+    plain_mean = len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
+    glossary = refs.appendix("glossary")
     blocks.append(
-        Paragraph(
-            "**Statistics.** Every number is over seeds: interquartile means (IQM) and medians with "
-            f"{percent(CONFIDENCE)} percentile "
-            f"bootstrap intervals ({N_RESAMPLES:,} resamples, seeded). Unsolved seeds are censored at the budget, "
-            "never dropped: a statistic that uses one is a lower bound, marked ≥. "
-            f"{refs.appendix('glossary')} defines each term."
-            + (
-                " With fewer than 4 seeds the IQM trims nothing: it is the plain mean, and the findings call it so."
-                if len(ablation.finished) and ablation.finished.groupby("variant").size().min() < 4
-                else ""
-            )
-        )
+        Paragraph(say("sections.statistics", resamples=N_RESAMPLES, glossary=glossary, plain_mean=plain_mean))
     )
     return blocks
 
@@ -180,14 +147,7 @@ def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
             }
             for _, row in ran.iterrows()
         ]
-        parts += [
-            Paragraph(
-                "**Episodes to solve.** Unsolved seeds count as the budget (censored); a statistic that uses such a "
-                "value is a lower bound, marked ≥, and its interval's upper end is no bound at all. Steps and "
-                "seconds are over solved seeds only (– where none solved); seconds come from CPUs the trials shared."
-            ),
-            Table(pd.DataFrame(rows), "Episodes to solve"),
-        ]
+        parts += [Paragraph(say("sections.episodes_to_solve")), Table(pd.DataFrame(rows), "Episodes to solve")]
     budgets = ablation.budgets
     rows = []
     for _, row in ran.iterrows():
@@ -205,12 +165,7 @@ def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
         )
         rows.append(entry)
     parts += [
-        Paragraph(
-            f"**Returns.** IQM over seeds of the rolling mean return ({ablation_window(ablation)} episodes) of the "
-            "untrained policy, after fixed episode budgets (a seed that stopped because it solved keeps its last "
-            "value), the improvement over the untrained policy, and the area under the learning curve (AUC: the mean "
-            "rolling return over the whole budget, which rewards learning early)."
-        ),
+        Paragraph(say("sections.returns", window=ablation_window(ablation))),
         Table(pd.DataFrame(rows), "Returns"),
     ]
     if ablation.levels and len(ran):
@@ -227,13 +182,7 @@ def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
                     f"{bound}{fmt(row[f'{key}_median'])} ({int(row[f'{key}_reached'])}/{int(row.seeds_run)})"
                 )
             rows.append(entry)
-        parts += [
-            Paragraph(
-                "**Episodes to reach a return level.** The first episode at which the rolling mean return reaches the "
-                "level; a seed that never does counts as the budget (censored, ≥)."
-            ),
-            Table(pd.DataFrame(rows), "Episodes to reach a return level"),
-        ]
+        parts += [Paragraph(say("sections.levels")), Table(pd.DataFrame(rows), "Episodes to reach a return level")]
     return parts
 
 
@@ -259,33 +208,12 @@ def comparison_intro(ablation: Ablation, full: bool = False) -> list[str]:
     the sentence naming the comparisons that change more than one knob, or nothing when there are none."""
     others = [v for v in ablation.variants if v != ablation.baseline]
     several = {v: changed_settings(ablation, v) for v in others}
-    several = {v: words for v, words in several.items() if len(words) > 1}
-    confounded = (
-        [
-            f"{len(several)} comparison{'s change' if len(several) > 1 else ' changes'} more than one knob, so "
-            f"{'their differences' if len(several) > 1 else 'its difference'} cannot be put down to one of them: "
-            + "; ".join(
-                f"{esc(v)} against {esc(ablation.reference(v))} changes {joined(words)}" for v, words in several.items()
-            )
-            + "."
-        ]
-        if several
-        else []
-    )
+    several = [(v, ablation.reference(v), words) for v, words in several.items() if len(words) > 1]
+    confounded = [say("sections.confounded", comparisons=several)] if several else []
     if not full:
         return confounded
-    extends = _extends(ablation)
-    if not extends:
-        head = f"Each variant against {esc(ablation.baseline)}"
-    else:
-        pairs = ", ".join(f"{esc(v)} against {esc(ablation.reference(v))}" for v in extends)
-        head = (
-            f"Each variant against its reference: {esc(ablation.baseline)}, or, for a variant that adds one change "
-            f"to another variant's, that variant ({pairs})"
-        )
-    if confounded:
-        return [confounded[0], head]
-    return [head]
+    extends = [(v, ablation.reference(v)) for v in _extends(ablation)]
+    return [*confounded, say("sections.against", baseline=ablation.baseline, extends=extends)]
 
 
 def limitations(
@@ -309,44 +237,9 @@ def limitations(
         and bool(compare[compare.verdict.isin(list(SEPARATED))].loo_checked.astype(bool).any())
     )
     claims = compare is not None and len(compare) > 0 and bool(compare.verdict.isin(list(SEPARATED)).any())
-    if checked:
-        survive = (
-            "the exploratory comparisons in the appendix say whether each survives leaving out any one seed; the "
-            "primary claims rest on every seed, under the family's correction."
-        )
-    elif claims and seeds > LOO_MAX_SEEDS:
-        survive = (
-            f"with more than {LOO_MAX_SEEDS} seeds a side, one seed is under {percent(1 / LOO_MAX_SEEDS)} of a sample, "
-            "and the check of "
-            "leaving each out is not made: each claim rests on every seed, under the family's correction."
-        )
-    elif claims:
-        survive = (
-            "leaving out one of so few seeds leaves too few for any claim, so no claim here was checked that way: "
-            "each rests on every seed."
-        )
-    else:
-        survive = "no comparison here reached a claim, so no claim was checked by leaving out a seed."
-    out.append(
-        (
-            "seeds",
-            (
-                f"**{seeds} seed{'s' if seeds != 1 else ''} per variant.** "
-                if fewest == seeds
-                else f"**{fewest} to {seeds} seeds per variant**"
-                + (
-                    " (in rounds: until its primary comparison was decided or the cap was reached). "
-                    if ablation.launch.get("rounds")
-                    else ". "
-                )
-            )
-            + "Percentile bootstrap intervals (the exploratory ones) over few seeds are too narrow more often than "
-            f"{percent(ALPHA)} "
-            "of the time, and one unusual seed can move an IQM; "
-            + survive
-            + (" With one seed no interval can be computed and no comparison is claimed." if seeds < 2 else ""),
-        )
-    )
+    rounds = bool(ablation.launch.get("rounds"))
+    facts = dict(fewest=fewest, most=seeds, rounds=rounds, checked=checked, claims=claims, loo=LOO_MAX_SEEDS)
+    out.append(("seeds", say("sections.seeds_limitation", **facts)))
     tuned = [k for k in TUNABLE_KNOBS if k in base]
     touched = [v["name"] for v in variants if any(k in v["overrides"] for k in tuned)]
     architectures = [v for v in variants if "architecture" in _setting_groups(v["overrides"])]
@@ -355,98 +248,30 @@ def limitations(
         n_candidates = max((len(c) for c in tuning.get("knobs", {}).values()), default=0)
         n_seeds = len(tuning.get("seeds", []))
         out.append(
-            (
-                "tuning",
-                f"**Tuned over {n_candidates} candidates on {n_seeds} tuning seed{'s' if n_seeds != 1 else ''}.** "
-                "Each variant's choice is the best of a few candidates on a few seeds: a value between or beyond them "
-                f"could do better ({refs.appendix('tuning')} flags choices at the edge of the grid), and so few seeds "
-                "choose "
-                "noisily. The evaluation seeds never took part in the choice. Knobs not tuned are the base's for "
-                "every variant.",
-            )
+            ("tuning", say("sections.tuning", candidates=n_candidates, seeds=n_seeds, appendix=refs.appendix("tuning")))
         )
     elif tuned and architectures and len(touched) < len(variants):
         knobs = ", ".join(f"{k.replace('_', ' ')} {base[k]}" for k in tuned)
-        out.append(
-            (
-                "shared",
-                "**One training setting for all architectures.** Every variant"
-                + (f" except {', '.join(esc(t) for t in touched)}" if touched else "")
-                + f" trains with the base {knobs}, chosen for the baseline and not tuned per architecture: one that "
-                "would learn better at its own learning rate is judged at the baseline's.",
-            )
-        )
+        out.append(("shared", say("sections.shared", touched=touched, knobs=knobs)))
     counts = table.parameter_count.dropna()
     if len(counts) and counts.min() > 0 and counts.max() / counts.min() >= 10:
-        out.append(
-            (
-                "capacity",
-                f"**Parameter counts span {fmt(counts.min())} to {fmt(counts.max())}** "
-                f"({counts.max() / counts.min():,.0f}x): a difference between architectures mixes capacity with "
-                "optimisation (one learning rate moves small and large networks differently); "
-                f"{refs.figure('performance_vs_parameters')} plots performance against size.",
-            )
-        )
+        figure = refs.figure("performance_vs_parameters")
+        out.append(("capacity", say("sections.capacity", fewest=counts.min(), most=counts.max(), figure=figure)))
     for variant in ablation.variants:
         reference = ablation.reference(variant)
         words = changed_settings(ablation, variant)
         if variant != ablation.baseline and len(words) > 1:
-            out.append(
-                (
-                    "confound",
-                    f"**{esc(variant)} changes {len(words)} knobs at once** against {esc(reference)} "
-                    f"({joined(words)}): its difference from {esc(reference)} cannot be attributed to any one of them.",
-                )
-            )
+            out.append(("confound", say("sections.confound", variant=variant, reference=reference, words=words)))
     finished = ablation.finished
     if ablation.threshold is not None and len(finished) and (finished.solved != 1).any():
         unsolved = int((finished.solved != 1).sum())
-        out.append(
-            (
-                "censoring",
-                f"**Censoring.** {unsolved:,} of {len(finished):,} trials did not solve within the budget; for them "
-                "episodes to solve is only known to exceed it, so statistics that use them are bounds, and a longer "
-                "budget could reorder those variants.",
-            )
-        )
+        out.append(("censoring", say("sections.censoring", unsolved=unsolved, trials=len(finished))))
     if ablation.threshold is None:
-        out.append(
-            (
-                "threshold",
-                "**No solve threshold.** No trial stops early; comparisons rest on returns within this budget, and a "
-                "longer budget could reorder variants that are still improving.",
-            )
-        )
-    out.append(
-        (
-            "wallclock",
-            "**Wall-clock times come from contended CPUs.** Trials ran several at a time on "
-            f"{esc(ablation.launch.get('environment', {}).get('machine', 'the machine'))}, beside the driver and "
-            "its tracking; seconds move between runs and machines. Compare variants on episodes; read seconds as "
-            "rough cost.",
-        )
-    )
-    if videos and ablation.profile.sampling_video:
-        out.append(
-            (
-                "videos",
-                "**Videos show one stretch of play** per chosen seed (the trained policy sampling its actions, up to "
-                f"{fmt(base.get('video_max_frames', 500))} frames): a single sample, not an average.",
-            )
-        )
-    elif videos:
-        out.append(
-            (
-                "videos",
-                "**Videos show one greedy episode** per chosen seed (the most likely action at every step, after "
-                "training): a single episode, not an average, and not the sampling policy that was trained.",
-            )
-        )
-    out.append(
-        (
-            "scope",
-            f"**One environment and budget** ({esc(ablation.env_id)}, {fmt(base.get('max_episodes'))} "
-            "episodes): the findings say nothing about other tasks or longer training.",
-        )
-    )
+        out.append(("threshold", say("sections.threshold")))
+    machine = ablation.launch.get("environment", {}).get("machine", "the machine")
+    out.append(("wallclock", say("sections.wallclock", machine=machine)))
+    if videos:
+        frames = base.get("video_max_frames", 500)
+        out.append(("videos", say("sections.videos", sampling=ablation.profile.sampling_video, frames=frames)))
+    out.append(("scope", say("sections.scope", env=ablation.env_id, budget=base.get("max_episodes"))))
     return out
