@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import pandas as pd
 
-from ablate.design import CONFIDENCE, percent
 from ablate.measures import is_censored
 from ablate.reporting.blocks import Block, Items, Paragraph, Table
+from ablate.reporting.prose import say
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import SEPARATED, TOO_FEW_SEEDS
-from ablate.reporting.text import NO_REFS, Refs, _metric_name, _signed, _signed_pct, esc, fmt
+from ablate.reporting.text import NO_REFS, Refs, _signed, _signed_pct, esc, fmt
 from ablate.reporting.tuning import base_values, chosen_values, edge, knobs, metric_words, same_value, sensitivity
 
 
@@ -53,27 +53,15 @@ def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> list[Block]:
         f"{k.replace('_', ' ')}: {', '.join(_value(c) for c in values)} (base value {_value(tuning['base'].get(k))})"
         for k, values in tuning.get("knobs", {}).items()
     )
-    intro = Paragraph(
-        f"Each variant's {knob_words(ablation).removeprefix('the ')} was chosen on tuning seeds of its own, then the "
-        "variants were compared at their chosen values on evaluation seeds tuning never saw, so that no variant is "
-        "judged at a setting chosen for another, and the winner of tuning is not inflated by re-using its seeds "
-        "(Patterson et al., 2024; Eimer et al., 2023). **The summary, findings and figures use the evaluation "
-        "seeds only, at the chosen values.**"
-    )
+    intro = Paragraph(say("tuning.intro", knobs=knob_words(ablation).removeprefix("the ")))
     lines = [
-        f"**Candidates.** {esc(candidates)}.",
-        f"**Tuning seeds.** {len(seeds)} per candidate ({', '.join(map(str, seeds))}), disjoint from the "
-        f"{len(evaluation)} evaluation seeds ({', '.join(map(str, evaluation))}).",
-        f"**Metric.** {words}, {'higher' if direction == 'max' else 'lower'} is better, over each tuning trial's "
-        f"budget of {int(tune_budget):,} episodes.",
-        f"**Rule.** {esc(rule.rstrip('.'))}.",
+        say("tuning.candidates", candidates=candidates),
+        say("tuning.seeds", seeds=seeds, evaluation=evaluation),
+        say("tuning.metric", words=words, higher=direction == "max", budget=int(tune_budget)),
+        say("tuning.rule", rule=rule),
     ]
     if tune_budget < budget:
-        lines.append(
-            f"**Short horizon.** Tuning trials ran {int(tune_budget):,} episodes, the evaluation {budget:,}: a value "
-            "that learns fast early is favoured over one that learns slower but further (short-horizon bias), so a "
-            "choice can be worse at the full budget than a candidate tuning passed over."
-        )
+        lines.append(say("tuning.short_horizon", tune_budget=int(tune_budget), budget=budget))
     table = ablation.tuning_trials if ablation.tuning_trials is not None else pd.DataFrame()
     summary = sensitivity(table, tuning) if len(table) else pd.DataFrame()
     rows, kept = [], []
@@ -104,17 +92,8 @@ def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> list[Block]:
         )
     blocks: list[Block] = [intro, Items.of(lines)]
     blocks += [Table(pd.DataFrame(rows))] if rows else []
-    if kept:
-        blocks.append(
-            Paragraph(f"Kept their own value, not tuned (the variant sets the knob itself): {', '.join(kept)}.")
-        )
-    blocks.append(
-        Paragraph(
-            f"{refs.figure('tuning_sensitivity')} shows each variant's metric against every candidate; every tuning "
-            "trial is in tables/tuning.csv."
-        )
-    )
-    return blocks
+    blocks += [Paragraph(say("tuning.kept", kept=kept))] if kept else []
+    return [*blocks, Paragraph(say("tuning.sensitivity", figure=refs.figure("tuning_sensitivity")))]
 
 
 def _verdict_words(row: pd.Series) -> str:
@@ -152,29 +131,14 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
         at_choice = _pair(chosen_values(tuning, row.variant), chosen_values(tuning, reference))
         label = {"flips": "**flips**", "vanishes": "**vanishes**", "appears": "**appears**"}.get(kind, kind)
         if kind in ("flips", "vanishes", "appears"):
-            changed.append(f"{esc(row.variant)} vs {esc(reference)} on {_metric_name(row.metric)} ({kind})")
+            changed.append(say("tuning.changed", row=row, kind=kind))
         if kind == "none":
             label = "no finding at either"
-        lines.append(
-            f"{esc(row.variant)} vs {esc(reference)}, {_metric_name(row.metric)}: at the base value "
-            f"({at_base}) {_verdict_words(base)}; at the chosen values ({at_choice}) "
-            f"{_verdict_words(row)}: {label}."
-        )
-    head = (
-        f"*Exploratory* (unadjusted {percent(CONFIDENCE)} intervals, each comparison on its own; the claims are the "
-        "primary ones). "
-        "The same comparisons on the same evaluation seeds and budget, once with every variant at the shared base "
-        "value (as an untuned ablation runs them) and once at each variant's chosen value. "
-    )
-    if changed:
-        head += (
-            f"**{len(changed)} of {len(lines)} findings change with {knob_words(ablation)}:** "
-            + "; ".join(changed)
-            + "."
-        )
-    else:
-        head += unchanged_words(ablation, tuned, untuned)
-    return [Paragraph(head), Items.of(lines)]
+        words = dict(base_words=_verdict_words(base), choice_words=_verdict_words(row))
+        lines.append(say("tuning.comparison", row=row, at_base=at_base, at_choice=at_choice, label=label, **words))
+    unchanged = "" if changed else unchanged_words(ablation, tuned, untuned)
+    facts = dict(changed=changed, findings=len(lines), knobs=knob_words(ablation), unchanged=unchanged)
+    return [Paragraph(say("tuning.dependence", **facts)), Items.of(lines)]
 
 
 def _estimate(row: pd.Series) -> str:
@@ -189,28 +153,18 @@ def unchanged_words(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFra
         match = untuned[(untuned.variant == row.variant) & (untuned.metric == row.metric)] if len(untuned) else untuned
         if len(match):
             pairs.append((match.iloc[0], row))
-    words = knob_words(ablation)
-    if pairs and all(base.verdict == TOO_FEW_SEEDS and row.verdict == TOO_FEW_SEEDS for base, row in pairs):
-        text = (
-            f"No finding changes with {words}, but none could: with these seeds no comparison can reach a verdict "
-            f"at either value, so this says nothing about whether {words} matters."
-        )
+    could = not (pairs and all(base.verdict == TOO_FEW_SEEDS and row.verdict == TOO_FEW_SEEDS for base, row in pairs))
+    separated = not all(change_kind(base.verdict, row.verdict) == "none" for base, row in pairs)
+    moved, moved_from, moved_to = None, None, None
+    if not could:
         primary = pairs[0][1].metric  # the first metric compared: episodes to solve where seeds solved, else AUC
-        moved = [
-            (abs(row.point - base.point), base, row)
-            for base, row in pairs
-            if row.metric == primary and pd.notna(row.point - base.point)
-        ]
-        if moved:
-            _, base, row = max(moved, key=lambda item: item[0])
-            text += (
-                f" The estimates did move: {esc(row.variant)} vs {esc(row.reference)} on {_metric_name(row.metric)} "
-                f"went from {_estimate(base)} at the base value to {_estimate(row)} at the chosen values."
-            )
-        return text
-    if all(change_kind(base.verdict, row.verdict) == "none" for base, row in pairs):
-        return f"No finding changes with {words}: no comparison was separated at either value."
-    return f"No finding changes with {words}: every verdict is the same at the base value and at the chosen values."
+        points = [(abs(row.point - base.point), base, row) for base, row in pairs if row.metric == primary]
+        points = [item for item in points if pd.notna(item[0])]
+        if points:
+            _, base, moved = max(points, key=lambda item: item[0])
+            moved_from, moved_to = _estimate(base), _estimate(moved)
+    facts = dict(could=could, separated=separated, moved=moved, moved_from=moved_from, moved_to=moved_to)
+    return say("tuning.unchanged", knobs=knob_words(ablation), **facts)
 
 
 def _base_values(ablation: Ablation, variant: str) -> dict:
