@@ -68,14 +68,21 @@ def tuned4(tmp_path_factory):
     return folder, make_tuned_store(folder)
 
 
-def test_a_comparison_at_two_tuned_values_names_both_changes(tuned4, tmp_path):
+def test_a_comparison_at_two_tuned_values_is_the_design_not_a_second_change(tuned4, tmp_path):
+    """Each variant at its own chosen learning rate is how the comparison is made (Patterson et al., 2024), so a
+    chosen value that differs from the reference's is not a second knob the difference "cannot be put down to":
+    the report said "deep against baseline changes hidden sizes and learning rate (0.03 against 0.1)" in the
+    claims and again as a limitation. The chosen values stay where they are read: the tuning and the
+    learning-rate appendices."""
     _, uri = tuned4
     text = _report(tmp_path, "tuned", uri)
     body = _body(text)
-    assert "deep against baseline changes hidden sizes and learning rate (0.03 against 0.1)" in body
-    assert "course against baseline changes preset and learning rate (0.001 against 0.1)" in body
+    assert "compared at their chosen values on evaluation seeds tuning never saw" in body
+    assert "more than one knob" not in text and "knobs at once" not in text, text
     assert "isolates one change" not in text
-    assert "**deep changes 2 knobs at once** against baseline" in text
+    depends = text.split("Does the finding depend on the learning rate? (generated)")[1].split("\n### ")[0]
+    assert "deep vs baseline, area under the curve (AUC): at the base value (both at learning rate 0.03)" in depends
+    assert "at the chosen values (learning rate 0.03 against 0.1)" in depends
 
 
 def test_no_change_with_the_learning_rate_says_none_could_with_three_seeds(tmp_path_factory, tmp_path):
