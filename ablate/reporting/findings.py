@@ -25,7 +25,7 @@ from ablate.reporting.statistics import (
     is_censored_statistic,
     smallest_p_value,
 )
-from ablate.reporting.text import _metric_name, _pct, _signed, esc, fmt
+from ablate.reporting.text import _metric_name, _signed, esc, fmt
 
 
 def _no_claim_reason(n: int, m: int) -> str:
@@ -184,7 +184,7 @@ def _effect_words(row: pd.Series, question: Question) -> str:
     if question.relative:  # the table's change is in percent
 
         def side(x: float) -> str:
-            return f"{_pct(abs(x) / 100)} {'fewer' if x < 0 else 'more'}" if x else "0%"
+            return f"{percent(abs(x) / 100)} {'fewer' if x < 0 else 'more'}" if x else "0%"
 
         low, high = row.change_low, row.change_high
         if np.isnan(low) or np.isnan(high):
@@ -196,9 +196,9 @@ def _effect_words(row: pd.Series, question: Question) -> str:
         elif not np.isfinite(low):  # (-inf, high]: at least high fewer, or anything up to high more
             interval = f"interval: {'at least' if high <= 0 else 'at most'} {side(high)}, no lower end"
         elif high < 0:
-            interval = f"interval {_pct(-high / 100)} to {_pct(-low / 100)} fewer"
+            interval = f"interval {percent(-high / 100)} to {percent(-low / 100)} fewer"
         elif low > 0:
-            interval = f"interval {_pct(low / 100)} to {_pct(high / 100)} more"
+            interval = f"interval {percent(low / 100)} to {percent(high / 100)} more"
         else:
             interval = f"interval {side(low)} to {side(high)}"
         change = f"no change in {name}" if row.change == 0 else f"{side(row.change)} {name}"
@@ -232,7 +232,7 @@ def claim_line(row: pd.Series, primary: Question, pace: float | None = None) -> 
     effect = _effect_words(row, question)
     low, high = row.change_low, row.change_high
     reaches = not (np.isnan(low) or np.isnan(high)) and low <= 0 <= high
-    margin = _pct(question.smallest_effect) if row.verdict == EQUIVALENT else None
+    margin = percent(question.smallest_effect) if row.verdict == EQUIVALENT else None
     words = None if pd.isna(row.seeds_needed) else _seeds_needed_words(row.seeds_needed, int(row.seeds_cap))
     more = None
     if words and pace and np.isfinite(row.seeds_needed):

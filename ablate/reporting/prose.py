@@ -17,7 +17,7 @@ from jinja2.ext import Extension
 from ablate.claims.family import CENSORED_SHARE
 from ablate.design import ALPHA, CONFIDENCE, percent
 from ablate.measures import POWER
-from ablate.reporting.text import _interval, _metric_name, _pct, _signed, _signed_pct, esc, fmt, joined, setting_value
+from ablate.reporting.text import _interval, _metric_name, _signed, _signed_pct, esc, fmt, joined, setting_value
 
 _FOLD = "\x1f\n"
 """A template's line break until the paragraph is rendered: the unit separator (whitespace to Jinja's lexer, never
@@ -54,7 +54,6 @@ def _environment() -> jinja2.Environment:
         esc=esc,
         fmt=fmt,
         spec=format,
-        pct=_pct,
         percent=percent,
         signed=_signed,
         signed_pct=_signed_pct,

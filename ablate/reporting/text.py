@@ -65,10 +65,6 @@ def joined(words: list[str]) -> str:
     return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
 
 
-def _pct(x: float) -> str:
-    return f"{int(round(100 * x))}%"
-
-
 def _signed(x: float, digits: int = 1) -> str:
     return "–" if pd.isna(x) else f"{x:+,.{digits}f}"
 
