@@ -11,6 +11,7 @@ from pathlib import Path
 from ablate.launch.secrets import Shown, shown
 from ablate.reporting.blocks import Block, Items, Paragraph
 from ablate.reporting.experiment_file import on_disk
+from ablate.reporting.prose import say
 from ablate.reporting.results import Ablation
 from ablate.reporting.text import esc
 
@@ -82,15 +83,7 @@ def _reproducibility(ablation: Ablation, command: Shown) -> list[Block]:
         f"<code>{esc(tags.get('ablate.generation', ''))}</code>); this report is attached to it as artifacts.",
         f"Report written {time.strftime('%Y-%m-%d %H:%M')}, from the tracking store only: <code>{esc(command)}</code>",
     ]
-    meaning = (
-        '**What "the same results" means here.** A trial is deterministic given its config and seed on one '
-        "machine: the test suite runs a trial twice and checks identical returns. Nothing else was verified. Float "
-        "kernels differ between CPU models and torch CPU capabilities, so on a machine other than the one above "
-        f"(CPU model {esc(cpu)}, capability {esc(capability)}, the package versions above) a seed can follow "
-        "another trajectory and the numbers here will differ; the leave-one-seed-out check in the findings shows how "
-        "much each conclusion depends on any one seed."
-    )
-    return [Items.of(lines), Paragraph(meaning)]
+    return [Items.of(lines), Paragraph(say("provenance.same_results", cpu=cpu, capability=capability))]
 
 
 def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
@@ -114,16 +107,7 @@ def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
 def earlier_note(earlier: Mapping[str, int]) -> str:
     """The report's one line on ``Ablation.earlier`` (per variant, its trials under keys the plan no longer holds,
     left out of every number); ``""`` where there are none."""
-    if not earlier:
-        return ""
-    parts = [f"{n} earlier trial{'s' if n != 1 else ''} of `{esc(variant)}`" for variant, n in earlier.items()]
-    listed = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
-    many = sum(earlier.values()) != 1
-    return (
-        f"{listed} (an earlier version of {'their' if len(parts) > 1 else 'its'} settings or code) "
-        f"{'are' if many else 'is'} in the store and not counted: every number here is from the trials of the "
-        "current settings and code."
-    )
+    return say("provenance.earlier", earlier=earlier) if earlier else ""
 
 
 def _generation_note(ablation: Ablation) -> str:
@@ -134,14 +118,8 @@ def _generation_note(ablation: Ablation) -> str:
     done = len(ablation.finished)
     if done >= total:
         return ""
-    others = [g for g in generations if g["generation"] != current and g["finished"] > done]
-    note = f"This report covers generation {esc(current)}, where {done:,} of {total:,} trials finished."
-    if others:
-        note += (
-            f" Generation {esc(others[0]['generation'])} has {others[0]['finished']} finished trials: "
-            f"<code>ablate report {esc(ablation.name)} --generation {esc(others[0]['generation'])}</code> reports it."
-        )
-    return note
+    other = next((g for g in generations if g["generation"] != current and g["finished"] > done), None)
+    return say("provenance.generation", current=current, done=done, total=total, other=other, name=ablation.name)
 
 
 def _listed(keys: list[str], most: int = 3) -> str:
@@ -151,17 +129,7 @@ def _listed(keys: list[str], most: int = 3) -> str:
 def missing_artifacts_note(ablation: Ablation) -> str:
     """The report's note on finished trials whose files the store could not give; ``""`` when none."""
     keys = [key for _, key in ablation.missing]
-    if not keys:
-        return ""
-    one = len(keys) == 1
-    few = f"{len(keys)} finished trial{'' if one else 's'}"
-    return (
-        f"The episodes.csv of {few} could not be read from the store ({esc(_listed(keys))}): "
-        f"{'its' if one else 'their'} artifact folder was moved or removed. {'Its row' if one else 'Their rows'} "
-        f"in the tables {'holds' if one else 'hold'} the tracked metrics and params (solved, "
-        "episodes to solve, final rolling mean); the measures read from that file (AUC, the untrained return, "
-        "the returns at fixed budgets), learning curves and videos are left out."
-    )
+    return say("provenance.missing_artifacts", count=len(keys), listed=_listed(keys)) if keys else ""
 
 
 def missing_artifacts_line(ablation: Ablation, shown_uri: str) -> str:
