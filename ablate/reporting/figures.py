@@ -23,6 +23,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ablate.design import CONFIDENCE, percent  # noqa: E402
+from ablate.reporting.prose import say  # noqa: E402
 from ablate.reporting.reader import RunReader  # noqa: E402
 from ablate.reporting.results import Ablation  # noqa: E402
 from ablate.reporting.statistics import N_RESAMPLES, curve_band  # noqa: E402
@@ -84,11 +85,6 @@ def _colour(ablation: Ablation, variant: str):
     return COLOURS[others.index(variant) % len(COLOURS)]
 
 
-def _reference(ablation: Ablation) -> str:
-    name = esc(ablation.baseline)
-    return "the baseline" if name == "baseline" else f"the baseline variant, {name}"
-
-
 def episode_grid(ablation: Ablation) -> np.ndarray:
     """The episodes the learning curves are drawn at: ~200 over the budget, the report's resolution."""
     budget = int(ablation.finished.budget.max())
@@ -102,16 +98,6 @@ def variant_band(ablation: Ablation, variant: str) -> tuple[np.ndarray, np.ndarr
         curves = ablation.curves[ablation.curves.variant == variant]
         ablation.bands[variant] = curve_band(curves, "episode", episode_grid(ablation)) if len(curves) else None
     return ablation.bands[variant]
-
-
-def _band_text(ablation: Ablation) -> str:
-    seeds = len(ablation.grid["seeds"])
-    return (
-        f"Lines: interquartile mean (IQM) across {seeds} seed{'s' if seeds != 1 else ''} of the rolling mean "
-        f"return over {ablation_window(ablation)} episodes; bands: {percent(CONFIDENCE)} percentile bootstrap interval "
-        "of that IQM "
-        f"({N_RESAMPLES // 4} resamples of the seeds, at each point)" + (" (one seed: no band)." if seeds < 2 else ".")
-    )
 
 
 def ablation_window(ablation: Ablation) -> int:
@@ -134,15 +120,10 @@ def figure_overview(ablation: Ablation, folder: Path) -> Figure:
     ax.set_ylabel(f"rolling mean return ({ablation_window(ablation)} episodes), IQM over seeds")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    dashed = f" Dashed: the solve threshold ({ablation.threshold:g})." if ablation.threshold is not None else ""
+    facts = {"baseline": ablation.baseline, "window": ablation_window(ablation), "threshold": ablation.threshold}
 
     def caption(refs: Refs) -> str:
-        return (
-            f"Learning curves of every variant against episodes; thick grey: {_reference(ablation)}. "
-            f"Lines: IQM across seeds of the rolling mean return over {ablation_window(ablation)} episodes; no bands "
-            f"here, so the lines stay readable ({refs.figure('learning_curves_by_variant')} shows each variant with "
-            f"its band).{dashed}"
-        )
+        return say("figures.overview", figure=refs.figure("learning_curves_by_variant"), **facts)
 
     return Figure(_save(fig, folder, "learning_curves_episodes"), caption, "Learning curves of every variant")
 
@@ -184,13 +165,9 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     for ax in axes[:, 0]:
         ax.set_ylabel("rolling mean return")
     extends = [v for v in others if ablation.reference(v) != ablation.baseline]
-    against = f"{_reference(ablation)} (grey)"
-    if extends:
-        against = f"its reference (grey): {_reference(ablation)}, or the variant whose change it extends"
-    caption = (
-        f"Each variant (colour) against {against}, one panel per variant, shared axes. {_band_text(ablation)} A "
-        "seed that stopped because it solved keeps its last value."
-    )
+    seeds, window = len(ablation.grid["seeds"]), ablation_window(ablation)
+    facts = {"baseline": ablation.baseline, "seeds": seeds, "window": window, "resamples": N_RESAMPLES // 4}
+    caption = say("figures.by_variant", extends=bool(extends), **facts)
     title = "Each variant against its reference" if extends else "Each variant against the baseline"
     return Figure(_save(fig, folder, "learning_curves_by_variant"), caption, title)
 
@@ -326,15 +303,7 @@ def figure_improvement(ablation: Ablation, compare: pd.DataFrame, folder: Path) 
     against = "its reference" if varied else ablation.baseline
     ax.set_xlabel(f"P(a seed of the variant solves in fewer episodes than a seed of {against})")
     ax.grid(axis="x", alpha=0.3)
-    other = "its reference (Findings)" if varied else "the baseline"
-    caption = (
-        f"Probability of improvement over {esc(against)}: the chance that a random seed of the variant "
-        f"needs fewer episodes to solve than a random seed of {other} (ties, such as two unsolved seeds, count one "
-        f"half). Dots: the estimate over all seed pairs; bars: {percent(CONFIDENCE)} percentile bootstrap interval, "
-        "or, where every "
-        "pair is ordered the same way, the exact bound for that many seeds (see the glossary). Dashed: 0.5, no "
-        "difference."
-    )
+    caption = say("figures.improvement", against=against, varied=varied)
     return Figure(_save(fig, folder, "probability_of_improvement"), caption, "Probability of improvement")
 
 
@@ -355,14 +324,7 @@ def figure_parameters(ablation: Ablation, table: pd.DataFrame, folder: Path) -> 
     ax.set_xlabel("trainable parameters (log scale)")
     ax.set_ylabel("area under the learning curve (IQM over seeds)")
     ax.grid(alpha=0.3)
-    caption = (
-        "Performance against model size: the area under the learning curve (the mean rolling return over the "
-        "whole episode budget; higher is better and rewards learning early) of each variant, IQM over seeds, "
-        f"with its {percent(CONFIDENCE)} percentile bootstrap interval, against the policy's number of trainable "
-        "parameters (log "
-        "axis). Variants with the same count differ in a setting other than size (dropout, L2, the training "
-        "setting)."
-    )
+    caption = say("figures.parameters")
     return Figure(_save(fig, folder, "performance_vs_parameters"), caption, "Performance against parameter count")
 
 
