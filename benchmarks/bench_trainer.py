@@ -98,6 +98,7 @@ def _network_costs(configs: list) -> dict[str, float]:
     steps in a smaller population, and one whose episodes differ more in length waits longer for its batch's
     last episode; these two figures do not. ``{}`` before the stacked trainer (``agent.stacking``)."""
     import importlib.util
+    import inspect
 
     import numpy as np
     import torch
@@ -109,7 +110,11 @@ def _network_costs(configs: list) -> dict[str, float]:
     from ablate.agent.reinforce import choose_action
     from ablate.envs import describe
 
-    population = Population(configs, describe(configs[0]), torch.device("cpu"), [None] * len(configs))
+    where = (torch.device("cpu"), [None] * len(configs))
+    if "env" in inspect.signature(Population).parameters:  # since 686f41f the trainer hands the Described down
+        population = Population(configs, describe(configs[0]), *where)
+    else:
+        population = Population(configs, *where)
     try:
         for position in range(len(configs)):
             population.start(position)
