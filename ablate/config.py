@@ -255,10 +255,6 @@ class TrialConfig:
         return profile_of(self).checkpoint_every
 
     @property
-    def vector_envs(self) -> int:
-        return self.num_envs or self.episodes_per_update
-
-    @property
     def reset_on_score(self) -> bool:
         """The return restarts at every point scored (the profile's return rule: Pong's)."""
         return profile_of(self).resets_on_score

@@ -33,11 +33,6 @@ def can_claim(n: int, m: int) -> bool:
     return min(n, m) >= 2 and smallest_p_value(n, m) <= 1 - CONFIDENCE
 
 
-def smallest_seed_count() -> int:
-    """The fewest seeds per variant (equal on both sides) with which a comparison can reach a claim."""
-    return next(n for n in range(2, MAX_SEEDS_ASKED) if can_claim(n, n))
-
-
 def can_claim_in_family(n: int, comparisons: int, alpha: float = 1 - CONFIDENCE) -> bool:
     """Could any outcome of ``n`` seeds per variant reach a primary claim, with ``comparisons`` in the family
     (Holm's first step tests at ``alpha / comparisons``)?"""

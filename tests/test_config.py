@@ -147,7 +147,6 @@ def test_pong_knobs_gpus_and_checkpoint_defaults(tmp_path):
     config = experiment.variants[0].config
     assert (config.action_set, config.max_episode_steps, config.repeat_action_probability) == ("move", 50, 0.0)
     assert config.checkpoint_interval == 50 and DEFAULT.checkpoint_interval == 0  # Pong on, CartPole off
-    assert config.vector_envs == config.episodes_per_update
 
 
 @pytest.mark.parametrize(("text", "message"), BAD_FILES)

@@ -40,8 +40,9 @@ class Comparison:
     low: float
     high: float
     verdict: str
-    """The exploratory rule's word (``statistics.EXPLORATORY``): ``exploratory: better``, ``exploratory: worse``,
-    ``exploratory: not separated`` or ``exploratory: too few seeds``; never a claim (``claims_table`` has those)."""
+    """The exploratory rule's word (``statistics.EXPLORATORY_BETTER`` and the three beside it): ``exploratory:
+    better``, ``exploratory: worse``, ``exploratory: not separated`` or ``exploratory: too few seeds``; never a claim
+    (``claims_table`` has those)."""
     bound: str
     """``""`` (an estimate), ``"at least"`` (censoring makes the point a bound on the size of the
     difference) or ``"censored"`` (both sides censored: episodes cannot separate them)."""
