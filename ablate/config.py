@@ -254,11 +254,6 @@ class TrialConfig:
             return self.checkpoint_every
         return profile_of(self).checkpoint_every
 
-    @property
-    def reset_on_score(self) -> bool:
-        """The return restarts at every point scored (the profile's return rule: Pong's)."""
-        return profile_of(self).resets_on_score
-
 
 SCHEMA: dict[str, Knob] = schema.fields_of(TrialConfig)
 """Every field of a trial's config by column (``model.hidden_sizes``), declared once above: the source of every

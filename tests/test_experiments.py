@@ -3,6 +3,7 @@ its tuning stage included, through real Ray and a real MLflow store (the report 
 
 from pathlib import Path
 
+from ablate.env_spec import profile_of
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand
 from ablate.reporting.reader import RunReader
@@ -12,7 +13,7 @@ EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 
 def test_pong_ablation_is_the_cnn_against_the_mlp_with_five_seeds_and_long_trials():
     experiment = load_experiment(EXPERIMENTS / "pong.toml")
-    assert len(experiment.seeds) >= 5 and experiment.base.gamma == 0.99 and experiment.base.reset_on_score
+    assert len(experiment.seeds) >= 5 and experiment.base.gamma == 0.99 and profile_of(experiment.base).resets_on_score
     variants = {v.name: v.config for v in experiment.variants}
     assert {name: config.model.architecture for name, config in variants.items()} == {"cnn": "cnn", "mlp": "mlp"}
     assert all(config.max_episodes >= 300 for config in variants.values())
@@ -177,7 +178,7 @@ def test_breakout_with_the_pong_profile_trains_on_pongs_frames_and_names_its_two
         '[[variants]]\nname = "cnn"\narchitecture = "cnn"\n[[variants]]\nname = "mlp"\n'
     )
     experiment = load_experiment(path)
-    assert experiment.base.reset_on_score and experiment.base.checkpoint_interval == 50
+    assert profile_of(experiment.base).resets_on_score and experiment.base.checkpoint_interval == 50
     outcome = run_quiet(experiment, tmp_path, tracking_uri)
     assert outcome.exit_code == 0 and len(outcome.finished) == 2 and not outcome.failed
     for run in RunReader(tracking_uri, "breakout-pong").trial_runs():
