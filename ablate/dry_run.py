@@ -45,6 +45,13 @@ def episode_seconds(env_id: str, env_profile: str = "") -> float | None:
     return profile_named(env_id, env_profile).episode_seconds.get(env_id)
 
 
+def _rate(env_id: str, env_profile: str) -> tuple[float, bool]:
+    """The seconds per episode a never-run trial of ``env_id`` is costed at, and whether they were measured for it
+    (else ``FALLBACK_ENV``'s)."""
+    measured = episode_seconds(env_id, env_profile)
+    return (measured, True) if measured else (episode_seconds(FALLBACK_ENV), False)
+
+
 def time_line(
     experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, report: bool = True, fresh: bool = False
 ) -> str:
@@ -143,20 +150,17 @@ def costed(trials: list[GridTrial], earlier: dict[str, float]) -> dict[str, floa
 def guessed_s(trial: GridTrial) -> float:
     """Seconds a trial no launch has run yet costs: its budget at its env's seconds per episode, ``FALLBACK_ENV``'s
     where its profile never measured its env."""
-    config = trial.config
-    rate = episode_seconds(config.env_id, config.env_profile) or episode_seconds(FALLBACK_ENV)
-    return rate * config.max_episodes
+    return _rate(trial.config.env_id, trial.config.env_profile)[0] * trial.config.max_episodes
 
 
 def guess_words(trials: list[GridTrial]) -> str:
     """How ``guessed_s`` costed ``trials``: each env's seconds per episode, ``FALLBACK_ENV``'s for one not measured."""
     envs = sorted({(t.config.env_id, t.config.env_profile) for t in trials})
-    rates = ", ".join(
-        f"{episode_seconds(e, p) or episode_seconds(FALLBACK_ENV):g} s per {e} episode"
-        + ("" if episode_seconds(e, p) else f" ({FALLBACK_ENV}'s: never measured)")
-        for e, p in envs
+    words = ", ".join(
+        f"{rate:g} s per {e} episode" + ("" if measured else f" ({FALLBACK_ENV}'s: never measured)")
+        for e, (rate, measured) in ((e, _rate(e, p)) for e, p in envs)
     )
-    return f"no earlier run in the store: a guess at {rates} of budget, measured once on 2 cores"
+    return f"no earlier run in the store: a guess at {words} of budget, measured once on 2 cores"
 
 
 def from_store(experiment: Experiment, tracking_uri: str | None, read: Callable[[Any], T], nothing: T) -> T:
