@@ -135,7 +135,7 @@ class Store:
                 self.client = MlflowClient(self.uri)
                 existing = self.client.get_experiment_by_name(self.experiment_name)
         except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
-            raise TrackingError(self._store_problem(error)) from None
+            raise TrackingError(store_problem(self.uri, error)) from None
         if existing is not None and existing.lifecycle_stage == "deleted":
             raise TrackingError(
                 f"MLflow experiment {self.experiment_name!r} (id {existing.experiment_id}) at {self.shown_uri} "
@@ -147,9 +147,6 @@ class Store:
             self._experiment_id = existing.experiment_id
 
     # --- experiment -------------------------------------------------------------------------------
-    def _store_problem(self, error: BaseException) -> str:
-        return store_problem(self.uri, error)
-
     def lock_path(self) -> Path:
         """This machine's launch lock of this experiment on this store (``store.lock_file``)."""
         return lock_file(self.uri, self.experiment_name)

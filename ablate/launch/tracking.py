@@ -1,6 +1,4 @@
-"""The driver's side of MLflow: write launches and trials as runs in a store ``mlflow_store.Store`` opened
-(``ablate.reporting.reader`` reads them back for the report, ``launch.variant_runs`` writes the report's variant runs;
-they and ``mlflow_store`` are the only modules that import MLflow).
+"""The driver's side of MLflow: write launches and trials as runs in a store ``mlflow_store.Store`` opened.
 
 One writer: the driver process owns every write (trials run elsewhere and send their metrics through
 the scheduler), so an SQLite store never sees two writers; a tracking server works the same way.
@@ -48,7 +46,6 @@ POINT_METRICS = {
 }
 CHECKPOINT_ARTIFACT = "checkpoint.pt"
 """A trial's latest checkpoint blob, kept on its run so a killed launch's next launch resumes from it."""
-_BATCH = 1000  # MLflow's limit of metrics per log_batch call
 FLUSH_EVERY_S = 10.0
 """Seconds curve points wait to be written together: every open trial's in one write (one transaction on an SQL
 store, ``patches.mlflow_insert_metrics``; a ``log_batch`` per run on a server), as one MLflow call costs ~4 ms;
@@ -99,23 +96,18 @@ class Tracker(Store):
         launch, of any generation, finished it; the newest such run counts. A trial key fixes everything that
         shapes the trial, its seed included, so an earlier run of it is the best guess of its cost and of where
         it stops: the time-left estimate starts from these."""
-        runs = self._newest_finished(keys)
-        costs = {key: max(r.info.end_time - r.info.start_time, 0) / 1000 for key, r in runs.items()}
-        return costs, {
-            key: int(r.data.metrics["episodes_run"]) for key, r in runs.items() if "episodes_run" in r.data.metrics
-        }
-
-    def _newest_finished(self, keys: Iterable[str]) -> dict[str, Any]:
-        wanted = set(keys)
+        wanted, runs = set(keys), {}
         if not wanted:
-            return {}
+            return {}, {}
         query = f"tags.`{TAG_ROLE}` = 'trial' and attributes.status = 'FINISHED'"
-        runs: dict[str, Any] = {}
         for r in self.all_runs(query, order_by="attributes.start_time DESC"):
             key = r.data.tags.get(TAG_KEY, "")
             if key in wanted and key not in runs and r.info.end_time and r.info.start_time:
                 runs[key] = r
-        return runs
+        costs = {key: max(r.info.end_time - r.info.start_time, 0) / 1000 for key, r in runs.items()}
+        return costs, {
+            key: int(r.data.metrics["episodes_run"]) for key, r in runs.items() if "episodes_run" in r.data.metrics
+        }
 
     def start_launch(self, generation: str, name: str, tags: dict[str, str], files: dict[str, str]) -> str:
         """Open the parent run of one launch; ``files`` are small text artifacts (the experiment, the grid).
@@ -141,7 +133,7 @@ class Tracker(Store):
 
     def finish_launch(self, run_id: str, status: str, summary: dict[str, float], note: str = "") -> None:
         """Close the launch's run; ``note`` (the run's description in MLflow) says what happened."""
-        self._log_metrics(run_id, ((k, v, 0) for k, v in summary.items()))
+        self._log_metrics(run_id, summary)
         note = redact(note)
         if note:
             self.client.set_tag(run_id, TAG_NOTE, note[:5000])
@@ -152,7 +144,7 @@ class Tracker(Store):
     def record_report_time(self, run_id: str, seconds: float) -> None:
         """The seconds ``ablate run`` spent writing the report after launch ``run_id``: what the next ``--dry-run``
         says a report costs (``launch_times``)."""
-        self._log_metrics(run_id, [(REPORT_METRIC, round(seconds, 3), 0)])
+        self._log_metrics(run_id, {REPORT_METRIC: round(seconds, 3)})
 
     def launch_times(self) -> tuple[float | None, float | None]:
         """(start, report) seconds the newest launch took: until its first trial started, and writing its report
@@ -202,8 +194,7 @@ class Tracker(Store):
 
     def log_points(self, key: str, points: Sequence[Any]) -> None:
         """``POINT_METRICS`` of each curve point (``ablate.launch.curve.CurvePoint``) of an open trial; every open
-        trial's written together ``FLUSH_EVERY_S`` at a time (and each trial's when it ends), each point timestamped
-        at its own moment in the trial (run start + the point's ``wall_s``) so MLflow's time axes show the curve."""
+        trial's written together ``FLUSH_EVERY_S`` at a time (and each trial's when it ends)."""
         self._points[key][0].extend(points)
         if time.monotonic() - self._flushed_at >= FLUSH_EVERY_S:
             self._flush_points(list(self.open_runs))
@@ -231,9 +222,8 @@ class Tracker(Store):
         if self._sql is not None:
             self.client.retried(mlflow_insert_metrics, self._sql, batches)
             return
-        for run_id, metrics in batches.items():
-            for i in range(0, len(metrics), _BATCH):
-                self.client.log_batch(run_id, metrics=metrics[i : i + _BATCH])
+        for run_id, metrics in batches.items():  # MLflow splits a batch into the calls its store takes
+            self.client.log_batch(run_id, metrics=metrics)
 
     def log_checkpoint(self, key: str, blob: bytes) -> None:
         """Keep ``blob`` as the open trial's ``checkpoint.pt`` (replacing the previous one): whatever ends the
@@ -296,12 +286,9 @@ class Tracker(Store):
         self._points.pop(key, None)
         return run_id
 
-    def _forget_artifact_uri(self, run_id: str | None) -> None:
-        self._artifact_uris.pop(run_id, None)
-
     def fail_trial(self, key: str, message: str) -> None:
         run_id = self._close(key)
-        self._forget_artifact_uri(run_id)
+        self._artifact_uris.pop(run_id, None)
         message = redact(message)
         self.client.set_tag(run_id, TAG_ERROR, message[:5000])
         self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
@@ -312,7 +299,7 @@ class Tracker(Store):
         no metric is counted twice; the restart opens a new run (``ablate.attempt`` counts them)."""
         run_id = self.open_runs.pop(key, None)
         self._points.pop(key, None)
-        self._forget_artifact_uri(run_id)
+        self._artifact_uris.pop(run_id, None)
         if run_id is not None:
             self.client.set_tag(run_id, TAG_ERROR, f"process died, retried: {reason}"[:5000])
             self.client.set_terminated(run_id, "KILLED")
@@ -342,16 +329,9 @@ class Tracker(Store):
             self.client.set_tag(run_id, TAG_NOTE, f"Killed: {reason[:5000]}")
             self.client.set_terminated(run_id, "KILLED")
 
-    def _log_metrics(self, run_id: str, values: Iterable[tuple]) -> None:
-        """``(key, value, step)``, stamped now, or ``(key, value, step, timestamp_ms)``."""
+    def _log_metrics(self, run_id: str, values: dict[str, float]) -> None:
+        """Single values on a run, at step 0, stamped now."""
         from mlflow.entities import Metric
 
         now = int(time.time() * 1000)
-        batch: list[Any] = []
-        for key, value, step, *at_ms in values:
-            batch.append(Metric(key, float(value), at_ms[0] if at_ms else now, int(step)))
-            if len(batch) == _BATCH:
-                self.client.log_batch(run_id, metrics=batch)
-                batch = []
-        if batch:
-            self.client.log_batch(run_id, metrics=batch)
+        self.client.log_batch(run_id, metrics=[Metric(key, float(value), now, 0) for key, value in values.items()])

@@ -31,7 +31,6 @@ ROLE = ROLE_VARIANT
 """``ablate.role`` of a variant run (a launch's is ``launch``, a trial's ``trial``)."""
 TAG_VERDICT = "ablate.verdict"
 """The verdict of the variant's primary claim against its reference; absent where it has none (the baseline)."""
-_METRICS_PER_CALL, _PARAMS_PER_CALL = 1000, 100  # MLflow's log_batch limits
 
 
 @dataclass(frozen=True)
@@ -81,17 +80,14 @@ def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantReco
 
 
 def _fill(store: Store, run_id: str, record: VariantRecord) -> None:
-    """Log ``record``'s params and metrics on its new run, in batches MLflow takes, and close it."""
+    """Log ``record``'s params, metrics and files on its new run, and close it."""
     from mlflow.entities import Metric, Param
 
     now = int(time.time() * 1000)
     metrics = [Metric(k, float(v), now, 0) for k, v in record.metrics.items()]
     metrics += [Metric(k, float(v), now, int(step)) for k, points in record.series.items() for step, v in points]
     params = [Param(k, param_text(v)) for k, v in record.params.items()]
-    for start in range(0, len(params), _PARAMS_PER_CALL):
-        store.client.log_batch(run_id, params=params[start : start + _PARAMS_PER_CALL])
-    for start in range(0, len(metrics), _METRICS_PER_CALL):
-        store.client.log_batch(run_id, metrics=metrics[start : start + _METRICS_PER_CALL])
+    store.client.log_batch(run_id, metrics=metrics, params=params)  # MLflow splits it into calls its store takes
     if record.artifacts:
         with tempfile.TemporaryDirectory(prefix="ablate-variant-") as folder:
             for name, content in record.artifacts.items():
