@@ -26,6 +26,7 @@ from typing import Any
 from filelock import FileLock, Timeout
 
 from ablate.launch.secrets import shown
+from ablate.launch.store import first_line
 
 
 class LaunchLocked(RuntimeError):
@@ -104,11 +105,6 @@ def lapsed(info: dict[str, str], now: float | None = None) -> str:
     return ""
 
 
-def _first_line(error: BaseException) -> str:
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    return shown(lines[0] if lines else type(error).__name__)[:300]
-
-
 class StoreLease:
     """The launch lease of one experiment, kept in the store itself (an MLflow experiment of its own; see
     ``LEASE_PREFIX``), so that drivers on any machines, and any spelling of the store's URI, exclude each other.
@@ -140,7 +136,7 @@ class StoreLease:
                 break
             except Exception as error:  # noqa: BLE001 - MlflowException: told by its error code
                 if "RESOURCE_ALREADY_EXISTS" not in f"{getattr(error, 'error_code', '')} {error}":
-                    raise LaunchLocked(f"cannot take the launch lease {self.name!r}: {_first_line(error)}") from None
+                    raise LaunchLocked(f"cannot take the launch lease {self.name!r}: {first_line(error)}") from None
             holder = self.client.get_experiment_by_name(self.name)
             if holder is None:
                 continue  # moved aside between the two calls: try again
@@ -175,7 +171,7 @@ class StoreLease:
             if current is not None and current.experiment_id == experiment_id:
                 raise LaunchLocked(
                     f"the launch lease {self.name!r} has lapsed, but this login may not clear it "
-                    f"({_first_line(error)}); ask the server's admin for EDIT on that experiment, or to delete it"
+                    f"({first_line(error)}); ask the server's admin for EDIT on that experiment, or to delete it"
                 ) from None
             return
         with contextlib.suppress(Exception):  # renamed: its name is free; deleting it only tidies the UI

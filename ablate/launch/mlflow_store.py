@@ -249,7 +249,7 @@ class Store:
             return self.client.download_artifacts(run_id, path, target)
         except Exception as error:  # noqa: BLE001 - MLflow's, the artifact store's and the file system's alike
             problem = f"MLflow store {self.shown_uri}: artifact {path!r} of run {run_id} cannot be read"
-            problem += f" ({redact(first_line(error))}); was its artifact folder moved or removed?"
+            problem += f" ({first_line(error)}); was its artifact folder moved or removed?"
         raise TrackingError(problem)
 
     def read_artifact(self, run: TrialRun, path: str, read: Callable[[Path], T]) -> T:

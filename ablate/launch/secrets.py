@@ -116,6 +116,7 @@ def shown_uri(uri: str) -> str:
 def _read_cached(path: str) -> str:
     """The text of ``path`` ("" when it cannot be read), read again only when its mtime changes: ``shown`` runs
     on every line the CLI prints."""
+    path = os.path.expanduser(path)
     with contextlib.suppress(OSError):
         return _read(path, os.stat(path).st_mtime)
     return ""
@@ -126,21 +127,22 @@ def _read(path: str, mtime: float) -> str:
     return Path(path).read_text(errors="replace")
 
 
+def mlflow_credential(name: str) -> str:
+    """``name`` in the ``[mlflow]`` section of ``~/.mlflow/credentials`` (``MLFLOW_CREDENTIALS_PATH``); "" if none."""
+    parser = configparser.ConfigParser()
+    with contextlib.suppress(configparser.Error):
+        parser.read_string(_read_cached(os.environ.get("MLFLOW_CREDENTIALS_PATH", "~/.mlflow/credentials")))
+    return parser.get("mlflow", name, fallback="")
+
+
 def secret_values() -> list[str]:
     """The secrets this process holds, longest first (so no part of one is left behind another's mask)."""
     values = {os.environ.get(name, "") for name in SECRET_ENV} | _remembered
     token_path = os.environ.get("RAY_AUTH_TOKEN_PATH")
     if token_path:
         values.add(_read_cached(token_path).strip())
-    credentials = Path(os.environ.get("MLFLOW_CREDENTIALS_PATH", Path.home() / ".mlflow" / "credentials"))
-    text = _read_cached(str(credentials))
-    if text:
-        parser = configparser.ConfigParser()
-        with contextlib.suppress(configparser.Error):
-            parser.read_string(text)
-            values.add(parser.get("mlflow", "mlflow_tracking_password", fallback=""))
-    for name in ("MLFLOW_TRACKING_URI",):
-        values.add(split_userinfo(os.environ.get(name, ""))[2] or "")
+    values.add(mlflow_credential("mlflow_tracking_password"))
+    values.add(split_userinfo(os.environ.get("MLFLOW_TRACKING_URI", ""))[2] or "")
     return sorted((v for v in values if len(v) >= MIN_SECRET), key=len, reverse=True)
 
 

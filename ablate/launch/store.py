@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from urllib.parse import urlparse
 
-from ablate.launch.secrets import encoded_uri, shown, split_userinfo, without_userinfo
+from ablate.launch.secrets import encoded_uri, mlflow_credential, shown, split_userinfo, without_userinfo
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 SCHEMES = ("sqlite", "http", "https", "file", "postgresql", "mysql", "mssql", "databricks")
@@ -56,16 +56,7 @@ def sqlite_path(uri: str) -> Path | None:
 
 def login_user() -> str | None:
     """The MLflow user this process logs in as: ``MLFLOW_TRACKING_USERNAME``, else ``~/.mlflow/credentials``."""
-    user = os.environ.get("MLFLOW_TRACKING_USERNAME")
-    if user:
-        return user
-    import configparser
-
-    parser = configparser.ConfigParser()
-    path = os.environ.get("MLFLOW_CREDENTIALS_PATH", Path.home() / ".mlflow" / "credentials")
-    with contextlib.suppress(configparser.Error, OSError):
-        parser.read(path)
-    return parser.get("mlflow", "mlflow_tracking_username", fallback=None) or None
+    return os.environ.get("MLFLOW_TRACKING_USERNAME") or mlflow_credential("mlflow_tracking_username") or None
 
 
 _HOST_PORT = re.compile(r"^[A-Za-z0-9.-]+:\d+(/.*)?$")
@@ -284,9 +275,9 @@ def fail_fast_http() -> Iterator[None]:
 
 
 def first_line(error: BaseException) -> str:
+    """The error's first line as messages show it: masked (``secrets.shown``), then cut to 300 characters."""
     lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    text = lines[0] if lines else type(error).__name__
-    return text[:300]
+    return shown(lines[0] if lines else type(error).__name__)[:300]
 
 
 def is_database(uri: str) -> bool:
@@ -325,7 +316,7 @@ def probe_database(uri: str) -> None:
 
 def _database_problem(where: str, error: BaseException, url) -> str:
     full = str(error).lower()
-    text = shown(first_line(error))
+    text = first_line(error)
     if "password" in full or "access denied" in full or "authentication" in full or "login failed" in full:
         where = "PGPASSWORD, a ~/.pgpass line or PGPASSFILE" if url.get_backend_name() == "postgresql" else "MYSQL_PWD"
         return (
@@ -363,7 +354,7 @@ def probe_server(uri: str) -> None:
 def store_problem(uri: str, error: BaseException) -> str:
     """One line saying why the store at ``uri`` could not be opened, and what to set or start; the password
     of the URI and every secret of this process masked."""
-    where, text, full = shown(uri), shown(first_line(error)), str(error).lower()
+    where, text, full = shown(uri), first_line(error), str(error).lower()
     if not uri.startswith(("http://", "https://")):
         return f"MLflow store {where} cannot be used: {text}"
     status = getattr(error, "get_http_status_code", lambda: None)()

@@ -12,7 +12,6 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from ablate.launch.secrets import shown
 from ablate.launch.store import TrackingError, first_line
 
 STORE_RETRY_S = 40.0
@@ -101,19 +100,19 @@ class RetryingClient:
                     raise
                 if kind not in ("lost", "5xx"):
                     raise TrackingError(
-                        f"MLflow store {self._shown_uri} refused a write: {advice} ({shown(first_line(error))})"
+                        f"MLflow store {self._shown_uri} refused a write: {advice} ({first_line(error)})"
                     ) from None
                 now = time.monotonic()  # read once: the two outcomes below must see the same moment
                 deadline = deadline or now + STORE_RETRY_S
                 if now >= deadline and kind == "5xx":  # it answers: the launch can be closed
                     raise TrackingError(
                         f"MLflow store {self._shown_uri} answered every try of a write with a server error for "
-                        f"{STORE_RETRY_S:.0f} s ({shown(first_line(error))}); its log says why (an artifact "
+                        f"{STORE_RETRY_S:.0f} s ({first_line(error)}); its log says why (an artifact "
                         "folder it may not write, a full disk, ...): fix it and run the same command again"
                     ) from None
                 if now >= deadline:
                     self._lost = (
-                        f"MLflow store {self._shown_uri} stopped answering ({shown(first_line(error))}); "
+                        f"MLflow store {self._shown_uri} stopped answering ({first_line(error)}); "
                         f"retried for {STORE_RETRY_S:.0f} s, the launch stops: run the same command again "
                         "once it is back (trials not recorded run again)"
                     )
