@@ -25,6 +25,7 @@ from ablate.launch.lock import LaunchLocked
 from ablate.launch.plan import LaunchPlan
 from ablate.launch.secrets import masked_output, remember_uri, shown, shown_command
 from ablate.launch.store import TrackingError, insecure_http
+from ablate.train_from import STAGES
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_PIPE = 0, 1, 2, 130, 141  # 141: ended by SIGPIPE
 
@@ -205,18 +206,16 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--variant", help="with --from: the variant's name, as in the experiment file")
     train.add_argument(
         "--stage",
-        choices=("eval", "tune", "base"),
+        choices=STAGES,
         help="with --from: eval (default), the trial the report's claims use, at the values tuning chose (read "
         "from --tracking-uri); tune, a tuning trial (a tuning --seed, the candidate's --learning-rate); base, the "
         "evaluation trial at the shared base value",
     )
     train.add_argument(
         "--tracking-uri",
-        dest="tracking_uri",
         help="with --from on a [tune] experiment: the store whose tuning chose the values (default: "
         "sqlite:///mlflow.db); read only",
     )
-    _insecure_http_flag(train)
     add_knob_flags(train)
     train.add_argument(
         "--out", type=Path, default=None, help="output folder (default: outputs/train/<env>-s<seed>, or the trial key)"
@@ -236,14 +235,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--storage-path",
-        dest="storage_path",
         default="ray_results",
         help="Tune's bookkeeping folder, on the driver (an NFS path or s3:// if you have one; artifacts never use it)",
     )
-    run.add_argument("--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
-    _insecure_http_flag(run)
+    run.add_argument("--tracking-uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
     run.add_argument("--fresh", action="store_true", help="start over under a new parent run (a new generation)")
-    run.add_argument("--max-concurrent", dest="max_concurrent", type=int, help="trials at once (default: CPUs)")
+    run.add_argument("--max-concurrent", type=int, help="trials at once (default: CPUs)")
     run.add_argument(
         "--population",
         type=int,
@@ -263,7 +260,6 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seeds", type=_seed_list, metavar="SEED[,SEED...]", help="run only these seeds, e.g. 0,1")
     run.add_argument(
         "--dry-run",
-        dest="dry_run",
         action="store_true",
         help="list the trials (variant, seed, key) and exit: starts no Ray, writes nothing",
     )
@@ -280,10 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="?",
         help="an ablation's name or experiment file, e.g. cartpole or experiments/cartpole.toml",
     )
-    status.add_argument(
-        "--tracking-uri", dest="tracking_uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)"
-    )
-    _insecure_http_flag(status)
+    status.add_argument("--tracking-uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
 
     report = commands.add_parser(
         "report",
@@ -294,10 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
         "could be built.",
     )
     report.add_argument("experiment", help="experiment file or name, e.g. experiments/cartpole.toml or cartpole")
-    report.add_argument(
-        "--tracking-uri", dest="tracking_uri", help="MLflow store to read (default: sqlite:///mlflow.db); never created"
-    )
-    _insecure_http_flag(report)
+    report.add_argument("--tracking-uri", help="MLflow store to read (default: sqlite:///mlflow.db); never created")
     report.add_argument("--out", type=Path, default=Path("reports"), help="reports folder (default: reports)")
     report.add_argument(
         "--generation",
@@ -318,18 +308,14 @@ def build_parser() -> argparse.ArgumentParser:
     from ablate.calibration import add_parser as add_calibrate
 
     add_calibrate(commands)
-    _insecure_http_flag(commands.choices["calibrate"])
+    for command in commands.choices.values():  # each opens an MLflow store
+        command.add_argument(
+            "--allow-insecure-http",
+            action="store_true",
+            help="let the MLflow login go over plain http:// to another machine, in clear (refused without it; "
+            "docs/cluster.md shows HTTPS through a reverse proxy)",
+        )
     return parser
-
-
-def _insecure_http_flag(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--allow-insecure-http",
-        dest="allow_insecure_http",
-        action="store_true",
-        help="let the MLflow login go over plain http:// to another machine, in clear (refused without it; "
-        "docs/cluster.md shows HTTPS through a reverse proxy)",
-    )
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -461,12 +447,9 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
         from ablate.reporting.document import cmd_report
 
         return cmd_report(args)
-    except ConfigError as error:
+    except (ConfigError, TrackingError, LaunchLocked) as error:
         sys.stderr.write(f"ablate {args.command}: {shown(error)}\n")
-        return EXIT_USAGE
-    except (TrackingError, LaunchLocked) as error:
-        sys.stderr.write(f"ablate {args.command}: {shown(error)}\n")
-        return getattr(error, "exit_code", EXIT_FAILED)
+        return EXIT_USAGE if isinstance(error, ConfigError) else getattr(error, "exit_code", EXIT_FAILED)
     except KeyboardInterrupt as interrupt:  # before the launch began (SIGTERM too, in `run`: exit code 143)
         sys.stderr.write(f"ablate {args.command}: interrupted\n")
         return getattr(interrupt, "exit_code", EXIT_INTERRUPTED)
