@@ -116,7 +116,7 @@ def run(
     with insecure_http(allow_insecure_http):  # the store is opened, and the report written, inside
         outcome = run_plan(plan)
         if report and not outcome.interrupted and not outcome.error and (outcome.finished or outcome.skipped):
-            outcome.report_folder = _write_report(loaded, tracking_uri, reports_folder)
+            outcome.report_folder = _report(loaded, tracking_uri=tracking_uri, reports_folder=reports_folder)
     return outcome
 
 
@@ -141,40 +141,30 @@ def report(
     finished, ``ConfigError`` for a bad name, store or variant; nothing is written then. Finished trials whose
     files the store cannot give are left out of the curves and figures, said in one line on stderr.
     """
-    from ablate.launch.store import insecure_http
-
-    with insecure_http(allow_insecure_http):
-        return _write_report(name_or_file, tracking_uri, reports_folder, pdf, variants, baseline, generation)
-
-
-def _write_report(
-    name_or_file: str | Path | Experiment,
-    tracking_uri: str | None,
-    reports_folder: str | Path,
-    pdf: bool = True,
-    variants: Sequence[str] | None = None,
-    baseline: str | None = None,
-    generation: str | None = None,
-) -> Path:
     from ablate.launch.secrets import shown
+    from ablate.launch.store import insecure_http
     from ablate.reporting.document import build_report
 
     uri = _check_store(tracking_uri)
-    result = build_report(
-        _name(name_or_file),
-        tracking_uri=uri,
-        out_root=Path(reports_folder),
-        generation=generation,
-        variants=list(variants) if variants else None,
-        baseline=baseline,
-        pdf=pdf,
-        command=shown(f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})"),
-    )
+    with insecure_http(allow_insecure_http):
+        result = build_report(
+            _name(name_or_file),
+            tracking_uri=uri,
+            out_root=Path(reports_folder),
+            generation=generation,
+            variants=list(variants) if variants else None,
+            baseline=baseline,
+            pdf=pdf,
+            command=shown(f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})"),
+        )
     if result.missing_note:  # written without some trials' files: say which, in one line
         print(result.missing_note, file=sys.stderr)
     if result.pdf_note and pdf:  # asked for a PDF and got none: say why, in one line, where a notebook shows it
         print(result.pdf_note, file=sys.stderr)
     return result.folder
+
+
+_report = report  # what ``run`` calls: its parameter ``report`` hides the function
 
 
 def load(

@@ -289,10 +289,7 @@ class Tracker(Store):
     def fail_trial(self, key: str, message: str) -> None:
         run_id = self._close(key)
         self._artifact_uris.pop(run_id, None)
-        message = redact(message)
-        self.client.set_tag(run_id, TAG_ERROR, message[:5000])
-        self.client.set_tag(run_id, TAG_NOTE, f"Failed: {message[:5000]}")
-        self.client.set_terminated(run_id, "FAILED")
+        self.kill_runs([run_id], message, "FAILED")
 
     def discard_trial(self, key: str, reason: str) -> None:
         """A trial whose process died restarts from scratch: its partial run is closed and soft-deleted so
@@ -322,12 +319,13 @@ class Tracker(Store):
         """Runs of this experiment MLflow has as RUNNING (``query``: more of a filter, `` and ...``)."""
         return self.all_runs("attributes.status = 'RUNNING'" + query, order_by="attributes.start_time DESC")
 
-    def kill_runs(self, run_ids: Iterable[str], reason: str) -> None:
-        reason = redact(reason)
+    def kill_runs(self, run_ids: Iterable[str], reason: str, status: str = "KILLED") -> None:
+        """End ``run_ids`` as ``status``, with ``reason`` as their error and their note ("Killed: reason")."""
+        reason = redact(reason)[:5000]
         for run_id in run_ids:
-            self.client.set_tag(run_id, TAG_ERROR, reason[:5000])
-            self.client.set_tag(run_id, TAG_NOTE, f"Killed: {reason[:5000]}")
-            self.client.set_terminated(run_id, "KILLED")
+            self.client.set_tag(run_id, TAG_ERROR, reason)
+            self.client.set_tag(run_id, TAG_NOTE, f"{status.capitalize()}: {reason}")
+            self.client.set_terminated(run_id, status)
 
     def _log_metrics(self, run_id: str, values: dict[str, float]) -> None:
         """Single values on a run, at step 0, stamped now."""
