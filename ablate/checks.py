@@ -6,13 +6,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from ablate.config import ConfigError, TrialConfig, env_facts
+from ablate.config import BUILT_IN_ENVS, ConfigError, TrialConfig, env_facts
 
 
 def needs_check(config: TrialConfig) -> bool:
     """Built-in networks on the course's envs are known to work; a user's network or env is tried first."""
-    from ablate.config import BUILT_IN_ENVS
-
     return bool(config.model.factory or config.env_args or config.env_module or config.env_id not in BUILT_IN_ENVS)
 
 

@@ -95,16 +95,9 @@ def knob_defaults() -> dict[str, Any]:
 
 
 def format_value(value: Any) -> str:
-    """A value as an experiment file writes it (TOML): ``"relu"``, ``[32, 32]``, ``true``; ``None``: not set."""
-    if value is None:
-        return "not set"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value, ensure_ascii=False)
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(format_value(v) for v in value) + "]"
-    return repr(value)
+    """A value as an experiment file writes it (TOML, here JSON's spelling): ``"relu"``, ``[32, 32]``, ``true``;
+    ``None``: not set."""
+    return "not set" if value is None else json.dumps(value, ensure_ascii=False)
 
 
 def _knobs_epilog() -> str:

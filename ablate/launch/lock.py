@@ -1,12 +1,7 @@
-"""One launch at a time per experiment and store, wherever its drivers run: a lock on a file, and a lease kept
-in the store itself; each refusal names the holder (host, pid, start, its command without secrets).
-
-The lock is filelock's ``FileLock`` (``flock``) on a file beside the SQLite store, or in this user's cache for a
-store other machines reach, keyed on the store's one spelling (``store.store_key``): the kernel releases it
-when the holder exits in any way, ``kill -9`` included. That serialises the launches of one machine; for a
-server or a database, ``StoreLease`` then excludes the other machines' (and any spelling of the URI): an
-MLflow experiment of its own, which MLflow creates at most once per name, renewed by its holder and lapsing
-``LEASE_EXPIRY_S`` after its holder stops (at once when the holder is a dead process of this machine).
+"""One launch at a time per experiment and store, wherever its drivers run: filelock's ``FileLock`` on a file
+(``store.lock_file``; the kernel frees it however its holder exits, ``kill -9`` included) serialises one machine's
+launches, and for a server or a database a lease kept in the store itself (``StoreLease``) other machines'.
+Each refusal names the holder (host, pid, start, its command without secrets).
 """
 
 from __future__ import annotations

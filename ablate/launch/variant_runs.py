@@ -27,8 +27,6 @@ from ablate.launch.mlflow_store import (
     param_text,
 )
 
-ROLE = ROLE_VARIANT
-"""``ablate.role`` of a variant run (a launch's is ``launch``, a trial's ``trial``)."""
 TAG_VERDICT = "ablate.verdict"
 """The verdict of the variant's primary claim against its reference; absent where it has none (the baseline)."""
 
@@ -53,7 +51,7 @@ class VariantRecord:
 def variant_runs(store: Store, launch_id: str | None = None) -> list[Any]:
     """The variant runs nested under ``launch_id`` (every launch's: ``None``), MLflow ``Run`` objects, oldest first."""
     under = f" and tags.`{TAG_PARENT}` = '{launch_id}'" if launch_id else ""
-    return store.all_runs(f"tags.`{TAG_ROLE}` = '{ROLE}'{under}")
+    return store.all_runs(f"tags.`{TAG_ROLE}` = '{ROLE_VARIANT}'{under}")
 
 
 def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantRecord]) -> list[str]:
@@ -65,7 +63,7 @@ def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantReco
     written: list[str] = []
     try:
         for record in records:
-            tags = {TAG_PARENT: launch_id, TAG_ROLE: ROLE, TAG_VARIANT: record.name, TAG_GENERATION: generation}
+            tags = {TAG_PARENT: launch_id, TAG_ROLE: ROLE_VARIANT, TAG_VARIANT: record.name, TAG_GENERATION: generation}
             run = store.client.create_run(store.experiment_id(), run_name=record.name, tags=tags | record.tags)
             written.append(run.info.run_id)
             _fill(store, run.info.run_id, record)
