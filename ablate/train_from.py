@@ -82,7 +82,7 @@ def trial_from(args: argparse.Namespace, knobs: dict[str, Any], not_in_key: tupl
     if spec is None:
         if stage == "tune":
             raise ConfigError(f"--stage tune: {args.from_experiment} has no [tune] table, so no tuning trials")
-        trial = _one(evaluation, args, _seeds(experiment))
+        trial = _one(evaluation, args, experiment)
         return Chosen(apply_knobs(trial.config, extra), trial, "eval", {}, "the evaluation trial (no [tune])")
     variant = next(v for v in experiment.variants if v.name == args.variant)
     own = not spec.tuned_knobs(variant)  # it sets every tuned knob itself: one trial per seed, never tuned
@@ -111,7 +111,7 @@ def trial_from(args: argparse.Namespace, knobs: dict[str, Any], not_in_key: tupl
         values = {k: getattr(trial.config, k) for k in spec.tuned_knobs(variant)}
         words = f"stage 1 (tuning) at {_values(values)}, budget {trial.config.max_episodes:,} episodes"
         return Chosen(apply_knobs(trial.config, extra), trial, "tune", values, words)
-    base_trial = _one(evaluation, args, _seeds(experiment))
+    base_trial = _one(evaluation, args, experiment)
     if stage == "base" or own:
         values = {k: getattr(base_trial.config, k) for k in tuned_names}
         why = "its own value: the variant sets it, tuning never did" if own else "the shared base value, untuned"
@@ -132,14 +132,10 @@ def trial_from(args: argparse.Namespace, knobs: dict[str, Any], not_in_key: tupl
     return Chosen(apply_knobs(trial.config, extra), trial, "eval", values, words)
 
 
-def _seeds(experiment) -> tuple[int, ...]:
-    """Every evaluation seed of the experiment, its rounds' included."""
-    return tuple(sorted({s for v in experiment.variants for s in experiment.max_seeds_of(v)}))
-
-
-def _one(trials: list[GridTrial], args: argparse.Namespace, seeds: tuple[int, ...]) -> GridTrial:
+def _one(trials: list[GridTrial], args: argparse.Namespace, experiment: Experiment) -> GridTrial:
     trial = next((t for t in trials if t.variant == args.variant and t.seed == args.seed), None)
     if trial is None:
+        seeds = sorted({s for v in experiment.variants for s in experiment.max_seeds_of(v)})  # its rounds' too
         raise ConfigError(
             f"--seed {args.seed} is not a seed of {args.from_experiment}; valid: {', '.join(map(str, seeds))}"
         )
