@@ -9,6 +9,7 @@ import fcntl
 import hashlib
 import os
 import re
+import socket
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -334,21 +335,12 @@ def probe_server(uri: str) -> None:
     """A TCP connection to the tracking server of an ``http(s)://`` ``uri`` within ``PROBE_TIMEOUT_S``, else a
     one-line ``TrackingError``: a server that is not there is told in seconds, however long one that is there
     may take to answer (``ANSWER_TIMEOUT_S``)."""
-    import socket
-
     parsed = urlparse(uri)
     port = parsed.port or (443 if parsed.scheme == "https" else 80)
     try:
         socket.create_connection((parsed.hostname or "", port), timeout=PROBE_TIMEOUT_S).close()
     except OSError as error:
-        reason = "connection refused" if isinstance(error, ConnectionRefusedError) else error.strerror or str(error)
-        if isinstance(error, TimeoutError | socket.timeout):
-            reason = f"no answer in {PROBE_TIMEOUT_S} s"
-        elif isinstance(error, socket.gaierror):
-            reason = "unknown host"
-        raise TrackingError(
-            f"MLflow tracking server {shown(uri)} is unreachable ({reason}); start it or check --tracking-uri"
-        ) from None
+        raise TrackingError(store_problem(uri, error)) from None
 
 
 def store_problem(uri: str, error: BaseException) -> str:
@@ -383,6 +375,6 @@ def store_problem(uri: str, error: BaseException) -> str:
         reason = "connection refused"
     elif "timed out" in full or "timeout" in full:
         reason = f"no answer in {PROBE_TIMEOUT_S} s"
-    elif "name or service not known" in full or "nodename nor servname" in full:
+    elif isinstance(error, socket.gaierror) or "name or service not known" in full or "nodename nor servname" in full:
         reason = "unknown host"
     return f"MLflow tracking server {where} is unreachable ({reason}); start it or check --tracking-uri"
