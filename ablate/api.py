@@ -32,10 +32,6 @@ class StoreNotFound(ConfigError):
     """``load`` or ``report`` was pointed at a local MLflow store that does not exist."""
 
 
-def _experiment(experiment: str | Path | Experiment) -> Experiment:
-    return experiment if isinstance(experiment, Experiment) else load_experiment(experiment)
-
-
 def _name(name_or_file: str | Path | Experiment) -> str:
     """An experiment's name from itself, its file (``*.toml`` or an existing path) or its plain name."""
     if isinstance(name_or_file, Experiment):
@@ -101,7 +97,7 @@ def run(
     from ablate.launch.store import insecure_http
     from ablate.reporting.rounds import judge_for
 
-    loaded = _experiment(experiment)
+    loaded = experiment if isinstance(experiment, Experiment) else load_experiment(experiment)
     check_experiment(loaded)
     if max_concurrent is not None and max_concurrent < 1:
         raise ConfigError(f"max_concurrent={max_concurrent} is invalid; valid: an integer >= 1")

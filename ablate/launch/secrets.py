@@ -2,9 +2,7 @@
 before ablate prints, logs, writes, tags or hands it to Ray. Standard library only.
 
 A URI's userinfo is masked up to the last ``@`` before its host, whatever it holds (raw ``@``, ``/``, ``:`` or
-percent-encoded ones); so are query and keyword credentials (``?password=``, ``sslpassword=``, ``token=``)
-and every secret this process holds: the values of ``SECRET_ENV``, Ray's token file, the password of
-``~/.mlflow/credentials`` and whatever ``remember`` was told (the password of the URI being used).
+percent-encoded ones); so are credential-like parameters and every secret this process holds (``secret_values``).
 Not SQLAlchemy's ``render_as_string(hide_password=True)`` nor urllib's ``urlsplit``: both end the userinfo at a
 raw ``/`` (shown: ``mlflow:***@nted/pw%3A9x...``), SQLAlchemy keeps ``?password=`` and neither reads free text.
 """

@@ -93,9 +93,7 @@ class Tracker(Store):
 
     def earlier_runs(self, keys: Iterable[str]) -> tuple[dict[str, float], dict[str, int]]:
         """Seconds each of ``keys`` took (its run's start to end) and the episodes it ran, when an earlier
-        launch, of any generation, finished it; the newest such run counts. A trial key fixes everything that
-        shapes the trial, its seed included, so an earlier run of it is the best guess of its cost and of where
-        it stops: the time-left estimate starts from these."""
+        launch, of any generation, finished it (the newest such run): the time-left estimate starts from these."""
         wanted, runs = set(keys), {}
         if not wanted:
             return {}, {}

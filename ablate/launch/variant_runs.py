@@ -1,10 +1,8 @@
 """The report's variants as MLflow runs: one run per variant, nested under its launch's run, so MLflow's runs
 table has a row per variant (its verdict) and its chart view a curve per variant (``curve/iqm``).
 
-The report computes each variant's ``VariantRecord`` (``ablate.reporting.variant_records``); this writes them. A
-report built again replaces the experiment's variant runs, whichever launch they were nested under: the store holds
-one current set, the last report's, so MLflow's views and the report cannot disagree. MLflow's params cannot
-change and a metric logged again at a step adds a second point there, so the runs are made anew, not updated.
+The store holds one set, the last report's (``log_variant_runs``), made anew each time: MLflow's params cannot
+change and a metric logged again at a step adds a second point there.
 """
 
 from __future__ import annotations
