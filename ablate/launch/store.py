@@ -177,7 +177,7 @@ def check_uri(uri: str) -> None:
             exit_code=2,
         ) from None
     scheme = parsed.scheme
-    if scheme and scheme not in SCHEMES and not scheme.startswith(("postgresql+", "mysql+", "mssql+")):
+    if scheme and scheme not in SCHEMES and not is_database(uri):
         raise TrackingError(
             f"--tracking-uri {shown(uri)}: unknown scheme {scheme!r}; valid: sqlite:///path/to/mlflow.db, "
             "http(s)://host:port of a tracking server, or another MLflow store URI (file, postgresql, mysql)",
