@@ -17,15 +17,16 @@ from typing import Any, NoReturn
 from ablate import config as config_module
 from ablate import experiment as experiment_module
 from ablate import schema
+from ablate.checks import check_configs, check_experiment
 from ablate.config import KNOBS, PRESETS, SHORTHANDS, ConfigError, ModelConfig, TrialConfig, apply_knobs
 from ablate.dry_run import dry_run
-from ablate.experiment import Experiment
+from ablate.experiment import Experiment, load_experiment
 from ablate.launch.clock import EpisodeLine
 from ablate.launch.lock import LaunchLocked
 from ablate.launch.plan import LaunchPlan
 from ablate.launch.secrets import masked_output, remember_uri, shown, shown_command
 from ablate.launch.store import TrackingError, insecure_http
-from ablate.train_from import STAGES
+from ablate.train_from import STAGES, trial_from
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_PIPE = 0, 1, 2, 130, 141  # 141: ended by SIGPIPE
 
@@ -316,16 +317,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     trial = None
     chosen = None
     if args.from_experiment is not None:
-        from ablate.train_from import trial_from
-
         chosen = trial_from(args, knobs, NOT_IN_KEY_KNOBS)
         config, trial = chosen.config, chosen.trial
     elif args.variant is not None:
         raise ConfigError("--variant: only with --from EXPERIMENT (a preset has no variants)")
     else:
         config = apply_knobs(PRESETS[args.preset], knobs)  # ConfigError before anything is written
-    from ablate.checks import check_configs
-
     # Flags name no file and no variant: the error is the problem alone (the command prefixes its name).
     check_configs([(trial.variant if trial else "", config)], str(args.from_experiment or ""))
     name = trial.key if trial else f"{config.env_id.replace('/', '_')}-s{config.seed}"
@@ -369,8 +366,6 @@ def cmd_status(args: argparse.Namespace) -> int:
     experiment = None
     name = args.experiment
     if name.endswith(".toml") or "/" in name:
-        from ablate.experiment import load_experiment
-
         experiment = load_experiment(name)  # a bad file is a ConfigError: one line, exit 2
         name = experiment.name
     print(detail(args.tracking_uri, name, experiment))
@@ -414,11 +409,7 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
 
             return cmd_calibrate(args)
         if args.command == "run":
-            from ablate.experiment import load_experiment
-
             experiment = load_experiment(args.experiment)  # bad input: one line, before Ray or MLflow is imported
-            from ablate.checks import check_experiment
-
             check_experiment(experiment)
             plan = LaunchPlan.of(
                 experiment, args.only, args.seeds,
