@@ -24,9 +24,6 @@ if TYPE_CHECKING:  # only for the annotations: the real imports are inside the f
     from ablate.launch.runner import RunOutcome
     from ablate.reporting.results import Ablation
 
-FIGURES = ("curves", "per_seed", "improvement", "parameters", "wallclock")
-"""The names ``Results.figure`` draws: the report's figures, in its order."""
-
 
 class StoreNotFound(ConfigError):
     """``load`` or ``report`` was pointed at a local MLflow store that does not exist."""
@@ -314,7 +311,7 @@ class Results:
             "wallclock": lambda folder: figures.figure_wallclock(self.ablation, folder),
         }
         if name not in draw:
-            raise ValueError(f"figure {name!r} is unknown; valid: {', '.join(FIGURES)}")
+            raise ValueError(f"figure {name!r} is unknown; valid: {', '.join(draw)}")
         with tempfile.TemporaryDirectory() as folder, figures.keep_figures() as kept:
             if draw[name](Path(folder)) is None:
                 raise ValueError(f"figure {name!r} does not apply to {self.name!r} (the report leaves it out too)")

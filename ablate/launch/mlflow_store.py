@@ -189,10 +189,8 @@ class Store:
 
     def _artifact_location(self) -> str | None:
         """Beside the SQLite file for a local store; a server chooses its own."""
-        if self.uri.startswith("sqlite:///"):
-            db = Path(self.uri.removeprefix("sqlite:///")).resolve()
-            return (db.parent / "mlartifacts" / self.experiment_name).as_uri()
-        return None
+        db = sqlite_path(self.uri)
+        return None if db is None else (db.resolve().parent / "mlartifacts" / self.experiment_name).as_uri()
 
     # --- reading back (the writer resumes from what it wrote) -----------------------------------------
     def all_runs(self, query: str, order_by: str = "attributes.start_time ASC") -> list[Any]:
