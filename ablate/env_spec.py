@@ -164,23 +164,18 @@ _REGISTERED_BY: dict[str, list[str]] = {}
 """The env ids each ``env_module`` registered the first time it ran in this process, for the message above."""
 
 
-def reward_threshold(config: EnvConfig) -> float | None:
-    """The env spec's ``reward_threshold`` (``None``: it has none, as Pong); an unknown env is an ``EnvError``."""
+def solve_threshold(config: EnvConfig) -> float | None:
+    """The rolling mean over ``solve_window`` episodes at which a trial counts as solved and stops: its own
+    ``solve_threshold``, else its env spec's ``reward_threshold`` (``None``: Pong has none; an unknown env is an
+    ``EnvError``). The one rule: the trainer stops at it, the launch estimates with it, the experiment's default
+    primary metric and the report's fallback for trials that did not record theirs ask it."""
     import gymnasium as gym
 
+    if config.solve_threshold is not None:
+        return float(config.solve_threshold)
     register(config)
     threshold = gym.spec(config.env_id).reward_threshold
     return None if threshold is None else float(threshold)
-
-
-def solve_threshold(config: EnvConfig) -> float | None:
-    """The rolling mean over ``solve_window`` episodes at which a trial counts as solved and stops: its own
-    ``solve_threshold``, else its env spec's ``reward_threshold`` (``None``: Pong has none). The one rule: the
-    trainer stops at it, the launch estimates with it, the experiment's default primary metric and the report's
-    fallback for trials that did not record theirs ask it."""
-    if config.solve_threshold is not None:
-        return float(config.solve_threshold)
-    return reward_threshold(config)
 
 
 def solve_threshold_or_none(config: EnvConfig) -> float | None:

@@ -238,20 +238,19 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     grid = data.get("grid", {})
     if not isinstance(grid, dict):
         raise ConfigError(f"{source}: grid must be a table of axes, e.g. [grid] dropout = [0.0, 0.2]")
-    if grid:
-        for key, values in grid.items():
-            if not isinstance(values, list) or not values:
-                raise ConfigError(
-                    f"{source}: grid.{key} = {values!r} is invalid; valid: a non-empty list of values to try"
-                )
-        axes = list(grid)
-        per_variant = rounds.max if rounds else len(seeds)
-        count = (len(explicit) + math.prod(len(grid[a]) for a in axes)) * per_variant
-        if count > MAX_TRIALS:
-            sizes = " x ".join(f"{len(grid[a])} {a}" for a in axes)
-            raise ConfigError(
-                f"{source}: grid: {sizes} x {per_variant} seeds is {count:,} trials; valid: at most {MAX_TRIALS:,}"
-            )
+    for key, values in grid.items():
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f"{source}: grid.{key} = {values!r} is invalid; valid: a non-empty list of values to try")
+    axes = list(grid)
+    count = len(explicit) + (math.prod(len(grid[a]) for a in axes) if axes else 0)
+    most = rounds.max if rounds else len(seeds)
+    if count * most > MAX_TRIALS:
+        sizes = [*([f"{len(explicit)} variants"] if explicit else []), " x ".join(f"{len(grid[a])} {a}" for a in axes)]
+        raise ConfigError(
+            f"{source}: {' + '.join(filter(None, sizes))} x {most} seeds is {count * most:,} trials; valid: at most "
+            f"{MAX_TRIALS:,}"
+        )
+    if axes:
         for combo in itertools.product(*(grid[a] for a in axes)):
             knobs = _without_seed(dict(zip(axes, combo, strict=True)), f"{source}: grid.")
             vname = ",".join(f"{a}={_short(v)}" for a, v in knobs.items())
@@ -259,12 +258,6 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
 
     if not variants:
         raise ConfigError(f"{source}: the grid is empty; add [[variants]] tables or a [grid] with at least one axis")
-    most = rounds.max if rounds else len(seeds)
-    if len(variants) * most > MAX_TRIALS:
-        raise ConfigError(
-            f"{source}: {len(variants)} variants x {most} seeds is {len(variants) * most:,} trials; "
-            f"valid: at most {MAX_TRIALS:,}"
-        )
     seen: set[str] = set()
     for v in variants:
         if v.name in seen:

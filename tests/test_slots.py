@@ -12,17 +12,17 @@ from ablate.agent.slots import CartPoleSlots, windows
 def test_cartpole_slots_take_every_episode_as_played_even_across_the_rings_end(history):
     # A short episode limit makes the ring (max_episode_steps + 1 rows) come round within the test.
     slots = CartPoleSlots([7, 8], per_member=3, max_episode_steps=20, history=history, env_id="CartPole-v1")
-    rng = np.random.default_rng(0)
+    rng, size = np.random.default_rng(0), 6  # 2 members x 3 slots
     for _ in range(3):  # three collections: the later ones start past the ring's end
-        playing = np.arange(slots.size)
+        playing = np.arange(size)
         slots.start(playing)
         seen = {s: [] for s in playing.tolist()}
         taken_actions = {s: [] for s in playing.tolist()}
         lengths: dict[int, int] = {}
-        stepping = np.ones(slots.size, bool)
+        stepping = np.ones(size, bool)
         while stepping.any():
             observations = slots.observations().copy()
-            actions = rng.integers(0, 2, slots.size)
+            actions = rng.integers(0, 2, size)
             for s in np.flatnonzero(stepping).tolist():
                 seen[s].append(observations[s])
                 taken_actions[s].append(actions[s])

@@ -15,20 +15,15 @@ _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "e
 
 
 class Policy(nn.Module):
-    """A built-in network mapping observations of ``observation_shape`` (plus a batch dimension) to logits."""
+    """A built-in network: a batch of observations to logits."""
 
-    def __init__(self, body: nn.Module, observation_shape: tuple[int, ...]) -> None:
+    def __init__(self, body: nn.Module) -> None:
         super().__init__()
         self.body = body
-        self.observation_shape = tuple(observation_shape)
 
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
         """Logits; int8 observations (Pong's frame differences) are taken as float32."""
         return self.body(observations.float())
-
-
-def parameter_count(model: nn.Module) -> int:
-    return sum(p.numel() for p in model.parameters())
 
 
 def _dense_layers(
@@ -67,7 +62,7 @@ def create_cartpole_model(
     components as channels, then the dense layers."""
     if architecture == "mlp":
         body = nn.Sequential(*_dense_layers(observation_size, hidden_sizes, n_actions, activation, dropout, layer_norm))
-        return Policy(body, (observation_size,))
+        return Policy(body)
     conv: list[nn.Module] = [_TimeAsLength()]
     channels, length = observation_size, history
     for out_channels in conv_channels:
@@ -78,7 +73,7 @@ def create_cartpole_model(
     conv.append(nn.Flatten())
     dense = _dense_layers(channels * length, hidden_sizes, n_actions, activation, dropout, layer_norm)
     body = nn.Sequential(*conv, *dense)
-    return Policy(body, (history, observation_size))
+    return Policy(body)
 
 
 class _TimeAsLength(nn.Module):
@@ -112,7 +107,7 @@ def create_pong_model(
             nn.Flatten(),
             *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout, layer_norm),
         )
-        return Policy(body, tuple(observation_shape))
+        return Policy(body)
     convs = []
     for filters, kernel, stride, padding in PONG_CONV:
         convs += [nn.Conv2d(channels, filters, kernel, stride=stride, padding=padding), act()]
@@ -123,4 +118,4 @@ def create_pong_model(
         nn.Flatten(),
         *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout, layer_norm),
     )
-    return Policy(body, tuple(observation_shape))
+    return Policy(body)

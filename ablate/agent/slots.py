@@ -95,10 +95,6 @@ class CartPoleSlots:
         self.started = np.zeros(self.env.num_envs, np.int64)
         self.iteration = 0
 
-    @property
-    def size(self) -> int:
-        return self.env.num_envs
-
     def observations(self) -> np.ndarray:
         return self.raw if self.windows is None else self.windows.values
 
@@ -212,10 +208,6 @@ class EnvSlots:
         self.history = history
         self.on_frame: Callable[[int, bool], None] | None = None
         """Called with (slot, episode over) after each step and reset (the trainer's videos)."""
-
-    @property
-    def size(self) -> int:
-        return len(self.envs)
 
     def observations(self) -> np.ndarray:
         return self.raw if self.windows is None else self.windows.values
