@@ -54,6 +54,13 @@ class ConfigError(ValueError):
     """Bad user input: the message is one line a user can act on."""
 
 
+def shown(value: Any, limit: int = 60) -> str:
+    """``repr`` of a bad value, shortened so the error stays one readable line."""
+    text = repr(value)
+    size = len(value) if isinstance(value, str) else len(text)
+    return text if len(text) <= limit else f"{text[:limit]}... ({size} characters)"
+
+
 def freeze(value: Any) -> Any:
     """A TOML value made hashable: tables as sorted ``(name, value)`` tuples, lists as tuples."""
     if isinstance(value, Mapping):
