@@ -58,10 +58,10 @@ class Knob:
     tunable: bool = False
     """``[tune]`` may search it: an optimisation knob, not what an ablation compares."""
     only_for: str = ""
+    """The one built-in architecture that reads it (``cnn``): other networks' runs leave its param out."""
     profiles: tuple[str, ...] = ()
     """The env profiles (``env_spec.PROFILES``) that honour it; set away from its default under another, it is
     refused (``config.apply_knobs``). Empty: every profile."""
-    """The one built-in architecture that reads it (``cnn``): other networks' runs leave its param out."""
     setting: bool = False
     """A training setting every network reads: every trial's row in the tables and the report's table of base
     values carry it, whether or not a variant changes it."""

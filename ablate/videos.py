@@ -56,12 +56,12 @@ class TrainingVideos:
     """Videos of the sampling policy as it trains: every ``every`` episodes, the member's first env's next episode,
     up to ``max_frames`` frames, into ``folder/videos/episode_NNNNN.mp4`` (NNNNN: the episode's number)."""
 
-    def __init__(self, folder: Path | None, every: int, max_frames: int, fps: int, completed: int = 0) -> None:
+    def __init__(self, folder: Path | None, every: int, max_frames: int, fps: int) -> None:
         self.folder = folder / "videos" if folder is not None else None
         self.every = every if folder is not None else 0
         self.max_frames = max_frames
         self.fps = fps
-        self.next_at = -(-completed // self.every) * self.every if self.every else 0
+        self.next_at = 0
         self.writer = None
         self.frames = 0
         self.paths: list[Path] = []

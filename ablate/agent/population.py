@@ -51,6 +51,7 @@ class Member:
     threshold: float | None
     started: float
     actions_rng: np.random.Generator
+    videos: TrainingVideos
     history: list[EpisodeMetrics] = field(default_factory=list)
     window: deque = field(default_factory=deque)
     env_steps: int = 0
@@ -64,7 +65,6 @@ class Member:
     finished: deque = field(default_factory=deque)
     """Finished episodes in the order they ended (continuous)."""
     completed: int = 0
-    videos: TrainingVideos | None = None
     block_origin: dict | None = None
     """Its action stream's state before the population's current block of uniforms was drawn."""
 
@@ -97,18 +97,10 @@ class Population:
         for i, config in enumerate(configs):
             torch.manual_seed(config.seed)  # each member's initial weights from its own seed
             models.append(build_model(config, self.env))
-            fps, folder = self.env.video_fps, folders[i]
-            self.members.append(
-                Member(
-                    i,
-                    config,
-                    solve_threshold(config),
-                    started,
-                    np.random.default_rng(config.seed),
-                    window=deque(maxlen=config.solve_window),
-                    videos=TrainingVideos(folder, config.video_every, config.video_max_frames, fps),
-                )
-            )
+            videos = TrainingVideos(folders[i], config.video_every, config.video_max_frames, env.video_fps)
+            rng = np.random.default_rng(config.seed)
+            window = deque(maxlen=config.solve_window)
+            self.members.append(Member(i, config, solve_threshold(config), started, rng, videos, window=window))
         self.network = Members(models, device, [dropout_seed(c.seed) for c in configs])
         shape = (self.history, *self.env.observation_shape) if self.history else self.env.observation_shape
         self.network.check(models, shape)
@@ -164,7 +156,7 @@ class Population:
         """A slot stepped or reset: the member's first slot feeds its training videos."""
         position, j = divmod(slot, self.per_member)
         member = self.members[position]
-        if j != 0 or member.videos is None or not member.videos.every:
+        if j != 0 or not member.videos.every:
             return
         frame = self.slots.envs[slot].render
         if len(self.slots.memories[slot]) == 0 and not over:
@@ -340,8 +332,7 @@ class Population:
 
     def close(self) -> None:
         for member in self.members:
-            if member.videos is not None:
-                member.videos.close()
+            member.videos.close()
         self.slots.close()
 
 
@@ -405,7 +396,7 @@ def restore(population, position: int, blob: bytes) -> None:
     member.actions_rng.bit_generator.state = saved["numpy_rng"]
     population.slots.set_member_state(position, saved["slots"])
     member.started -= saved["wall_s"]
-    if member.videos is not None and member.videos.every:
+    if member.videos.every:
         member.videos.next_at = -(-member.completed // member.videos.every) * member.videos.every
     collection = saved["collection"]
     if collection is None or member.done:

@@ -203,9 +203,8 @@ def _finish(population: Population, outcomes: dict, on_outcome) -> None:
             state_dict=population.network.state_dict(position),
             env=record(population.env, member.threshold),
         )
-        if member.videos is not None:
-            member.videos.close()  # the trial is over: its last video ends here
-            result.artifacts.update({f"videos/{p.name}": p for p in member.videos.paths if p.exists()})
+        member.videos.close()  # the trial is over: its last video ends here
+        result.artifacts.update({f"videos/{p.name}": p for p in member.videos.paths if p.exists()})
         outcomes[member.index] = result
         if on_outcome is not None:
             on_outcome(member.index, result)
