@@ -350,7 +350,7 @@ def checkpoint(population, position: int) -> bytes:
             "version": CHECKPOINT_VERSION,
             "model": population.network.state_dict(position),
             "optimizer": population.optimizer.state_dict(position),
-            "dropout_rng": population.network.generator_state(position),
+            "dropout_rng": population.network.stack.generators[position].get_state(),
             "numpy_rng": population.actions_state(position),
             "slots": population.slots.member_state(position),
             "collection": _collection_state(population, position),
@@ -392,7 +392,7 @@ def restore(population, position: int, blob: bytes) -> None:
     member.episodes_to_solve, member.completed = saved["episodes_to_solve"], saved["completed"]
     population.network.load_state_dict(position, saved["model"])
     population.optimizer.load_state_dict(position, saved["optimizer"])
-    population.network.set_generator_state(position, saved["dropout_rng"])
+    population.network.stack.generators[position].set_state(saved["dropout_rng"])
     member.actions_rng.bit_generator.state = saved["numpy_rng"]
     population.slots.set_member_state(position, saved["slots"])
     member.started -= saved["wall_s"]

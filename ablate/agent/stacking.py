@@ -158,7 +158,7 @@ class Members:
     def __init__(self, models: Sequence[nn.Module], device: torch.device, seeds: Sequence[int]) -> None:
         self.device = device
         self.template = copy.deepcopy(models[0]).cpu()
-        """Member 0's module as built (a member's own module is this with its row loaded: ``module``)."""
+        """Member 0's module as built (a member's own module is this with its ``state_dict`` loaded)."""
         self.buffers = {
             name: torch.stack([dict(m.named_buffers())[name] for m in models]).to(device)
             for name, _ in models[0].named_buffers()
@@ -258,12 +258,6 @@ class Members:
         rows = self.flat if serving is None else self.flat[serving]
         return (l2 * (rows.pow(2) * self.weight_mask).sum(1)).sum()
 
-    def module(self, member: int) -> nn.Module:
-        """Member ``member``'s own ``nn.Module`` (on the CPU), its current weights loaded."""
-        model = copy.deepcopy(self.template)
-        model.load_state_dict(self.state_dict(member))
-        return model
-
     def state_dict(self, member: int) -> dict[str, torch.Tensor]:
         row = self.flat[member].detach().cpu()
         state = {name: row[start:end].reshape(shape).clone() for name, (start, end, shape) in self.stack.layout.items()}
@@ -276,12 +270,6 @@ class Members:
                 self.flat[member, start:end] = state[name].reshape(-1).to(self.device)
             for name, b in self.buffers.items():
                 b[member].copy_(state[name])
-
-    def generator_state(self, member: int) -> torch.Tensor:
-        return self.stack.generators[member].get_state()
-
-    def set_generator_state(self, member: int, state: torch.Tensor) -> None:
-        self.stack.generators[member].set_state(state)
 
     def keep(self, members: list[int]) -> None:
         """Only ``members`` (in this order) go on."""
