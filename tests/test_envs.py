@@ -17,7 +17,6 @@ from ablate.envs import (
     make_pong,
     make_trial_env,
     pre_process,
-    pre_process_int8,
     reset_counters,
     set_episode_steps,
     set_start_states,
@@ -96,7 +95,6 @@ def test_pre_process_known_output_and_raw_frame_untouched():
     expected[7, 3:5] = 1
     expected[70, 76] = 1
     np.testing.assert_array_equal(pre_process(frame), expected)
-    np.testing.assert_array_equal(pre_process_int8(frame), expected.astype(np.int8))
     np.testing.assert_array_equal(frame, before)
 
 
