@@ -104,8 +104,9 @@ def _module_name(relative: str) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def collect(root: Path, entry: Path, entry_text: str) -> Bundle:
-    """``entry`` (a file under ``root``, its text already read) and every local file it imports, transitively."""
+def collect(root: Path, entry: Path, entry_text: str) -> tuple[Bundle, str]:
+    """``entry`` (a file under ``root``, its text already read) and every local file it imports, transitively, and
+    their ``bundle_hash``."""
     root = root.resolve()
     first = entry.resolve().relative_to(root).as_posix()
     files = {first: entry_text}
@@ -123,7 +124,8 @@ def collect(root: Path, entry: Path, entry_text: str) -> Bundle:
             if other not in files:
                 files[other] = _read(path)
                 queue.append(other)
-    return ((first, entry_text), *sorted((p, t) for p, t in files.items() if p != first))
+    bundle = ((first, entry_text), *sorted((p, t) for p, t in files.items() if p != first))
+    return bundle, bundle_hash(bundle)
 
 
 def resolve_model(target: str, base_dir: Path) -> tuple[Bundle, str]:
@@ -135,12 +137,10 @@ def resolve_model(target: str, base_dir: Path) -> tuple[Bundle, str]:
         if not path.is_file():
             raise SourceError(f"no such file {path}")
         # read_text as keys were always made from it (newlines translated): an unchanged file keeps its hash
-        bundle = collect(path.parent, path, path.read_text(encoding="utf-8"))
-        return bundle, bundle_hash(bundle)
+        return collect(path.parent, path, path.read_text(encoding="utf-8"))
     path = local_path(base_dir, target)
     if path is not None:
-        bundle = collect(base_dir, path, _read(path))
-        return bundle, bundle_hash(bundle)
+        return collect(base_dir, path, _read(path))
     try:
         found = importlib.util.find_spec(target)
     except (ImportError, ValueError) as error:
@@ -157,8 +157,7 @@ def resolve_env_module(spec: str, base_dir: Path) -> tuple[Bundle, str]:
     path = local_path(base_dir, module)
     if path is None:
         return (), ""
-    bundle = collect(base_dir, path, _read(path))
-    return bundle, bundle_hash(bundle)
+    return collect(base_dir, path, _read(path))
 
 
 # --- on the node (or wherever a trial builds its network and env) ---
