@@ -210,9 +210,8 @@ class AtariFrameDifference(gym.ObservationWrapper):
 
 
 def make_trial_env(config, render: bool = False) -> gym.Env:
-    """One env of a trial, its observations what the policy takes, as its profile makes it (``env_spec.PROFILES``):
-    Pong's frame differences of ``pre_process``-ed frames; another Atari game's grayscale 84x84 frame differences;
-    any other env as ``gym.make(env_id, **env_args)``. Registers ``config``'s env first (``env_spec.register``)."""
+    """One env of a trial, its observations what the policy takes, as its profile makes it (``env_spec.PROFILES``),
+    ``config``'s env registered first (``env_spec.register``)."""
     register(config)
     try:
         return profile_of(config).maker()(config, render)
@@ -317,10 +316,8 @@ def _action_names(env: gym.Env) -> tuple[str, ...]:
 
 
 def record(described: Described, threshold: float | None) -> dict[str, str]:
-    """What a trial ran against, as its run's ``env.*`` params: the env id, its spec's reward threshold and
-    episode limit, its observation's shape and dtype, its action count, the solve threshold the trial stopped
-    at (``None``: it ran its budget), and the env libraries' versions. The report and the launch read these, not
-    the env's name."""
+    """What a trial ran against, as its run's ``env.*`` params, ``threshold`` the solve threshold it stopped at
+    (``None``: it ran its budget). The report and the launch read these, not the env's name."""
     libraries = versions()
     return {
         "env.id": described.env_id,

@@ -1,9 +1,7 @@
-"""What a finished trial leaves in its folder (``write_artifacts``): ``episodes.csv``, ``weights.pt``,
-``config.json``, the course's ``plot_progress`` learning curve, a video of the trained policy, Pong's observation
-figure. The trainer returns a result; its caller writes it here (a launch's worker before the tracker logs the
-folder, ``ablate train`` into its ``--out``). ``replay_video`` records the trained policy's video later, from
-``weights.pt`` and ``config.json``: a launch leaves each trial's video to the report, which records only the seeds it
-shows. Matplotlib with the Agg backend, so it draws on a headless machine or a Ray worker.
+"""What a finished trial leaves in its folder (``write_artifacts``), and its video recorded later from those files
+(``replay_video``). The trainer returns a result; its caller writes it here (a launch's worker before the tracker
+logs the folder, ``ablate train`` into its ``--out``). Matplotlib with the Agg backend: it draws on a headless
+machine or a Ray worker.
 """
 
 from __future__ import annotations

@@ -196,8 +196,7 @@ def train_step(
     after each member's ``lengths[i]`` steps (padding weighs nothing); ``l2`` holds each member's.
 
     ``chunk_size``: forward and backward at most this many observations at a time, summing gradients (the
-    same gradient as one pass, in bounded memory: a Pong batch of 8,000 frames is GBs of activations). The
-    chunks are ``chunk_size`` long, then the rest in decreasing powers of two (``_chunks``).
+    same gradient as one pass, in bounded memory: a Pong batch of 8,000 frames is GBs of activations; ``_chunks``).
     Observations may be int8 (Pong's frame differences); they become float32 chunk by chunk, on the
     model's device.
     """

@@ -1,13 +1,10 @@
 """A population's networks as one: every member's parameters stacked member-first, one batched forward for all
 members (or any subset), whatever the network; what acting and the update (``reinforce``) run on.
 
-The user's module keeps its own ``forward``: its standard layers (``Linear``, ``LayerNorm``, ``Conv1d``,
-``Conv2d``, ``Dropout``) are swapped for versions that read every member's parameters at once, the members folded
-into the batch dimension member-major (a ``Linear`` becomes one ``baddbmm``; a convolution one grouped
-convolution, a group per member), so elementwise code and ``flatten(1)`` run as written. A module whose forward
-mixes batch rows, or that holds other parameters or buffers, goes through ``torch.func.vmap(functional_call)``
-instead; both read the same stacked parameters, so the update is one either way. Checked once per population
-against each member's own forward (``Members.check``).
+The user's module keeps its own ``forward``, its standard layers swapped for stacked ones (``stacked_layers``). A
+module whose forward mixes batch rows, or that holds other parameters or buffers, goes through
+``torch.func.vmap(functional_call)`` instead; both read the same stacked parameters, so the update is one either
+way. Checked once per population against each member's own forward (``Members.check``).
 """
 
 from __future__ import annotations
@@ -192,13 +189,10 @@ class Members:
         return torch.vmap(one, randomness="different")
 
     def _acting_forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Acting (every member, eval mode, no gradients) on x (M, B, *observation): the swapped network's forward
-        traced once for x's shape (``tracing``) into one function of torch calls, each layer's weight views read
-        once at the trace (they stay views of ``flat``, which Adam steps in place), no module call per layer, no
-        reshape that gives back its input's shape: the same arithmetic in the same order. When ``flat`` is
-        replaced (``keep``) or the shape changes, the same function with the new views if it still gives the
-        module's logits, else traced again. Every first call checks it against the module bit for bit; a forward
-        that cannot be traced, or differs, runs as a module."""
+        """Acting (every member, eval mode, no gradients) on x (M, B, *observation) through the forward ``tracing``
+        made for x's shape. When ``flat`` is replaced (``keep``) or the shape changes, the same function with the
+        new views if it still gives the module's logits, else traced again; a forward that cannot be traced, or
+        differs from the module's bit for bit, runs as a module."""
         traced = self._acting
         if traced is not None and traced[0] is self.flat and traced[1] == x.shape:
             return self._module_forward(x) if traced[2] is None else traced[2](x)
