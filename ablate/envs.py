@@ -306,11 +306,17 @@ def describe(config) -> Described:
     return described
 
 
-def _action_names(env: gym.Env) -> tuple[str, ...]:
-    while isinstance(env, gym.Wrapper) and not isinstance(env, ActionSubset):
+def _wrappers(env):
+    """``env``'s wrappers, outermost first."""
+    while isinstance(env, gym.Wrapper):
+        yield env
         env = env.env
-    if isinstance(env, ActionSubset):
-        return env.names
+
+
+def _action_names(env: gym.Env) -> tuple[str, ...]:
+    subset = next((w for w in _wrappers(env) if isinstance(w, ActionSubset)), None)
+    if subset is not None:
+        return subset.names
     meanings = getattr(env.unwrapped, "get_action_meanings", None)
     return tuple(meanings()) if meanings else ()
 
@@ -361,12 +367,7 @@ def set_env_state(env, saved: dict) -> None:
 
 def _stateful_wrappers(env) -> list:
     """``env``'s wrappers, outermost first, that hold state of their own (a ``state``/``set_state`` pair)."""
-    found = []
-    while isinstance(env, gym.Wrapper):
-        if callable(getattr(type(env), "set_state", None)):
-            found.append(env)
-        env = env.env
-    return found
+    return [w for w in _wrappers(env) if callable(getattr(type(w), "set_state", None))]
 
 
 # --- an env's internals, fenced ---
@@ -430,11 +431,7 @@ def skip_action_check(env):
 
 def _time_limit(env) -> gym.wrappers.TimeLimit | None:
     """The ``TimeLimit`` among ``env``'s wrappers, if any."""
-    while isinstance(env, gym.Wrapper):
-        if isinstance(env, gym.wrappers.TimeLimit):
-            return env
-        env = env.env
-    return None
+    return next((w for w in _wrappers(env) if isinstance(w, gym.wrappers.TimeLimit)), None)
 
 
 def episode_steps(env) -> int | None:
