@@ -57,7 +57,6 @@ class Member:
     env_steps: int = 0
     updates: int = 0
     episodes_to_solve: int | None = None
-    next_checkpoint: int | None = None
     counting: np.ndarray | None = None
     """Its slots whose episodes go into its next update (from a reset), or that still play (continuous)."""
     episodes: dict[int, int] = field(default_factory=dict)

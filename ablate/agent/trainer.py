@@ -102,8 +102,6 @@ def run_population(
             restore(population, position, blob)
             if on_episodes is not None and member.history:
                 on_episodes(member.index, list(member.history))
-        every = member.config.checkpoint_interval if on_checkpoint is not None else 0
-        member.next_checkpoint = (len(member.history) // every + 1) * every if every else None
     outcomes: dict[int, MemberOutcome] = {}
     try:
         for position, member in enumerate(population.members):
@@ -154,7 +152,7 @@ def _learn(population: Population, ready: list[int], outcomes: dict, on_episodes
             new = _record(member, batch, loss, entropy, time.perf_counter() - member.started)
             if on_episodes is not None:
                 on_episodes(member.index, new)
-            _maybe_checkpoint(population, position, on_checkpoint)
+            _maybe_checkpoint(population, position, len(new), on_checkpoint)
             if population.has_batch(member):
                 learning.append(position)
     for position in ready:
@@ -167,14 +165,13 @@ def _learn(population: Population, ready: list[int], outcomes: dict, on_episodes
             population.start(position)
 
 
-def _maybe_checkpoint(population: Population, position: int, on_checkpoint) -> None:
+def _maybe_checkpoint(population: Population, position: int, new: int, on_checkpoint) -> None:
+    """A checkpoint where the update's ``new`` episodes crossed a multiple of ``checkpoint_interval``."""
     member = population.members[position]
-    config, done = member.config, len(member.history)
-    if member.next_checkpoint is None or done < member.next_checkpoint or done >= config.max_episodes:
+    config, done, every = member.config, len(member.history), member.config.checkpoint_interval
+    if on_checkpoint is None or not every or done // every == (done - new) // every or done >= config.max_episodes:
         return
     on_checkpoint(member.index, checkpoint(population, position))
-    every = config.checkpoint_interval
-    member.next_checkpoint = (done // every + 1) * every
     if config.fault == "crash_after_checkpoint" and not Path(config.fault_marker).exists():
         Path(config.fault_marker).write_text("crashed after a checkpoint\n")
         os._exit(17)  # the process dies with a checkpoint taken: its retry must resume from it
