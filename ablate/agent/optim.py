@@ -18,15 +18,13 @@ class Adam:
     """Adam (Kingma & Ba, 2015) with bias correction, no weight decay, no AMSGrad, one per member: a row of
     ``params`` (M, P), every member's parameters one after another (``stacking.Members.flat``)."""
 
-    def __init__(
-        self, params: torch.Tensor, lr: Sequence[float], betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8
-    ) -> None:
+    beta1, beta2, eps = 0.9, 0.999, 1e-8  # torch.optim.Adam's defaults
+
+    def __init__(self, params: torch.Tensor, lr: Sequence[float]) -> None:
         if any(rate <= 0 for rate in lr):
             raise ValueError(f"learning rate must be positive, got {min(lr)}")
         self.params = params
         self.lr = torch.tensor(list(lr), dtype=torch.float64, device=params.device)
-        self.beta1, self.beta2 = betas
-        self.eps = eps
         self.steps = torch.zeros(len(self.lr), dtype=torch.int64, device=params.device)
         self.exp_avg = torch.zeros_like(params)
         self.exp_avg_sq = torch.zeros_like(params)
