@@ -60,20 +60,22 @@ def create_cartpole_model(
     """CartPole policy. ``mlp``: input (observation_size,). ``cnn``: input (history, observation_size), a
     window of recent observations, oldest first; 1-D convolutions run along time with the observation's
     components as channels, then the dense layers."""
-    if architecture == "mlp":
-        body = nn.Sequential(*_dense_layers(observation_size, hidden_sizes, n_actions, activation, dropout, layer_norm))
-        return Policy(body)
-    conv: list[nn.Module] = [_TimeAsLength()]
-    channels, length = observation_size, history
-    for out_channels in conv_channels:
-        conv += [nn.Conv1d(channels, out_channels, kernel_size), _ACTIVATIONS[activation]()]
-        channels, length = out_channels, length - kernel_size + 1
-        if length < 1:
-            raise ValueError(f"history {history} is too short for {len(conv_channels)} convolutions of {kernel_size}")
-    conv.append(nn.Flatten())
-    dense = _dense_layers(channels * length, hidden_sizes, n_actions, activation, dropout, layer_norm)
-    body = nn.Sequential(*conv, *dense)
-    return Policy(body)
+    layers: list[nn.Module] = []
+    inputs = observation_size
+    if architecture == "cnn":
+        layers.append(_TimeAsLength())
+        channels, length = observation_size, history
+        for out_channels in conv_channels:
+            layers += [nn.Conv1d(channels, out_channels, kernel_size), _ACTIVATIONS[activation]()]
+            channels, length = out_channels, length - kernel_size + 1
+            if length < 1:
+                raise ValueError(
+                    f"history {history} is too short for {len(conv_channels)} convolutions of {kernel_size}"
+                )
+        layers.append(nn.Flatten())
+        inputs = channels * length
+    dense = _dense_layers(inputs, hidden_sizes, n_actions, activation, dropout, layer_norm)
+    return Policy(nn.Sequential(*layers, *dense))
 
 
 class _TimeAsLength(nn.Module):
@@ -97,25 +99,13 @@ def create_pong_model(
     layer_norm: bool = False,
 ) -> Policy:
     """Pong policy over the (1, 80, 80) difference of pre-processed frames (any (channels, H, W) image for other
-    Atari games). ``cnn`` is the course's (``PONG_CONV``): 16 filters 7x7 stride 4, 32 filters 5x5 stride 2,
-    48 filters 3x3 stride 2, then dense layers. ``mlp`` flattens the pixels straight into the dense layers
-    (Karpathy's)."""
-    act = _ACTIVATIONS[activation]
+    Atari games). ``cnn`` is the course's convolutions (``PONG_CONV``), then dense layers; ``mlp`` flattens the
+    pixels straight into the dense layers (Karpathy's)."""
     channels, height, width = observation_shape
-    if architecture == "mlp":
-        body = nn.Sequential(
-            nn.Flatten(),
-            *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout, layer_norm),
-        )
-        return Policy(body)
-    convs = []
-    for filters, kernel, stride, padding in PONG_CONV:
-        convs += [nn.Conv2d(channels, filters, kernel, stride=stride, padding=padding), act()]
+    convs: list[nn.Module] = []
+    for filters, kernel, stride, padding in PONG_CONV if architecture == "cnn" else ():
+        convs += [nn.Conv2d(channels, filters, kernel, stride=stride, padding=padding), _ACTIVATIONS[activation]()]
         channels = filters
         height, width = ((n + 2 * padding - kernel) // stride + 1 for n in (height, width))
-    body = nn.Sequential(
-        *convs,
-        nn.Flatten(),
-        *_dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout, layer_norm),
-    )
-    return Policy(body)
+    dense = _dense_layers(channels * height * width, hidden_sizes, n_actions, activation, dropout, layer_norm)
+    return Policy(nn.Sequential(*convs, nn.Flatten(), *dense))
