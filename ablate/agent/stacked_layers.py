@@ -151,24 +151,16 @@ def swappable(model: nn.Module) -> bool:
     return True
 
 
-def _replacement(layer: nn.Module, stack: _Stack, path: str) -> nn.Module | None:
-    """``layer``'s stacked version, reading ``stack`` under ``path``; ``None`` for a layer kept as it is."""
-    if isinstance(layer, nn.Linear):
-        return StackedLinear(stack, path, layer)
-    if isinstance(layer, nn.LayerNorm):
-        return StackedLayerNorm(stack, path, layer)
-    if isinstance(layer, nn.Conv1d | nn.Conv2d):
-        return StackedConv(stack, path, layer)
-    if type(layer) is nn.Dropout:
-        return StackedDropout(stack, layer.p)
-    return None
-
-
 def swap(model: nn.Module, stack: _Stack, prefix: str = "") -> nn.Module:
     """``model`` with its layers replaced (in place) by their stacked versions, reading ``stack`` by their names."""
-    replacement = _replacement(model, stack, prefix)
-    if replacement is not None:
-        return replacement
+    if isinstance(model, nn.Linear):
+        return StackedLinear(stack, prefix, model)
+    if isinstance(model, nn.LayerNorm):
+        return StackedLayerNorm(stack, prefix, model)
+    if isinstance(model, nn.Conv1d | nn.Conv2d):
+        return StackedConv(stack, prefix, model)
+    if type(model) is nn.Dropout:
+        return StackedDropout(stack, model.p)
     for name, child in list(model.named_children()):
         setattr(model, name, swap(child, stack, f"{prefix}{name}."))
     return model
