@@ -308,16 +308,6 @@ ARCHITECTURE_KNOBS = frozenset(name for name, k in KNOBS.items() if k.architectu
 """Knobs that together make one architecture (``depth``/``width`` expand to ``hidden_sizes``)."""
 
 
-def resolve_factory(spec: str, base_dir: Path, where: str = "") -> tuple[sources.Bundle, str]:
-    """``model = spec``'s (files, hash): a ``FILE.py`` relative to ``base_dir``, or a ``package.module`` in it, travels
-    with the trial together with the local files it imports; another ``package.module`` is found on the path (only
-    hashed: each node imports its own). A file or module that does not exist is a ``ConfigError``."""
-    try:
-        return sources.resolve_model(_FACTORY.match(spec)["target"], base_dir)
-    except sources.SourceError as error:
-        raise ConfigError(f"{where}model = {spec!r} is invalid: {error}") from None
-
-
 def _check_profile(config: TrialConfig, where: str) -> None:
     """The env profile can make the env, and every env knob set away from its default is one the profile honours."""
     profile = profile_of(config)
@@ -355,7 +345,10 @@ def apply_knobs(
             "other (your factory takes its own settings from model_args)"
         )
     if "model" in knobs:
-        source, digest = resolve_factory(knobs["model"], base_dir or Path.cwd(), where)
+        try:
+            source, digest = sources.resolve_model(_FACTORY.match(knobs["model"])["target"], base_dir or Path.cwd())
+        except sources.SourceError as error:
+            raise ConfigError(f"{where}model = {knobs['model']!r} is invalid: {error}") from None
         model_updates |= {"factory_source": source, "factory_hash": digest}
     if "env_module" in knobs:
         bundle, digest = sources.resolve_env_module(knobs["env_module"], base_dir or Path.cwd())

@@ -95,7 +95,8 @@ def discount_rewards(
     if len(array) and not reset_on_nonzero and (array == array[0]).all():
         # A constant reward (CartPole's 1.0 a step): every return is one entry of one recursion, computed once.
         steps_left = np.repeat(ends, lengths) - 1 - np.arange(len(array))
-        return _constant_returns(float(array[0]), gamma, _bucket(int(lengths.max())))[steps_left]
+        table_length = 1 << (int(lengths.max()) - 1).bit_length()  # the next power of two: few tables
+        return _constant_returns(float(array[0]), gamma, table_length)[steps_left]
     last = np.zeros(len(array), bool)
     last[ends[lengths > 0] - 1] = True  # an episode's last step: the running return starts again at zero
     # Python floats are IEEE doubles: the same values as float64 arrays, at a fifth of the cost of indexing one.
@@ -121,11 +122,6 @@ def _constant_returns(reward: float, gamma: float, length: int) -> np.ndarray:
         running = reward + gamma * running
         table[d] = running
     return table
-
-
-def _bucket(length: int) -> int:
-    """The table length that serves an episode of ``length`` steps: the next power of two (few tables)."""
-    return 1 << (length - 1).bit_length()
 
 
 def normalize(values: np.ndarray) -> np.ndarray:

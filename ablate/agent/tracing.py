@@ -119,8 +119,10 @@ def trace(network: nn.Module, stack: _Stack, example: torch.Tensor) -> Traced | 
         node.replace_all_uses_with(folded)
         graph.erase_node(node)
     graph.eliminate_dead_code()
+    copied = fx.Graph()
+    copied.output(copied.graph_copy(graph, {}))
     try:
-        module = fx.GraphModule(attributes, _copy(graph))
+        module = fx.GraphModule(attributes, copied)
         _specialise(module, example)
     except Exception:  # shapes fx cannot propagate: the graph as traced
         module = fx.GraphModule(attributes, graph)
@@ -131,12 +133,6 @@ def trace(network: nn.Module, stack: _Stack, example: torch.Tensor) -> Traced | 
 
 def _apply(op: str, function: object, args: tuple, kwargs: dict) -> object:
     return getattr(args[0], function)(*args[1:], **kwargs) if op == "call_method" else function(*args, **kwargs)
-
-
-def _copy(graph: fx.Graph) -> fx.Graph:
-    copied = fx.Graph()
-    copied.output(copied.graph_copy(graph, {}))
-    return copied
 
 
 _SHAPE_ARITHMETIC = (operator.getitem, operator.add, operator.mul, operator.floordiv, operator.sub)
