@@ -22,7 +22,7 @@ from ablate.agent.records import EpisodeMetrics, TrialResult
 from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows
 from ablate.config import TrialConfig, config_document, config_from_document
-from ablate.envs import describe, make_trial_env, profile_of, sample_frames
+from ablate.envs import describe, frame_difference, make_trial_env, pre_process, profile_of, sample_frames
 from ablate.videos import rendered, video_writer
 
 matplotlib.use("Agg")
@@ -165,8 +165,6 @@ def plot_progress(
 def plot_pong_observation(previous: np.ndarray, frame: np.ndarray, path: str | Path) -> Path:
     """One Pong observation three ways, side by side: the raw RGB frame, ``pre_process``-ed (80x80, 0/1),
     and the frame difference the policy sees (current - previous pre-processed frame: -1/0/+1)."""
-    from ablate.envs import frame_difference, pre_process
-
     path = Path(path)
     fig, axes = plt.subplots(1, 3, figsize=(9, 3.4), dpi=100)
     panels = [

@@ -218,10 +218,8 @@ def run_trial(
     resume_from: bytes | None = None,
     on_checkpoint: Callable[[bytes], None] | None = None,
 ) -> TrialResult:
-    """Train one REINFORCE agent as ``config`` says: a population of one. ``on_episodes`` receives each update's
-    new episodes; ``artifacts_dir`` holds the videos it records as it trains (``video_every``). ``on_checkpoint``
-    receives the whole state every ``checkpoint_interval`` episodes; ``resume_from`` = such a blob goes on from it.
-    Raises ``TrialFailed``."""
+    """Train one REINFORCE agent as ``config`` says: ``run_population`` of one, its callbacks without the member's
+    index. Raises ``TrialFailed``."""
     [outcome] = run_population(
         [config],
         on_episodes=(lambda _, rows: on_episodes(rows)) if on_episodes is not None else None,
