@@ -6,7 +6,6 @@ Standard library only. Every bad value raises ``ConfigError`` naming the key, th
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -394,15 +393,10 @@ DEFAULT = TrialConfig()
 PRESETS: dict[str, TrialConfig] = {"default": DEFAULT, "course": COURSE}
 
 
-def config_document(config: TrialConfig) -> dict[str, Any]:
-    """``config`` as JSON-safe data (tuples as lists), every field: what a trial leaves as ``config.json`` so that
-    its network can be rebuilt later (the report's videos, ``config_from_document``)."""
-    return dataclasses.asdict(config)
-
-
 def config_from_document(document: Mapping[str, Any]) -> TrialConfig:
-    """The ``TrialConfig`` of a ``config_document``: lists as tuples again; fields this version does not know are
-    dropped, fields the document lacks (an older trial's) take their defaults."""
+    """The ``TrialConfig`` of a trial's ``config.json`` (``dataclasses.asdict`` of it, so its network can be rebuilt
+    later: the report's videos): lists as tuples again; fields this version does not know are dropped, fields the
+    document lacks (an older trial's) take their defaults."""
 
     def known(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
         names = {f.name for f in fields(cls)}

@@ -7,6 +7,7 @@ machine or a Ray worker.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -21,7 +22,7 @@ from ablate.agent.models import history as window_of
 from ablate.agent.records import EpisodeMetrics, TrialResult
 from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows
-from ablate.config import TrialConfig, config_document, config_from_document
+from ablate.config import TrialConfig, config_from_document
 from ablate.envs import describe, frame_difference, make_trial_env, pre_process, profile_of, sample_frames
 from ablate.videos import rendered, video_writer
 
@@ -88,7 +89,7 @@ def write_artifacts(result: TrialResult, folder: Path, video: bool = True, curve
     torch.save(result.state_dict, weights)
     result.artifacts["weights"] = weights
     settings = folder / "config.json"
-    settings.write_text(json.dumps(config_document(config), indent=1), encoding="utf-8")
+    settings.write_text(json.dumps(dataclasses.asdict(config), indent=1), encoding="utf-8")
     result.artifacts["config"] = settings
     if curve:
         result.artifacts["learning_curve"] = plot_progress(

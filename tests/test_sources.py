@@ -3,6 +3,7 @@ file without helpers keeps its hash; a node without the experiment's folder buil
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from ablate import sources
-from ablate.config import ConfigError, config_document, config_from_document, flatten
+from ablate.config import ConfigError, config_from_document, flatten
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand
 
@@ -138,7 +139,7 @@ def test_a_node_without_the_experiments_folder_builds_the_network_from_what_ship
     config = next(v.config for v in load_experiment(folder / "helpers.toml").variants if v.name == "net2")
     node = tmp_path / "node"
     node.mkdir()
-    (node / "config.json").write_text(json.dumps(config_document(config)))
+    (node / "config.json").write_text(json.dumps(dataclasses.asdict(config)))
     shutil.rmtree(folder)  # the driver's files are gone: only the document travels
     proc = subprocess.run(
         [sys.executable, "-c", NODE, "config.json"],
@@ -157,7 +158,7 @@ def test_shipped_files_that_do_not_match_the_hash_are_refused(folder):
     from ablate.agent.models import ModelError, load_factory
 
     config = next(v.config for v in load_experiment(folder / "helpers.toml").variants if v.name == "net2")
-    document = json.loads(json.dumps(config_document(config)))  # as config.json holds it
+    document = json.loads(json.dumps(dataclasses.asdict(config)))  # as config.json holds it
     document["model"]["factory_source"][1][1] += "\n# edited on the node\n"
     with pytest.raises(ModelError, match="its shipped files do not match the trial's hash"):
         load_factory(config_from_document(document).model)
@@ -165,7 +166,7 @@ def test_shipped_files_that_do_not_match_the_hash_are_refused(folder):
 
 def test_an_older_document_with_the_factorys_text_alone_still_reads(folder):
     config = next(v.config for v in load_experiment(folder / "helpers.toml").variants if v.name == "plain")
-    document = config_document(config)
+    document = dataclasses.asdict(config)
     document["model"]["factory_source"] = PLAIN  # as config.json held it before helpers shipped
     assert config_from_document(document) == config
     document["model"] |= {"factory": "", "factory_source": "", "factory_hash": ""}  # a built-in network's
@@ -364,7 +365,7 @@ def test_a_local_env_module_beside_the_experiment_ships_to_a_node_without_it(tmp
     config = load_experiment(experiment / "env.toml").variants[0].config
     assert config.env_module_source == (("besideenvs.py", LOCAL_ENV),)
     assert config.env_module_hash == hashlib.sha1(LOCAL_ENV.encode()).hexdigest()[:12]
-    (tmp_path / "config.json").write_text(json.dumps(config_document(config)))
+    (tmp_path / "config.json").write_text(json.dumps(dataclasses.asdict(config)))
     shutil.rmtree(experiment)
     proc = subprocess.run(
         [sys.executable, "-c", NODE_ENV, "config.json"],
