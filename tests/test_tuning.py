@@ -4,7 +4,8 @@ import pytest
 
 from ablate.experiment import parse_experiment
 from ablate.launch.grid import chosen_trials
-from ablate.launch.tuning import TuningResult, choose, choose_all, metric_value, tuning_document
+from ablate.launch.tuning import TuningResult, choose, choose_all, tuning_document
+from ablate.measures import measure
 
 
 def _spec(metric="auc", candidates=(0.01, 0.03, 0.1)):
@@ -98,10 +99,10 @@ def test_final_return_and_nan_ranks_last():
     assert _choose(experiment, table).values == {"learning_rate": 0.03}
 
 
-def test_metric_value_censors_unsolved_episodes_at_the_budget():
-    assert metric_value(_unsolved(), "episodes_to_solve", 77) == (77.0, True)
-    assert metric_value(_solved(12), "episodes_to_solve", 77) == (12.0, False)
-    assert metric_value(_solved(12), "final_return", 77) == (400.0, False)
+def test_tuning_values_censor_unsolved_episodes_at_the_budget():
+    assert measure("episodes_to_solve").from_summary(_unsolved(), 77) == (77.0, True)
+    assert measure("episodes_to_solve").from_summary(_solved(12), 77) == (12.0, False)
+    assert measure("final_return").from_summary(_solved(12), 77) == (400.0, False)
 
 
 def test_choose_all_waits_for_every_tuning_trial_and_keeps_a_variants_own_value():

@@ -17,7 +17,7 @@ from rich.live import Live
 from rich.table import Table
 
 from ablate.launch.clock import clock
-from ablate.launch.estimate import TimeLeft, estimate
+from ablate.launch.estimate import estimate
 from ablate.launch.state import LaunchState
 
 MAX_RUNNING_ROWS = 16
@@ -40,9 +40,8 @@ class ProgressView:
         """(seconds since the start, trials ended, the round's estimate, the most in all, the phase: an index
         of ``state.phases``) after every event, for ``make bench`` to hold against the time that remained."""
         self.quarter: tuple[float, float | None, float | None, int] | None = None
-        """At a quarter of the launch's first trials: (seconds in, left in the round, at most in all, the round)."""
-        """(seconds since the start, the round's estimate, the most in all) when a quarter of the launch's
-        first trials had ended: the figures the summary holds against the end (``bounds_line``)."""
+        """When a quarter of the launch's first trials had ended: (seconds since the start, left in the round, at
+        most in all, the round), which the summary holds against the end (``bounds_line``)."""
 
     def update(self) -> None:
         """After an event: the estimate logged (``log_estimates``) or kept at a quarter, the line printed when due."""
@@ -77,7 +76,7 @@ class ProgressView:
             ended, first = state.first_ended
             status = f"time left: estimating until a quarter of the trials have ended ({ended} of {first})"
         else:
-            left, most = TimeLeft(state).figures(now)
+            left, most = estimate(state, now)
             status = time_left_words(left, most, state.round if state.possible or state.round > 1 else None)
         total = total_words(len(state.trials), state.later_most if state.stage_coming else 0, state.at_most_more)
         return (

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Protocol
 
 from ablate.experiment import Experiment
@@ -242,14 +242,7 @@ class Rounds:
                     entry["why"] = "reached max" if self.stopped in (AT_MAX, DECIDED) else self.stopped
             variants[variant.name] = entry
         return {
-            "design": {
-                "start": design.start,
-                "step": design.step,
-                "max": design.max,
-                "max_minutes": design.max_minutes,
-                "growth": design.growth,
-                "spending": design.spending,
-            },
+            "design": asdict(design),
             "looks": list(design.looks),
             "round": self.round,
             "rounds_run": self.ran,

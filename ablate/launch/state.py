@@ -174,11 +174,10 @@ class LaunchState:
         self.later: list[TrialProgress] = []
         self.later_population_of: dict[str, tuple[str, ...]] = {}
         self.set_later(later, later_groups)
-        self.summaries: dict[str, Mapping[str, float]] = {}
         self.stage_coming = stage_coming or bool(later)
+        """A later stage stands in ``later`` (or will): its trials join this phase."""
         self.later_most = len(later) if later_most is None else later_most
         """The most trials the later stage can add: the progress line's bound, which stand-ins never move."""
-        """A later stage stands in ``later`` (or will): its trials join this phase."""
         self.phases: list[list[str]] = [[t.key for t in trials]]
         """The keys of each set of trials known together: the launch's, with the later stage that replaces its
         stand-ins; then each round of seeds."""
@@ -226,10 +225,8 @@ class LaunchState:
         ``summary``: its summary metrics (episodes run)."""
         trial = self.trials[key]
         trial.wall_s = wall_s
-        if summary:
-            self.summaries[key] = summary
-            if summary.get("episodes_run") is not None:
-                trial.episodes_run = int(summary["episodes_run"])
+        if summary and summary.get("episodes_run") is not None:
+            trial.episodes_run = int(summary["episodes_run"])
         self._end(key, "done", solved)
 
     def failed(self, key: str) -> None:

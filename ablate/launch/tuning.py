@@ -47,12 +47,6 @@ class Choice:
     """Mean metric per candidate (``"learning_rate=0.1"``), for the record."""
 
 
-def metric_value(metrics: Mapping[str, float], metric: str, budget: int) -> tuple[float, bool]:
-    """A trial's value of ``metric`` and whether it is censored (``Measure.from_summary``: episodes to solve of a
-    trial that never solved are the budget, a lower bound). A missing or NaN value is NaN (ranked last)."""
-    return measure(metric).from_summary(metrics, budget)
-
-
 def _label(values: Mapping[str, Any]) -> str:
     return ",".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items()) or "-"
 
@@ -73,7 +67,7 @@ def choose(spec: TuneSpec, tuned: tuple[str, ...], base: Mapping[str, Any], resu
     sign = -1.0 if spec.direction == "max" else 1.0  # lower key is better
 
     def mean(rows: list[TuningResult], metric: str) -> tuple[float, bool]:
-        pairs = [metric_value(r.metrics, metric, r.budget) for r in rows]
+        pairs = [measure(metric).from_summary(r.metrics, r.budget) for r in rows]  # censored: a bound
         values = [v for v, _ in pairs]
         value = sum(values) / len(values) if values and all(math.isfinite(v) for v in values) else float("nan")
         return value, any(c for _, c in pairs)
