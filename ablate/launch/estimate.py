@@ -1,7 +1,5 @@
-"""The time-left estimate of a launch's state (``launch.state``): what the finished trials say of the costs of
-those still to run, finished trials' seconds carried over to another episode budget, and the expected costs
-placed on the trial slots in the order the trials start: the time left in the current round, and the most the
-launch can still take (every open comparison running to its ``max`` seeds, round after round).
+"""The time-left estimate of a launch's state (``launch.state``): the time left in the current round and the most
+the launch can still take. Its rules, in words: ``docs/running.md`` ("Progress").
 
 Pure: it reads the state (holding its lock is the caller's part) and draws nothing."""
 
@@ -25,8 +23,7 @@ pace measures the trial's own noise (a CartPole agent's episodes growing, its po
 
 def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], slots: int) -> float:
     """Seconds until the last trial ends when ``pending_cost_s`` (in scheduling order) each take the next free
-    one of ``slots`` trial slots, the running trials holding theirs for ``running_left_s``: a long trial
-    that starts last runs alone, which a mean cost over the remaining count would not see."""
+    one of ``slots`` trial slots, the running trials holding theirs for ``running_left_s``."""
     free_at = sorted([max(s, 0.0) for s in running_left_s] + [0.0] * max(slots - len(running_left_s), 0))
     if not free_at:
         free_at = [0.0]
@@ -38,9 +35,8 @@ def makespan(running_left_s: Sequence[float], pending_cost_s: Sequence[float], s
 
 def expected_max(samples: Sequence[Sequence[float]]) -> float:
     """The expected longest of independent draws, one from each sample (its values equally likely): what a
-    population of members with these costs holds its slot for. Members with the same settings share a sample:
-    each distinct one counts once, raised to its members (a pending population of 60 seeds, each drawing from
-    900 finished peers, took seconds per estimate counted member by member)."""
+    population of members with these costs holds its slot for. Each distinct sample counts once, raised to its
+    members (a population of 60 seeds, each drawing from 900 finished peers, took seconds counted one by one)."""
     counts: dict[tuple[float, ...], int] = {}
     for sample in samples:
         key = tuple(sorted(sample))
@@ -54,8 +50,7 @@ def expected_max(samples: Sequence[Sequence[float]]) -> float:
 
 
 def at_budget(cost: float, ran: int, budget: int, rate: float | None, wanted: int) -> float:
-    """A finished trial's seconds carried over to an episode budget of ``wanted``: one that stopped early
-    (solved) would stop there again; one that ran its whole budget runs on at its last pace."""
+    """A finished trial's seconds carried over to an episode budget of ``wanted``."""
     if ran < budget and ran <= wanted:
         return cost
     if wanted <= ran:
@@ -176,8 +171,8 @@ class TimeLeft:
         return [cost * seen.pace for cost, _, budget, _ in seen.peers.get(trial.settings, []) if budget == trial.budget]
 
     def _cost_sample(self, trial: TrialProgress, seen: CostsSeen) -> list[float] | None:
-        """The costs a trial that has not started may take, equally likely: its finished peers' (``_same_budget``);
-        else the one figure ``_trial_cost`` gives (its earlier run's first)."""
+        """The costs a trial that has not started may take, equally likely: its finished peers', else
+        ``_trial_cost``'s one figure."""
         same = [] if trial.trial.key in self.state.prior else self._same_budget(trial, seen)
         if same:
             return same
@@ -185,15 +180,9 @@ class TimeLeft:
         return None if cost is None else [cost]
 
     def _peer_cost(self, trial: TrialProgress, seen: CostsSeen) -> float | None:
-        """What finished trials say a trial costs: its earlier run's (scaled to this launch's pace); else the
-        mean of its finished peers with the same settings, at its budget; else their cost carried over to its
-        budget (a tuned variant's evaluation trial from its tuning trials at the same values), halfway to the
-        mean of its variant's finished trials at its budget once there are some: the value won on the tuning
-        seeds, so its tuning trials are an optimistic guide (an evaluation seed may solve later, or never),
-        and the variant's evaluation seeds at the base value ran the whole budget; else that mean alone."""
+        """What finished trials say a trial costs, at the launch's pace now (``None``: nothing yet)."""
         if trial.trial.key in self.state.prior:
             return self.state.prior[trial.trial.key] * seen.prior_scale
-        # At the launch's pace now: the finished trials ran on a machine that may have been busier or freer.
         same = self._same_budget(trial, seen)
         if same:
             return statistics.fmean(same)
@@ -205,9 +194,7 @@ class TimeLeft:
         return None if variant_mean is None else variant_mean * seen.pace
 
     def _trial_cost(self, trial: TrialProgress, seen: CostsSeen) -> float | None:
-        """Expected seconds of a trial that has not started: what its finished peers say (``_peer_cost``), else
-        its whole budget at the seconds per episode seen so far (its variant's own, else every variant's);
-        ``None`` before any trial has reported an episode."""
+        """Expected seconds of a trial that has not started; ``None`` before any trial has reported an episode."""
         cost = self._peer_cost(trial, seen)
         if cost is not None:
             return cost
@@ -223,13 +210,12 @@ class TimeLeft:
 
     def dispatch_s(self) -> float:
         """Mean seconds a slot stays idle between one trial's end and the next trial's start (Tune's loop, the
-        driver writing the ended trial's artifacts): with trials of a second or two, a third of the time."""
+        driver's writes): with trials of a second or two, a third of the time."""
         return statistics.fmean(self.state.gaps) if self.state.gaps else 0.0
 
     def _left_by_profile(self, trial: TrialProgress, now: float, seen: CostsSeen) -> float | None:
         """What its finished peers that ran past its last episode took from there, at its pace against them
-        (``_pace``), and from their last report to their end; ``None`` without such a peer, or a pace, or once
-        it reported its last episode (solved, or its budget's: it stops there)."""
+        (``_pace``), and from their last report to their end; ``None`` without such a peer or a pace."""
         pace = seen.paces.get(trial.trial.key)
         episode = trial.profile[-1][0] if trial.profile else None
         if pace is None or episode is None or not trial.reports:
@@ -253,16 +239,13 @@ class TimeLeft:
             return expected - elapsed
         if trial.last_episode_reported:  # not the rest of its budget: a solved trial stops where it solved
             return 0.0
-        # Past its peers' mean but not past every peer: as long as the peers that ran longer than it has took,
-        # on average (a seed that has not solved by now is one of the slower ones, not one at its own pace for
-        # the rest of its budget).
+        # Past its peers' mean but not past every peer: a seed that has not solved by now is one of the slower ones.
         longer = [c for c, _, b, _ in seen.peers.get(trial.settings, []) if b == trial.budget and c > elapsed]
         if longer and trial.trial.key not in self.state.prior:
             return statistics.fmean(longer) - elapsed
-        # Past what its peers took (or none has ended): at its own recent pace, to where its earlier run (the
-        # same seed) stopped, a slower machine's being no reason to run longer; past that, the rest of its budget;
-        # sooner where its rolling mean climbs to the solve threshold first (a CartPole agent near it plays
-        # 500-step episodes: the rest of its budget at that pace would be many times what is left).
+        # Past what its peers took (or none has ended): at its own recent pace to where its earlier run stopped, else
+        # its budget's end, sooner where its rolling mean climbs to the threshold first (a CartPole agent near it
+        # plays 500-step episodes: the rest of its budget at that pace would be many times what is left).
         rate = trial.seconds_per_episode(now) or seen.rates.get(None)
         if rate is None:
             return None
@@ -274,9 +257,8 @@ class TimeLeft:
         return rate * max(left if climb is None else min(left, climb), 0)
 
     def _unit_left(self, unit: Sequence[TrialProgress], now: float, seen: CostsSeen) -> float | None:
-        """Seconds until a population (or a trial alone) frees its slot: its longest member's. Each running
-        member's time left; the members not started yet (their mates may have) costed whole from now, as the
-        expected longest of them: a population waits for its slowest seed, not for its mean one."""
+        """Seconds until a population (or a trial alone) frees its slot: its longest member's, the members not
+        started yet costed as the expected longest of them (a population waits for its slowest seed)."""
         running = [self._left_of_running(t, now, seen) for t in unit if t.state == "running"]
         samples = [self._cost_sample(t, seen) for t in unit if t.state != "running"]
         if None in running or None in samples:
@@ -286,8 +268,6 @@ class TimeLeft:
     def seconds_left(self, now: float | None = None, seen: CostsSeen | None = None) -> float | None:
         """Seconds until the last trial ends, or ``None`` while nothing is known of any trial's cost."""
         now = time.monotonic() if now is None else now
-        # A population holds its slot until its last member ends: its members run at once, each at the pace
-        # of a member of a population (what its finished peers took), so its cost is its longest member's.
         units = self.units(
             [t for t in self.state.trials.values() if t.state in ("running", "pending")], self.state.population_of
         )
@@ -310,9 +290,7 @@ class TimeLeft:
         return now_stage + (makespan([], [c + gap for c in later], slots) if later else 0.0)  # type: ignore[misc, operator]
 
     def figures(self, now: float | None = None) -> tuple[float | None, float | None]:
-        """(``seconds_left``, the most the launch can still take): the time left now, then each round later
-        rounds may still add (``LaunchState.possible``), one after another (a round starts once the one before
-        it has ended); ``None`` while nothing is known of a trial's cost."""
+        """(``seconds_left``, that plus each round later rounds may still add, one after another)."""
         now = time.monotonic() if now is None else now
         seen = self._costs_seen(now)
         left = self.seconds_left(now, seen)

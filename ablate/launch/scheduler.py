@@ -1,20 +1,9 @@
 """The only module that talks to Ray: run a list of trials with Ray Tune, locally or on any Ray cluster.
 
-Trials run in Ray workers; events reach the caller on the driver process (the single tracking writer)
-through the ``TrialEvents`` it passes in. Nothing assumes a disk that two machines share: everything a
-trial produces travels inside Ray's own results, through the object store, to the driver:
-
-- its curve, reduced in the worker to a bounded number of points (``ablate.launch.curve``), every few seconds;
-- its artifacts (``episodes.csv``, weights, config, curve, training videos), as file bytes in its last result;
-- its checkpoints (an opaque blob from ``run_trial``'s ``on_checkpoint``), as they are taken. The driver
-  keeps the latest one per trial in a small actor on its own node, where a retried trial fetches it.
-
-Why through Ray rather than straight from workers to the tracking store: the driver already is the one
-writer (an SQLite store must never see two), so the path is the same for ``sqlite:///`` and a tracking
-server; workers need neither the store's address nor its credentials; and a trial that dies mid-way
-leaves nothing half-written in the store. The cost is that artifacts cross the driver once: they are
-small here (tens of KB to a few MB per trial). ``storage_path`` is Tune's own bookkeeping, kept on the
-driver; a user with NFS or ``s3://`` can still point it there.
+Trials run in Ray workers; their events (curve points every few seconds, checkpoints as taken, artifacts as file
+bytes in their last result) travel through Ray's object store to the driver, the single tracking writer, which
+hands them to the ``TrialEvents`` it passed in: why through Ray is in ``docs/cluster.md`` ("How trials reach the
+store"). ``storage_path`` is Tune's own bookkeeping, kept on the driver.
 """
 
 from __future__ import annotations
