@@ -10,11 +10,11 @@ from typing import Any
 
 
 class EventWriter:
-    """``TrialEvents`` told on a thread of their own, in the order they came. Tune holds a population's worker at
-    each report until the driver's callbacks have returned, and telling a report's events is the launch's MLflow
-    writes (a member's run closed with its artifacts: tens of ms, more on a tracking server): told inline they
-    held the workers for ~a quarter of their time (a 200-seed launch, populations of 50). The callback now only
-    queues them. A write that fails stops the telling; the next event queued, or ``close``, raises its error."""
+    """Trial events (``Recorder`` calls) told on a thread of their own, in the order they came. Tune holds a
+    population's worker at each report until the driver's callbacks have returned, and telling a report's events
+    is the launch's MLflow writes (tens of ms a member, more on a tracking server): told inline they held the
+    workers for ~a quarter of their time (a 200-seed launch, populations of 50). A write that fails stops the
+    telling; the next event queued, or ``close``, raises its error."""
 
     def __init__(self, events: Any) -> None:
         self.events = events

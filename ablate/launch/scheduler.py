@@ -2,8 +2,8 @@
 
 Trials run in Ray workers; their events (curve points every few seconds, checkpoints as taken, artifacts as file
 bytes in their last result) travel through Ray's object store to the driver, the single tracking writer, which
-hands them to the ``TrialEvents`` it passed in: why through Ray is in ``docs/cluster.md`` ("How trials reach the
-store"). ``storage_path`` is Tune's own bookkeeping, kept on the driver.
+hands them to the ``recorder.Recorder`` it was given: why through Ray is in ``docs/cluster.md`` ("How trials
+reach the store"). ``storage_path`` is Tune's own bookkeeping, kept on the driver.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import time
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import ray
 from ray import tune
@@ -34,6 +34,9 @@ from ablate.launch.plan import Population
 from ablate.launch.ray_logs import log_raylet_errors, one_line, tune_logs_to
 from ablate.launch.secrets import shown
 
+if TYPE_CHECKING:
+    from ablate.launch.recorder import Recorder  # the events' one receiver (``bench_launch`` times a stand-in)
+
 REPORT_EVERY_S = 2.0
 """Seconds between metric reports from a trial: each ``tune.report`` costs ~2 ms, so never per episode."""
 MAX_PROCESS_FAILURES = 2
@@ -44,25 +47,6 @@ CONNECT_TIMEOUT_S = 10.0
 
 class ClusterUnavailable(RuntimeError):
     """The Ray cluster named by ``--address`` or ``RAY_ADDRESS`` cannot be reached (one line, exit 1)."""
-
-
-class TrialEvents(Protocol):
-    """What the scheduler tells its caller, on the driver, in order per trial."""
-
-    def started(self, key: str) -> None: ...
-    def episodes(self, key: str, points: list[CurvePoint]) -> None: ...
-    def checkpoint(self, key: str, blob: bytes) -> None: ...
-    def restarted(self, key: str, reason: str) -> None: ...
-    def finished(
-        self,
-        key: str,
-        summary: dict[str, float],
-        artifacts: Path | None,
-        node: str,
-        population: str = "",
-        env: dict[str, str] | None = None,
-    ) -> None: ...
-    def failed(self, key: str, message: str) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -178,7 +162,7 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
 
 def run_trials(
     plan: Sequence[Population],
-    events: TrialEvents,
+    events: Recorder,
     options: ClusterOptions,
     run_name: str,
     resume: Mapping[str, bytes] | None = None,
@@ -381,7 +365,7 @@ def _host(address: str) -> str:
 
 
 class _Bridge(tune.Callback):
-    """A Tune callback (runs on the driver) that turns Tune's lifecycle of populations into ``TrialEvents``
+    """A Tune callback (runs on the driver) that turns Tune's lifecycle of populations into events
     per member, handed to the ``EventWriter``. A member's end is told as its report arrives; a population whose
     process died is retried whole, and its members that had ended already are not told of again."""
 
@@ -436,7 +420,7 @@ class _Bridge(tune.Callback):
             self.writer.put(self.events.failed, key, reason)
 
 
-def _finished(events: TrialEvents, key: str, outcome: Mapping[str, Any], node: str, population: str) -> None:
+def _finished(events: Recorder, key: str, outcome: Mapping[str, Any], node: str, population: str) -> None:
     """A member's end told with its files in a folder of their own (the tracker logs the folder)."""
     summary, env = dict(outcome["summary"]), outcome.get("env")
     if not outcome["artifacts"]:
