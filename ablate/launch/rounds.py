@@ -210,19 +210,17 @@ class Rounds:
         trials = self.primary_trials(choices).values()
         return [t for ts in trials for t in ts if t.key in finished or t.key in self.attempted]
 
-    def line(self) -> str:
-        """The progress line of the round just planned."""
-        last = self.ran[-1]
-        return (
-            f"round {last['round']} of at most {len(self.design.looks)}: seeds up to {last['seeds']} for "
-            f"{', '.join(last['variants'])} (still open: {', '.join(last['open']) or 'none'})"
-        )
-
     def announce(self, show: bool) -> str:
-        """Print the round's line (when ``show``); the progress view's name for it: ``<experiment> round <r>``."""
+        """Print the line of the round just planned (when ``show``); the progress view's name for it:
+        ``<experiment> round <r>``."""
+        last = self.ran[-1]
         if show:
-            print(self.line(), flush=True)
-        return f"{self.experiment.name} round {self.ran[-1]['round']}"
+            print(
+                f"round {last['round']} of at most {len(self.design.looks)}: seeds up to {last['seeds']} for "
+                f"{', '.join(last['variants'])} (still open: {', '.join(last['open']) or 'none'})",
+                flush=True,
+            )
+        return f"{self.experiment.name} round {last['round']}"
 
     def document(self) -> dict[str, Any]:
         """``rounds.json`` of a launch run: the design, the rounds this launch ran, why they stopped, and each

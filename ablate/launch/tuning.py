@@ -64,7 +64,6 @@ def choose(spec: TuneSpec, tuned: tuple[str, ...], base: Mapping[str, Any], resu
     by_candidate: dict[tuple, list[TuningResult]] = {}
     for result in results:
         by_candidate.setdefault(tuple((k, result.values[k]) for k in tuned), []).append(result)
-    sign = -1.0 if spec.direction == "max" else 1.0  # lower key is better
 
     def mean(rows: list[TuningResult], metric: str) -> tuple[float, bool]:
         pairs = [measure(metric).from_summary(r.metrics, r.budget) for r in rows]  # censored: a bound
@@ -72,28 +71,26 @@ def choose(spec: TuneSpec, tuned: tuple[str, ...], base: Mapping[str, Any], resu
         value = sum(values) / len(values) if values and all(math.isfinite(v) for v in values) else float("nan")
         return value, any(c for _, c in pairs)
 
+    def best(candidates: Iterable[tuple], metric: str, sign: float) -> list[tuple]:
+        """The candidates whose mean ``metric`` is the best (lowest ``sign`` x mean; NaN last), within tolerance."""
+        means = {c: mean(by_candidate[c], metric)[0] for c in candidates}
+        keyed = {c: (sign * v if math.isfinite(v) else math.inf) for c, v in means.items()}
+        top = min(keyed.values())
+        return [c for c, k in keyed.items() if abs(k - top) <= _TOLERANCE * max(1.0, abs(top))]
+
     scores = {cand: mean(rows, spec.metric) for cand, rows in by_candidate.items()}
-    keyed = {cand: (sign * v if math.isfinite(v) else math.inf) for cand, (v, _) in scores.items()}
-    best = min(keyed.values())
-    best_censored = any(scores[c][1] for c, k in keyed.items() if abs(k - best) <= _TOLERANCE * max(1.0, abs(best)))
-    if measure(spec.metric).censored and best_censored:
+    tied = best(by_candidate, spec.metric, -1.0 if spec.direction == "max" else 1.0)
+    if measure(spec.metric).censored and any(scores[c][1] for c in tied):
         # The lowest mean uses a never-solved seed: its true mean is higher by an unknown amount, so episodes
         # cannot order the candidates at all.
-        tied = list(keyed)
+        tied = list(by_candidate)
         reason = "episodes to solve censored (a tuning seed never solved)"
     else:
-        tied = [c for c, k in keyed.items() if abs(k - best) <= _TOLERANCE * max(1.0, abs(best))]
         reason = f"tie on mean {spec.metric}"
     if len(tied) == 1:
         chosen, why = tied[0], f"best mean {spec.metric}"
     else:
-        if spec.metric != AUC.name:
-            auc = {c: mean(by_candidate[c], AUC.name)[0] for c in tied}
-            auc_key = {c: (-v if math.isfinite(v) else math.inf) for c, v in auc.items()}
-            top = min(auc_key.values())
-            by_auc = [c for c in tied if abs(auc_key[c] - top) <= _TOLERANCE * max(1.0, abs(top))]
-        else:
-            by_auc = tied
+        by_auc = best(tied, AUC.name, -1.0) if spec.metric != AUC.name else tied
         if len(by_auc) == 1:
             chosen, why = by_auc[0], f"{reason}: best mean auc"
         else:
