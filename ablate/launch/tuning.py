@@ -105,9 +105,10 @@ def base_values(spec: TuneSpec, variant: Variant) -> dict[str, Any]:
     return {k: getattr(variant.config, k) for k in spec.knob_names}
 
 
-def choose_all(experiment: Experiment, results: Iterable[TuningResult]) -> dict[str, Choice]:
-    """A choice for every variant whose stage 1 is complete (every candidate on every tuning seed finished);
-    variants still missing tuning trials are left out. Requires ``experiment.tune``."""
+def choose_all(experiment: Experiment, results: Iterable[TuningResult], so_far: bool = False) -> dict[str, Choice]:
+    """A choice for every variant whose stage 1 is complete (every candidate on every tuning seed finished), or
+    with ``so_far`` has any finished trial (its best candidate so far); the others are left out. Requires
+    ``experiment.tune``."""
     spec = experiment.tune
     assert spec is not None
     by_variant: dict[str, list[TuningResult]] = {}
@@ -119,7 +120,7 @@ def choose_all(experiment: Experiment, results: Iterable[TuningResult]) -> dict[
         rows = by_variant.get(variant.name, [])
         done = {(tuple(sorted(r.values.items())), r.seed) for r in rows}
         wanted = {(tuple(sorted(c.items())), s) for c in spec.candidates(variant) for s in spec.seeds}
-        if tuned and not wanted <= done:
+        if tuned and not (done if so_far else wanted <= done):
             continue
         choices[variant.name] = choose(spec, tuned, base_values(spec, variant), rows)
     return choices
@@ -197,19 +198,9 @@ class StagePlan:
         values)."""
         if not self.tuning:
             return []
-        spec = self.experiment.tune
-        assert spec is not None
-        variants = {v.name: v for v in self.experiment.variants}
-        by_variant: dict[str, list[TuningResult]] = {}
-        for result in finished_results(self.experiment, self.tuning, finished):
-            by_variant.setdefault(result.variant, []).append(result)
-        choices, stand_ins = {}, []
-        for name in dict.fromkeys(t.variant for t in self.tuning):
-            variant = variants[name]
-            if name in by_variant:
-                choices[name] = choose(spec, spec.tuned_knobs(variant), base_values(spec, variant), by_variant[name])
-            else:
-                stand_ins += [t for t in self.evaluation if t.variant == name]
+        choices = choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished), so_far=True)
+        unseen = [name for name in dict.fromkeys(t.variant for t in self.tuning) if name not in choices]
+        stand_ins = [t for name in unseen for t in self.evaluation if t.variant == name]
         return unique(self.chosen(choices), skip) + stand_ins
 
 
