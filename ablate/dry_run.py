@@ -87,14 +87,14 @@ def trial_time(
     from ablate.launch.estimate import estimate
     from ablate.launch.plan import population_keys
     from ablate.launch.state import LaunchState
-    from ablate.launch.tuning import StagePlan, unique
+    from ablate.launch.tuning import unique
 
     wanted = {t.variant for t in trials}
-    plan = StagePlan(experiment, trials, [t for t in tuning_trials(experiment) if t.variant in wanted])
+    tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
     done = set() if fresh else from_store(experiment, tracking_uri, finished_keys, set())
-    known = {t.key for t in [*plan.tuning, *trials]}
-    todo = unique([*plan.tuning, *trials], done)
-    tuned = {t.variant for t in plan.tuning}
+    known = {t.key for t in [*tuning, *trials]}
+    todo = unique([*tuning, *trials], done)
+    tuned = {t.variant for t in tuning}
     later = [t for t in trials if t.variant in tuned and t.key not in done]  # stage 2's stand-ins, at the base values
     slots = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
 
@@ -200,7 +200,8 @@ def dry_run(
         spec = experiment.tune
         wanted = {t.variant for t in trials}
         tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
-        tuned = {v.name for v in experiment.variants if v.name in wanted and spec.tuned_knobs(v)}
+        variants = {v.name: v for v in experiment.variants}
+        tuned = {t.variant for t in tuning}
         after = [t for t in trials if t.variant in tuned]
         print(
             f"{experiment.name}: {len(tuning)} tuning trials, then {len(trials)} at the base values and up to "
@@ -211,10 +212,7 @@ def dry_run(
                 f"{t.variant} [tune]",
                 str(t.seed),
                 t.key,
-                ", ".join(
-                    f"{k}={getattr(t.config, k)}"
-                    for k in spec.tuned_knobs(next(v for v in experiment.variants if v.name == t.variant))
-                )
+                ", ".join(f"{k}={getattr(t.config, k)}" for k in spec.tuned_knobs(variants[t.variant]))
                 or "its own values",
             )
             for t in tuning
