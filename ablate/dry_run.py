@@ -85,7 +85,7 @@ def trial_time(
     without any, ``guessed_s``. Trials finished in the newest generation are skipped, as the run skips them
     (``fresh``: none)."""
     from ablate.launch.estimate import estimate
-    from ablate.launch.plan import population_keys
+    from ablate.launch.plan import plan_populations
     from ablate.launch.state import LaunchState
     from ablate.launch.tuning import unique
 
@@ -99,7 +99,7 @@ def trial_time(
     slots = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
 
     def groups(ts: list[GridTrial]) -> list[list[str]]:
-        return population_keys(ts, cap=DEFAULT_POPULATION, slots=slots)
+        return [p.keys for p in plan_populations(ts, cap=DEFAULT_POPULATION, slots=slots)]
 
     possible: list[list[GridTrial]] = []
     if experiment.rounds is not None:

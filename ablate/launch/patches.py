@@ -67,14 +67,11 @@ def ray_loopback_only(enabled: bool) -> None:
 
 @contextlib.contextmanager
 def ray_lean_local_start() -> Iterator[None]:
-    """A local ``ray.init`` starts, beside the GCS, the raylet and its agents, three Python processes that a
-    launch on one machine never uses: the autoscaler's monitor (it scales clusters of cloud machines), the log
-    monitor (it streams workers' prints to the driver, which ``log_to_driver=False`` discards) and the
-    dashboard's head (started even with ``include_dashboard=False``, for job submission and the state API).
-    On 2 cores each costs ~1 s of CPU while the launch waits; without them ``ray.init`` took 1.8-2.0 s here
-    against 3.1-4.1 s (``docs/performance.md``). ``ray.init`` has no setting for any of them: while it runs, the
-    node's parameters say no monitor and no log monitor (``RayParams.no_monitor``, ``include_log_monitor``,
-    the settings ``ray start`` has) and the node skips its API server. Joined clusters are never touched."""
+    """A local ``ray.init`` without three Python processes a launch on one machine never uses: the autoscaler's
+    monitor, the log monitor (``log_to_driver=False`` discards what it streams) and the dashboard's head (started
+    even with ``include_dashboard=False``); ``ray.init`` took 1.8-2.0 s without them against 3.1-4.1 s
+    (``docs/performance.md``). ``ray.init`` has no setting for any: while it runs, the node's parameters say no
+    monitor and no log monitor (the settings ``ray start`` has) and the node skips its API server."""
     import ray._private.node as node
     import ray._private.parameter as parameter
 
@@ -176,11 +173,9 @@ _IN_CHUNK = 500
 def mlflow_insert_metrics(store: Any, metrics: Mapping[str, Sequence[Any]]) -> None:
     """``metrics`` (``mlflow.entities.Metric``s by run id, of open runs) written into ``store`` in one transaction,
     as ``log_batch`` leaves them: a history row per value (a value given twice is written once) and each run's
-    latest value per key (highest step, then timestamp, then value). ``log_batch`` builds and checks an ORM object
-    per value (~70 us of CPU each on SQLite, plus ~4 ms a call, one run a call), and the launch's one writer serves
-    every trial: a CartPole trial's curve of ~700 values cost the driver about a third of the trial's training. Here
-    the values of every run go in one INSERT, and the latest values are read once and updated or inserted in bulk,
-    through MLflow's own table models (its store's ``ManagedSessionMaker``, ``SqlMetric``, ``SqlLatestMetric``)."""
+    latest value per key (highest step, then timestamp, then value), through MLflow's own table models.
+    ``log_batch`` builds an ORM object per value (~70 us of CPU each on SQLite, plus ~4 ms a call, one run a
+    call): a CartPole trial's ~700 values cost the launch's one writer about a third of the trial's training."""
     from sqlalchemy.exc import IntegrityError
 
     rows: list[dict[str, Any]] = []

@@ -135,8 +135,3 @@ def plan_populations(
 
 def _population(members: tuple[GridTrial, ...], plotted: Collection[str] | None) -> Population:
     return Population(members, None if plotted is None else frozenset(t.key for t in members if t.key in plotted))
-
-
-def population_keys(trials: Sequence[GridTrial], cap: int = 1, slots: int = 1) -> list[list[str]]:
-    """The keys of each population ``plan_populations`` makes of ``trials``: how the estimate sees them."""
-    return [p.keys for p in plan_populations(trials, cap=cap, slots=slots)]

@@ -26,7 +26,7 @@ from ablate.launch.mlflow_store import (
     TAG_PID,
     TAG_ROLE,
 )
-from ablate.launch.plan import LaunchPlan, plan_populations, population_keys
+from ablate.launch.plan import LaunchPlan, plan_populations
 from ablate.launch.progress import ProgressView, total_words
 from ablate.launch.recorder import Recorder
 from ablate.launch.records import TorchKernels, environment_document, git_commit, grid_document
@@ -317,7 +317,8 @@ class _Launch:
         return stage, rounds
 
     def groups(self, trials: Sequence[GridTrial]) -> list[list[str]]:
-        return population_keys(trials, self.options.population, self.cores)
+        """The keys of each population ``trials`` will run in: how the estimate sees them."""
+        return [p.keys for p in plan_populations(trials, self.options.population, self.cores)]
 
     def provisional(self, summaries: Mapping[str, Mapping[str, float]]) -> list[GridTrial]:
         """Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
