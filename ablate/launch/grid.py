@@ -59,12 +59,7 @@ def expand(experiment: Experiment, every_round: bool = False) -> list[GridTrial]
                 f"{experiment.path}: variants {other!r} and {variant.name!r} would share the trial key prefix "
                 f"{variant_slug(variant.name)!r}; valid: names that differ in letters, digits, '.', '=' or '-'"
             )
-    trials = []
-    for variant in experiment.variants:
-        for seed in experiment.max_seeds_of(variant) if every_round else experiment.seeds_of(variant):
-            config = replace(variant.config, seed=seed)
-            trials.append(GridTrial(trial_key(variant.name, config), variant.name, seed, config))
-    return trials
+    return chosen_trials(experiment, {v.name: {} for v in experiment.variants}, every_round)
 
 
 def schedule_order(trials: list[GridTrial], costs: dict[str, float] | None = None) -> list[GridTrial]:

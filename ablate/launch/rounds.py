@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
 from ablate.experiment import Experiment
-from ablate.launch.grid import GridTrial, trial_key
+from ablate.launch.grid import GridTrial, chosen_trials
 from ablate.launch.tuning import Choice
 from ablate.seeds import SeedRounds, added_words
 
@@ -94,18 +94,11 @@ class Rounds:
 
     def primary_trials(self, choices: Mapping[str, Choice]) -> dict[str, list[GridTrial]]:
         """Every variant's primary trials over every seed it may run: at its chosen values where it was tuned
-        (``choices``: ``StagePlan.choices``), else at its own; the keys ``grid.expand`` and
-        ``grid.chosen_trials`` give the same seeds."""
-        trials = {}
-        for variant in self.experiment.variants:
-            choice = choices.get(variant.name)
-            values = choice.values if choice is not None and choice.tuned else {}
-            trials[variant.name] = [
-                GridTrial(trial_key(variant.name, config), variant.name, seed, config)
-                for seed in self.experiment.max_seeds_of(variant)
-                for config in [replace(variant.config, seed=seed, **values)]
-            ]
-        return trials
+        (``choices``: ``StagePlan.choices``), else at its own."""
+        values = {name: c.values for name, c in choices.items() if c.tuned}
+        values = {v.name: values.get(v.name, {}) for v in self.experiment.variants}
+        trials = chosen_trials(self.experiment, values, every_round=True)
+        return {name: [t for t in trials if t.variant == name] for name in values}
 
     def samples(
         self, choices: Mapping[str, Choice], finished: Mapping[str, Mapping[str, float]]
