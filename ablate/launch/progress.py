@@ -1,9 +1,5 @@
 """The live terminal view of an ablation: it draws a launch's state (``launch.state``) and its estimate
-(``launch.estimate``): a running clock from the command's start, the time left in the current round and the
-most the launch can still take, a row per running trial, per-variant figures over seeds.
-
-A panel redrawn four times a second on a terminal (the clock runs while Ray starts); a line every 10 s otherwise.
-It renders only: the runner hands events to the state, then tells the view (``update``).
+(``launch.estimate``), and renders only: the runner hands events to the state, then tells the view (``update``).
 """
 
 from __future__ import annotations
@@ -25,7 +21,8 @@ MAX_RUNNING_ROWS = 16
 
 
 class ProgressView:
-    """Draws ``state``: the panel on a terminal, a line every 10 s otherwise."""
+    """Draws ``state``: a panel redrawn four times a second on a terminal (its clock runs while Ray starts), a
+    line every 10 s otherwise."""
 
     def __init__(self, state: LaunchState, enabled: bool = True, log_estimates: bool = False) -> None:
         """``log_estimates``: keep every estimate in ``estimates`` (``make bench``)."""

@@ -21,8 +21,7 @@ if TYPE_CHECKING:
 
 
 class Recorder:
-    """Scheduler events -> tracker writes and the launch's state, then the view redrawn (all on the driver: one
-    MLflow writer)."""
+    """The scheduler's one receiver of trial events (``scheduler.run_trials``)."""
 
     def __init__(
         self,

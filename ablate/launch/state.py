@@ -1,9 +1,6 @@
 """What a launch knows now: each trial's progress (``TrialProgress``) and the launch's (``LaunchState``), updated
-by the scheduler's events (a trial started, reported episodes, finished, failed) and by the runner's plan (a
-stage's trials once known, the stand-ins of those not known yet, the trials later rounds may add).
-
-Pure state: no estimate (``launch.estimate`` reads it), no rendering (``launch.progress`` draws it), no Ray,
-no MLflow. Events come on the driver's main thread while the view draws on its own: ``lock`` keeps them apart.
+by the scheduler's events and the runner's plan. Pure state: no estimate, no rendering, no Ray, no MLflow.
+Events come on the driver's main thread while the view draws on its own: ``lock`` keeps them apart.
 """
 
 from __future__ import annotations
