@@ -129,15 +129,11 @@ class Rounds:
             return []
         looks = self.design.looks
         target = next((n for n in looks if n > judgment.seeds), looks[-1]) if judgment.look >= 0 else looks[0]
-        primary = self.primary_trials(choices)
-        variants = {v.name: v for v in self.experiment.variants}
+        primary = self.primary_trials(choices)  # each variant's up to its ``max``
         todo = []
         for name in judgment.needs_seeds:
-            if name not in self.wanted:
-                continue
-            rounds = self.experiment.rounds_of(variants[name])
-            cap = rounds.max if rounds else len(primary[name])
-            todo += [t for t in primary[name][: min(target, cap)] if t.key not in finished]
+            if name in self.wanted:
+                todo += [t for t in primary[name][:target] if t.key not in finished]
         if not todo:
             self.stopped = NOT_ASKED if set(judgment.needs_seeds) - self.wanted else AT_MAX
             return []
@@ -184,13 +180,11 @@ class Rounds:
             return []
         asked = self.wanted if judgment is None else set(judgment.needs_seeds) & self.wanted
         looks = self.design.looks
-        variants = {v.name: v for v in self.experiment.variants}
         by_round: dict[int, list[GridTrial]] = {}
         for name, trials in self.primary_trials(choices).items():
             if name not in asked:
                 continue
-            rounds = self.experiment.rounds_of(variants[name])
-            for index, trial in enumerate(trials[: rounds.max if rounds else len(trials)]):
+            for index, trial in enumerate(trials):
                 if trial.key not in known:
                     look = next((k for k, n in enumerate(looks) if index < n), len(looks) - 1)
                     by_round.setdefault(look, []).append(trial)
