@@ -193,6 +193,7 @@ class _Launch:
         self.finished_runs = {r.key: r.metrics for r in tracker.trial_runs(self.generation) if r.status == "FINISHED"}
         self.finished_before = set(self.finished_runs)
         self.choices = self.plan.choices(self.finished_runs)
+        self.unchosen = {t.variant for t in self.plan.tuning} - set(self.choices)
         self.known = unique([*self.plan.tuning, *evaluation, *self.plan.chosen(self.choices)], set())
         judge, rounds = plan.judge, plan.experiment.rounds
         self.rounds = Rounds(plan.experiment, self.wanted, judge, plan.started_at) if rounds and judge else None
@@ -287,7 +288,6 @@ class _Launch:
         todo = schedule_order(todo, prior)
         # Populations: each holds a slot until its last member ends, which the estimate sees through their groups.
         self.cores = slots or max(int(self.biggest), 1)
-        self.unchosen = {t.variant for t in self.plan.tuning} - set(self.choices)
         self.known_keys = {t.key for t in self.known}  # what stage 2 adds is what is not among them
         stand_ins = self.provisional({}) if self.unchosen else []
         self.state = LaunchState(
@@ -308,8 +308,7 @@ class _Launch:
     def most(self, todo: list[GridTrial]) -> tuple[int, int]:
         """The most trials stage 2 and later rounds can add to ``todo``: a tuned variant not chosen yet runs at
         most one trial per evaluation seed at its chosen values; rounds, every open comparison to ``max`` seeds."""
-        unchosen = {t.variant for t in self.plan.tuning} - set(self.choices)
-        stage = sum(t.variant in unchosen for t in self.plan.evaluation)
+        stage = sum(t.variant in self.unchosen for t in self.plan.evaluation)
         rounds = 0
         if self.rounds is not None:
             seen = {t.key for t in todo} | self.finished_before
