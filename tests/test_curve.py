@@ -3,7 +3,7 @@
 import pytest
 
 from ablate.agent.records import EpisodeMetrics
-from ablate.launch.curve import CURVE_POINTS, CurveReducer, bin_size
+from ablate.launch.curve import CURVE_POINTS, CurveReducer
 
 
 def rows(episodes: int, per_update: int) -> list[EpisodeMetrics]:
@@ -36,8 +36,8 @@ def reduce(episodes, per_update, chunk, max_episodes, points=CURVE_POINTS):
 
 
 def test_bin_size_bounds_the_points_whatever_the_budget():
-    assert bin_size(20) == 1 and bin_size(100) == 1 and bin_size(101) == 2 and bin_size(1500) == 15
-    assert bin_size(10**6) == 10**4
+    sizes = {budget: CurveReducer(budget).size for budget in (20, 100, 101, 1500, 10**6)}
+    assert sizes == {20: 1, 100: 1, 101: 2, 1500: 15, 10**6: 10**4}
     for budget in (1, 99, 1500, 123_457):
         assert len(reduce(budget, 32, 32, budget)) <= CURVE_POINTS + 1
 

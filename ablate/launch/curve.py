@@ -38,17 +38,13 @@ class CurvePoint(NamedTuple):
     """Seconds since the trial started, at the end of the update of the bin's last episode."""
 
 
-def bin_size(max_episodes: int, points: int = CURVE_POINTS) -> int:
-    """Episodes per point: the budget over ``points``, at least 1."""
-    return max(1, math.ceil(max_episodes / points))
-
-
 class CurveReducer:
     """Feed a trial's episode rows (``EpisodeMetrics``) in order; get ``CurvePoint`` s back as bins fill.
     Bins are fixed by episode index, so a resumed trial that replays its history yields the same points."""
 
     def __init__(self, max_episodes: int, points: int = CURVE_POINTS) -> None:
-        self.size = bin_size(max_episodes, points)
+        self.size = max(1, math.ceil(max_episodes / points))
+        """Episodes per point: the budget over ``points``, at least 1."""
         self.pending: list = []
 
     def add(self, rows: Iterable) -> list[CurvePoint]:
