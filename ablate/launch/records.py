@@ -62,7 +62,7 @@ def package_versions(config) -> dict:
 
 def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
     """What the report needs to know of the launch without reading the experiment file again."""
-    return {
+    document = {
         "experiment": experiment.name,
         "description": experiment.description,
         "baseline": experiment.baseline,
@@ -70,16 +70,13 @@ def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
         "variants": [{"name": v.name, "overrides": dict(v.overrides)} for v in experiment.variants],
         "base": {k: list(v) if isinstance(v, tuple) else v for k, v in flatten(experiment.base).items()},
         "trials": [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in trials],
-    } | (
-        {
-            "tune_trials": [
-                {"key": t.key, "variant": t.variant, "seed": t.seed, "stage": t.stage}
-                for t in tuning_trials(experiment)
-            ]
-        }
-        if experiment.tune
-        else {}
-    )
+    }
+    if experiment.tune:
+        tuning = tuning_trials(experiment)
+        document["tune_trials"] = [
+            {"key": t.key, "variant": t.variant, "seed": t.seed, "stage": t.stage} for t in tuning
+        ]
+    return document
 
 
 PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", "scipy", "matplotlib", "imageio")
