@@ -295,7 +295,7 @@ def test_allow_insecure_http_warns_once_and_goes_on_to_the_server(tmp_path, monk
         raise TrackingError(f"reached {uri}")
 
     monkeypatch.setattr("ablate.launch.store._warned_insecure", set())
-    monkeypatch.setattr("ablate.reporting.reader.probe_server", reached)
+    monkeypatch.setattr("ablate.launch.mlflow_store.probe_server", reached)
     monkeypatch.setenv("MLFLOW_TRACKING_USERNAME", "alice")
     monkeypatch.setenv("MLFLOW_TRACKING_PASSWORD", SECRET)
     monkeypatch.chdir(tmp_path)

@@ -104,18 +104,46 @@ def ablation_window(ablation: Ablation) -> int:
     return int(ablation.grid["base"].get("solve_window", 100))
 
 
-def figure_overview(ablation: Ablation, folder: Path) -> Figure:
-    grid = episode_grid(ablation)
+def _every_variant(ablation: Ablation, x: str, grid: np.ndarray):
+    """Every variant's IQM curve against ``x`` (no bands), the baseline thick, the solve threshold dashed."""
     fig, ax = plt.subplots(figsize=(10, 5))
     for variant in ablation.variants:
         curves = ablation.curves[ablation.curves.variant == variant]
         if curves.empty:
             continue
-        centre, _, _ = curve_band(curves, "episode", grid, band=False)
+        centre, _, _ = curve_band(curves, x, grid, band=False)
         baseline = variant == ablation.baseline
         ax.plot(grid, centre, color=_colour(ablation, variant), linewidth=2.8 if baseline else 1.4, label=variant)
     if ablation.threshold is not None:
         ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.8, label="solved")
+    return fig, ax
+
+
+def _panels(count: int, **share: bool):
+    """A figure of ``count`` panels, three to a row, the unused ones hidden."""
+    columns = min(3, count)
+    rows = int(np.ceil(count / columns))
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.0 * rows), squeeze=False, **share)
+    for ax in axes.flat[count:]:
+        ax.set_visible(False)
+    return fig, axes
+
+
+def _label_edges(axes: np.ndarray, xlabel: str, ylabel: str) -> None:
+    for ax in axes[-1]:
+        ax.set_xlabel(xlabel)
+    for ax in axes[:, 0]:
+        ax.set_ylabel(ylabel)
+
+
+def _draw_band(ax, grid: np.ndarray, band: tuple, colour, label: str, alpha: float, linewidth: float = 1.8) -> None:
+    centre, low, high = band
+    ax.plot(grid, centre, color=colour, linewidth=linewidth, label=label)
+    ax.fill_between(grid, low, high, color=colour, alpha=alpha, linewidth=0)
+
+
+def figure_overview(ablation: Ablation, folder: Path) -> Figure:
+    fig, ax = _every_variant(ablation, "episode", episode_grid(ablation))
     ax.set_xlabel("episode")
     ax.set_ylabel(f"rolling mean return ({ablation_window(ablation)} episodes), IQM over seeds")
     ax.grid(alpha=0.3)
@@ -133,37 +161,19 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     if not others:
         return None
     grid = episode_grid(ablation)
-    columns = min(3, len(others))
-    rows = int(np.ceil(len(others) / columns))
-    fig, axes = plt.subplots(
-        rows, columns, figsize=(4.2 * columns, 3.0 * rows), sharex=True, sharey=True, squeeze=False
-    )
-    bands = {}
+    fig, axes = _panels(len(others), sharex=True, sharey=True)
     for ax, variant in zip(axes.flat, others, strict=False):
         reference = ablation.reference(variant)
-        if reference not in bands:
-            bands[reference] = variant_band(ablation, reference)
-        if bands[reference] is not None:
-            centre, low, high = bands[reference]
-            ax.plot(grid, centre, color=BASELINE_COLOUR, linewidth=1.6, label=reference)
-            ax.fill_between(grid, low, high, color=BASELINE_COLOUR, alpha=0.18, linewidth=0)
-        band = variant_band(ablation, variant)
-        if band is not None:
-            centre, low, high = band
-            colour = _colour(ablation, variant)
-            ax.plot(grid, centre, color=colour, linewidth=1.8, label=variant)
-            ax.fill_between(grid, low, high, color=colour, alpha=0.25, linewidth=0)
+        if (band := variant_band(ablation, reference)) is not None:
+            _draw_band(ax, grid, band, BASELINE_COLOUR, reference, 0.18, linewidth=1.6)
+        if (band := variant_band(ablation, variant)) is not None:
+            _draw_band(ax, grid, band, _colour(ablation, variant), variant, 0.25)
         if ablation.threshold is not None:
             ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
         ax.set_title(f"{variant} vs {reference}", fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="lower right")
-    for ax in axes.flat[len(others) :]:
-        ax.set_visible(False)
-    for ax in axes[-1]:
-        ax.set_xlabel("episode")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("rolling mean return")
+    _label_edges(axes, "episode", "rolling mean return")
     extends = [v for v in others if ablation.reference(v) != ablation.baseline]
     seeds, window = len(ablation.grid["seeds"]), ablation_window(ablation)
     facts = {"baseline": ablation.baseline, "seeds": seeds, "window": window, "resamples": N_RESAMPLES // 4}
@@ -184,11 +194,8 @@ def variant_band_png(ablation: Ablation, variant: str) -> bytes | None:
     reference = ablation.reference(variant) if variant != ablation.baseline else None
     drawn = [(reference, variant_band(ablation, reference), BASELINE_COLOUR)] if reference else []
     for name, curve, colour in [*drawn, (variant, band, _colour(ablation, variant))]:
-        if curve is None:
-            continue
-        centre, low, high = curve
-        ax.plot(grid, centre, color=colour, linewidth=1.8, label=name)
-        ax.fill_between(grid, low, high, color=colour, alpha=0.22, linewidth=0)
+        if curve is not None:
+            _draw_band(ax, grid, curve, colour, name, 0.22)
     if ablation.threshold is not None:
         ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
     ax.set_title(f"{variant} vs {reference}" if reference else variant, fontsize=10)
@@ -208,17 +215,7 @@ def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
     wall = wall[wall > 0]
     if wall.empty:
         return None
-    grid = np.geomspace(float(wall.min()), float(wall.max()), 200)
-    fig, ax = plt.subplots(figsize=(10, 5))
-    for variant in ablation.variants:
-        curves = ablation.curves[ablation.curves.variant == variant]
-        if curves.empty:
-            continue
-        centre, _, _ = curve_band(curves, "wall_s", grid, band=False)
-        baseline = variant == ablation.baseline
-        ax.plot(grid, centre, color=_colour(ablation, variant), linewidth=2.8 if baseline else 1.4, label=variant)
-    if ablation.threshold is not None:
-        ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.8, label="solved")
+    fig, ax = _every_variant(ablation, "wall_s", np.geomspace(float(wall.min()), float(wall.max()), 200))
     ax.set_xscale("log")  # variants differ ten-fold in speed: a linear axis hides the fast ones
     ax.set_xlabel("wall-clock seconds since the trial started (log scale; trials shared the CPUs)")
     ax.set_ylabel("rolling mean return, IQM over seeds")
@@ -360,9 +357,7 @@ def figure_sensitivity(ablation: Ablation, folder: Path) -> Figure | None:
     candidates = sorted({tuple(row) for row in summary[names].itertuples(index=False)})
     numeric = len(names) == 1 and all(isinstance(c[0], int | float) and c[0] > 0 for c in candidates)
     position = {c: (c[0] if numeric else i) for i, c in enumerate(candidates)}
-    columns = min(3, len(variants))
-    rows = int(np.ceil(len(variants) / columns))
-    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.0 * rows), sharey=True, squeeze=False)
+    fig, axes = _panels(len(variants), sharey=True)
     done = table[table.status == "FINISHED"]
     for ax, variant in zip(axes.flat, variants, strict=False):
         colour = _colour(ablation, variant)
@@ -398,13 +393,8 @@ def figure_sensitivity(ablation: Ablation, folder: Path) -> Figure | None:
             ax.minorticks_off()
         else:
             ax.set_xticks(range(len(candidates)), [", ".join(f"{v:g}" for v in c) for c in candidates], fontsize=7)
-    for ax in axes.flat[len(variants) :]:
-        ax.set_visible(False)
     words, direction = metric_words(tuning)
-    for ax in axes[-1]:
-        ax.set_xlabel(", ".join(n.replace("_", " ") for n in names) + (" (log scale)" if numeric else ""))
-    for ax in axes[:, 0]:
-        ax.set_ylabel(words)
+    _label_edges(axes, ", ".join(n.replace("_", " ") for n in names) + (" (log scale)" if numeric else ""), words)
     seeds = len(tuning.get("seeds", []))
     caption = (
         f"Sensitivity to {', '.join(esc(n.replace('_', ' ')) for n in names)}: the tuning metric ({esc(words)}, "

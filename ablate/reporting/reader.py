@@ -10,20 +10,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ablate.launch.mlflow_store import TAG_GENERATION, TAG_ROLE, Store, TrialRun, quiet_mlflow
-from ablate.launch.store import (
-    TrackingError,
-    fail_fast_http,
-    is_database,
-    open_uri,
-    probe_database,
-    probe_server,
-    resolve_uri,
-    sqlite_path,
-    store_problem,
-)
+from ablate.launch.mlflow_store import TAG_GENERATION, TAG_ROLE, Store, TrialRun
+from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
 
 __all__ = ["LaunchRun", "RunReader", "TrackingError", "TrialRun", "ablation_names", "store_exists"]
+
+LAUNCHES = f"tags.`{TAG_ROLE}` = 'launch'"
 
 
 @dataclass
@@ -48,29 +40,10 @@ def store_exists(tracking_uri: str | None) -> bool:
 def ablation_names(tracking_uri: str | None) -> list[str]:
     """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted. A store that
     cannot be read is a one-line ``TrackingError`` within seconds (a database or server that does not answer,
-    a login refused), as when the writer opens it."""
-    from mlflow.tracking import MlflowClient
-
-    quiet_mlflow()
-    uri = open_uri(resolve_uri(tracking_uri))
-    if is_database(uri):
-        probe_database(uri)
-    elif uri.startswith(("http://", "https://")):
-        probe_server(uri)
-    problem = None
-    try:
-        with fail_fast_http():
-            client = MlflowClient(uri)
-            experiments = client.search_experiments()
-    except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
-        problem = store_problem(uri, error)
-    if problem:  # raised outside the except: one line, not the chain of exceptions behind it
-        raise TrackingError(problem)
-    names = []
-    for experiment in experiments:
-        if client.search_runs([experiment.experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", max_results=1):
-            names.append(experiment.name)
-    return sorted(names)
+    a login refused): ``Store`` opens it, under any experiment's name, as it opens the writer's."""
+    client = Store(tracking_uri, "ablate", write=False).client
+    experiments = client.search_experiments()
+    return sorted(e.name for e in experiments if client.search_runs([e.experiment_id], LAUNCHES, max_results=1))
 
 
 class RunReader(Store):
@@ -79,23 +52,10 @@ class RunReader(Store):
 
     def launches(self) -> list[Any]:
         """Every launch (parent) run of this experiment, newest first (the report picks a generation from them)."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        return list(
-            self.client.search_runs(
-                [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time DESC"]
-            )
-        )
+        return self.all_runs(LAUNCHES, "attributes.start_time DESC")
 
     def launch_runs(self) -> list[LaunchRun]:
         """Every launch of this experiment, oldest first."""
-        experiment_id = self.experiment_id(create=False)
-        if experiment_id is None:
-            return []
-        runs = self.client.search_runs(
-            [experiment_id], f"tags.`{TAG_ROLE}` = 'launch'", order_by=["attributes.start_time ASC"], max_results=5000
-        )
         return [
             LaunchRun(
                 run_id=r.info.run_id,
@@ -104,7 +64,7 @@ class RunReader(Store):
                 start_time_ms=r.info.start_time,
                 command=r.data.tags.get("ablate.command", ""),
             )
-            for r in runs
+            for r in self.all_runs(LAUNCHES)
         ]
 
     def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:

@@ -20,17 +20,6 @@ from ablate.reporting.statistics import N_RESAMPLES, SEPARATED
 from ablate.reporting.text import NO_REFS, Refs, _interval, esc, fmt
 
 
-def _setting_groups(overrides: dict) -> list[str]:
-    """The separate settings a variant changes (an architecture's knobs count as one)."""
-    groups = sorted({"architecture" if k in ARCHITECTURE_KNOBS else k for k in overrides})
-    return groups
-
-
-def _set_away(base: dict, knob: str, default: object) -> bool:
-    """Whether the base sets ``knob`` to other than its declared default (an env's own knobs are shown then)."""
-    return knob in base and freeze(base[knob]) != freeze(default)
-
-
 def _extends(ablation: Ablation) -> list[str]:
     """The variants compared with another variant than the baseline, because they extend its changes."""
     return [v for v in ablation.variants if v != ablation.baseline and ablation.reference(v) != ablation.baseline]
@@ -105,7 +94,9 @@ def method_blocks(ablation: Ablation, table: pd.DataFrame, refs: Refs = NO_REFS)
             }
         )
     blocks += [Table(pd.DataFrame(rows), "Variants"), Paragraph("**Base hyper-parameters.**")]
-    keep = [*SETTING_KNOBS, *(k for k, knob in KNOBS.items() if knob.env and _set_away(base, k, knob.default))]
+    # an env's own knobs are shown where the base sets them to other than their declared default
+    away = [k for k, knob in KNOBS.items() if knob.env and k in base and freeze(base[k]) != freeze(knob.default)]
+    keep = [*SETTING_KNOBS, *away]
     blocks.append(Table(pd.DataFrame([{k: base[k] for k in keep if k in base}]), "Base hyper-parameters"))
     if ablation.tuning:
         tuned_knobs = ", ".join(k.replace("_", " ") for k in ablation.tuning.get("knobs", {}))
@@ -232,7 +223,7 @@ def limitations(
     out.append(("seeds", say("sections.seeds_limitation", **facts)))
     tuned = [k for k in TUNABLE_KNOBS if k in base]
     touched = [v["name"] for v in variants if any(k in v["overrides"] for k in tuned)]
-    architectures = [v for v in variants if "architecture" in _setting_groups(v["overrides"])]
+    architectures = [v for v in variants if any(k in ARCHITECTURE_KNOBS for k in v["overrides"])]
     if ablation.tuning:
         tuning = ablation.tuning
         n_candidates = max((len(c) for c in tuning.get("knobs", {}).values()), default=0)

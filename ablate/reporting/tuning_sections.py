@@ -11,6 +11,7 @@ from ablate.measures import is_censored
 from ablate.reporting.blocks import Block, Items, Paragraph, Table
 from ablate.reporting.prose import say
 from ablate.reporting.results import Ablation
+from ablate.reporting.settings import overrides
 from ablate.reporting.statistics import SEPARATED, TOO_FEW_SEEDS
 from ablate.reporting.text import NO_REFS, Refs, _signed, _signed_pct, esc, fmt
 from ablate.reporting.tuning import base_values, chosen_values, edge, knobs, metric_words, same_value, sensitivity
@@ -96,12 +97,21 @@ def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> list[Block]:
     return [*blocks, Paragraph(say("tuning.sensitivity", figure=refs.figure("tuning_sensitivity")))]
 
 
+def _estimate(row: pd.Series) -> str:
+    return f"{_signed_pct(-row.point)} episodes" if is_censored(row.metric) else _signed(row.point)
+
+
 def _verdict_words(row: pd.Series) -> str:
     if row is None:
         return "not compared"
-    estimate = f"{_signed_pct(-row.point)} episodes" if is_censored(row.metric) else _signed(row.point)
     word = f"**{row.verdict}**" if row.verdict in SEPARATED else f"*{row.verdict}*"  # the table's own words
-    return f"{word} ({estimate})"
+    return f"{word} ({_estimate(row)})"
+
+
+def _at_base(untuned: pd.DataFrame, row: pd.Series) -> pd.Series | None:
+    """The comparison ``row`` (at the chosen values) at the shared base value; None where it was not made."""
+    match = untuned[(untuned.variant == row.variant) & (untuned.metric == row.metric)] if len(untuned) else untuned
+    return match.iloc[0] if len(match) else None
 
 
 def change_kind(base: str, tuned: str) -> str:
@@ -123,17 +133,14 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
     tuning = ablation.tuning or {}
     lines, changed = [], []
     for _, row in tuned.iterrows():
-        match = untuned[(untuned.variant == row.variant) & (untuned.metric == row.metric)] if len(untuned) else untuned
-        base = match.iloc[0] if len(match) else None
+        base = _at_base(untuned, row)
         kind = change_kind(base.verdict if base is not None else "", row.verdict)
         reference = row.reference
-        at_base = _pair(_base_values(ablation, row.variant), _base_values(ablation, reference))
+        at_base = _pair(*(base_values(tuning, v, overrides(ablation.grid, v)) for v in (row.variant, reference)))
         at_choice = _pair(chosen_values(tuning, row.variant), chosen_values(tuning, reference))
-        label = {"flips": "**flips**", "vanishes": "**vanishes**", "appears": "**appears**"}.get(kind, kind)
-        if kind in ("flips", "vanishes", "appears"):
+        label = {"holds": kind, "none": "no finding at either"}.get(kind, f"**{kind}**")
+        if kind not in ("holds", "none"):
             changed.append(say("tuning.changed", row=row, kind=kind))
-        if kind == "none":
-            label = "no finding at either"
         words = dict(base_words=_verdict_words(base), choice_words=_verdict_words(row))
         lines.append(say("tuning.comparison", row=row, at_base=at_base, at_choice=at_choice, label=label, **words))
     unchanged = "" if changed else unchanged_words(ablation, tuned, untuned)
@@ -141,18 +148,10 @@ def dependence_section(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.Data
     return [Paragraph(say("tuning.dependence", **facts)), Items.of(lines)]
 
 
-def _estimate(row: pd.Series) -> str:
-    return f"{_signed_pct(-row.point)} episodes" if is_censored(row.metric) else _signed(row.point)
-
-
 def unchanged_words(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFrame) -> str:
     """What "no finding changes" means for this run: that every verdict held, that none was separated at either
     value, or that none could have been (too few seeds at both), with the estimate that moved most."""
-    pairs = []
-    for _, row in tuned.iterrows():
-        match = untuned[(untuned.variant == row.variant) & (untuned.metric == row.metric)] if len(untuned) else untuned
-        if len(match):
-            pairs.append((match.iloc[0], row))
+    pairs = [(base, row) for _, row in tuned.iterrows() if (base := _at_base(untuned, row)) is not None]
     could = not (pairs and all(base.verdict == TOO_FEW_SEEDS and row.verdict == TOO_FEW_SEEDS for base, row in pairs))
     separated = not all(change_kind(base.verdict, row.verdict) == "none" for base, row in pairs)
     moved, moved_from, moved_to = None, None, None
@@ -165,8 +164,3 @@ def unchanged_words(ablation: Ablation, tuned: pd.DataFrame, untuned: pd.DataFra
             moved_from, moved_to = _estimate(base), _estimate(moved)
     facts = dict(could=could, separated=separated, moved=moved, moved_from=moved_from, moved_to=moved_to)
     return say("tuning.unchanged", knobs=knob_words(ablation), **facts)
-
-
-def _base_values(ablation: Ablation, variant: str) -> dict:
-    overrides = next((v.get("overrides", {}) for v in ablation.grid["variants"] if v["name"] == variant), {})
-    return base_values(ablation.tuning or {}, variant, overrides)
