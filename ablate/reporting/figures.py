@@ -39,8 +39,7 @@ BASELINE_COLOUR = "0.35"
 class Figure:
     path: str
     caption: str | Callable[[Refs], str]
-    """Its caption; one that names other figures is a function of their numbers (``Refs``), given once the
-    report has numbered its figures (``resolve``)."""
+    """A caption that names other figures is a function of their numbers, written by ``resolve``."""
     alt: str
     number: int = 0
 
@@ -56,9 +55,8 @@ _kept: list[list] = []
 
 @contextlib.contextmanager
 def keep_figures() -> Iterator[list]:
-    """The matplotlib figures drawn inside this block, for the caller (the Python API returns them to a
-    notebook). Each is closed once saved all the same: pyplot forgets it (a report of many figures holds no
-    memory, a notebook does not show it twice), while the figure itself still draws where it is displayed."""
+    """The matplotlib figures drawn inside this block (the Python API returns them to a notebook). Each is closed
+    once saved all the same: a report holds no memory, a notebook does not show it twice."""
     kept: list = []
     _kept.append(kept)
     try:
@@ -92,9 +90,9 @@ def episode_grid(ablation: Ablation) -> np.ndarray:
 
 
 def variant_band(ablation: Ablation, variant: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """``variant``'s learning curve at ``episode_grid``: the IQM over seeds and its 95% band (``curve_band``), as
-    Figure "each variant against its reference" draws it and its MLflow run holds it; None without curves."""
-    if variant not in ablation.bands:  # drawn in two figures and logged on the variant's run: computed once
+    """``variant``'s learning curve at ``episode_grid``: the IQM over seeds and its band (``curve_band``), computed
+    once for the figure, the variant's MLflow run and its picture there; None without curves."""
+    if variant not in ablation.bands:
         curves = ablation.curves[ablation.curves.variant == variant]
         ablation.bands[variant] = curve_band(curves, "episode", episode_grid(ablation)) if len(curves) else None
     return ablation.bands[variant]
@@ -136,10 +134,22 @@ def _label_edges(axes: np.ndarray, xlabel: str, ylabel: str) -> None:
         ax.set_ylabel(ylabel)
 
 
-def _draw_band(ax, grid: np.ndarray, band: tuple, colour, label: str, alpha: float, linewidth: float = 1.8) -> None:
-    centre, low, high = band
-    ax.plot(grid, centre, color=colour, linewidth=linewidth, label=label)
-    ax.fill_between(grid, low, high, color=colour, alpha=alpha, linewidth=0)
+def _panel(ax, ablation: Ablation, variant: str) -> None:
+    """``variant``'s learning curve and band beside its reference's (grey; the baseline has none)."""
+    grid = episode_grid(ablation)
+    reference = ablation.reference(variant) if variant != ablation.baseline else None
+    drawn = [(reference, BASELINE_COLOUR, 1.6, 0.18)] if reference else []
+    for name, colour, width, alpha in [*drawn, (variant, _colour(ablation, variant), 1.8, 0.25)]:
+        band = variant_band(ablation, name)
+        if band is not None:
+            centre, low, high = band
+            ax.plot(grid, centre, color=colour, linewidth=width, label=name)
+            ax.fill_between(grid, low, high, color=colour, alpha=alpha, linewidth=0)
+    if ablation.threshold is not None:
+        ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
+    ax.set_title(f"{variant} vs {reference}" if reference else variant, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower right")
 
 
 def figure_overview(ablation: Ablation, folder: Path) -> Figure:
@@ -160,19 +170,9 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
     others = [v for v in ablation.variants if v != ablation.baseline]
     if not others:
         return None
-    grid = episode_grid(ablation)
     fig, axes = _panels(len(others), sharex=True, sharey=True)
     for ax, variant in zip(axes.flat, others, strict=False):
-        reference = ablation.reference(variant)
-        if (band := variant_band(ablation, reference)) is not None:
-            _draw_band(ax, grid, band, BASELINE_COLOUR, reference, 0.18, linewidth=1.6)
-        if (band := variant_band(ablation, variant)) is not None:
-            _draw_band(ax, grid, band, _colour(ablation, variant), variant, 0.25)
-        if ablation.threshold is not None:
-            ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
-        ax.set_title(f"{variant} vs {reference}", fontsize=10)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        _panel(ax, ablation, variant)
     _label_edges(axes, "episode", "rolling mean return")
     extends = [v for v in others if ablation.reference(v) != ablation.baseline]
     seeds, window = len(ablation.grid["seeds"]), ablation_window(ablation)
@@ -183,26 +183,14 @@ def figure_small_multiples(ablation: Ablation, folder: Path) -> Figure | None:
 
 
 def variant_band_png(ablation: Ablation, variant: str) -> bytes | None:
-    """``variant``'s learning curve with its 95% band, beside its reference's, as PNG bytes: the band MLflow's
-    charts cannot draw, logged on the variant's run (``variant_records``); its panel of Figure "each variant
-    against its reference". None without curves."""
-    band = variant_band(ablation, variant)
-    if band is None:
+    """``variant``'s panel of Figure "each variant against its reference" as PNG bytes, for its MLflow run (whose
+    charts draw no bands); None without curves."""
+    if variant_band(ablation, variant) is None:
         return None
-    grid = episode_grid(ablation)
     fig, ax = plt.subplots(figsize=(5.2, 3.4))
-    reference = ablation.reference(variant) if variant != ablation.baseline else None
-    drawn = [(reference, variant_band(ablation, reference), BASELINE_COLOUR)] if reference else []
-    for name, curve, colour in [*drawn, (variant, band, _colour(ablation, variant))]:
-        if curve is not None:
-            _draw_band(ax, grid, curve, colour, name, 0.22)
-    if ablation.threshold is not None:
-        ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.7)
-    ax.set_title(f"{variant} vs {reference}" if reference else variant, fontsize=10)
+    _panel(ax, ablation, variant)
     ax.set_xlabel("episode")
     ax.set_ylabel(f"rolling mean return (IQM, {percent(CONFIDENCE)} band)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=100)
@@ -362,26 +350,16 @@ def figure_sensitivity(ablation: Ablation, folder: Path) -> Figure | None:
     for ax, variant in zip(axes.flat, variants, strict=False):
         colour = _colour(ablation, variant)
         mine = summary[summary.variant == variant]
-        xs = [position[tuple(r)] for r in mine[names].itertuples(index=False)]
-        order = np.argsort(xs)
-        x, mean = np.asarray(xs, float)[order], mine["mean"].to_numpy(float)[order]
-        low, high = mine["low"].to_numpy(float)[order], mine["high"].to_numpy(float)[order]
+        mine = mine.assign(x=[float(position[tuple(r)]) for r in mine[names].itertuples(index=False)]).sort_values("x")
+        x, mean, low, high = (mine[column].to_numpy(float) for column in ("x", "mean", "low", "high"))
         ax.errorbar(x, mean, yerr=[mean - low, high - mean], color=colour, marker="o", capsize=3, linewidth=1.5)
         seeds = done[done.variant == variant]
-        ax.scatter(
-            [position[tuple(r)] for r in seeds[names].itertuples(index=False)],
-            seeds[metric],
-            color=colour,
-            s=10,
-            alpha=0.5,
-            zorder=3,
-        )
+        at = [position[tuple(r)] for r in seeds[names].itertuples(index=False)]
+        ax.scatter(at, seeds[metric], color=colour, s=10, alpha=0.5, zorder=3)
         wanted = [chosen_values(tuning, variant)[n] for n in names]
-        rows_ = mine[names].itertuples(index=False)
-        picked = [i for i, c in enumerate(rows_) if all(map(same_value, c, wanted))]
+        picked = [i for i, c in enumerate(mine[names].itertuples(index=False)) if all(map(same_value, c, wanted))]
         if picked:
-            at = mine.iloc[picked[0]]
-            ax.scatter([position[tuple(at[names])]], [at["mean"]], marker="*", s=220, color="black", zorder=4)
+            ax.scatter([x[picked[0]]], [mean[picked[0]]], marker="*", s=220, color="black", zorder=4)
         base = [tuning.get("base", {}).get(n) for n in names]
         if numeric and base[0] is not None:  # the untuned comparison's value, for reference
             ax.axvline(float(base[0]), color="grey", linestyle="--", linewidth=0.8)

@@ -63,11 +63,6 @@ def _sizes(params: dict[str, str], key: str = "model.hidden_sizes") -> list[int]
     return [int(x) for x in text.replace(",", " ").split()]
 
 
-def _factory_args(text: str) -> str:
-    """A tracked ``model_args`` (pairs, as MLflow holds them) as ``width=32, depth=2``."""
-    return ", ".join(f"{k}={v}" for k, v in factory_args(text)) or text.strip("()[]")
-
-
 def architecture(params: dict[str, str], env_id: str) -> str:
     """The policy in words, as ``policies.py`` builds it for ``env_id``; a user's own network by its factory and,
     where its run recorded the source, its layers (``networks.layers``)."""
@@ -77,7 +72,8 @@ def architecture(params: dict[str, str], env_id: str) -> str:
         text = f"the user's own network: {function} of {target.rsplit('/', 1)[-1]}"
         text += f" (source {params.get('model.factory_hash', '?')})"
         text += f": {params['model.layers']}" if params.get("model.layers") else ""
-        args = _factory_args(params.get("model.factory_args", ""))
+        text_args = params.get("model.factory_args", "")  # as ``width=32, depth=2``
+        args = ", ".join(f"{k}={v}" for k, v in factory_args(text_args)) or text_args.strip("()[]")
         text += f", {args}" if args else ""
         return text + (f"; L2 {params['l2']}" if float(params.get("l2", 0) or 0) > 0 else "")
     arch = params.get("model.architecture", "mlp")

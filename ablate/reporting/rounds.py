@@ -9,8 +9,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ablate.claims.family import SPENDING_WORDS
-from ablate.config import flatten
 from ablate.experiment import Experiment
+from ablate.launch.records import grid_document
 from ablate.launch.rounds import Primary
 from ablate.measures import AUC, measure
 from ablate.seeds import added_words
@@ -22,13 +22,7 @@ def references(experiment: Experiment) -> dict[str, str]:
 
     from ablate.reporting.results import Ablation
 
-    grid = {
-        "experiment": experiment.name,
-        "baseline": experiment.baseline,
-        "variants": [{"name": v.name, "overrides": dict(v.overrides)} for v in experiment.variants],
-        "base": {k: list(v) if isinstance(v, tuple) else v for k, v in flatten(experiment.base).items()},
-    }
-    ablation = Ablation(experiment.name, grid, {}, pd.DataFrame(), pd.DataFrame(), {})
+    ablation = Ablation(experiment.name, grid_document(experiment, []), {}, pd.DataFrame(), pd.DataFrame(), {})
     return {v.name: ablation.reference(v.name) for v in experiment.variants if v.name != experiment.baseline}
 
 

@@ -211,13 +211,9 @@ def limitations(
     base, variants = ablation.grid["base"], ablation.grid["variants"]
     out: list[tuple[str, str]] = []
     fewest, seeds = ablation.seed_span
-    checked = (
-        compare is not None
-        and len(compare) > 0
-        and "loo_checked" in compare
-        and bool(compare[compare.verdict.isin(list(SEPARATED))].loo_checked.astype(bool).any())
-    )
-    claims = compare is not None and len(compare) > 0 and bool(compare.verdict.isin(list(SEPARATED)).any())
+    separated = compare[compare.verdict.isin(list(SEPARATED))] if compare is not None and len(compare) else []
+    claims = len(separated) > 0
+    checked = claims and "loo_checked" in compare and bool(separated.loo_checked.astype(bool).any())
     rounds = bool(ablation.launch.get("rounds"))
     facts = dict(fewest=fewest, most=seeds, rounds=rounds, checked=checked, claims=claims, loo=LOO_MAX_SEEDS)
     out.append(("seeds", say("sections.seeds_limitation", **facts)))

@@ -1,7 +1,5 @@
-"""What a tuned ablation's report adds (issue 19): the Tuning section (candidates, seeds, metric, rule, each
-variant's choice, flags) and "Does the finding depend on the learning rate?" (each comparison at the shared
-base value beside the comparison at the chosen values, on the same evaluation seeds, and what "no finding
-changes" means for the run: every verdict held, none was separated, or none could have been)."""
+"""What a tuned ablation's report adds (issue 19): the Tuning section and "Does the finding depend on the learning
+rate?"."""
 
 from __future__ import annotations
 
