@@ -14,15 +14,15 @@ from ablate.launch.grid import expand, tuning_trials
 from ablate.launch.records import grid_document
 
 
-def on_disk(path: str, cwd: str | Path | None = None) -> tuple[Path, str] | None:
-    """The file at ``path`` (relative to ``cwd``) and its text; None where it cannot be read."""
-    if not path:
-        return None
+def edited(path: str, ran: str | None, cwd: str | Path | None = None) -> tuple[Path, str] | None:
+    """The file at ``path`` (relative to ``cwd``) and its text where it differs from ``ran`` (the launch's copy);
+    None where they match, or where either is missing."""
     file = Path(cwd or ".") / path
     try:
-        return file, file.read_text()
+        text = file.read_text() if path and ran is not None else None
     except OSError:
         return None
+    return None if text is None or text.strip() == ran.strip() else (file, text)
 
 
 def read_from_disk(
@@ -32,8 +32,8 @@ def read_from_disk(
     ``ran`` (the launch's copy) and still gives every trial the launch ran the same key; None otherwise. The trials
     stay the launch's (what ran, round after round); the variants, baseline, description and base come from the
     file."""
-    found = on_disk(path, cwd)
-    if found is None or ran is None or found[1].strip() == ran.strip():
+    found = edited(path, ran, cwd)
+    if found is None:
         return None
     try:
         experiment = load_experiment(found[0])

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ablate.launch.secrets import Shown, shown
 from ablate.reporting.blocks import Block, Items, Paragraph
-from ablate.reporting.experiment_file import on_disk
+from ablate.reporting.experiment_file import edited
 from ablate.reporting.prose import say
 from ablate.reporting.results import Ablation
 from ablate.reporting.text import esc
@@ -95,8 +95,7 @@ def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
     changed = f"**The experiment file {esc(path)} has changed since this launch ran it**"
     if ablation.launch.get("read_from_disk"):
         return f"{changed}, in nothing a trial ran (every trial key is the same): this report reads it as it is now."
-    ran, found = ablation.launch.get("experiment_text"), on_disk(path, cwd)
-    if ran is None or found is None or found[1].strip() == ran.strip():
+    if edited(path, ablation.launch.get("experiment_text"), cwd) is None:
         return ""
     return (
         f"{changed}, in the settings of its trials: this report describes the launch's copy (stored with it); "

@@ -13,7 +13,7 @@ from typing import Any
 from ablate.launch.mlflow_store import TAG_GENERATION, TAG_ROLE, Store, TrialRun
 from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
 
-__all__ = ["LaunchRun", "RunReader", "TrackingError", "TrialRun", "ablation_names", "store_exists"]
+__all__ = ["LaunchRun", "RunReader", "TrackingError", "TrialRun", "ablation_names"]
 
 LAUNCHES = f"tags.`{TAG_ROLE}` = 'launch'"
 
@@ -31,16 +31,13 @@ class LaunchRun:
     """The command line that started it."""
 
 
-def store_exists(tracking_uri: str | None) -> bool:
-    """Whether there is a store to read: a local SQLite file must exist (opening one would create it)."""
-    db = sqlite_path(resolve_uri(tracking_uri))
-    return db is None or db.is_file()
-
-
 def ablation_names(tracking_uri: str | None) -> list[str]:
-    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted. A store that
-    cannot be read is a one-line ``TrackingError`` within seconds (a database or server that does not answer,
-    a login refused): ``Store`` opens it, under any experiment's name, as it opens the writer's."""
+    """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted; none where a local
+    SQLite file does not exist yet (opening one would create it). A store that cannot be read is a one-line
+    ``TrackingError`` within seconds: ``Store`` opens it, under any experiment's name, as it opens the writer's."""
+    db = sqlite_path(resolve_uri(tracking_uri))
+    if db is not None and not db.is_file():
+        return []
     client = Store(tracking_uri, "ablate", write=False).client
     experiments = client.search_experiments()
     return sorted(e.name for e in experiments if client.search_runs([e.experiment_id], LAUNCHES, max_results=1))

@@ -19,7 +19,7 @@ from ablate.launch.mlflow_store import ui_hint
 from ablate.launch.secrets import shown_uri
 from ablate.launch.store import resolve_uri
 from ablate.reporting.planned import earlier_trials, plan_keys
-from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names, store_exists
+from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
 """A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""
@@ -74,7 +74,7 @@ def current_plan(
 def overview(tracking_uri: str | None) -> str:
     """One line per ablation in the store."""
     uri = shown_uri(resolve_uri(tracking_uri))
-    names = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
+    names = ablation_names(tracking_uri)
     if not names:
         return f"no ablations in the MLflow store {uri} yet; start one with: ablate run experiments/cartpole.toml"
     rows = [("experiment", "launches", "generations", "newest launch", "", "trials of the newest generation")]
@@ -96,7 +96,7 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     """An ablation's generations (newest first), each with its launches and trials by state; the newest
     generation per variant. With ``experiment`` (its file), trials of the file with no run count as pending."""
     uri = shown_uri(resolve_uri(tracking_uri))
-    known = ablation_names(tracking_uri) if store_exists(tracking_uri) else []
+    known = ablation_names(tracking_uri)
     if storage_name(name) not in known:  # the name as written or its storage form (``experiment.storage_name``)
         valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"
         raise ConfigError(f"{name!r} is not an ablation in the MLflow store {uri}; {valid}")
