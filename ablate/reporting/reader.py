@@ -75,8 +75,4 @@ class RunReader(Store):
     def attach_report(self, run_id: str, folder: Path) -> None:
         """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables, the videos it recorded) as
         the ``report/`` artifacts of a launch run."""
-        for path in sorted(Path(folder).iterdir()):
-            if path.is_dir():
-                self.client.log_artifacts(run_id, str(path), f"report/{path.name}")
-            elif path.is_file():
-                self.client.log_artifact(run_id, str(path), "report")
+        self.client.log_artifacts(run_id, str(folder), "report")

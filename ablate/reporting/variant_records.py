@@ -10,8 +10,6 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import pandas as pd
-
 from ablate.launch.variant_runs import TAG_VERDICT, VariantRecord
 from ablate.reporting.data import ReportData
 from ablate.reporting.figures import episode_grid, variant_band, variant_band_png
@@ -104,17 +102,12 @@ def _settings(data: ReportData) -> dict[str, dict[str, Any]]:
     rows = table[table.stage == EVAL] if "stage" in table else table
     found = {}
     for variant, group in rows.groupby("variant", sort=False):
-        first = group.iloc[0]
-        found[str(variant)] = {k: _value(first[k]) for k in knobs if not _empty(first[k])}
+        found[str(variant)] = {k: _value(v) for k, v in group.iloc[0][knobs].dropna().items()}
     return found
 
 
 def _value(value: Any) -> Any:
     return value.item() if hasattr(value, "item") else value
-
-
-def _empty(value: Any) -> bool:
-    return value is None or (pd.api.types.is_scalar(value) and bool(pd.isna(value)))
 
 
 def _number(value: Any) -> bool:
