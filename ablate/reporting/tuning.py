@@ -102,8 +102,7 @@ def sensitivity(table: pd.DataFrame, tuning: dict[str, Any]) -> pd.DataFrame:
     if done.empty:
         return pd.DataFrame(columns=["variant", *names, "mean", "low", "high", "seeds"])
     grouped = done.groupby(["variant", *names], sort=False)[metric]
-    out = grouped.agg(mean="mean", low="min", high="max", seeds="count").reset_index()
-    return out
+    return grouped.agg(mean="mean", low="min", high="max", seeds="count").reset_index()
 
 
 def edge(tuning: dict[str, Any], values: dict[str, Any]) -> list[str]:
