@@ -178,7 +178,7 @@ def test_a_synthetic_ablation_in_rounds_says_what_ablate_load_says(synthetic):
     # and against the report's own data model, computed once (reporting.data.ReportData), the same words
     model = report_data(load_ablation("inrounds", uri), shown_command(["ablate", "report", "inrounds"]))
     finished = model.trials[(model.trials.status == "FINISHED") & (model.trials.stage == "eval")]
-    start = model.rounds["design"]["start"]
+    start = model.ablation.launch["rounds"]["design"]["start"]
     assert check_all(text, ReportData(finished, model.convergence, model.comparisons, model.claims, start)) == []
     # The grid's seeds are the first round's (0, 1, 2): the old sentence, written from them, is caught.
     old = text.replace(text.split("**Seeds.** ")[1].split(":")[0], "8 per variant (0, 1, 2, 3, 4, 5, 6, 7)", 1)

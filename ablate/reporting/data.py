@@ -4,7 +4,6 @@ files read, so that no section recomputes a number beside another."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import pandas as pd
 
@@ -31,16 +30,6 @@ class ReportData:
     """The comparisons at the shared base values (a tuned ablation's "depends on the learning rate?"), or None."""
     command: Shown
     """The report's own command line, masked (``secrets.shown_command``)."""
-
-    @property
-    def tuning(self) -> pd.DataFrame | None:
-        """``tables/tuning.csv`` (a tuned launch's stage 1), or None."""
-        return self.ablation.tuning_trials
-
-    @property
-    def rounds(self) -> dict[str, Any] | None:
-        """The launch's ``rounds.json`` (seeds in rounds), or None."""
-        return self.ablation.launch.get("rounds")
 
 
 def report_data(ablation: Ablation, command: Shown) -> ReportData:

@@ -45,7 +45,6 @@ from ablate.reporting.text import fmt
 from ablate.reporting.typeset import compile_pdf as print_pdf
 from ablate.reporting.typeset import page_counts, typst
 from ablate.reporting.variant_records import variant_records
-from ablate.reporting.writers import CSS, _inline
 
 
 def _video_picks(ablation: Ablation, done: pd.DataFrame) -> list[tuple[pd.Series, str]]:
@@ -163,20 +162,9 @@ class ReportResult:
         return f"report.pdf ({total} page{'s' if total != 1 else ''}{split})"
 
 
-def write_report(
-    name: str,
-    tracking_uri: str | None = None,
-    out_root: Path = Path("reports"),
-    generation: str | None = None,
-    variants: list[str] | None = None,
-    baseline: str | None = None,
-    pdf: bool = True,
-    attach: bool = True,
-    command: Shown | None = None,
-) -> Path:
-    """Build the report of experiment ``name`` into ``out_root/name/`` and return that folder. Raises
-    ``ConfigError`` (bad name, store, generation, variant) or ``NoResults`` before anything is written."""
-    return build_report(name, tracking_uri, out_root, generation, variants, baseline, pdf, attach, command).folder
+def write_report(name: str, *args, **kwargs) -> Path:
+    """``build_report``'s folder."""
+    return build_report(name, *args, **kwargs).folder
 
 
 def build_report(
@@ -190,8 +178,10 @@ def build_report(
     attach: bool = True,
     command: Shown | None = None,
 ) -> ReportResult:
-    """As ``write_report``, with what the caller tells its user. ``command``: the report's own command line for
-    its reproducibility record, masked (``secrets.shown_command``): the record takes no text as typed."""
+    """Build the report of experiment ``name`` into ``out_root/name/``; with it, what the caller tells its user.
+    Raises ``ConfigError`` (bad name, store, generation, variant) or ``NoResults`` before anything is written.
+    ``command``: the report's own command line for its reproducibility record, masked (``secrets.shown_command``):
+    the record takes no text as typed."""
     folder = report_folder(name, Path(out_root))
     ablation = select(load_ablation(name, tracking_uri, generation), variants, baseline)
     if ablation.finished.empty:
@@ -272,11 +262,10 @@ def _build(
     data = report_data(ablation, command)  # every table the report writes and words, computed once
     data.convergence.to_csv(folder / "tables" / "convergence.csv", index=False)  # one row per variant, budgets named
     # The tables ``ablate.load`` returns, as it returns them (``tables.meeting``: two ablations' tables concatenate).
-    meeting(data.claims, ablation).to_csv(folder / "tables" / "claims.csv", index=False)
-    meeting(data.comparisons, ablation).to_csv(folder / "tables" / "comparisons.csv", index=False)
-    meeting(data.trials, ablation).to_csv(folder / "tables" / "trials.csv", index=False)
-    if data.tuning is not None:
-        meeting(data.tuning, ablation).to_csv(folder / "tables" / "tuning.csv", index=False)
+    returned = {"claims": data.claims, "comparisons": data.comparisons, "trials": data.trials}
+    for stem, frame in {**returned, "tuning": ablation.tuning_trials}.items():
+        if frame is not None:
+            meeting(frame, ablation).to_csv(folder / "tables" / f"{stem}.csv", index=False)
     table, compare = data.convergence, data.comparisons
     figures_folder = folder / "figures"
     candidates = [
@@ -295,13 +284,9 @@ def _build(
     videos = _videos(ablation, tracker, folder / "videos")
     blocks = build_document(data, figures, videos, written, str(final / discussion.FILE))
     (folder / "report.md").write_text(render.markdown(blocks))
-    page = (
-        f"<!doctype html><html><head><meta charset='utf-8'><title>Ablation report: {html.escape(ablation.name)}"
-        f"</title><style>{CSS}</style></head><body>\n{render.html_body(blocks)}\n</body></html>\n"
-    )
-    (folder / "report.html").write_text(_inline(page, folder))
-    title, day = f"Ablation report: {ablation.name}", time.strftime("%Y-%m-%d")
-    (folder / "report.typ").write_text(typst(blocks, folder, title, day))
+    title = f"Ablation report: {ablation.name}"
+    (folder / "report.html").write_text(render.html_page(blocks, title, folder))
+    (folder / "report.typ").write_text(typst(blocks, folder, title, time.strftime("%Y-%m-%d")))
     if not pdf:
         return "no PDF (--no-pdf)", data
     return print_pdf(folder / "report.typ", folder / "report.pdf"), data

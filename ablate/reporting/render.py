@@ -1,11 +1,13 @@
-"""Two of the report's renderers: the blocks (``blocks.py``) as Markdown (report.md) and as HTML (report.html's
-body). The third, Typst for the PDF, is ``typeset.typst``. Each writes every block type; none reads another's
-output."""
+"""Two of the report's renderers: the blocks (``blocks.py``) as Markdown (report.md) and as one self-contained
+HTML page (report.html, figures and videos inlined). The third, Typst for the PDF, is ``typeset.typst``. Each
+writes every block type; none reads another's output."""
 
 from __future__ import annotations
 
+import base64
 import html
 import re
+from pathlib import Path
 
 from ablate.reporting.blocks import (
     MARKUP,
@@ -24,6 +26,28 @@ from ablate.reporting.blocks import (
 from ablate.reporting.text import esc
 
 NO_VIDEOS = "No videos were recorded."
+CSS = """
+body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222;
+       line-height: 1.45; }
+table { border-collapse: collapse; font-size: 0.85em; margin: 1em 0; }
+caption { caption-side: top; text-align: left; font-size: 0.9em; color: #333; padding: 0.3em 0; }
+th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: left; vertical-align: top; }
+img { max-width: 100%; }
+figure { margin: 1.5em 0; break-inside: avoid; }
+figcaption { font-size: 0.9em; color: #333; margin-top: 0.3em; }
+.videos { display: flex; flex-wrap: wrap; gap: 12px; }
+figure.video { margin: 0; width: 260px; font-size: 0.8em; }
+figure.video video { width: 260px; }
+blockquote { background: #fff4e0; border-left: 4px solid #f0a000; margin: 1em 0; padding: 0.5em 1em; }
+@media print {
+  body { max-width: none; margin: 0; font-size: 10pt; }
+  video { display: none; }
+  figure.video { width: 45%; }
+  table { font-size: 8pt; }
+  h2 { break-after: avoid; }
+  tr { break-inside: avoid; }
+}
+"""
 
 
 def nested(text: str, levels: int) -> str:
@@ -145,3 +169,21 @@ def _html_block(block: Block) -> str:
 def html_body(blocks: list[Block]) -> str:
     """The blocks as the body of an HTML page."""
     return "\n".join(_html_block(b) for b in blocks)
+
+
+def html_page(blocks: list[Block], title: str, folder: Path) -> str:
+    """The blocks as report.html, its ``figures/`` and ``videos/`` (relative to ``folder``) inlined as data URIs."""
+    page = (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+        f"</title><style>{CSS}</style></head><body>\n{html_body(blocks)}\n</body></html>\n"
+    )
+    mime = {".png": "image/png", ".svg": "image/svg+xml", ".mp4": "video/mp4"}
+
+    def inlined(match: re.Match) -> str:
+        path = folder / html.unescape(match.group(1))
+        if not path.is_file():
+            return match.group(0)
+        data = base64.b64encode(path.read_bytes()).decode()
+        return f'src="data:{mime.get(path.suffix, "application/octet-stream")};base64,{data}"'
+
+    return re.sub(r'src="((?:figures|videos)/[^"]+)"', inlined, page)
