@@ -11,7 +11,7 @@ been made inert by ``text.esc`` (HTML entities), which markdown-it decodes once.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -82,6 +82,14 @@ class Items:
     @classmethod
     def of(cls, texts: Iterable[str | Item]) -> Items:
         return cls(tuple(t if isinstance(t, Item) else Item(t) for t in texts))
+
+    def lines(self, indent: str, write: Callable[[str], str] = str) -> str:
+        """The list as ``- `` lines (Markdown and Typst), a sub-item ``indent`` deeper, each text through ``write``."""
+        lines = []
+        for item in self.items:
+            lines.append(f"- {write(item.text)}")
+            lines += [f"{indent}- {write(sub)}" for sub in item.sub]
+        return "\n".join(lines)
 
 
 @dataclass(frozen=True, eq=False)

@@ -67,11 +67,3 @@ def keep(old_folder: Path, new_folder: Path) -> None:
         target.write_bytes(source.read_bytes())
     elif not target.exists():
         target.write_text(TEMPLATE, encoding="utf-8")
-
-
-def missing_line(path: str) -> str:
-    """The one line the report prints until the discussion is written."""
-    return (
-        f"*The discussion is missing: write it in {path} (created with prompts; a rebuild keeps it), then run "
-        "`ablate report` again.*"
-    )

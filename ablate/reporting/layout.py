@@ -23,7 +23,7 @@ from ablate.reporting.blocks import (
     paragraphs,
 )
 from ablate.reporting.data import ReportData
-from ablate.reporting.discussion import Discussion, missing_line
+from ablate.reporting.discussion import Discussion
 from ablate.reporting.figures import Figure
 from ablate.reporting.findings import findings, summary
 from ablate.reporting.glossary import GLOSSARY, references
@@ -68,10 +68,6 @@ def order_figures(figures: list[Figure]) -> list[Figure]:
     return body + [f for f in figures if f not in body]
 
 
-def body_figures(figures: list[Figure]) -> list[Figure]:
-    return [f for f in figures if f.number <= 2 and Path(f.path).stem in BODY_FIGURES]
-
-
 def question(ablation: Ablation) -> str:
     others = [v for v in ablation.variants if v != ablation.baseline]
     return say(
@@ -110,7 +106,7 @@ def method_paragraph(ablation: Ablation, letters: dict[str, str]) -> str:
 def _discussion(discussion: Discussion, where: str, launched_ms: int | None = None) -> list[Block]:
     if discussion.text is None:
         title = f"Discussion{f' — {esc(discussion.author)}' if discussion.author else ''}"
-        return [Heading(title), Paragraph(missing_line(where))]
+        return [Heading(title), Paragraph(say("layout.discussion_missing", path=where))]
     author = esc(discussion.author or "the author (no Author line in discussion.md)")
     edited = discussion.edited_ms
     stale = edited is not None and launched_ms is not None and edited < launched_ms
@@ -180,7 +176,7 @@ def build_document(
     doc += paragraphs(" ".join(line for line in comparison_intro(ablation) if line))
     see = say("layout.see_appendix", comparisons=refs.appendix("comparisons"), results=refs.appendix("results"))
     doc.append(Paragraph(see))
-    shown = body_figures(figures)
+    shown = [f for f in figures if f.number <= 2 and Path(f.path).stem in BODY_FIGURES]
     doc += [Heading("Figures", generated=True), *(Picture(f) for f in shown)] if shown else []
     kept = [
         text for kind, text in limitations(ablation, table, compare, bool(videos), refs) if kind in BODY_LIMITATIONS

@@ -64,14 +64,6 @@ def _md_table(table: Table) -> str:
     return "\n".join(lines)
 
 
-def _md_items(items: Items) -> str:
-    lines = []
-    for item in items.items:
-        lines.append(f"- {item.text}")
-        lines += [f"    - {sub}" for sub in item.sub]
-    return "\n".join(lines)
-
-
 def _md_block(block: Block) -> str:
     if isinstance(block, Heading):
         return f"{'#' * block.level} {block.text}"
@@ -82,7 +74,7 @@ def _md_block(block: Block) -> str:
     if isinstance(block, Note):
         return f"> {block.text}"
     if isinstance(block, Items):
-        return _md_items(block)
+        return block.lines("    ")
     if isinstance(block, Table):
         return _md_table(block)
     if isinstance(block, Picture):
@@ -114,13 +106,8 @@ def _html_table(table: Table) -> str:
     align = table.align  # read off every column's values: once per table, not once per row
 
     def row(cells: list[str], tag: str) -> str:
-        return (
-            "<tr>"
-            + "".join(
-                f'<{tag} style="text-align: {a}">{inline_html(c)}</{tag}>' for c, a in zip(cells, align, strict=True)
-            )
-            + "</tr>"
-        )
+        shown = (f'<{tag} style="text-align: {a}">{inline_html(c)}</{tag}>' for c, a in zip(cells, align, strict=True))
+        return f"<tr>{''.join(shown)}</tr>"
 
     caption = f"<caption><strong>Table {table.number}.</strong> {inline_html(table.caption or '')}</caption>"
     body = "\n".join(row(cells, "td") for cells in table.rows)

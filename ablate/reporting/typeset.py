@@ -193,6 +193,8 @@ def _pipe_table(node: SyntaxTreeNode) -> str:
 
 
 def _authored(node: SyntaxTreeNode, folder: Path | None) -> str:
+    """A block of the student's own Markdown (the discussion) as Typst: a heading, paragraph, list, pipe table,
+    image, block quote, fenced code or rule; other HTML than a comment as plain text."""
     if node.type == "heading":
         return f"#heading(level: {max(int(node.tag[1:]) - 1, 1)})[{_inline(node.children[0].children)}]\n"
     if node.type == "paragraph":
@@ -212,13 +214,6 @@ def _authored(node: SyntaxTreeNode, folder: Path | None) -> str:
     if node.type == "hr":
         return "#line(length: 100%)\n"
     return "" if node.content.lstrip().startswith("<!--") else "#" + string(node.content.strip()) + "\n"
-
-
-def authored(markdown: str, folder: Path | None = None) -> str:
-    """The student's own Markdown (the discussion) as Typst: headings, paragraphs, lists, pipe tables, images, block
-    quotes, fenced code and rules; other HTML than a comment as plain text."""
-    typeset = (_authored(node, folder) for node in SyntaxTreeNode(MARKUP.parse(markdown)).children)
-    return "".join(f"{text}\n" for text in typeset if text)
 
 
 def _quote(text: str) -> str:
@@ -242,11 +237,7 @@ def _block(block: Block, folder: Path | None) -> str:
     if isinstance(block, Note):
         return _quote(block.text)
     if isinstance(block, Items):
-        lines = []
-        for item in block.items:
-            lines.append(f"- {inline(item.text)}")
-            lines += [f"  - {inline(sub)}" for sub in item.sub]
-        return "\n".join(lines) + "\n"
+        return block.lines("  ", inline) + "\n"
     if isinstance(block, Table):
         return table(block.header, block.rows, block.align, block.caption or "", block.number)
     if isinstance(block, Picture):
@@ -259,7 +250,8 @@ def _block(block: Block, folder: Path | None) -> str:
         listed = [f"- #link({string(v['path'])})[{inline(esc(v['caption']))}]" for v in block.videos]
         return "\n".join(listed) + "\n" if listed else inline(NO_VIDEOS) + "\n"
     if isinstance(block, Authored):
-        return authored(nested(block.text, 3), folder)
+        typeset = (_authored(node, folder) for node in SyntaxTreeNode(MARKUP.parse(nested(block.text, 3))).children)
+        return "".join(f"{text}\n" for text in typeset if text)
     raise TypeError(f"not a report block: {block!r}")
 
 
