@@ -8,6 +8,7 @@ report is built in a temporary folder and swapped in whole: a failed build never
 from __future__ import annotations
 
 import argparse
+import contextlib
 import html
 import json
 import re
@@ -101,11 +102,9 @@ def _video(tracker: RunReader, run_id: str, target: Path, which: str, recorded: 
     return the video played (``recorded``, the run's own, for its own video; NaN: none, as on Pong), or ``None``
     where there is no video: ``record_video = false``, or a network or env this machine cannot build (said on
     stderr)."""
-    try:
+    with contextlib.suppress(Exception):  # no video in the run: recorded from its weights below
         shutil.copyfile(tracker.download(run_id, "video.mp4"), target)
         return recorded
-    except Exception:  # noqa: BLE001 - no video in the run: recorded from its weights below
-        pass
     try:
         settings = Path(tracker.download(run_id, "config.json"))
         if not json.loads(settings.read_text(encoding="utf-8")).get("record_video", True):
@@ -152,9 +151,7 @@ class ReportResult:
     """Where the experiment file on disk differs from the launch's copy, the report's line saying so."""
 
     def pdf_words(self) -> str:
-        """``report.pdf (9 pages: the body 3, the appendix 6)``, or the one line saying why there is none."""
-        if self.pdf_note:
-            return self.pdf_note
+        """``report.pdf (9 pages: the body 3, the appendix 6)``, where it was written."""
         if not self.pages:
             return "report.pdf"
         body, total = self.pages
@@ -211,10 +208,8 @@ def build_report(
     attach_note = _attach(tracker, ablation.launch["run_id"], folder, data) if attach else None
     pages = None
     if pdf_note is None:
-        try:
+        with contextlib.suppress(Exception):  # a count is a courtesy: the PDF stands without it
             pages = page_counts(folder / "report.typ")
-        except Exception:  # noqa: BLE001 - a count is a courtesy: the PDF stands without it
-            pages = None
     missing = missing_artifacts_line(ablation, tracker.shown_uri)
     return ReportResult(
         folder, pdf_note, attach_note, _generation_note(ablation), pages, missing, changed_file_note(ablation)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ablate.launch.secrets import shown_command
 from ablate.measures import is_censored
 from ablate.reporting.blocks import (
     AppendixStart,
@@ -140,15 +139,14 @@ def build_document(
     data: ReportData,
     figures: list[Figure],
     videos: list[dict[str, str]],
-    discussion: Discussion | None = None,
-    discussion_path: str = "discussion.md",
+    discussion: Discussion,
+    discussion_path: str,
 ) -> list[Block]:
     """The report as blocks, from its data computed once (``data.ReportData``): the Claims section from
     ``data.claims``, the findings from ``data.comparisons``, the tables from ``data.convergence``. ``figures``
     are numbered (``order_figures``); every cross-reference and table number is resolved here."""
     ablation, table, compare, claimed = data.ablation, data.convergence, data.comparisons, data.claims
     command, untuned = data.command, data.untuned
-    discussion = discussion or Discussion(None, None)
     failed = ablation.trials[ablation.trials.status.isin(["FAILED", "KILLED", "NOT RUN"])]
     tuned_dependence = bool(ablation.tuning and untuned is not None)
     appendix = ["method", "results", "comparisons"]
@@ -215,8 +213,7 @@ def build_document(
         ]
     every = [text for _, text in limitations(ablation, table, compare, bool(videos), refs)]
     doc += [Heading("Every limitation", 3, True, letters["limitations"]), Items.of(every)]
-    record = _reproducibility(ablation, command or shown_command(["ablate", "report", ablation.name]))
-    doc += [Heading("Reproducibility", 3, True, letters["record"]), *record]
+    doc += [Heading("Reproducibility", 3, True, letters["record"]), *_reproducibility(ablation, command)]
     doc += [
         Heading("Glossary", 3, letter=letters["glossary"]),
         Items.of(f"**{term}.** {text}" for term, text in GLOSSARY),

@@ -131,8 +131,6 @@ def inline(text: str) -> str:
 def table(header: list[str], rows: list[list[str]], align: list[str], caption: str = "", number: int = 0) -> str:
     """A table in type sized to its widest row (a landscape page past the last size); a numbered figure with its
     caption above it where it has a number, a bare table otherwise (one in the student's own text)."""
-    rows = [row + [""] * (len(header) - len(row)) for row in rows]
-    align = align + ["left"] * (len(header) - len(align))
     widths = [max(len(plain(row[i])) for row in [header, *rows]) for i in range(len(header))]
     # A column's share of the width: its longest cell, capped so one long text column cannot starve the rest.
     total = sum(min(w, 60) for w in widths) + 3 * len(widths)
