@@ -3,7 +3,7 @@ caption takes its section's title; a table's columns align by what they hold."""
 
 import pandas as pd
 
-from ablate.reporting.blocks import Heading, Item, Items, Paragraph, Table, number_tables, paragraphs
+from ablate.reporting.blocks import Heading, Item, Items, Paragraph, Table, number_tables
 
 
 def test_tables_are_numbered_in_order_and_named_after_their_section_unless_captioned():
@@ -27,4 +27,3 @@ def test_a_heading_says_its_letter_and_that_it_is_generated():
     assert Heading("Tuning", 3, True, "B").text == "B. Tuning (generated)"
     assert Heading("References").text == "References"
     assert Items.of(["a", Item("b", ("c",))]).items == (Item("a"), Item("b", ("c",)))
-    assert paragraphs("a", "", "b") == [Paragraph("a"), Paragraph("b")]

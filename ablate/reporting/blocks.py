@@ -143,11 +143,6 @@ def _is_text(values) -> bool:
     return any(re.search(r"[A-Za-z]", re.sub(r"\[[^\]]*\]|\([^)]*\)", "", str(v))) for v in values)
 
 
-def paragraphs(*texts: str) -> list[Block]:
-    """Each non-empty text as a paragraph."""
-    return [Paragraph(t) for t in texts if t]
-
-
 def number_tables(blocks: list[Block]) -> list[Block]:
     """Every table numbered in order, and one without a caption named after its section's title: the three
     renderings then number and name the tables alike."""

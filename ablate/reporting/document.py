@@ -306,10 +306,6 @@ def terminal_summary(folder: Path) -> str:
     return "\n".join(lines)
 
 
-def _names(text: str | None) -> list[str] | None:
-    return [v.strip() for v in text.split(",") if v.strip()] if text else None
-
-
 def report_command(args: argparse.Namespace) -> Shown:
     """``ablate report`` as the user typed it: the experiment as given (``experiments/activations.toml``, not
     its name) and every option that was set, so the reproducibility record can be pasted back into a shell;
@@ -343,7 +339,7 @@ def cmd_report(args: argparse.Namespace) -> int:
             args.tracking_uri,
             args.out,
             generation=getattr(args, "generation", None),
-            variants=_names(getattr(args, "variants", None)),
+            variants=[v.strip() for v in args.variants.split(",") if v.strip()] if args.variants else None,
             baseline=getattr(args, "baseline", None),
             pdf=getattr(args, "pdf", True),
             command=command,

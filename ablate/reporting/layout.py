@@ -19,7 +19,6 @@ from ablate.reporting.blocks import (
     Picture,
     Videos,
     number_tables,
-    paragraphs,
 )
 from ablate.reporting.data import ReportData
 from ablate.reporting.discussion import Discussion
@@ -171,7 +170,8 @@ def build_document(
     doc += [Heading("Question", generated=True), Paragraph(question(ablation))]
     doc += [Heading("Method", generated=True), Paragraph(method_paragraph(ablation, letters))]
     doc += [Heading("Claims", generated=True), *summary(ablation, table, compare, claimed)]
-    doc += paragraphs(" ".join(line for line in comparison_intro(ablation) if line))
+    opening = " ".join(line for line in comparison_intro(ablation) if line)
+    doc += [Paragraph(opening)] if opening else []
     see = say("layout.see_appendix", comparisons=refs.appendix("comparisons"), results=refs.appendix("results"))
     doc.append(Paragraph(see))
     shown = [f for f in figures if f.number <= 2 and Path(f.path).stem in BODY_FIGURES]
