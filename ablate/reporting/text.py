@@ -6,7 +6,6 @@ from __future__ import annotations
 import html
 from dataclasses import dataclass, field
 
-import numpy as np
 import pandas as pd
 
 from ablate.measures import lookup
@@ -47,7 +46,7 @@ NO_REFS = Refs()
 
 
 def fmt(x: float | None, digits: int = 0) -> str:
-    if x is None or (isinstance(x, float) and np.isnan(x)) or pd.isna(x):
+    if pd.isna(x):  # None and NaN alike
         return "–"
     return f"{x:,.{digits}f}"
 
