@@ -126,3 +126,15 @@ def test_the_masked_stream_masks_what_any_library_prints(monkeypatch):
     monkeypatch.setattr(sys, "stdout", MaskedStream(out))
     print("View run x at: http://alice:hunter22@h:5000/#/experiments/1")
     assert out.getvalue() == "View run x at: http://alice:***@h:5000/#/experiments/1\n"
+
+
+def test_a_credentials_file_mlflow_cannot_read_masks_nothing_and_breaks_no_line(tmp_path, monkeypatch):
+    """configparser reads a value's % as MLflow does: %% is one %, a lone % is an error that must not reach
+    every line the CLI prints."""
+    good, bad = tmp_path / "good", tmp_path / "bad"  # two files: the reader caches a file by its mtime
+    good.write_text("[mlflow]\nmlflow_tracking_password = pa%%ss-Planted\n")
+    bad.write_text("[mlflow]\nmlflow_tracking_password = pa%ss-Planted\n")
+    monkeypatch.setenv("MLFLOW_CREDENTIALS_PATH", str(good))
+    assert shown("login pa%ss-Planted failed") == "login *** failed"
+    monkeypatch.setenv("MLFLOW_CREDENTIALS_PATH", str(bad))
+    assert shown("login failed") == "login failed"

@@ -304,3 +304,14 @@ def test_allow_insecure_http_warns_once_and_goes_on_to_the_server(tmp_path, monk
     assert code == 1 and "reached http://192.0.2.7:5000" in err, out + err
     assert err.count("warning:") == 1 and "plain HTTP" in err and "--allow-insecure-http" in err
     assert SECRET not in out + err
+
+
+def test_status_lists_ablations_beside_a_deleted_mlflow_experiment_of_any_name(tmp_path):
+    """``ablate status`` opens the store alone: a deleted experiment (here one named ``ablate``) is not its
+    business."""
+    from mlflow.tracking import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    client.delete_experiment(client.create_experiment("ablate"))
+    assert ablation_names(uri) == []

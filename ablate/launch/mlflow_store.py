@@ -106,18 +106,19 @@ class Store:
     """One MLflow experiment (one per ablation) in one store, opened: what the writer (``Tracker``, below) and
     the report's reader (``ablate.reporting.reader``) share: the checks that open it, its experiment, its runs."""
 
-    def __init__(self, tracking_uri: str | None, experiment_name: str, write: bool = True) -> None:
+    def __init__(self, tracking_uri: str | None, experiment_name: str | None, write: bool = True) -> None:
         """Opens the store and reads the experiment once, so every reason the store cannot be used surfaces
         here as a one-line ``TrackingError``, before anything is written or started. ``write=False`` (a
-        report) accepts a read-only store and refuses to create one."""
+        report) accepts a read-only store and refuses to create one; ``experiment_name=None`` opens the store
+        alone (``ablate status`` lists its ablations)."""
         self.uri = open_uri(resolve_uri(tracking_uri))
         """The URI MLflow is given (``store.open_uri``: a tracking server's login moved to the environment)."""
         self.shown_uri = redact(self.uri)
         """The URI as messages and records show it: its password masked."""
-        self.display_name = unicodedata.normalize("NFC", experiment_name)
+        self.display_name = unicodedata.normalize("NFC", experiment_name or "")
         # The MLflow experiment, its artifact folder and its lock file: the name's safe form (the name itself
         # for every name valid before names in any script were), whichever form the caller gave.
-        self.experiment_name = storage_name(experiment_name)
+        self.experiment_name = storage_name(experiment_name) if experiment_name is not None else ""
         self._experiment_id: str | None = None
         db = sqlite_path(self.uri)
         if db is not None:
@@ -133,7 +134,7 @@ class Store:
         try:
             with store_setup_lock(db), fail_fast_http():
                 self.client = MlflowClient(self.uri)
-                existing = self.client.get_experiment_by_name(self.experiment_name)
+                existing = self.client.get_experiment_by_name(self.experiment_name) if experiment_name else None
         except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
             raise TrackingError(store_problem(self.uri, error)) from None
         if existing is not None and existing.lifecycle_stage == "deleted":

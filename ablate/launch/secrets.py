@@ -128,9 +128,10 @@ def _read(path: str, mtime: float) -> str:
 def mlflow_credential(name: str) -> str:
     """``name`` in the ``[mlflow]`` section of ``~/.mlflow/credentials`` (``MLFLOW_CREDENTIALS_PATH``); "" if none."""
     parser = configparser.ConfigParser()
-    with contextlib.suppress(configparser.Error):
+    with contextlib.suppress(configparser.Error):  # a malformed file, or a lone % in a value, as MLflow reads it
         parser.read_string(_read_cached(os.environ.get("MLFLOW_CREDENTIALS_PATH", "~/.mlflow/credentials")))
-    return parser.get("mlflow", name, fallback="")
+        return parser.get("mlflow", name, fallback="")
+    return ""
 
 
 def secret_values() -> list[str]:

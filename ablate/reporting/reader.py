@@ -34,11 +34,11 @@ class LaunchRun:
 def ablation_names(tracking_uri: str | None) -> list[str]:
     """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted; none where a local
     SQLite file does not exist yet (opening one would create it). A store that cannot be read is a one-line
-    ``TrackingError`` within seconds: ``Store`` opens it, under any experiment's name, as it opens the writer's."""
+    ``TrackingError`` within seconds: ``Store`` opens it as it opens the writer's."""
     db = sqlite_path(resolve_uri(tracking_uri))
     if db is not None and not db.is_file():
         return []
-    client = Store(tracking_uri, "ablate", write=False).client
+    client = Store(tracking_uri, None, write=False).client
     experiments = client.search_experiments()
     return sorted(e.name for e in experiments if client.search_runs([e.experiment_id], LAUNCHES, max_results=1))
 
