@@ -53,7 +53,7 @@ class ConfigError(ValueError):
     """Bad user input: the message is one line a user can act on."""
 
 
-def shown(value: Any, limit: int = 60) -> str:
+def clipped(value: Any, limit: int = 60) -> str:
     """``repr`` of a bad value, shortened so the error stays one readable line."""
     text = repr(value)
     size = len(value) if isinstance(value, str) else len(text)

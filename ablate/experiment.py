@@ -28,9 +28,9 @@ from ablate.config import (
     ConfigError,
     TrialConfig,
     apply_knobs,
+    clipped,
     is_int,
     is_number,
-    shown,
 )
 from ablate.env_spec import solve_threshold_or_none
 from ablate.measures import claim_names, default_primary_metric, measure, tune_names
@@ -188,7 +188,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     name = data.get("name", Path(source).stem)
     problem = name_problem(name)
     if problem:
-        raise ConfigError(f"{source}: name = {shown(name)} is invalid ({problem}); valid: {NAME_RULE}")
+        raise ConfigError(f"{source}: name = {clipped(name)} is invalid ({problem}); valid: {NAME_RULE}")
     name = unicodedata.normalize("NFC", name)
     description = data.get("description", "")
     if not isinstance(description, str):
@@ -229,7 +229,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             raise ConfigError(f"{where}name: missing or empty; valid: a non-empty string naming the variant")
         if len(vname) > MAX_VARIANT_NAME_LENGTH:
             raise ConfigError(
-                f"{where}name = {shown(vname)} is invalid; valid: at most {MAX_VARIANT_NAME_LENGTH} characters"
+                f"{where}name = {clipped(vname)} is invalid; valid: at most {MAX_VARIANT_NAME_LENGTH} characters"
             )
         own_seeds, own_rounds = parse_seeds(table.pop("seeds"), f"{where}seeds") if "seeds" in table else (None, None)
         knobs = _without_seed(table, where)
@@ -246,11 +246,11 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     count = len(explicit) + (math.prod(len(grid[a]) for a in axes) if axes else 0)
     most = rounds.max if rounds else len(seeds)
     if count * most > MAX_TRIALS:
-        sizes = [*([f"{len(explicit)} variants"] if explicit else []), " x ".join(f"{len(grid[a])} {a}" for a in axes)]
-        raise ConfigError(
-            f"{source}: {' + '.join(filter(None, sizes))} x {most} seeds is {count * most:,} trials; valid: at most "
-            f"{MAX_TRIALS:,}"
-        )
+        sizes = [f"{len(explicit)} variants"] if explicit else []
+        if axes:
+            sizes.append("grid: " + " x ".join(f"{len(grid[a])} {a}" for a in axes))
+        what = sizes[0] if len(sizes) == 1 else f"({' + '.join(sizes)})"
+        raise ConfigError(f"{source}: {what} x {most} seeds is {count * most:,} trials; valid: at most {MAX_TRIALS:,}")
     if axes:
         for combo in itertools.product(*(grid[a] for a in axes)):
             knobs = _without_seed(dict(zip(axes, combo, strict=True)), f"{source}: grid.")
@@ -277,7 +277,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     primary = data.get("primary")
     if primary is not None and primary not in claim_names():
         raise ConfigError(
-            f"{source}: primary = {shown(primary)} is invalid; valid: one of {', '.join(claim_names())} (or leave "
+            f"{source}: primary = {clipped(primary)} is invalid; valid: one of {', '.join(claim_names())} (or leave "
             "it out: episodes_to_solve where the env has a solve threshold, else auc)"
         )
     needs_threshold = primary is not None and measure(primary).needs_threshold
@@ -330,15 +330,15 @@ def _parse_tune(
                 )
             if not isinstance(value, list) or not value:
                 raise ConfigError(
-                    f"{where}.{key} = {shown(value)} is invalid; valid: a non-empty list of candidate values"
+                    f"{where}.{key} = {clipped(value)} is invalid; valid: a non-empty list of candidate values"
                 )
             knob = KNOBS[key]
             for candidate in value:
                 if not knob.check(candidate):
-                    raise ConfigError(f"{where}.{key}: candidate {shown(candidate)} is invalid; valid: {knob.valid}")
+                    raise ConfigError(f"{where}.{key}: candidate {clipped(candidate)} is invalid; valid: {knob.valid}")
             converted = tuple(knob.convert(v) for v in value)
             if len(set(converted)) != len(converted):
-                raise ConfigError(f"{where}.{key} = {shown(value)} is invalid; valid: distinct candidate values")
+                raise ConfigError(f"{where}.{key} = {clipped(value)} is invalid; valid: distinct candidate values")
             knobs.append((key, converted))
         elif key in KNOBS or key in SHORTHANDS:
             raise ConfigError(
@@ -354,15 +354,15 @@ def _parse_tune(
     count = table.get("seeds", 3)
     if not (is_int(count) and 1 <= count <= MAX_TUNE_SEEDS):
         raise ConfigError(
-            f"{where}.seeds = {shown(count)} is invalid; valid: a count of tuning seeds in [1, {MAX_TUNE_SEEDS}] "
+            f"{where}.seeds = {clipped(count)} is invalid; valid: a count of tuning seeds in [1, {MAX_TUNE_SEEDS}] "
             f"(they are {TUNE_SEED_START}, {TUNE_SEED_START + 1}, ...)"
         )
     metric = table.get("metric", "auc")
     if metric not in tune_names():
-        raise ConfigError(f"{where}.metric = {shown(metric)} is invalid; valid: one of {', '.join(tune_names())}")
+        raise ConfigError(f"{where}.metric = {clipped(metric)} is invalid; valid: one of {', '.join(tune_names())}")
     budget = table.get("max_episodes")
     if budget is not None and not KNOBS["max_episodes"].check(budget):
-        raise ConfigError(f"{where}.max_episodes = {shown(budget)} is invalid; valid: {KNOBS['max_episodes'].valid}")
+        raise ConfigError(f"{where}.max_episodes = {clipped(budget)} is invalid; valid: {KNOBS['max_episodes'].valid}")
     high = [s for s in seeds if s >= TUNE_SEED_START]
     if high:
         raise ConfigError(

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from ablate.config import ConfigError, is_int, is_number, shown
+from ablate.config import ConfigError, clipped, is_int, is_number
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | N
     ):
         return tuple(value), None
     if not isinstance(value, dict):
-        raise ConfigError(f"{where} = {shown(value)} is invalid; {SEEDS_RULE}")
+        raise ConfigError(f"{where} = {clipped(value)} is invalid; {SEEDS_RULE}")
     for key in value:
         if key not in ROUND_KEYS:
             raise ConfigError(f"{where}.{key}: unknown key; valid keys of a seeds table: {', '.join(ROUND_KEYS)}")
@@ -83,28 +83,30 @@ def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | N
             raise ConfigError(f"{where}.{key}: missing; valid: e.g. seeds = {{ start = 5, step = 5, max = 40 }}")
     start, most = value["start"], value["max"]
     if not (is_int(start) and 1 <= start <= 1000):
-        raise ConfigError(f"{where}.start = {shown(start)} is invalid; valid: a count of seeds in [1, 1000]")
+        raise ConfigError(f"{where}.start = {clipped(start)} is invalid; valid: a count of seeds in [1, 1000]")
     if not (is_int(most) and start <= most <= 1000):
-        raise ConfigError(f"{where}.max = {shown(most)} is invalid; valid: a count of seeds in [start = {start}, 1000]")
+        raise ConfigError(
+            f"{where}.max = {clipped(most)} is invalid; valid: a count of seeds in [start = {start}, 1000]"
+        )
     step = value.get("step", start)
     if not (is_int(step) and 1 <= step <= 1000):
-        raise ConfigError(f"{where}.step = {shown(step)} is invalid; valid: seeds added per round, in [1, 1000]")
+        raise ConfigError(f"{where}.step = {clipped(step)} is invalid; valid: seeds added per round, in [1, 1000]")
     minutes = value.get("max_minutes")
     if minutes is not None and not (is_number(minutes) and 0 < minutes <= 100_000):
         raise ConfigError(
-            f"{where}.max_minutes = {shown(minutes)} is invalid; valid: minutes in (0, 100000] by which the rounds "
+            f"{where}.max_minutes = {clipped(minutes)} is invalid; valid: minutes in (0, 100000] by which the rounds "
             "end: none starts that would end later at the pace measured (or leave it out: no time budget)"
         )
     growth = value.get("growth", 1.0)
     if not (is_number(growth) and 1 <= growth <= 10):
         raise ConfigError(
-            f"{where}.growth = {shown(growth)} is invalid; valid: a factor in [1, 10] by which each round's added "
+            f"{where}.growth = {clipped(growth)} is invalid; valid: a factor in [1, 10] by which each round's added "
             "seeds grow (1: step every round; 2: doubling)"
         )
     spending = value.get("spending", SPENDINGS[0])
     if spending not in SPENDINGS:
         raise ConfigError(
-            f"{where}.spending = {shown(spending)} is invalid; valid: {' or '.join(repr(s) for s in SPENDINGS)}"
+            f"{where}.spending = {clipped(spending)} is invalid; valid: {' or '.join(repr(s) for s in SPENDINGS)}"
         )
     if most == start:  # one round: exactly ``seeds = start`` (its trial keys too)
         return tuple(range(start)), None

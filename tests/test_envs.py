@@ -9,6 +9,7 @@ from gymnasium.envs.classic_control.cartpole import CartPoleEnv, CartPoleVectorE
 from ablate.config import TrialConfig
 from ablate.envs import (
     EnvError,
+    _PaletteForeground,
     autoresetting,
     copy_slots,
     describe,
@@ -284,3 +285,29 @@ def test_a_time_limits_step_count_is_read_and_written_back():
     assert env.step(0)[3]  # the 5th step counted: truncated
     unlimited = gym.make("CartPole-v1", max_episode_steps=None).env  # below its TimeLimit: none to count
     assert episode_steps(unlimited) is None
+
+
+def test_pongs_palette_table_is_pre_process_of_the_rgb_screen_learnt_and_then_looked_up():
+    """What Pong trials store per step, read from ALE's palette indices through a table that ``pre_process`` of
+    the RGB screen fills: the same 0/1 on the first frame (learnt) and on a second frame of the same colours
+    (looked up, no RGB read)."""
+    rng = np.random.default_rng(0)
+    palette = rng.integers(0, 256, (256, 3), dtype=np.uint8)
+    palette[[3, 5, 7]] = [[144, 72, 17], [109, 118, 43], [0, 0, 0]]  # the two background colours, and black
+    indices = rng.choice([3, 5, 7, 11, 200], size=(210, 160)).astype(np.uint8)
+
+    class FakeALE:
+        rgb_reads = 0
+
+        def getScreen(self, out):  # noqa: N802 - ALE's names
+            out[...] = indices
+
+        def getScreenRGB(self):  # noqa: N802
+            self.rgb_reads += 1
+            return palette[indices]
+
+    ale, table, screen = FakeALE(), _PaletteForeground(), np.empty((210, 160), np.uint8)
+    expected = pre_process(palette[indices]).astype(np.int8)
+    assert np.array_equal(table(ale, screen), expected) and ale.rgb_reads == 1
+    assert np.array_equal(table(ale, screen), expected) and ale.rgb_reads == 1
+    assert set(np.unique(expected)) == {0, 1}

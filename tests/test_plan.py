@@ -265,7 +265,9 @@ def test_ablate_run_hands_one_plan_its_experiment_read_and_its_grid_expanded_onc
 
         return call
 
-    monkeypatch.setattr(experiment_module, "load_experiment", counted("load", experiment_module.load_experiment))
+    load = counted("load", experiment_module.load_experiment)
+    monkeypatch.setattr(experiment_module, "load_experiment", load)
+    monkeypatch.setattr(cli, "load_experiment", load)  # the name the command line reads the file through
     monkeypatch.setattr(plan_module, "expand", counted("expand", plan_module.expand))
     handed = []
 

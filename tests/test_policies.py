@@ -1,5 +1,6 @@
 """Policy networks: shapes, the ablation knobs, logits (no softmax)."""
 
+import pytest
 import torch
 from torch import nn
 
@@ -68,3 +69,9 @@ def test_layer_norm_knob_builds_a_layer_norm_before_each_hidden_activation_and_a
     assert trial_key("v", replace(config, model=replace(config.model, layer_norm=False))) != trial_key("v", config)
     assert "LayerNorm" in architecture({"model.hidden_sizes": "(16, 8)", "model.layer_norm": "True"}, "CartPole-v1")
     assert "LayerNorm" not in architecture({"model.hidden_sizes": "(16,)", "model.layer_norm": "False"}, "CartPole-v1")
+
+
+def test_a_factory_refuses_an_architecture_it_does_not_build():
+    for factory in (create_cartpole_model, create_pong_model):
+        with pytest.raises(ValueError, match="architecture = 'CNN' is invalid; valid: mlp, cnn"):
+            factory(architecture="CNN")

@@ -45,6 +45,14 @@ def _dense_layers(
     return layers
 
 
+def _convolutional(architecture: str) -> bool:
+    """``cnn`` or ``mlp``; anything else is a ``ValueError`` (a trial's config is checked before: this is for a
+    direct call of a factory)."""
+    if architecture not in ("mlp", "cnn"):
+        raise ValueError(f"architecture = {architecture!r} is invalid; valid: mlp, cnn")
+    return architecture == "cnn"
+
+
 def create_cartpole_model(
     observation_size: int = 4,
     n_actions: int = 2,
@@ -62,7 +70,7 @@ def create_cartpole_model(
     components as channels, then the dense layers."""
     layers: list[nn.Module] = []
     inputs = observation_size
-    if architecture == "cnn":
+    if _convolutional(architecture):
         layers.append(_TimeAsLength())
         channels, length = observation_size, history
         for out_channels in conv_channels:
@@ -103,7 +111,7 @@ def create_pong_model(
     pixels straight into the dense layers (Karpathy's)."""
     channels, height, width = observation_shape
     convs: list[nn.Module] = []
-    for filters, kernel, stride, padding in PONG_CONV if architecture == "cnn" else ():
+    for filters, kernel, stride, padding in PONG_CONV if _convolutional(architecture) else ():
         convs += [nn.Conv2d(channels, filters, kernel, stride=stride, padding=padding), _ACTIVATIONS[activation]()]
         channels = filters
         height, width = ((n + 2 * padding - kernel) // stride + 1 for n in (height, width))

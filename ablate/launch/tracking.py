@@ -220,8 +220,9 @@ class Tracker(Store):
         if self._sql is not None:
             self.client.retried(mlflow_insert_metrics, self._sql, batches)
             return
-        for run_id, metrics in batches.items():  # MLflow splits a batch into the calls its store takes
-            self.client.log_batch(run_id, metrics=metrics)
+        for run_id, metrics in batches.items():  # 1,000 a call (MLflow's limit): a retry re-sends only its own
+            for i in range(0, len(metrics), 1000):
+                self.client.log_batch(run_id, metrics=metrics[i : i + 1000])
 
     def log_checkpoint(self, key: str, blob: bytes) -> None:
         """Keep ``blob`` as the open trial's ``checkpoint.pt`` (replacing the previous one): whatever ends the

@@ -120,7 +120,8 @@ def choose_all(experiment: Experiment, results: Iterable[TuningResult], so_far: 
         rows = by_variant.get(variant.name, [])
         done = {(tuple(sorted(r.values.items())), r.seed) for r in rows}
         wanted = {(tuple(sorted(c.items())), s) for c in spec.candidates(variant) for s in spec.seeds}
-        if tuned and not (done if so_far else wanted <= done):
+        complete = bool(done) if so_far else wanted <= done  # so far: any result chooses a provisional value
+        if tuned and not complete:
             continue
         choices[variant.name] = choose(spec, tuned, base_values(spec, variant), rows)
     return choices
