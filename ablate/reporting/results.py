@@ -192,10 +192,6 @@ class Ablation:
         return self.profile.return_levels.get(self.env_id, ())
 
 
-def _launches(tracker: RunReader) -> list[Any]:
-    return tracker.launches()
-
-
 def _generation_summary(runs: list[TrialRun], launches: list[Any]) -> list[dict[str, Any]]:
     """Every generation, newest first: its id, when it started, trials in its grid, trials finished; ``runs``:
     every trial run of the experiment."""
@@ -265,7 +261,7 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
             f"no MLflow experiment named {name!r} at {tracker.shown_uri}; "
             f"run `ablate run experiments/{name}.toml` first"
         )
-    launches = _launches(tracker)
+    launches = tracker.launches()
     if not launches:
         raise NoResults(f"experiment {name!r} at {tracker.shown_uri} has no launches; run `ablate run` first")
     every_run = tracker.trial_runs()  # read once: a search of thousands of runs takes seconds
@@ -293,10 +289,7 @@ def _read_launch(
     that answer them."""
     launch_id = launch.info.run_id
     grid = json.loads(tracker.load_text(launch_id, "grid.json"))
-    try:
-        environment = json.loads(tracker.load_text(launch_id, "environment.json"))
-    except Exception:  # noqa: BLE001 - older launches have no environment file
-        environment = {}
+    environment = _json_artifact(tracker, launch_id, "environment.json") or {}  # older launches have none
     try:
         experiment_text = tracker.load_text(launch_id, "experiment.toml")
     except Exception:  # noqa: BLE001 - a launch written by hand (tests) has no experiment file
@@ -392,8 +385,7 @@ def _read_launch(
 
 
 def _json_artifact(tracker: RunReader, launch_id: str, name: str) -> dict[str, Any] | None:
-    """A launch's JSON artifact (``rounds.json``: seeds in rounds, ``launch.rounds.Rounds.document``); None where
-    the launch has none."""
+    """A launch's JSON artifact (``rounds.json``, ``tuning.json``, ``environment.json``); None where it has none."""
     try:
         return json.loads(tracker.load_text(launch_id, name))
     except Exception:  # noqa: BLE001 - no such artifact
@@ -402,10 +394,7 @@ def _json_artifact(tracker: RunReader, launch_id: str, name: str) -> dict[str, A
 
 def _tuning_document(tracker: RunReader, launch_id: str) -> dict[str, Any] | None:
     """The launch's ``tuning.json``; None for a launch without ``[tune]``."""
-    try:
-        return json.loads(tracker.load_text(launch_id, "tuning.json"))
-    except Exception:  # noqa: BLE001 - no such artifact: an untuned launch
-        return None
+    return _json_artifact(tracker, launch_id, "tuning.json")
 
 
 _EPISODE_COLUMNS = ["episode", "episode_return", "wall_s"]
