@@ -8,10 +8,10 @@ from ablate.reporting.statistics import (
     _pairwise_improvement,
     bootstrap_interval,
     iqm,
+    iqm_change,
     is_censored_statistic,
     probability_of_improvement,
     probability_of_improvement_interval,
-    relative_reduction,
 )
 
 
@@ -48,10 +48,10 @@ def test_probability_of_improvement():
 
 
 def test_relative_reduction():
-    point, low, high = relative_reduction(np.array([50.0] * 4), np.array([100.0] * 4))
+    point, low, high = iqm_change(np.array([50.0] * 4), np.array([100.0] * 4), relative=True)
     assert point == pytest.approx(0.5) and low == pytest.approx(0.5) and high == pytest.approx(0.5)
     rng = np.random.default_rng(1)
-    point, low, high = relative_reduction(rng.normal(60, 5, 20), rng.normal(100, 5, 20))
+    point, low, high = iqm_change(rng.normal(60, 5, 20), rng.normal(100, 5, 20), relative=True)
     assert 0.3 < low < point < high < 0.5
 
 

@@ -90,35 +90,23 @@ def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[f
     return (float(low), float(high))
 
 
-def relative_reduction(variant: np.ndarray, reference: np.ndarray) -> tuple[float, float, float]:
-    """1 - IQM(variant) / IQM(reference), with a 95% bootstrap interval (samples resampled independently).
-    Positive: the variant needs fewer (episodes); negative: more."""
+def iqm_change(variant: np.ndarray, reference: np.ndarray, relative: bool) -> tuple[float, float, float]:
+    """With a 95% bootstrap interval (samples resampled independently): ``relative`` (episodes),
+    1 - IQM(variant) / IQM(reference), positive where the variant needs fewer; else (returns, which can be
+    negative, as Pong's, where a ratio means nothing) IQM(variant) - IQM(reference)."""
     variant, reference = np.asarray(variant, float), np.asarray(reference, float)
 
     def statistic(a, b, axis=-1):
-        return 1 - iqm(a, axis=axis) / iqm(b, axis=axis)
-
-    point = float(statistic(variant, reference))
-    if len(variant) < 2 or len(reference) < 2:
-        return point, float("nan"), float("nan")
-    if np.all(np.concatenate([variant, reference]) == variant[0]):
-        return point, point, point
-    low, high = _percentile_bootstrap((variant, reference), statistic)
-    return point, float(low), float(high)
-
-
-def iqm_difference(variant: np.ndarray, reference: np.ndarray) -> tuple[float, float, float]:
-    """IQM(variant) - IQM(reference), with a 95% bootstrap interval: for returns, which can be negative
-    (Pong), where a ratio means nothing."""
-    variant, reference = np.asarray(variant, float), np.asarray(reference, float)
-
-    def statistic(a, b, axis=-1):
+        if relative:
+            return 1 - iqm(a, axis=axis) / iqm(b, axis=axis)
         return iqm(a, axis=axis) - iqm(b, axis=axis)
 
     point = float(statistic(variant, reference))
     if len(variant) < 2 or len(reference) < 2:
         return point, float("nan"), float("nan")
-    if np.all(variant == variant[0]) and np.all(reference == reference[0]):
+    if relative and np.all(np.concatenate([variant, reference]) == variant[0]):
+        return point, point, point
+    if not relative and np.all(variant == variant[0]) and np.all(reference == reference[0]):
         return point, point, point
     low, high = _percentile_bootstrap((variant, reference), statistic)
     return point, float(low), float(high)
@@ -164,7 +152,7 @@ def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cen
     IQM of a sample whose IQM uses a censored value is a lower bound on the true IQM: with only the variant
     censored, the variant is at least as slow as measured (a claim "worse" holds, sized "at least"); with only
     the baseline censored, a claim "better" holds the same way; with both, episodes say nothing."""
-    point, low, high = relative_reduction(x, y)
+    point, low, high = iqm_change(x, y, relative=True)
     x_bound = is_censored_statistic(int(x_cens.sum()), len(x), "iqm")
     y_bound = is_censored_statistic(int(y_cens.sum()), len(y), "iqm")
     verdict = _verdict(low, high)
@@ -186,7 +174,7 @@ def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cen
 
 
 def _return_comparison(x: np.ndarray, y: np.ndarray):
-    point, low, high = iqm_difference(x, y)
+    point, low, high = iqm_change(x, y, relative=False)
     if min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
         return point, low, high, TOO_FEW_SEEDS, ""
     return point, low, high, _verdict(low, high), ""
