@@ -28,11 +28,6 @@ def smallest_p_value(n: int, m: int) -> float:
     return min(1.0, 2 / math.comb(n + m, n))
 
 
-def can_claim(n: int, m: int) -> bool:
-    """Could any outcome of ``n`` against ``m`` seeds reach a claim under the report's rule?"""
-    return min(n, m) >= 2 and smallest_p_value(n, m) <= 1 - CONFIDENCE
-
-
 def can_claim_in_family(n: int, comparisons: int, alpha: float = 1 - CONFIDENCE) -> bool:
     """Could any outcome of ``n`` seeds per variant reach a primary claim, with ``comparisons`` in the family
     (Holm's first step tests at ``alpha / comparisons``)?"""
