@@ -8,22 +8,19 @@ each choice; tests/test_claims.py measures the error rates.
 - ``family``: Holm's step-down over the comparisons, the four verdicts, the seeds an open one would need.
 """
 
-from ablate.claims.boundaries import ALPHA, Design, alpha_spent, nominal_levels
+from ablate.claims.boundaries import ALPHA, Design, nominal_levels
 from ablate.claims.family import (
     BETTER,
     EQUIVALENT,
     SEEDS_CAP,
     UNDETERMINED,
-    VERDICTS,
     WORSE,
     Round,
-    Verdict,
     decide,
     family_sentence,
-    seeds_needed,
     smallest_p,
 )
-from ablate.claims.permutation import Question, Sample, effect_interval, iqm, p_values, primary_question
+from ablate.claims.permutation import Question, Sample, effect_interval, p_values, primary_question
 
 __all__ = [
     "ALPHA",
@@ -31,21 +28,16 @@ __all__ = [
     "EQUIVALENT",
     "SEEDS_CAP",
     "UNDETERMINED",
-    "VERDICTS",
     "WORSE",
     "Design",
     "Question",
     "Round",
     "Sample",
-    "Verdict",
-    "alpha_spent",
     "decide",
     "effect_interval",
     "family_sentence",
-    "iqm",
     "nominal_levels",
     "p_values",
     "primary_question",
-    "seeds_needed",
     "smallest_p",
 ]

@@ -73,7 +73,7 @@ def assurance(estimate: float, se: float, se_future: float, low: float, high: fl
 def seeds_needed(x: Sample, y: Sample, question: Question, level: float) -> int | None:
     """The fewest seeds per variant (of ``SEED_COUNTS``) at which a fixed design decides the comparison (better,
     worse or equivalent within the margin) at ``level`` with probability ``POWER``; ``None``: more than
-    ``SEEDS_CAP``. Call it only with ``MIN_SEEDS`` or more a side (``enough_for_advice``)."""
+    ``SEEDS_CAP``. Call it only with ``MIN_SEEDS`` or more a side."""
     xv, yv = np.asarray(x.values, float), np.asarray(y.values, float)
     estimate, se = effect_scale(xv, yv, question), _standard_error(xv, yv, question)
     margin = question.margin(yv)
@@ -85,7 +85,3 @@ def seeds_needed(x: Sample, y: Sample, question: Question, level: float) -> int 
         if assurance(estimate, se, se * math.sqrt((2 / n) / observed), low, high, level) >= POWER:
             return n
     return None
-
-
-def enough_for_advice(x: Sample, y: Sample) -> bool:
-    return min(len(x), len(y)) >= MIN_SEEDS

@@ -21,7 +21,6 @@ from ablate.claims.permutation import Question, Sample, effect_interval, iqm, p_
 from ablate.design import smallest_permutation_p as smallest_p
 
 BETTER, WORSE, EQUIVALENT, UNDETERMINED = "better", "worse", "equivalent", "undetermined"
-VERDICTS = (BETTER, WORSE, EQUIVALENT, UNDETERMINED)
 SEEDS_CAP = advice.SEEDS_CAP
 CENSORED_SHARE = 0.25
 """Where more than this share of a comparison's seeds (both sides pooled, at its first look) never reached the
@@ -39,7 +38,7 @@ class Verdict:
     reference: str
     metric: str
     verdict: str
-    """``better``, ``worse``, ``equivalent`` or ``undetermined`` (``VERDICTS``)."""
+    """``better``, ``worse``, ``equivalent`` or ``undetermined``."""
     estimate: float
     """The effect: ``relative``, IQM(variant) / IQM(reference) - 1 (-0.2: 20% fewer episodes); otherwise
     IQM(variant) - IQM(reference). Its sign is not "better": see ``Question.lower_is_better``."""
@@ -254,17 +253,13 @@ def decide(
         if intervals and len(item.x) >= 2 and len(item.y) >= 2:
             interval_level = levels[look_index] if look_index >= 0 and look_index < len(levels) else levels[-1]
             _, low, high = effect_interval(item.x, item.y, asked, interval_level)
-        bound = ""
         xb, yb = _bounds(item.x), _bounds(item.y)
-        if xb and yb:
-            bound = "censored"
-        elif xb or yb:
-            bound = "at least"
+        bound = "censored" if xb and yb else "at least" if xb or yb else ""
         seeds, estimated, reason, first = None, False, "", 0
         if verdict == UNDETERMINED:
             reason = _reason(item, asked, levels[-1] if levels else family_level, bound)
             if estimate_seeds and bound != "censored":  # also where rounds stopped early (a time budget)
-                if advice.enough_for_advice(item.x, item.y):
+                if min(len(item.x), len(item.y)) >= advice.MIN_SEEDS:
                     seeds, estimated = advice.seeds_needed(item.x, item.y, asked, family_level), True
                 else:
                     first = advice.MIN_SEEDS
@@ -311,9 +306,6 @@ def _reason(item: _Open, question: Question, level: float, bound: str) -> str:
             f"{smallest_p(n, m):.3g} > {level:.2g})"
         )
     return "neither a difference nor equivalence within the margin is shown at the family level"
-
-
-seeds_needed = advice.seeds_needed
 
 
 SPENDING_WORDS = {"obrien-fleming": "O'Brien-Fleming-type", "pocock": "Pocock-type"}
