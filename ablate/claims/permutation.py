@@ -138,20 +138,6 @@ def permutations_for(level: float) -> int:
     return int(min(200_000, max(PERMUTATIONS, math.ceil(20 / max(level, 1e-12)))))
 
 
-def _statistics(x: np.ndarray, y: np.ndarray, splits) -> tuple[float, np.ndarray]:
-    """IQM(x) - IQM(y) observed, and over each split of the pooled values."""
-    pooled = np.sort(np.concatenate([x, y]))
-    left, right, _ = splits
-    return float(iqm(x) - iqm(y)), pooled[left].mean(axis=1) - pooled[right].mean(axis=1)
-
-
-def _p(extreme: np.ndarray, exact: bool) -> float:
-    """Exact: the observed split is one of the rows. Random: count it once more, (1 + b) / (B + 1)."""
-    if exact:
-        return float(extreme.mean())
-    return float((1 + extreme.sum()) / (len(extreme) + 1))
-
-
 def _shifted(x: Sample, y: Sample, question: Question, effect: float) -> tuple[np.ndarray, np.ndarray]:
     """The two samples as they would be exchangeable if the effect were ``effect``: the variant scaled by
     1 / (1 + effect) (``relative``) or shifted by -effect; censored values stay exchangeable by re-censoring
@@ -222,8 +208,14 @@ def p_values(x: Sample, y: Sample, question: Question, count: int = PERMUTATIONS
 
 
 def _two_sided_p(x: Sample, y: Sample, question: Question, effect: float, splits) -> float:
-    observed, diffs = _statistics(*_shifted(x, y, question, effect), splits)
-    return _p(np.abs(diffs) >= abs(observed) - _tolerance(diffs), splits[2])
+    """The two-sided p of ``effect``: the share of ``splits`` whose IQM difference is as extreme as the observed
+    one (exact: the observed split is one of them; random: it counts once more, (1 + b) / (B + 1))."""
+    a, b = _shifted(x, y, question, effect)
+    pooled = np.sort(np.concatenate([a, b]))
+    left, right, exact = splits
+    diffs = pooled[left].mean(axis=1) - pooled[right].mean(axis=1)
+    extreme = np.abs(diffs) >= abs(float(iqm(a) - iqm(b))) - _tolerance(diffs)
+    return float(extreme.mean()) if exact else float((1 + extreme.sum()) / (len(extreme) + 1))
 
 
 def effect_interval(
