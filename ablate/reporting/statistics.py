@@ -155,22 +155,13 @@ def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cen
     point, low, high = iqm_change(x, y, relative=True)
     x_bound = is_censored_statistic(int(x_cens.sum()), len(x), "iqm")
     y_bound = is_censored_statistic(int(y_cens.sum()), len(y), "iqm")
+    bound = "censored" if x_bound and y_bound else "at least" if x_bound or y_bound else ""
     verdict = _verdict(low, high)
     if verdict == TOO_FEW_SEEDS or min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
-        return (
-            point,
-            low,
-            high,
-            TOO_FEW_SEEDS,
-            "censored" if x_bound and y_bound else "at least" if x_bound or y_bound else "",
-        )
-    if x_bound and y_bound:
-        return point, low, high, NOT_SEPARATED, "censored"
-    if x_bound:  # the variant's true IQM is larger: "worse" can only grow; "better" is not supported
-        return point, low, high, (EXPLORATORY_WORSE if verdict == EXPLORATORY_WORSE else NOT_SEPARATED), "at least"
-    if y_bound:
-        return point, low, high, (EXPLORATORY_BETTER if verdict == EXPLORATORY_BETTER else NOT_SEPARATED), "at least"
-    return point, low, high, verdict, ""
+        verdict = TOO_FEW_SEEDS
+    elif (x_bound and verdict != EXPLORATORY_WORSE) or (y_bound and verdict != EXPLORATORY_BETTER):
+        verdict = NOT_SEPARATED  # as the docstring: a bound supports only the claim it leans towards
+    return point, low, high, verdict, bound
 
 
 def _return_comparison(x: np.ndarray, y: np.ndarray):
