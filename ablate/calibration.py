@@ -228,6 +228,7 @@ def aa_reports(
     question = primary_question(primary, smallest_effect, budget)
     auc = trials["auc"].to_numpy(float) if "auc" in trials else None
     references = {f"v{i}": "v0" for i in range(1, variants)}
+    design = Design.of(rounds) if rounds else Design.fixed(seeds)
     rng = np.random.default_rng(DEAL_SEED)
     new = old = equivalent = 0
     per_metric = dict.fromkeys(metric_names, 0)
@@ -241,18 +242,14 @@ def aa_reports(
             )
             for i in range(variants)
         }
-        design = Design.of(rounds) if rounds else Design.fixed(seeds)
         result = decide(samples, references, question, design, intervals=False, estimate_seeds=False)
         new += any(v.verdict in (BETTER, WORSE) for v in result.verdicts)
         equivalent += any(v.verdict == EQUIVALENT for v in result.verdicts)
         claimed = False
         for metric in metric_names:
-            values = columns[metric]
-            y = order[0]
-            for i in range(1, variants):
-                x = order[i]
+            values, flags, y = columns[metric], unreached[metric], order[0]
+            for x in order[1:]:
                 if entries[metric].censored:
-                    flags = unreached[metric]
                     verdict = _episodes_comparison(values[x], values[y], flags[x], flags[y])[3]
                 else:
                     verdict = _return_comparison(values[x], values[y])[3]
@@ -283,7 +280,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.population < 1:
         raise ConfigError(f"--population = {args.population} is invalid; valid: an integer >= 1")
     run_kwargs = {"address": args.address, "max_concurrent": args.max_concurrent}
-    population = {"population": args.population}
     knobs = reference_knobs(experiment, tuned_values(experiment, args.tracking_uri, run_kwargs))
     folder = Path("outputs") / "calibrate"
     folder.mkdir(parents=True, exist_ok=True)
@@ -300,7 +296,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         f"{' at ' + shown if shown else ''} ({path}, seeds {derived.seeds[0]}-{derived.seeds[-1]})",
         flush=True,
     )
-    outcome = api.run(derived, tracking_uri=args.tracking_uri, report=False, **run_kwargs, **population)
+    outcome = api.run(derived, tracking_uri=args.tracking_uri, report=False, population=args.population, **run_kwargs)
     if outcome.interrupted or outcome.error or outcome.failed:
         print(f"calibrate: the seeds did not all finish ({outcome.error or 'interrupted or failed'})")
         return 1
