@@ -32,47 +32,35 @@ so the permutation test stays exact, and the rule is fixed before any data."""
 
 @dataclass(frozen=True)
 class Verdict:
-    """One primary comparison's answer, as the report states it and ``results.comparisons`` carries it."""
+    """One primary comparison's answer: a row of ``tables/claims.csv`` before the report's units (docs/python.md
+    describes each column)."""
 
     variant: str
     reference: str
     metric: str
     verdict: str
-    """``better``, ``worse``, ``equivalent`` or ``undetermined``."""
     estimate: float
     """The effect: ``relative``, IQM(variant) / IQM(reference) - 1 (-0.2: 20% fewer episodes); otherwise
     IQM(variant) - IQM(reference). Its sign is not "better": see ``Question.lower_is_better``."""
     low: float
     high: float
-    """The effect's interval at the family level (the permutation test inverted at ``alpha / comparisons``,
-    so the intervals of one report hold together at 95%); ``-inf`` / ``inf`` where censoring leaves an end
-    open; NaN where not computed."""
+    """The effect's interval at the family level (the permutation test inverted at ``alpha / comparisons``);
+    ``-inf`` / ``inf`` where censoring leaves an end open; NaN where not computed."""
     p_difference: float
-    """Two-sided permutation p-value of "no difference" (the effect 0)."""
     p_equivalence: float
-    """TOST p-value of "a difference of at least the margin": the larger of the two one-sided p-values."""
     level: float
-    """The nominal level the comparison was last judged at (its Holm step, the look's boundary)."""
     margin: float
-    """± the equivalence margin, in the effect's units."""
     n_variant: int
     n_reference: int
     look: int
-    """The look (0 = the first) at which it was decided, or the last look made."""
     bound: str = ""
-    """``""``; ``"at least"``: one side's IQM counts unsolved seeds as the budget, so it is a bound and only the
-    claim it supports may be made; ``"censored"``: both are, and episodes cannot decide."""
     seeds_needed: int | None = None
-    """Where undetermined and ``seeds_estimated``: seeds per variant a fixed design would need to decide it in
-    80% of experiments resampled from these seeds; ``None`` there means more than ``seeds_cap``."""
+    """Where undetermined and ``seeds_estimated``; ``None`` there means more than ``seeds_cap``."""
     seeds_estimated: bool = False
     seeds_cap: int = SEEDS_CAP
     reason: str = ""
-    """Where undetermined, why in words (too few seeds for any claim at the family level, censoring, ...)."""
     seeds_first: int = 0
-    """Where undetermined with too few seeds a side to predict the seeds needed: run this many first."""
     censored: float = 0.0
-    """The share of the comparison's seeds (both sides) that never reached the threshold, at its first look."""
 
     @property
     def decided(self) -> bool:

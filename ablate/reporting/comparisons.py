@@ -28,39 +28,26 @@ from ablate.reporting.statistics import (
 
 @dataclass(frozen=True)
 class Comparison:
-    """One variant against its reference (the baseline, or the variant it extends) on one metric: the
-    estimate, its 95% interval, what may be claimed and whether the claim survives leaving out any one seed."""
+    """One variant against its reference on one metric: a row of ``results.comparisons`` (docs/python.md
+    describes each column; ``point``/``low``/``high``: positive is better)."""
 
     variant: str
     metric: str
-    """``episodes_to_solve``, ``auc``, ``return_at_<E>``, ``episodes_to_<L>``."""
     point: float
-    """Episodes metrics: 1 - IQM(variant) / IQM(reference) (positive: fewer episodes). Return metrics:
-    IQM(variant) - IQM(reference) (positive: higher return)."""
     low: float
     high: float
     verdict: str
-    """The exploratory rule's word (``statistics.EXPLORATORY_BETTER`` and the three beside it): ``exploratory:
-    better``, ``exploratory: worse``, ``exploratory: not separated`` or ``exploratory: too few seeds``; never a claim
-    (``claims_table`` has those)."""
     bound: str
-    """``""`` (an estimate), ``"at least"`` (censoring makes the point a bound on the size of the
-    difference) or ``"censored"`` (both sides censored: episodes cannot separate them)."""
     variant_value: float
     reference_value: float
     fragile_seeds: tuple[int, ...] = ()
-    """Seeds whose removal changes the verdict (empty: the verdict holds leaving out any one seed)."""
     n_variant: int = 0
     n_reference: int = 0
     loo_checked: bool = True
-    """False where leaving out one seed leaves too few for any claim (4 and 4 seeds: 3 and 3 cannot reach 95%),
-    so the leave-one-seed-out check says nothing, or where a side has more than ``LOO_MAX_SEEDS``: not made."""
+    """False also where a side has more than ``LOO_MAX_SEEDS`` seeds: the check is not made."""
     seeds_needed: float = np.nan
-    """Where not separated: seeds per variant the decision rule would need to separate the observed difference
-    (``statistics.seeds_needed``; ``SEEDS_CAP + 1``: more than the cap, ``inf`` in the table); NaN where separated
-    or not computed."""
+    """``statistics.seeds_needed`` (``SEEDS_CAP + 1``: more than the cap, ``inf`` in the table)."""
     seeds_needed_smallest: float = np.nan
-    """The same for a difference of the experiment's ``smallest_effect``."""
 
 
 LOO_MAX_SEEDS = 50
@@ -135,11 +122,8 @@ def comparison_metrics(ablation: Ablation) -> list[str]:
 def comparisons(
     ablation: Ablation, stability: bool = True, power: bool = True, claims: pd.DataFrame | None = None
 ) -> pd.DataFrame:
-    """Each variant against its reference (``Ablation.reference``) on each metric of ``comparison_metrics``,
-    plus the probability of improvement on episodes to solve (censored): one row per (variant, metric). A row on
-    the primary metric is ``primary`` and carries its family verdict in ``claim`` (``""`` elsewhere) and the
-    claims' ``seeds_needed`` (one figure per comparison); ``claims``: the claims table, computed when not given
-    (``claims_table``)."""
+    """Each variant against its reference on each metric of ``comparison_metrics``: ``results.comparisons``.
+    ``claims``: the claims table (``claims_table``), whose verdicts and seeds the primary rows carry."""
     if claims is None:
         claims = claims_table(ablation, primary_claims(ablation, estimate_seeds=power))
     claimed = {(r.variant, r.reference): r for r in claims.itertuples()}
@@ -185,11 +169,8 @@ CHANGE_UNITS = {
 
 
 def in_report_units(frame: pd.DataFrame) -> pd.DataFrame:
-    """Add the estimate in the report's sign and units beside ``point``/``low``/``high`` (whose sign is "positive
-    is better"): ``change``, ``change_low``, ``change_high`` and ``change_unit``. Episodes: the relative change of
-    the IQM in percent, + for more episodes (the report's "change +5% (95% CI -21% to +40%)"); returns: the
-    difference of the IQMs. And ``seeds_needed`` past the largest count tried as ``inf`` (more than ``seeds_cap``
-    seeds per variant), not ``seeds_cap + 1``."""
+    """``frame`` with ``change``, ``change_low``, ``change_high`` and ``change_unit`` (the report's sign and units)
+    beside ``point``/``low``/``high``, and ``seeds_needed`` past ``seeds_cap`` as ``inf``."""
     frame = frame.copy()
     episodes = np.asarray([is_censored(str(m)) for m in frame.metric], bool)
     point, low, high = (pd.to_numeric(frame[c], errors="coerce").to_numpy(float) for c in ("point", "low", "high"))
@@ -281,12 +262,8 @@ CLAIM_COLUMNS = (
 
 
 def claims_table(ablation: Ablation, result: Round | None = None) -> pd.DataFrame:
-    """The primary claims, computed once: one row per comparison on the primary metric, judged as one family
-    (``primary_claims``), in the report's sign and units (``change``: episodes the % change of the IQM, + is more
-    episodes; AUC and returns the difference); ``variant_value``/``reference_value``: the IQMs of the seeds the
-    verdict rests on; ``level``: the nominal level Holm's step-down judged it at; ``seeds_needed``: where
-    undetermined, seeds per variant that would decide it (``inf``: more than ``seeds_cap``; NaN: not estimated).
-    The report's claims are this table in words."""
+    """The primary claims (``primary_claims``), one row per comparison in the report's sign and units: the table
+    the report's claims are written in words from (its columns: ``CLAIM_COLUMNS``)."""
     result = result if result is not None else primary_claims(ablation)
     primary = primary_question(ablation)
     samples = _claim_samples(ablation, primary)
