@@ -28,10 +28,6 @@ from ablate.reporting.statistics import (
 from ablate.reporting.text import _metric_name, _signed, esc, fmt
 
 
-def _no_claim_reason(n: int, m: int) -> str:
-    return say("findings.no_claim_reason", n=n, m=m, smallest_p=smallest_p_value(n, m))
-
-
 def stat_name(n: int, m: int) -> str:
     """What the report's "IQM" of ``n`` and ``m`` seeds is: with fewer than 4 seeds it trims nothing
     (SciPy's ``trim_mean`` cuts ``int(0.25 n)`` from each end) and is the plain mean."""
@@ -90,22 +86,6 @@ def _fragile(row: pd.Series) -> str:
     return say("findings.fragile", seeds=str(row.fragile_seeds).split())
 
 
-def _never_counts(row: pd.Series, table: pd.DataFrame, n: int, m: int) -> str:
-    """``3 of 5 a seeds and 5 of 5 b seeds never solved`` (or ``never reached -15``): the seeds an episodes IQM
-    counts as the budget, read from the convergence table."""
-    variant_never, reference_never = (_never(table, v, row.metric) for v in (row.variant, row.reference))
-    never = measure(row.metric).never
-    return say(
-        "findings.never_counts",
-        row=row,
-        n=n,
-        m=m,
-        variant_never=variant_never,
-        reference_never=reference_never,
-        never=never,
-    )
-
-
 def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
     """One metric's comparison in words: what may be claimed, sized as an estimate or as a bound, with its
     interval and whether it survives leaving out any one seed."""
@@ -121,7 +101,10 @@ def finding(row: pd.Series, ablation: Ablation, table: pd.DataFrame) -> str:
         verdict = row.verdict if higher is not None else NOT_SEPARATED
         facts = dict(name=name, verdict=verdict, row=row, stat=stat, higher=higher, reading=reading)
         return say("findings.returns", fragile=_fragile(row), **facts)
-    counts = _never_counts(row, table, n, m)
+    # the seeds an episodes IQM counts as the budget: "3 of 5 a seeds and 5 of 5 b seeds never solved"
+    variant_never, reference_never = (_never(table, v, metric) for v in (row.variant, row.reference))
+    facts = dict(row=row, n=n, m=m, variant_never=variant_never, reference_never=reference_never)
+    counts = say("findings.never_counts", never=measure(metric).never, **facts)
     if row.bound == "censored":
         return say("findings.both_bounds", name=name, verdict=NOT_SEPARATED, metric=metric, counts=counts)
     change = _pair(row, table, stat)
@@ -140,7 +123,7 @@ def findings(ablation: Ablation, table: pd.DataFrame, compare: pd.DataFrame) -> 
     undecidable = compare[compare.verdict == TOO_FEW_SEEDS] if len(compare) else compare
     if len(undecidable):
         pairs = sorted({(int(r.n_variant), int(r.n_reference)) for r in undecidable.itertuples()})
-        reasons = [_no_claim_reason(n, m) for n, m in pairs]
+        reasons = [say("findings.no_claim_reason", n=n, m=m, smallest_p=smallest_p_value(n, m)) for n, m in pairs]
         facts = dict(reasons=reasons, undecidable=len(undecidable), comparisons=len(compare), verdict=TOO_FEW_SEEDS)
         blocks.append(Paragraph(say("findings.too_few_for_a_claim", **facts)))
     claims = compare[compare.verdict.isin(list(SEPARATED))] if len(compare) else compare
