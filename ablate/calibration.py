@@ -156,12 +156,8 @@ class Share:
     def rate(self) -> float:
         return self.claims / self.reports
 
-    @property
-    def interval(self) -> tuple[float, float]:
-        return wilson(self.claims, self.reports)
-
     def words(self) -> str:
-        low, high = self.interval
+        low, high = wilson(self.claims, self.reports)
         interval = f"{percent(CONFIDENCE)} CI {low:.1%} to {high:.1%}"
         return f"{self.claims} of {self.reports} reports, {self.rate:.1%} ({interval})"
 
