@@ -2,8 +2,8 @@
 of improvement, the smallest p-value a rank test can give, and the decision rule that turns them into a verdict.
 
 The IQM is ``claims.permutation.iqm`` (one IQM for the claims and the report: SciPy's ``trim_mean`` exactly);
-SciPy's ``bootstrap`` for 95% intervals, ``mannwhitneyu`` for the probability of improvement. Pure functions of
-arrays (and one of a curves frame); nothing here reads the tracking store.
+SciPy's ``bootstrap`` for 95% intervals, ``rankdata`` (Mann-Whitney's U) for the probability of improvement. Pure
+functions of arrays (and one of a curves frame); nothing here reads the tracking store.
 """
 
 from __future__ import annotations
@@ -54,9 +54,7 @@ def bootstrap_interval(values: np.ndarray, statistic=iqm) -> tuple[float, float]
 def probability_of_improvement(lower_is_better: np.ndarray, reference: np.ndarray) -> float:
     """P(X < Y) + P(X = Y) / 2 for X from the variant, Y from the reference: the chance that a random seed
     of the variant needs fewer episodes than a random seed of the reference. Identical samples give 0.5."""
-    x, y = np.asarray(lower_is_better, float), np.asarray(reference, float)
-    # Mann-Whitney's U for (y, x) counts pairs with y > x, ties counting one half.
-    return float(stats.mannwhitneyu(y, x, alternative="two-sided").statistic / (len(x) * len(y)))
+    return float(_pairwise_improvement(np.asarray(lower_is_better, float), np.asarray(reference, float)))
 
 
 def _pairwise_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
