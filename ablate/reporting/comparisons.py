@@ -3,7 +3,7 @@ it survives leaving out any one seed (the report's findings and ``tables/compari
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
@@ -276,31 +276,11 @@ def claims_table(ablation: Ablation, result: Round | None = None) -> pd.DataFram
         x = np.asarray(side(samples[v.variant]), float)[: v.n_variant]
         y = np.asarray(side(samples[v.reference]), float)[: v.n_reference]
         needed = np.nan if not v.seeds_estimated else np.inf if v.seeds_needed is None else float(v.seeds_needed)
-        rows.append(
-            {
-                "variant": v.variant,
-                "reference": v.reference,
-                "metric": v.metric,
-                "verdict": v.verdict,
-                "change": scale * v.estimate,
-                "change_low": scale * v.low,
-                "change_high": scale * v.high,
-                "change_unit": CHANGE_UNITS[question.relative],
-                "bound": v.bound,
-                "variant_value": float(iqm(x)) if len(x) else np.nan,
-                "reference_value": float(iqm(y)) if len(y) else np.nan,
-                "n_variant": v.n_variant,
-                "n_reference": v.n_reference,
-                "level": v.level,
-                "margin": scale * v.margin,
-                "p_difference": v.p_difference,
-                "p_equivalence": v.p_equivalence,
-                "seeds_needed": needed,
-                "seeds_cap": v.seeds_cap,
-                "look": v.look,
-                "reason": v.reason,
-                "seeds_first": v.seeds_first,
-                "censored": v.censored,
-            }
-        )
+        # the verdict's own fields as they are, its effect and margin in the report's units beside them
+        changes = {"change": v.estimate, "change_low": v.low, "change_high": v.high, "margin": v.margin}
+        row = asdict(v) | {name: scale * value for name, value in changes.items()}
+        row["change_unit"] = CHANGE_UNITS[question.relative]
+        row["variant_value"] = float(iqm(x)) if len(x) else np.nan
+        row["reference_value"] = float(iqm(y)) if len(y) else np.nan
+        rows.append(row | {"seeds_needed": needed})
     return pd.DataFrame(rows, columns=list(CLAIM_COLUMNS))
