@@ -11,26 +11,19 @@ from ablate.reporting.prose import say
 from ablate.reporting.results import Ablation
 from ablate.reporting.settings import overrides
 from ablate.reporting.statistics import SEPARATED, TOO_FEW_SEEDS
-from ablate.reporting.text import NO_REFS, Refs, _signed, _signed_pct, esc, fmt
+from ablate.reporting.text import NO_REFS, Refs, _signed, _signed_pct, esc, fmt, setting_value
 from ablate.reporting.tuning import base_values, chosen_values, edge, knobs, metric_words, same_value, sensitivity
 
 
-def _value(value) -> str:
-    try:
-        return f"{float(value):g}"
-    except (TypeError, ValueError):
-        return str(value)
-
-
 def _values(values: dict) -> str:
-    return ", ".join(f"{k.replace('_', ' ')} {_value(v)}" for k, v in values.items())
+    return ", ".join(f"{k.replace('_', ' ')} {setting_value(v)}" for k, v in values.items())
 
 
 def _pair(mine: dict, theirs: dict) -> str:
     """``learning rate 0.1`` when both sides share the values, else ``learning rate 0.03 against 0.1``."""
     if all(same_value(mine[k], theirs.get(k)) for k in mine):
         return f"both at {_values(mine)}"
-    return f"{_values(mine)} against {', '.join(_value(v) for v in theirs.values())}"
+    return f"{_values(mine)} against {', '.join(setting_value(v) for v in theirs.values())}"
 
 
 def knob_words(ablation: Ablation) -> str:
@@ -49,7 +42,8 @@ def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> list[Block]:
     rule = tuning.get("rule", "the candidate with the best mean metric over the tuning seeds")
     tune_budget = tuning.get("max_episodes") or budget
     candidates = "; ".join(
-        f"{k.replace('_', ' ')}: {', '.join(_value(c) for c in values)} (base value {_value(tuning['base'].get(k))})"
+        f"{k.replace('_', ' ')}: {', '.join(setting_value(c) for c in values)} "
+        f"(base value {setting_value(tuning['base'].get(k))})"
         for k, values in tuning.get("knobs", {}).items()
     )
     intro = Paragraph(say("tuning.intro", knobs=knob_words(ablation).removeprefix("the ")))
@@ -83,7 +77,7 @@ def tuning_section(ablation: Ablation, refs: Refs = NO_REFS) -> list[Block]:
         rows.append(
             {
                 "variant": esc(variant),
-                **{f"{k.replace('_', ' ')} chosen": _value(v) for k, v in values.items()},
+                **{f"{k.replace('_', ' ')} chosen": setting_value(v) for k, v in values.items()},
                 f"mean {words} at the choice [lowest, highest seed]": score,
                 "how": esc(choice.get("reason", "")) if choice.get("tuned", True) else "set by the variant: not tuned",
                 "flag": "; ".join(f"{f}: the best may lie beyond the grid" for f in flags) or "",
