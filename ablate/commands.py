@@ -80,8 +80,7 @@ def _cmd_run(args: argparse.Namespace, plan: LaunchPlan) -> int:
             return outcome.exit_code
         folder = result.folder
         print(terminal_summary(folder))
-        pdf = f" and {result.pdf_words()}" if result.pdf_note is None else ""
-        print(f"report: {folder}/report.md, report.html{pdf}")
+        print(f"report: {folder}/{result.written()}")
         if result.pdf_note:
             print(result.pdf_note)
     else:

@@ -206,7 +206,7 @@ def bench_ablation(repeats: int = 1) -> None:
     from ablate.launch.grid import expand
     from ablate.launch.scheduler import ensure_ray
     from ablate.launch.tracking import Tracker
-    from ablate.reporting.document import write_report
+    from ablate.reporting.document import build_report
 
     path = "experiments/cartpole.toml"
     trials = expand(load_experiment(path))
@@ -252,7 +252,7 @@ def bench_ablation(repeats: int = 1) -> None:
         report_times = []
         for _ in range(3):
             started = time.perf_counter()
-            write_report(
+            build_report(
                 "cartpole", tracking_uri=f"sqlite:///{folder / 'store-0' / 'mlflow.db'}", out_root=folder / "reports"
             )
             report_times.append(time.perf_counter() - started)

@@ -12,7 +12,7 @@ from test_report import make_store, rising
 from test_report_tuning import make_tuned_store
 
 from ablate.reporting import discussion
-from ablate.reporting.document import build_report, write_report
+from ablate.reporting.document import build_report
 
 
 @pytest.fixture(autouse=True)
@@ -21,7 +21,9 @@ def _no_pdf(monkeypatch):
 
 
 def _report(folder, name, uri):
-    return (write_report(name, tracking_uri=uri, out_root=folder / "reports", attach=False) / "report.md").read_text()
+    return (
+        build_report(name, tracking_uri=uri, out_root=folder / "reports", attach=False).folder / "report.md"
+    ).read_text()
 
 
 def _body(text):

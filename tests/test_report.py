@@ -24,7 +24,7 @@ from ablate.cli import main
 from ablate.experiment import load_experiment
 from ablate.launch.curve import CurveReducer
 from ablate.launch.tracking import Tracker
-from ablate.reporting.document import write_report
+from ablate.reporting.document import build_report
 from ablate.reporting.reader import RunReader
 from ablate.reporting.typeset import page_counts
 
@@ -57,7 +57,7 @@ def built_report(run_quiet, tmp_path_factory):
     path.write_text(EXPERIMENT)
     outcome = run_quiet(load_experiment(path), folder, uri)
     assert outcome.exit_code == 0
-    return write_report("reportable", tracking_uri=uri, out_root=folder / "reports"), uri
+    return build_report("reportable", tracking_uri=uri, out_root=folder / "reports").folder, uri
 
 
 def test_report_files(built_report):
@@ -377,7 +377,7 @@ def test_pong_report_without_a_threshold_and_with_one_seed(store, tmp_path, monk
     # `ValueError: cannot convert float NaN to integer` (one seed)
     monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
-    folder = write_report("pong", tracking_uri=uri, out_root=tmp_path)
+    folder = build_report("pong", tracking_uri=uri, out_root=tmp_path).folder
     text = (folder / "report.md").read_text()
     assert "No solve threshold" in text and "[no interval: 1 seed]" in text
     assert "1 seed gives no interval" in text  # no claim from one seed
@@ -403,7 +403,7 @@ def test_each_architectures_knobs_are_compared_with_that_architecture(store, tmp
     # the Pong ablation had mlp-l2 against cnn: two changes at once, and a limitation that said so
     monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
-    folder = write_report("knobs", tracking_uri=uri, out_root=tmp_path)
+    folder = build_report("knobs", tracking_uri=uri, out_root=tmp_path).folder
     text = (folder / "report.md").read_text()
     findings = text.split("Every comparison (generated)")[1].split("\n### ")[0]
     assert "mlp-l2 against mlp" in findings.splitlines()[2]
@@ -429,7 +429,7 @@ def test_report_of_one_seed_with_a_threshold(store, tmp_path, monkeypatch):
     # issue 9: `ValueError: cannot convert float NaN to integer` with one seed
     monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
-    folder = write_report("single", tracking_uri=uri, out_root=tmp_path)
+    folder = build_report("single", tracking_uri=uri, out_root=tmp_path).folder
     text = (folder / "report.md").read_text()
     assert "[no interval: 1 seed]" in text and "1 seed gives no interval" in text
     # issue 18 item 7: counts and flags were written as floats (solved 1.0, episodes_run 1000.0)
@@ -446,7 +446,7 @@ def test_the_report_names_the_threshold_a_registered_env_stopped_at(tmp_path, mo
     variants = {"a": {"curve": rising(40, 130)}, "b": {"curve": rising(40, 110)}}
     options = {"env_id": "AblateReportThreshold100-v0", "threshold": None, "stopped_at": 100.0}
     uri = make_store(tmp_path / "store", "threshold100", variants, seeds=(0, 1, 2, 3), **options)
-    folder = write_report("threshold100", tracking_uri=uri, out_root=tmp_path / "reports")
+    folder = build_report("threshold100", tracking_uri=uri, out_root=tmp_path / "reports").folder
     text = (folder / "report.md").read_text()
     assert "reaches 100" in text and "no solve threshold" not in text.lower(), text[:3000]
     from ablate.reporting.results import load_ablation
@@ -466,7 +466,7 @@ def test_each_variant_is_a_run_under_the_launch_holding_the_reports_curve_and_cl
     variants = {"a": {"curve": noisy(5, 30)}, "b": {"curve": noisy(5, 60)}, "c": {"curve": noisy(5, 12)}}
     variants["b"]["overrides"] = {"hidden_sizes": [16]}
     uri = make_store(tmp_path / "store", "inmlflow", variants, seeds=tuple(range(8)))
-    folder = write_report("inmlflow", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
+    folder = build_report("inmlflow", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False).folder
     reader = RunReader(uri, "inmlflow")
     launch = reader.launches()[0].info.run_id
     experiment = [reader.experiment_id()]
@@ -514,7 +514,7 @@ def test_each_variant_is_a_run_under_the_launch_holding_the_reports_curve_and_cl
             assert metrics[f"convergence/{column}"] == pytest.approx(row[column], rel=1e-9), (variant, column)
 
     trials_before = reader.trial_runs()
-    write_report("inmlflow", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
+    build_report("inmlflow", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
     again = variant_runs()
     assert (
         sorted(again) == ["a", "b", "c"]
@@ -534,9 +534,9 @@ def test_after_two_launches_mlflow_holds_one_set_of_variant_runs_the_second_repo
 
     variants = {"a": {"curve": noisy(5, 30)}, "b": {"curve": noisy(5, 60)}}
     uri = make_store(tmp_path / "store", "twice", variants, seeds=(0, 1, 2), generation="first")
-    write_report("twice", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
+    build_report("twice", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
     make_store(tmp_path / "store", "twice", variants, seeds=tuple(range(8)), generation="second")
-    folder = write_report("twice", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False)
+    folder = build_report("twice", tracking_uri=uri, out_root=tmp_path / "reports", pdf=False).folder
     reader = RunReader(uri, "twice")
     found = reader.client.search_runs([reader.experiment_id()], "tags.`ablate.role` = 'variant'")
     assert sorted(r.data.tags["ablate.variant"] for r in found) == ["a", "b"]  # one set, not two
@@ -567,7 +567,7 @@ def test_the_record_shows_the_report_command_as_typed(store, tmp_path, monkeypat
 def test_user_text_is_escaped_in_the_html(store, tmp_path, monkeypatch):
     monkeypatch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test", raising=False)
     _, uri = store
-    folder = write_report("evil", tracking_uri=uri, out_root=tmp_path)
+    folder = build_report("evil", tracking_uri=uri, out_root=tmp_path).folder
     page = (folder / "report.html").read_text()
     assert "<script>" not in page and "<img src=x" not in page
     assert "&lt;script&gt;alert(" in page and "&lt;img src=x onerror=alert(1)&gt;" in page
@@ -738,12 +738,16 @@ def test_a_file_edited_in_nothing_a_trial_ran_is_read_as_it_is_now(built_report,
     edited = edited.replace("hidden_sizes = [64, 64]\n", 'hidden_sizes = [64, 64]\nactivation = "relu"\n')
     try:
         path.write_text(edited)
-        text = (write_report("reportable", uri, tmp_path / "a", attach=False, pdf=False) / "report.md").read_text()
+        text = (
+            build_report("reportable", uri, tmp_path / "a", attach=False, pdf=False).folder / "report.md"
+        ).read_text()
         assert "Depth and width. Does each change" in text
         (note,) = [line for line in text.splitlines() if "has changed since this launch ran it" in line]
         assert "in nothing a trial ran (every trial key is the same): this report reads it as it is now" in note
         path.write_text(edited.replace("hidden_sizes = [64, 64]", "hidden_sizes = [32]"))
-        text = (write_report("reportable", uri, tmp_path / "b", attach=False, pdf=False) / "report.md").read_text()
+        text = (
+            build_report("reportable", uri, tmp_path / "b", attach=False, pdf=False).folder / "report.md"
+        ).read_text()
         assert "Depth and width." not in text
         (note,) = [line for line in text.splitlines() if "has changed since this launch ran it" in line]
         assert "in the settings of its trials: this report describes the launch's copy" in note and "--fresh" in note

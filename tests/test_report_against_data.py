@@ -17,7 +17,7 @@ import ablate
 from ablate.launch.secrets import shown_command
 from ablate.launch.tracking import Tracker
 from ablate.reporting.data import report_data
-from ablate.reporting.document import write_report
+from ablate.reporting.document import build_report
 from ablate.reporting.reader import RunReader
 from ablate.reporting.results import load_ablation
 
@@ -164,7 +164,7 @@ def synthetic(tmp_path_factory):
     tracker.log_file(launch, "rounds.json", json.dumps({"design": ROUNDS, "round": 2, "variants": variants}))
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test")
-        report = write_report("inrounds", tracking_uri=uri, out_root=folder / "reports", attach=False)
+        report = build_report("inrounds", tracking_uri=uri, out_root=folder / "reports", attach=False).folder
     return (report / "report.md").read_text(), ablate.load("inrounds", tracking_uri=uri), uri
 
 

@@ -11,7 +11,7 @@ import pytest
 from test_report import make_store
 
 import ablate
-from ablate.reporting.document import write_report
+from ablate.reporting.document import build_report
 
 
 def _line(stop: float, per_seed: float):
@@ -37,7 +37,7 @@ def claimed(tmp_path_factory):
     uri = make_store(folder, "claimed", VARIANTS, seeds=tuple(range(6)))
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr("ablate.reporting.document.print_pdf", lambda *a, **k: "no PDF in this test")
-        report = write_report("claimed", tracking_uri=uri, out_root=folder / "reports", attach=False)
+        report = build_report("claimed", tracking_uri=uri, out_root=folder / "reports", attach=False).folder
     return report, uri
 
 

@@ -11,7 +11,7 @@ from stores import fresh_store
 from test_report import rising, write_trial
 
 from ablate.launch.tracking import Tracker
-from ablate.reporting.document import write_report
+from ablate.reporting.document import build_report
 from ablate.reporting.results import load_ablation
 from ablate.reporting.tuning import at_values, base_values, chosen_values, edge, tuning_table
 
@@ -121,7 +121,7 @@ def test_selection_helpers_on_a_hand_made_frame():
 
 def test_the_tuned_report(tuned, tmp_path, monkeypatch):
     _, uri = tuned
-    folder = write_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False)
+    folder = build_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False).folder
     text = (folder / "report.md").read_text()
     tuning = text.split(". Tuning (generated)")[1].split("\n### ")[0]
     assert "0.01, 0.03, 0.1 (base value 0.03)" in tuning and "2 per candidate (10000, 10001)" in tuning
@@ -174,6 +174,6 @@ def test_every_trial_the_report_uses_is_in_load_trials_with_its_stage_and_settin
     assert (deep.hidden_sizes, deep.depth, deep.width) == ((8, 8), 2, 8)  # issue 46: a tuple, not "[8, 8]"
     assert (baseline.hidden_sizes, baseline.depth, baseline.width) == ((32,), 1, 32)
     assert set(trials.episodes_per_update) == {4} and set(trials.gamma) == {0.95}
-    folder = write_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False, pdf=False)
+    folder = build_report("tuned", tracking_uri=uri, out_root=tmp_path, attach=False, pdf=False).folder
     written = pd.read_csv(folder / "tables" / "trials.csv")
     pd.testing.assert_frame_equal(pd.read_csv(io.StringIO(trials.to_csv(index=False))), written)

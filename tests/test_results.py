@@ -160,7 +160,7 @@ def test_an_edited_network_is_counted_by_its_current_keys_only(run_quiet, tmp_pa
 
     import ablate
     from ablate.experiment import load_experiment
-    from ablate.reporting.document import write_report
+    from ablate.reporting.document import build_report
     from ablate.reporting.results import load_ablation
     from ablate.reporting.status import detail
 
@@ -182,7 +182,7 @@ def test_an_edited_network_is_counted_by_its_current_keys_only(run_quiet, tmp_pa
     claims = ablate.load("lab", tracking_uri=uri).claims
     assert set(claims.n_variant) == {3} and set(claims.n_reference) == {3}
 
-    folder = write_report("lab", tracking_uri=uri, out_root=tmp_path / "reports", attach=False, pdf=False)
+    folder = build_report("lab", tracking_uri=uri, out_root=tmp_path / "reports", attach=False, pdf=False).folder
     text = (folder / "report.md").read_text()
     assert "3 per variant" in text and "6 seeds" not in text
     assert "Linear(4→64)" in text and "Linear(4→32)" not in text

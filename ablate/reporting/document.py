@@ -150,18 +150,15 @@ class ReportResult:
     file_note: str = ""
     """Where the experiment file on disk differs from the launch's copy, the report's line saying so."""
 
-    def pdf_words(self) -> str:
-        """``report.pdf (9 pages: the body 3, the appendix 6)``, where it was written."""
+    def written(self) -> str:
+        """``report.md, report.html and report.pdf (9 pages: the body 3, the appendix 6)``: the files written."""
+        if self.pdf_note is not None:
+            return "report.md, report.html"
         if not self.pages:
-            return "report.pdf"
+            return "report.md, report.html and report.pdf"
         body, total = self.pages
         split = f": the body {body}, the appendix {total - body}" if body is not None else ""
-        return f"report.pdf ({total} page{'s' if total != 1 else ''}{split})"
-
-
-def write_report(name: str, *args, **kwargs) -> Path:
-    """``build_report``'s folder."""
-    return build_report(name, *args, **kwargs).folder
+        return f"report.md, report.html and report.pdf ({total} page{'s' if total != 1 else ''}{split})"
 
 
 def build_report(
@@ -353,8 +350,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         return 1
     if result.missing_note:  # the report stands without them: a warning, exit 0
         sys.stderr.write(f"ablate report: {result.missing_note}\n")
-    written = "report.md, report.html" + ("" if result.pdf_note else f" and {result.pdf_words()}")
-    print(f"wrote {result.folder}/: {written}")
+    print(f"wrote {result.folder}/: {result.written()}")
     for note in (result.generation_note, result.file_note, result.pdf_note, result.attach_note):
         if note and note != "no PDF (--no-pdf)":
             print(re.sub(r"</?code>", "", html.unescape(note)))
