@@ -188,12 +188,13 @@ def solve_threshold_or_none(config: EnvConfig) -> float | None:
 
 
 @functools.cache
-def versions() -> dict[str, str]:
-    """The versions of the env libraries a trial ran against (``not installed`` where absent)."""
+def versions(names: tuple[str, ...] = ("gymnasium", "ale-py")) -> dict[str, str]:
+    """The installed versions of ``names`` (``not installed`` where absent): by default, the env libraries a trial
+    ran against."""
     from importlib.metadata import PackageNotFoundError, version
 
     found: dict[str, Any] = {}
-    for name in ("gymnasium", "ale-py"):
+    for name in names:
         try:
             found[name] = version(name)
         except PackageNotFoundError:

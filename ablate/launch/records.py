@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ablate import sources
 from ablate.config import KNOBS, SCHEMA, flatten
+from ablate.env_spec import versions
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, tuning_trials
 
@@ -114,14 +115,7 @@ class TorchKernels:
 def environment_document(kernels: TorchKernels) -> dict:
     """Where the launch ran: Python, package versions, machine, CPU model and the CPU kernels torch uses (asked of
     ``kernels``)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    packages = {}
-    for name in PACKAGES:
-        try:
-            packages[name] = version(name)
-        except PackageNotFoundError:
-            packages[name] = "not installed"
+    packages = versions(PACKAGES)
     capability = kernels.result()
     # Float kernels differ by CPU: the model and the kernels torch picks say where the results were produced.
     cpuinfo = Path("/proc/cpuinfo")
