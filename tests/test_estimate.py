@@ -31,18 +31,17 @@ def test_cost_is_learned_per_variant_from_finished_trials_else_from_the_budget(c
     clock.now += 2
     view.episodes("fast-s0", [_row(1, 9.0), _row(20, 20.0)])  # 0.1 s per episode
     view.episodes("fast-s1", [_row(20, 30.0)])
-    # Nothing finished: every trial is costed at its whole budget at 0.1 s per episode.
-    assert view.expected_cost("slow") == pytest.approx(10.0)
-    # Running ones have 80 episodes (8 s) left; then two slow trials of 10 s on the two slots.
+    # Nothing finished: every trial is costed at its whole budget at 0.1 s per episode. Running ones have 80
+    # episodes (8 s) left; then two slow trials of 10 s on the two slots.
     assert view.seconds_left() == pytest.approx(8 + 10)
     clock.now += 1
     view.finished("fast-s0", solved=True)
     view.finished("fast-s1", solved=True)
-    assert view.expected_cost("fast") == pytest.approx(3.0)  # learned from the finished trials of the variant
+    # No slow trial has run: each costs its 100 episodes at the pace the fast ones finished at (3 s for 20), at once.
+    assert view.seconds_left() == pytest.approx(3 / 20 * 100)
     view.started("slow-s0")
     clock.now += 30
     view.episodes("slow-s0", [_row(10, 5.0)])  # 3 s per episode: slow's whole budget is 300 s
-    assert view.expected_cost("slow") == pytest.approx(3.0 * 100)
     # slow-s0 has 90 episodes (270 s) left; slow-s1 takes the free slot now and needs 300 s. A mean over the
     # trials ended so far (3 s each) would say 3 s.
     assert view.seconds_left() == pytest.approx(300)
@@ -243,12 +242,12 @@ def test_peers_share_a_budget_a_trial_with_another_budget_is_costed_apart(clock)
     clock.now += 1
     view.episodes("a-s0", [_row(10, 1.0)])  # 0.1 s per episode
     view.finished("a-s0", solved=False)
-    assert view.expected_cost("a") == pytest.approx(1.0)  # a-s1: a finished peer took 1 s
+    assert view.seconds_left() == pytest.approx(1.0 + 0.1 * 1000)  # a-s1: a finished peer took 1 s; a-s2-long below
     view.started("a-s1")
     view.finished("a-s1", solved=False)
     # The 1,000-episode trial has no finished peer at its budget: its peer's 10 episodes, then the rest at the
     # pace seen (a-s1 reported no episode: it says nothing), not the 10-episode mean.
-    assert view.expected_cost("a") == pytest.approx(0.1 * 1000)
+    assert view.seconds_left() == pytest.approx(0.1 * 1000)
 
 
 def test_every_estimate_is_logged_against_the_clock_when_asked(clock):
@@ -397,12 +396,14 @@ def test_a_workers_start_paid_by_its_first_trial_is_not_charged_to_the_trials_af
     clock.now += 1
     view.finished("b-s0", solved=True, wall_s=4.0)
     view.started("b-s1")
-    # No trial without a worker start has ended: a's trials cost their training time (5 s), not 25 s.
-    assert view.expected_cost("a") == pytest.approx(5.0)
+    # No trial without a worker start has ended: a's trials cost their training time (5 s), not 25 s, b's 4 s:
+    # a-s1 and b-s1 have 4 s left, then a-s2 (5 s) and b-s2 (4 s) on the two slots.
+    assert view.seconds_left() == pytest.approx(4 + 5)
     clock.now += 6
     view.finished("a-s1", solved=True, wall_s=5.0)  # 7 s since it started: 2 s beside its training
-    assert view.expected_cost("a") == pytest.approx((7 + 7) / 2)  # a-s0 counts as 5 s + the 2 s beside
-    assert view.expected_cost("b") == pytest.approx(4 + 2)
+    view.finished("b-s1", solved=True, wall_s=4.0)  # 6 s since it started: 2 s beside
+    # a-s2 costs 7 s (a-s0 counts as 5 s + the 2 s beside), b-s2 6 s (4 + 2), each on a slot of its own.
+    assert view.seconds_left() == pytest.approx((7 + 7) / 2)
 
 
 def test_the_pace_of_a_trial_with_one_report_is_read_off_its_own_clock(clock):

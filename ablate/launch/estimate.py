@@ -201,13 +201,6 @@ class TimeLeft:
         rate = seen.rates.get(trial.trial.variant) or seen.rates.get(None)
         return None if rate is None else rate * trial.budget + seen.overhead_s
 
-    def expected_cost(self, variant: str, now: float | None = None) -> float | None:
-        """Expected seconds of a trial of ``variant`` that has not started (its first pending one)."""
-        now = time.monotonic() if now is None else now
-        trials = [t for t in self.state.trials.values() if t.trial.variant == variant]
-        trial = next((t for t in trials if t.state == "pending"), trials[0])
-        return self._trial_cost(trial, self._costs_seen(now))
-
     def dispatch_s(self) -> float:
         """Mean seconds a slot stays idle between one trial's end and the next trial's start (Tune's loop, the
         driver's writes): with trials of a second or two, a third of the time."""
