@@ -32,7 +32,8 @@ def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> N
     import tempfile
 
     from ablate.experiment import load_experiment
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
     from ablate.launch.scheduler import ensure_ray
     from ablate.launch.tracking import Tracker
 
@@ -54,13 +55,15 @@ def bench_tuning(repeats: int = 3, path: str = "experiments/cartpole.toml") -> N
                 uri = f"sqlite:///{store / 'mlflow.db'}"
                 Tracker(uri, "warm").experiment_id()  # the store's tables exist, as in a user's store
                 started = time.monotonic()
-                outcome = run_experiment(
-                    load_experiment(folder / f"{kind}.toml"),
-                    tracking_uri=uri,
-                    storage_path=str(folder / "ray"),
-                    show_progress=False,
-                    started_at=started,
-                    log_estimates=True,
+                outcome = run_plan(
+                    LaunchPlan(
+                        load_experiment(folder / f"{kind}.toml"),
+                        tracking_uri=uri,
+                        storage_path=str(folder / "ray"),
+                        show_progress=False,
+                        started_at=started,
+                        log_estimates=True,
+                    )
                 )
                 walls[kind].append(time.monotonic() - started)
                 assert outcome.exit_code == 0 and outcome.view is not None, outcome.failed
@@ -201,7 +204,8 @@ def bench_eta(
     import tempfile
 
     from ablate.experiment import load_experiment
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     folder = Path(tempfile.mkdtemp(prefix="ablate-bench-eta-"))
     figures = {}
@@ -212,14 +216,16 @@ def bench_eta(
             store.mkdir()
             for launch in launches:
                 started = time.monotonic()
-                outcome = run_experiment(
-                    experiment,
-                    tracking_uri=f"sqlite:///{store / 'mlflow.db'}",
-                    storage_path=str(store / "ray"),
-                    show_progress=False,
-                    fresh=launch == "warm",
-                    started_at=started,
-                    log_estimates=True,
+                outcome = run_plan(
+                    LaunchPlan(
+                        experiment,
+                        tracking_uri=f"sqlite:///{store / 'mlflow.db'}",
+                        storage_path=str(store / "ray"),
+                        show_progress=False,
+                        fresh=launch == "warm",
+                        started_at=started,
+                        log_estimates=True,
+                    )
                 )
                 assert outcome.exit_code == 0 and outcome.view is not None, outcome.failed
                 figures[f"{experiment.name}/{launch}"] = _eta_figure(f"{path} {launch}", outcome.view)

@@ -76,7 +76,8 @@ def bench_runner(repeats: int = 3) -> None:
 
     from ablate.experiment import load_experiment
     from ablate.launch.grid import expand
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
     from ablate.launch.scheduler import ensure_ray
     from ablate.launch.tracking import Tracker
 
@@ -94,12 +95,14 @@ def bench_runner(repeats: int = 3) -> None:
             uri = f"sqlite:///{folder / f'mlflow-{i}.db'}"
             Tracker(uri, "warm").experiment_id()  # a user's store exists already: create its tables first
             started = time.perf_counter()
-            run_experiment(
-                experiment,
-                tracking_uri=uri,
-                max_concurrent=2,
-                storage_path=str(folder / "ray"),
-                show_progress=False,
+            run_plan(
+                LaunchPlan(
+                    experiment,
+                    tracking_uri=uri,
+                    max_concurrent=2,
+                    storage_path=str(folder / "ray"),
+                    show_progress=False,
+                )
             )
             tracked = time.perf_counter() - started
             speedups.append(one / two)
@@ -133,7 +136,8 @@ def _tracked_run(experiment_path: str, folder: Path) -> tuple[float, float, floa
     import psutil
 
     from ablate.experiment import load_experiment
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
     from ablate.launch.tracking import Tracker
 
     in_tracker = [0.0]
@@ -176,11 +180,13 @@ def _tracked_run(experiment_path: str, folder: Path) -> tuple[float, float, floa
     sampler.start()
     try:
         started = time.perf_counter()
-        outcome = run_experiment(
-            load_experiment(experiment_path),
-            tracking_uri=f"sqlite:///{folder / 'mlflow.db'}",
-            storage_path=str(folder / "ray"),
-            show_progress=False,
+        outcome = run_plan(
+            LaunchPlan(
+                load_experiment(experiment_path),
+                tracking_uri=f"sqlite:///{folder / 'mlflow.db'}",
+                storage_path=str(folder / "ray"),
+                show_progress=False,
+            )
         )
         wall = time.perf_counter() - started
     finally:

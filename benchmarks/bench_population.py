@@ -229,7 +229,8 @@ def bench_seeds(factor: int = 4, cap: int = 16, path: str = "experiments/cartpol
     import tempfile
 
     from ablate.experiment import load_experiment
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
     from ablate.launch.scheduler import ensure_ray
 
     ensure_ray(None)
@@ -245,14 +246,16 @@ def bench_seeds(factor: int = 4, cap: int = 16, path: str = "experiments/cartpol
             store = folder / kind
             store.mkdir()
             started = time.monotonic()
-            outcome = run_experiment(
-                load_experiment(folder / f"{kind}.toml"),
-                tracking_uri=f"sqlite:///{store / 'mlflow.db'}",
-                storage_path=str(folder / "ray"),
-                show_progress=False,
-                started_at=started,
-                log_estimates=True,
-                population=population,
+            outcome = run_plan(
+                LaunchPlan(
+                    load_experiment(folder / f"{kind}.toml"),
+                    tracking_uri=f"sqlite:///{store / 'mlflow.db'}",
+                    storage_path=str(folder / "ray"),
+                    show_progress=False,
+                    started_at=started,
+                    log_estimates=True,
+                    population=population,
+                )
             )
             wall = time.monotonic() - started
             assert outcome.exit_code == 0 and outcome.view is not None, outcome.failed

@@ -34,12 +34,15 @@ def tracking_uri(tmp_path):
 
 @pytest.fixture(scope="session")
 def run_quiet(ray_cluster):
-    """``run_experiment`` as tests call it: into ``tracking_uri``, Tune's files under ``folder``, no live view."""
-    from ablate.launch.runner import run_experiment
+    """``run_plan`` as tests call it: into ``tracking_uri``, Tune's files under ``folder``, no live view."""
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     def run(experiment, folder, tracking_uri, **kwargs):
-        return run_experiment(
-            experiment, tracking_uri=tracking_uri, storage_path=str(folder / "ray"), show_progress=False, **kwargs
+        return run_plan(
+            LaunchPlan(
+                experiment, tracking_uri=tracking_uri, storage_path=str(folder / "ray"), show_progress=False, **kwargs
+            )
         )
 
     return run

@@ -172,11 +172,12 @@ def _fake_scheduler(monkeypatch, ran, interrupt_at=None):
 
 
 def _run(experiment, tracking_uri, **kwargs):
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
     from ablate.reporting.rounds import judge_for
 
-    return run_experiment(
-        experiment, tracking_uri=tracking_uri, show_progress=False, judge=judge_for(experiment), **kwargs
+    return run_plan(
+        LaunchPlan(experiment, tracking_uri=tracking_uri, show_progress=False, judge=judge_for(experiment), **kwargs)
     )
 
 

@@ -130,21 +130,23 @@ def test_rerun_after_adding_a_variant_runs_only_the_new_trials(run_quiet, tmp_pa
 def test_the_progress_line_and_the_summary_count_the_same_trials_finished_before(tmp_path, tiny_store, monkeypatch):
     """The store holds seeds this launch does not run (2 of each variant, the launch asks for 1): the progress line
     said "4 finished before" beside the summary's "2 finished before" (3e01923). Both count this launch's own."""
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     tracking_uri, _, _ = tiny_store
     _fake_scheduler(monkeypatch, lambda trials, events: None)
     fewer = TINY.replace("seeds = 2", "seeds = 1") + '[[variants]]\nname = "wide"\nhidden_sizes = [64]\n'
-    outcome = run_experiment(_experiment(tmp_path, fewer), tracking_uri=tracking_uri, show_progress=False)
+    outcome = run_plan(LaunchPlan(_experiment(tmp_path, fewer), tracking_uri=tracking_uri, show_progress=False))
     assert outcome.skipped == 2 and outcome.view.state.already_done == 2
 
 
 def test_a_launch_records_the_seconds_until_its_first_trial_started(tmp_path, tracking_uri, monkeypatch):
     """What the next ``--dry-run`` says a start costs (``start_s`` on the launch's run)."""
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     _fake_scheduler(monkeypatch, lambda trials, events: events.started(trials[0].key))
-    run_experiment(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False)
+    run_plan(LaunchPlan(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False))
     start_s = _launches(Tracker(tracking_uri, "tiny"))[0].data.metrics["start_s"]
     assert 0 <= start_s < HANG_S
 
@@ -440,14 +442,15 @@ def _fake_scheduler(monkeypatch, body):
 
 
 def test_a_scheduler_crash_records_the_launch_failed_with_the_error(tmp_path, tracking_uri, monkeypatch):
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     def crash(trials, events):
         events.started(trials[0].key)
         raise RuntimeError("RaySystemError: the GCS went away\nmore detail")
 
     _fake_scheduler(monkeypatch, crash)
-    outcome = run_experiment(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False)
+    outcome = run_plan(LaunchPlan(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False))
     assert outcome.exit_code == 1 and outcome.error == "RuntimeError: RaySystemError: the GCS went away"
     tracker = Tracker(tracking_uri, "tiny")
     launch = _launches(tracker)[0]
@@ -464,7 +467,8 @@ def test_an_error_before_the_recorder_exists_closes_the_launch_failed_with_that_
 ):
     """``watch`` raising before it builds the recorder: the launch still closes, FAILED with the real error (on
     3e01923 ``close`` read ``self.recorder`` and an ``AttributeError`` replaced it)."""
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     _fake_scheduler(monkeypatch, lambda trials, events: None)
 
@@ -472,7 +476,7 @@ def test_an_error_before_the_recorder_exists_closes_the_launch_failed_with_that_
         raise RuntimeError("the store went away")
 
     monkeypatch.setattr(Tracker, "earlier_runs", earlier_runs)
-    outcome = run_experiment(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False)
+    outcome = run_plan(LaunchPlan(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False))
     assert outcome.error == "RuntimeError: the store went away"
     assert _launches(Tracker(tracking_uri, "tiny"))[0].info.status == "FAILED"
 
@@ -480,7 +484,8 @@ def test_an_error_before_the_recorder_exists_closes_the_launch_failed_with_that_
 def test_an_interrupt_while_a_run_is_being_opened_leaves_nothing_running(tmp_path, tracking_uri, monkeypatch):
     """Ctrl-C can land after MLflow created a trial's run and before the tracker noted it; and a scheduler
     event can come after the interrupt. Neither may leave a run RUNNING or say "0 marked killed"."""
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     late: list = []
 
@@ -498,7 +503,7 @@ def test_an_interrupt_while_a_run_is_being_opened_leaves_nothing_running(tmp_pat
         events.started(trials[1].key)
 
     _fake_scheduler(monkeypatch, interrupted_mid_open)
-    outcome = run_experiment(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False)
+    outcome = run_plan(LaunchPlan(_experiment(tmp_path), tracking_uri=tracking_uri, show_progress=False))
     assert outcome.interrupted and outcome.exit_code == 130 and len(outcome.killed) == 2
     late[0].started(expand(_experiment(tmp_path))[2].key)  # an event after the stop opens no run
     tracker = Tracker(tracking_uri, "tiny")
@@ -511,7 +516,8 @@ def test_the_next_launch_marks_runs_a_dead_launch_left_running_killed_and_remove
 ):
     """What kill -9 of a driver leaves (its launch and trial runs RUNNING, ``ray_results/<run>/``), made
     directly: the next launch reaps it, runs the grid, and leaves nothing RUNNING."""
-    from ablate.launch.runner import run_experiment, tune_run_name
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan, tune_run_name
 
     experiment = _experiment(tmp_path)
     trials = expand(experiment)
@@ -529,8 +535,8 @@ def test_the_next_launch_marks_runs_a_dead_launch_left_running_killed_and_remove
             events.finished(trial.key, {"episodes_to_solve": 5.0}, None, "node-1")
 
     _fake_scheduler(monkeypatch, finish_all)
-    outcome = run_experiment(
-        experiment, tracking_uri=tracking_uri, show_progress=False, storage_path=str(tmp_path / "ray")
+    outcome = run_plan(
+        LaunchPlan(experiment, tracking_uri=tracking_uri, show_progress=False, storage_path=str(tmp_path / "ray"))
     )
     assert outcome.reaped == 2 and outcome.exit_code == 0 and len(outcome.finished) == 4
     runs = {r.info.run_id: r for r in dead.client.search_runs([dead.experiment_id()], "")}
@@ -588,7 +594,8 @@ def test_a_cluster_whose_nodes_are_all_too_small_is_refused_before_a_launch_is_r
     tmp_path, tracking_uri, monkeypatch
 ):
     from ablate.config import ConfigError
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     _fake_scheduler(monkeypatch, lambda trials, events: pytest.fail("no trial may be scheduled"))
     import dataclasses
@@ -597,7 +604,7 @@ def test_a_cluster_whose_nodes_are_all_too_small_is_refused_before_a_launch_is_r
     with pytest.raises(
         ConfigError, match=r"cpus_per_trial = 3 is more than the largest node of the Ray cluster has \(2 CPUs\)"
     ):
-        run_experiment(experiment, tracking_uri=tracking_uri, address="auto", show_progress=False)
+        run_plan(LaunchPlan(experiment, tracking_uri=tracking_uri, address="auto", show_progress=False))
     assert not _launches(Tracker(tracking_uri, "tiny"))
 
 
@@ -726,7 +733,8 @@ def test_both_stages_start_their_trials_seeds_interleaved_across_variants(tmp_pa
     """Stage 2 (the trials at the chosen values) is handed to Ray in the order stage 1 is: every variant's
     first seed, then every variant's second, the order the time-left estimate assumes."""
     from ablate.launch.grid import schedule_order
-    from ablate.launch.runner import run_experiment
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
 
     stages: list[list] = []
 
@@ -739,7 +747,7 @@ def test_both_stages_start_their_trials_seeds_interleaved_across_variants(tmp_pa
     _fake_scheduler(monkeypatch, finish_all)
     # Trials alone (a population starts in the order of its first member: tests/test_plan.py).
     experiment = _experiment(tmp_path, TINY + TUNE)
-    outcome = run_experiment(experiment, tracking_uri=tracking_uri, show_progress=False, population=1)
+    outcome = run_plan(LaunchPlan(experiment, tracking_uri=tracking_uri, show_progress=False, population=1))
     assert outcome.exit_code == 0 and len(stages) == 2
     chosen = stages[1]
     assert {t.config.learning_rate for t in chosen} == {0.1}  # the highest AUC won: stage 2 has trials to run

@@ -150,11 +150,6 @@ def reap_stale_runs(tracker: Tracker, storage_path: str) -> int:
     return len(trials) + len(stale)
 
 
-def run_experiment(experiment: Experiment, **how) -> RunOutcome:
-    """``run_plan`` of ``LaunchPlan(experiment, **how)``: the whole grid, or ``only=`` a part of it."""
-    return run_plan(LaunchPlan(experiment, **how))
-
-
 def run_plan(plan: LaunchPlan) -> RunOutcome:
     """Run every trial of ``plan`` that has no finished run in the current generation.
 
