@@ -83,7 +83,7 @@ PROFILES = {
             "pong",
             "the course's Pong pipeline for any Atari game: 80x80 foreground frames (rows 35:195, every 2nd pixel, "
             "backgrounds 144 and 109 erased) differenced, the return reset at every point, action_set",
-            "ablate.envs:make_pong_trial_env",
+            "ablate.envs:make_pong",
             matches="ALE/Pong",
             needs="ALE/",
             resets_on_score=True,

@@ -7,7 +7,6 @@ for a checkpoint, and, fenced at the end, every write to an env's internals that
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -116,51 +115,31 @@ class PongFrameDifference(gym.Wrapper):
         self._previous = state["previous"].copy()
 
 
-def make_pong(
-    env_id: str = "ALE/Pong-v5",
-    action_set: str = "all",
-    frameskip: int = 4,
-    repeat_action_probability: float = 0.25,
-    max_episode_steps: int = 0,
-    render: bool = False,
-    env_args: Mapping[str, Any] | None = None,
-) -> gym.Env:
-    """ale-py's ``AtariEnv`` of ``env_id`` (Pong, or any other game) made by Gymnasium (``frameskip`` frames a
-    step, sticky actions at ``repeat_action_probability``, the game's minimal action set, truncated by ``TimeLimit``
-    after ``max_episode_steps`` steps, 0: never) giving ``PongFrameDifference``'s observations; its actions those
-    ``action_set`` picks. ``render``: ``env.render()`` gives the RGB screen (videos)."""
-    register(TrialConfig(env_id=env_id))
-    kwargs = {"max_episode_steps": max_episode_steps} if max_episode_steps > 0 else {}
+def make_pong(config: TrialConfig, render: bool = False) -> gym.Env:
+    """The Pong profile's env of a trial: ale-py's ``AtariEnv`` of ``env_id`` (Pong, or any other game) made by
+    Gymnasium (``frameskip`` frames a step, sticky actions at ``repeat_action_probability``, the game's minimal action
+    set, truncated by ``TimeLimit`` after ``max_episode_steps`` steps, 0: never) giving ``PongFrameDifference``'s
+    observations; its actions those ``action_set`` picks. ``render``: ``env.render()`` gives the RGB screen
+    (videos)."""
+    register(TrialConfig(env_id=config.env_id))
+    kwargs = {"max_episode_steps": config.max_episode_steps} if config.max_episode_steps > 0 else {}
     env = gym.make(
-        env_id,
+        config.env_id,
         # The observation is read from the palette screen: RAM is the cheapest one for AtariEnv to copy out.
         obs_type="ram",
-        frameskip=frameskip,
-        repeat_action_probability=repeat_action_probability,
+        frameskip=config.frameskip,
+        repeat_action_probability=config.repeat_action_probability,
         full_action_space=False,
         render_mode="rgb_array" if render else None,
         **kwargs,
-        **dict(env_args or {}),
+        **dict(config.env_args),
     )
-    return PongFrameDifference(ActionSubset(env, action_set))
-
-
-def make_pong_trial_env(config, render: bool = False) -> gym.Env:
-    """The Pong profile's env of a trial: ``make_pong`` with the trial's knobs."""
-    return make_pong(
-        config.env_id,
-        config.action_set,
-        config.frameskip,
-        config.repeat_action_probability,
-        config.max_episode_steps,
-        render,
-        dict(config.env_args),
-    )
+    return PongFrameDifference(ActionSubset(env, config.action_set))
 
 
 def sample_frames(env_id: str = "ALE/Pong-v5", seed: int = 0, steps: int = 60) -> tuple[np.ndarray, np.ndarray]:
     """Two consecutive raw RGB frames of an Atari game ``steps`` agent steps in (Pong's ball in play), for figures."""
-    env = make_pong(env_id, repeat_action_probability=0.0, render=True)
+    env = make_pong(TrialConfig(env_id=env_id, repeat_action_probability=0.0), render=True)
     try:
         env.reset(seed=seed)
         previous = frame = env.render()

@@ -60,9 +60,10 @@ def _cnn_compute_ms_per_step(batch: int = 1024, acting_batch: int = 4) -> float:
     import numpy as np
 
     from ablate.agent.policies import create_pong_model
+    from ablate.config import TrialConfig
     from ablate.envs import make_pong
 
-    env = make_pong(action_set="move")
+    env = make_pong(TrialConfig(env_id="ALE/Pong-v5", action_set="move"))
     env.reset(seed=0)
     frames = np.stack([env.step(i % 2)[0] for i in range(batch)])
     model = create_pong_model(2, (64,), architecture="cnn")

@@ -2,6 +2,8 @@
 the fenced internals assume of Gymnasium's ``CartPoleVectorEnv`` and ``TimeLimit``: each of those tests fails when a
 Gymnasium release changes it (an attribute renamed or reshaped, the physics or the next-step autoreset reworked)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv, CartPoleVectorEnv
@@ -23,6 +25,8 @@ from ablate.envs import (
     set_start_states,
     skip_action_check,
 )
+
+PONG_MOVE = TrialConfig(env_id="ALE/Pong-v5", action_set="move")
 
 
 def test_pre_process_crops_downsamples_and_binarises():
@@ -113,7 +117,7 @@ def test_pong_env_is_ale_pong_v5_step_for_step():
     import gymnasium as gym
 
     reference = gym.make("ALE/Pong-v5").unwrapped  # sticky actions on, as in v5; RGB observations
-    ours = make_pong("ALE/Pong-v5", action_set="all", render=True)
+    ours = make_pong(TrialConfig(env_id="ALE/Pong-v5"), render=True)
     frame, _ = reference.reset(seed=3)
     observation, _ = ours.reset(seed=3)
     assert observation.shape == (1, 80, 80) and observation.dtype == np.int8 and not observation.any()
@@ -135,7 +139,7 @@ def _continues_exactly(saved_after: int, repeat_action_probability: float) -> bo
     from ablate.envs import env_state, set_env_state
 
     def make():
-        return make_pong(action_set="move", max_episode_steps=60, repeat_action_probability=repeat_action_probability)
+        return make_pong(replace(PONG_MOVE, max_episode_steps=60, repeat_action_probability=repeat_action_probability))
 
     env = make()
     env.reset(seed=0)
@@ -160,7 +164,7 @@ def test_pong_env_restores_its_state_into_a_fresh_env():
 
 
 def test_pong_env_action_sets_and_step_cap():
-    moving = make_pong(action_set="move", max_episode_steps=25)
+    moving = make_pong(replace(PONG_MOVE, max_episode_steps=25))
     moving.reset(seed=0)
     meanings = moving.unwrapped.get_action_meanings()
     assert [meanings[a] for a in moving.get_wrapper_attr("actions")] == [
