@@ -246,9 +246,7 @@ def run_env_module(spec: str, bundle: Bundle, digest: str) -> None:
     _CALLED.add((spec, digest))
 
 
-@functools.cache
-def _distributions() -> dict[str, list[str]]:
-    return importlib.metadata.packages_distributions()
+_distributions = functools.cache(importlib.metadata.packages_distributions)
 
 
 def package_version(module: str) -> str:
