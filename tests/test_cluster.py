@@ -311,7 +311,9 @@ def test_two_nodes_no_shared_files_tracking_server_and_a_lost_node(cluster):
         assert run.metrics["parameter_count"] == 4 * 6 + 6 + 2 * 6 + 6 * 2 + 2  # the user's LayerNorm net
         assert (run.params["env_id"], run.params["env.reward_threshold"]) == ("ClusterPole-v0", "475.0")
         for metric in POINT_METRICS:
-            steps = [s for s, _ in tracker.metric_history(run.run_id, metric)]
+            steps = [
+                s for s, _ in sorted((m.step, m.value) for m in tracker.client.get_metric_history(run.run_id, metric))
+            ]
             assert steps == list(range(2, 201, 2)), metric  # 200 episodes -> 100 points
     assert list((cluster["tmp"] / "server" / "artifacts").rglob("episodes.csv"))  # in the server's store
     # Least privilege: the server's folder, store, users' database and artifacts are its owner's only, and the

@@ -117,7 +117,12 @@ def test_a_launch_of_populations_records_every_member_as_its_own_trial(run_quiet
         assert run.status == "FINISHED" and run.metrics["episodes_run"] == 20
         drawn = {"learning_curve.png"} if run.seed < PLOTTED_SEEDS else set()  # a variant's first seeds only
         assert set(run.artifacts) == {"episodes.csv", "weights.pt", "config.json"} | drawn
-        returns = [v for _, v in reader.metric_history(run.run_id, "episode/return")]
+        returns = [
+            v
+            for _, v in sorted(
+                (m.step, m.value) for m in reader.client.get_metric_history(run.run_id, "episode/return")
+            )
+        ]
         assert len(returns) == 20
         alone = run_trial(by_key[key].config)
         assert returns[:10] == alone.returns[:10]
@@ -185,7 +190,10 @@ def _experiment(folder, text: str):
 
 def _returns(reader: RunReader) -> dict[str, list[float]]:
     return {
-        r.key: [v for _, v in reader.metric_history(r.run_id, "episode/return")]
+        r.key: [
+            v
+            for _, v in sorted((m.step, m.value) for m in reader.client.get_metric_history(r.run_id, "episode/return"))
+        ]
         for r in reader.trial_runs()
         if r.status == "FINISHED"
     }
@@ -233,7 +241,12 @@ def test_a_population_whose_process_died_resumes_each_member_exactly(run_quiet, 
     for trial in expand(experiment):
         unbroken = run_trial(replace(trial.config, fault="", fault_marker=""))
         assert tracked[trial.key] == unbroken.returns, trial.variant  # resumed exactly, or never disturbed
-        history = reader.metric_history(next(r.run_id for r in runs if r.key == trial.key), "episode/return")
+        history = sorted(
+            (m.step, m.value)
+            for m in reader.client.get_metric_history(
+                next(r.run_id for r in runs if r.key == trial.key), "episode/return"
+            )
+        )
         assert [step for step, _ in history] == list(range(1, trial.config.max_episodes + 1))  # each episode once
 
 

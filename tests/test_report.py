@@ -485,13 +485,13 @@ def test_each_variant_is_a_run_under_the_launch_holding_the_reports_curve_and_cl
     assert runs["b"].data.tags["ablate.changes"] == "hidden_sizes = [16]"
     window = 8
     for variant, run in runs.items():
-        curve = dict(reader.metric_history(run.info.run_id, "curve/iqm"))
+        curve = dict(sorted((m.step, m.value) for m in reader.client.get_metric_history(run.info.run_id, "curve/iqm")))
         assert sorted(curve) == list(range(1, 41))  # the report's episodes: 200 points over 40 episodes
         for episode in (1, 10, 25, 40):  # the IQM over seeds of each seed's rolling mean, by hand
             rolling = [np.mean(variants[variant]["curve"](s)[max(0, episode - window) : episode]) for s in range(8)]
             assert curve[episode] == pytest.approx(stats.trim_mean(rolling, 0.25), rel=1e-9)
-        low = dict(reader.metric_history(run.info.run_id, "curve/low"))
-        high = dict(reader.metric_history(run.info.run_id, "curve/high"))
+        low = dict(sorted((m.step, m.value) for m in reader.client.get_metric_history(run.info.run_id, "curve/low")))
+        high = dict(sorted((m.step, m.value) for m in reader.client.get_metric_history(run.info.run_id, "curve/high")))
         assert all(low[e] <= curve[e] <= high[e] for e in curve) and any(low[e] < high[e] for e in curve)
     claims = pd.read_csv(folder / "tables" / "claims.csv").set_index("variant")
     assert list(claims.verdict) == ["better", "worse"]  # b solves sooner; c never: its interval is "at least"
@@ -521,7 +521,7 @@ def test_each_variant_is_a_run_under_the_launch_holding_the_reports_curve_and_cl
         and len(reader.client.search_runs(experiment, "tags.`ablate.role` = 'variant'")) == 3
     )
     assert all(again[v].info.run_id != runs[v].info.run_id for v in again)  # replaced, not appended to
-    assert len(reader.metric_history(again["b"].info.run_id, "curve/iqm")) == 40
+    assert len(reader.client.get_metric_history(again["b"].info.run_id, "curve/iqm")) == 40
     assert [(t.run_id, t.status) for t in reader.trial_runs()] == [(t.run_id, t.status) for t in trials_before]
 
 

@@ -96,8 +96,16 @@ def test_tiny_ablation_is_tracked_exactly(run_quiet, tmp_path, tiny_store):
         assert run.params["model.dropout"] == ("0.0" if run.variant == "narrow" else "0.1")
         # 20 episodes of a 20-episode budget: one point per episode (bounded at CURVE_POINTS per curve)
         for metric in POINT_METRICS:
-            assert [step for step, _ in tracker.metric_history(run.run_id, metric)] == list(range(1, 21)), metric
-        returns = [v for _, v in tracker.metric_history(run.run_id, "episode/return")]
+            assert [
+                step
+                for step, _ in sorted((m.step, m.value) for m in tracker.client.get_metric_history(run.run_id, metric))
+            ] == list(range(1, 21)), metric
+        returns = [
+            v
+            for _, v in sorted(
+                (m.step, m.value) for m in tracker.client.get_metric_history(run.run_id, "episode/return")
+            )
+        ]
         assert run.metrics["env_steps"] == sum(returns)  # CartPole: one reward per step
         assert run.metrics["episode/rolling_mean"] == pytest.approx(sum(returns) / 20)  # solve_window 100 > 20
         assert run.metrics["episodes_run"] == 20 and run.metrics["solved"] == 0
@@ -319,7 +327,7 @@ def test_a_trial_whose_process_died_resumes_from_its_checkpoint_in_one_continuou
     tracker = RunReader(tracking_uri, "faults")
     (run,) = [r for r in tracker.trial_runs(with_artifacts=True) if r.variant == "resumable"]
     assert run.status == "FINISHED" and run.tags["ablate.attempt"] == "2"  # the process died once
-    wall = tracker.metric_history(run.run_id, "episode/wall_s")
+    wall = sorted((m.step, m.value) for m in tracker.client.get_metric_history(run.run_id, "episode/wall_s"))
     assert [step for step, _ in wall] == list(range(1, 49))  # one curve, every episode once
     # The retry resumed: its episodes 1-16 carry the dead attempt's own clock, as in the checkpoint the dead
     # attempt left on its (deleted) run, which a restart from scratch could not reproduce.

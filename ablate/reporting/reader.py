@@ -64,10 +64,6 @@ class RunReader(Store):
             for r in self.all_runs(LAUNCHES)
         ]
 
-    def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:
-        """(step, value) pairs of one metric, by step."""
-        return sorted((m.step, m.value) for m in self.client.get_metric_history(run_id, key))
-
     def load_text(self, run_id: str, filename: str) -> str:
         """A small text artifact of a run (a launch's ``grid.json``, say)."""
         return Path(self.download(run_id, filename)).read_text()
