@@ -315,3 +315,20 @@ def test_status_lists_ablations_beside_a_deleted_mlflow_experiment_of_any_name(t
     client = MlflowClient(uri)
     client.delete_experiment(client.create_experiment("ablate"))
     assert ablation_names(uri) == []
+
+
+def test_status_refuses_a_store_that_refuses_its_first_read_in_one_line(tmp_path, monkeypatch):
+    """A server that refuses the login (as a basic-auth server refuses no credentials) answers the first read
+    ``Store`` makes: ``ablate status`` says so in one line, as the writer's opening does."""
+    from mlflow.exceptions import MlflowException
+    from mlflow.tracking import MlflowClient
+
+    def refused(self, *args, **kwargs):
+        raise MlflowException("API request failed with error code 401 != 200. Response body: 'unauthenticated'")
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    MlflowClient(uri).create_experiment("x")  # the store exists
+    monkeypatch.setattr(MlflowClient, "search_experiments", refused)
+    with pytest.raises(TrackingError, match="401") as raised:
+        ablation_names(uri)
+    assert "\n" not in str(raised.value)

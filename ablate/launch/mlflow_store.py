@@ -134,7 +134,11 @@ class Store:
         try:
             with store_setup_lock(db), fail_fast_http():
                 self.client = MlflowClient(self.uri)
-                existing = self.client.get_experiment_by_name(self.experiment_name) if experiment_name else None
+                existing = None
+                if experiment_name is None:  # the store alone: one read, so a login it refuses is refused here
+                    self.client.search_experiments(max_results=1)
+                else:
+                    existing = self.client.get_experiment_by_name(self.experiment_name)
         except Exception as error:  # noqa: BLE001 - MLflow, SQLAlchemy and requests errors alike end here
             raise TrackingError(store_problem(self.uri, error)) from None
         if existing is not None and existing.lifecycle_stage == "deleted":
