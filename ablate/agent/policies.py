@@ -11,6 +11,8 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from ablate.config import ARCHITECTURES
+
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "gelu": nn.GELU}
 
 
@@ -48,8 +50,8 @@ def _dense_layers(
 def _convolutional(architecture: str) -> bool:
     """``cnn`` or ``mlp``; anything else is a ``ValueError`` (a trial's config is checked before: this is for a
     direct call of a factory)."""
-    if architecture not in ("mlp", "cnn"):
-        raise ValueError(f"architecture = {architecture!r} is invalid; valid: mlp, cnn")
+    if architecture not in ARCHITECTURES:
+        raise ValueError(f"architecture = {architecture!r} is invalid; valid: {', '.join(ARCHITECTURES)}")
     return architecture == "cnn"
 
 
