@@ -121,7 +121,7 @@ def make_pong(config: TrialConfig, render: bool = False) -> gym.Env:
     set, truncated by ``TimeLimit`` after ``max_episode_steps`` steps, 0: never) giving ``PongFrameDifference``'s
     observations; its actions those ``action_set`` picks. ``render``: ``env.render()`` gives the RGB screen
     (videos)."""
-    register(TrialConfig(env_id=config.env_id))
+    register(config)
     kwargs = {"max_episode_steps": config.max_episode_steps} if config.max_episode_steps > 0 else {}
     env = gym.make(
         config.env_id,
