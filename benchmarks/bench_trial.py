@@ -20,9 +20,9 @@ def _course_loop(config, max_episodes: int) -> dict[str, float]:
     import gymnasium as gym
     import numpy as np
 
-    from ablate.agent.optim import Adam
     from ablate.agent.policies import create_cartpole_model
     from ablate.agent.reinforce import Memory, discount_rewards, normalize, train_step
+    from ablate.agent.stacking import Adam
 
     torch.manual_seed(config.seed)
     env = gym.make(config.env_id)

@@ -16,11 +16,10 @@ import numpy as np
 import torch
 
 from ablate.agent.models import build_model, history
-from ablate.agent.optim import Adam
 from ablate.agent.records import Batch, EpisodeMetrics
 from ablate.agent.reinforce import choose_action, discount_rewards, normalize, train_step
 from ablate.agent.slots import CartPoleSlots, EnvSlots, Episode
-from ablate.agent.stacking import Members, dropout_seed
+from ablate.agent.stacking import Adam, Members, dropout_seed
 from ablate.config import TrialConfig
 from ablate.env_spec import solve_threshold
 from ablate.envs import Described, make_trial_env

@@ -156,7 +156,7 @@ def l2_penalty(model: nn.Module) -> torch.Tensor:
 
 
 class Optimizer(Protocol):
-    """What ``train_step`` needs of an optimizer: ``ablate.agent.optim.Adam`` and any ``torch.optim`` optimizer fit."""
+    """What ``train_step`` needs of an optimizer: ``stacking.Adam`` and any ``torch.optim`` optimizer fit."""
 
     def zero_grad(self) -> None: ...
     def step(self) -> object: ...
@@ -187,7 +187,7 @@ def train_step(
     coupled decay would also shrink biases, and a loss term means the same thing as the course's Keras
     ``kernel_regularizer=l2(...)``, so a value read in the course transfers unchanged.
 
-    A population (``model`` a ``stacking.Members``, ``optimizer`` its ``optim.Adam``): the members ``serving``
+    A population (``model`` a ``stacking.Members``, ``optimizer`` its ``stacking.Adam``): the members ``serving``
     each take their own step in one forward and backward. Their batches come as (members, steps, ...), padded
     after each member's ``lengths[i]`` steps (padding weighs nothing); ``l2`` holds each member's.
 
