@@ -376,8 +376,9 @@ def flatten(config: TrialConfig) -> dict[str, Any]:
 
 
 def env_facts(config: TrialConfig) -> tuple:
-    """The values of the fields that make ``config``'s env (``ENV_COLUMNS``): configs with equal facts share one."""
-    return tuple(schema.value_of(config, column) for column in ENV_COLUMNS)
+    """The values of the fields that make ``config``'s env (``ENV_COLUMNS``, top-level fields): configs with equal
+    facts share one."""
+    return tuple(getattr(config, column) for column in ENV_COLUMNS)
 
 
 def key_fields(config: TrialConfig) -> dict[str, Any]:

@@ -83,12 +83,12 @@ def run_population(
     ``on_checkpoint(i, blob)`` gets member i's whole state, which ``resume_from[i]`` restores (the resumed run is
     the unbroken one). ``on_outcome(i, outcome)`` as each member ends. ``device``: where the networks act and
     learn (``None``: CUDA whenever torch sees a device, else the CPU). Returns every member's outcome, in order."""
+    for config in configs:
+        _inject_fault(config)
     if not can_share(configs):
         raise ValueError(
             "these configs cannot share a population: " + ", ".join(map(str, map(population_group, configs)))
         )
-    for config in configs:
-        _inject_fault(config)
     torch.set_num_threads(1)  # small networks: threads cost more than they give, and trials run side by side
     threadpool_limits(1, user_api="blas")  # the same for numpy's (OpenBLAS would spin 2 threads)
     env = describe(configs[0])  # the population's env, read once: every layer below is handed this
