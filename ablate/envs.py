@@ -191,9 +191,10 @@ class AtariFrameDifference(gym.ObservationWrapper):
 def make_trial_env(config, render: bool = False) -> gym.Env:
     """One env of a trial, its observations what the policy takes, as its profile makes it (``env_spec.PROFILES``),
     ``config``'s env registered first (``env_spec.register``)."""
+    make = profile_of(config).maker()
     register(config)
     try:
-        return profile_of(config).maker()(config, render)
+        return make(config, render)
     except gym.error.Error as error:
         raise EnvError(f"env_id = {config.env_id!r}: {error}") from None
     except TypeError as error:

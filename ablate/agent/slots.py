@@ -82,10 +82,10 @@ class CartPoleSlots:
             [np.random.default_rng(s)] if self.shared else [np.random.default_rng(s + j) for j in range(per_member)]
             for s in seeds
         ]
+        self.windows = _Windows(len(seeds) * per_member, (4,), history) if history else None
         self._make = lambda n: skip_action_check(make_native_vector(env_id, n, max_episode_steps))
         self.env = self._make(len(seeds) * per_member)
         self.env.reset(seed=0)  # allocates its state; every slot's start state is drawn again by start()
-        self.windows = _Windows(self.env.num_envs, (4,), history) if history else None
         # A ring of steps (a collection lasts at most max_episode_steps): slot s's episode is rows started[s]...
         self.capacity = max_episode_steps + 1
         self.ring = np.zeros((self.capacity, self.env.num_envs, 4), np.float32)
