@@ -107,14 +107,13 @@ class Population:
         seeds = [c.seed for c in configs]
         if env.native_vector and not self.continuous:
             self.slots = CartPoleSlots(seeds, self.per_member, env.max_episode_steps, self.history, env_id=env.env_id)
-        else:
-
-            def make(m: int, j: int):  # a member's first env renders where it records training videos
-                return make_trial_env(
-                    configs[m], render=j == 0 and configs[m].video_every > 0 and folders[m] is not None
-                )
-
-            self.slots = EnvSlots(seeds, self.per_member, make, self.history)
+        else:  # a member's first env renders where it records training videos
+            envs = [
+                make_trial_env(c, render=j == 0 and c.video_every > 0 and folder is not None)
+                for c, folder in zip(configs, folders, strict=True)
+                for j in range(self.per_member)
+            ]
+            self.slots = EnvSlots(seeds, self.per_member, envs, self.history)
             self.slots.on_frame = self._frame
         self.chunk = IMAGE_TRAIN_CHUNK if len(self.env.observation_shape) == 3 else None
         self.stepping = np.zeros(len(self.members) * self.per_member, bool)

@@ -191,15 +191,13 @@ class CartPoleSlots:
 
 
 class EnvSlots:
-    """One Gymnasium env per slot (``make(member, j)`` builds slot j of a member). A slot steps only while its
+    """One Gymnasium env per slot (``envs``: each member's ``per_member`` in turn). A slot steps only while its
     episode counts; slot j of the member with seed s is seeded ``s * 1000 + j`` at its first reset and draws its
     later resets from its own stream. Episodes are recorded in a ``Memory`` per slot."""
 
-    def __init__(
-        self, seeds: Sequence[int], per_member: int, make: Callable[[int, int], object], history: int = 0
-    ) -> None:
+    def __init__(self, seeds: Sequence[int], per_member: int, envs: list, history: int = 0) -> None:
         self.per_member = per_member
-        self.envs = [make(m, j) for m in range(len(seeds)) for j in range(per_member)]
+        self.envs = envs
         self.seeds: list[int | None] = [s * 1000 + j for s in seeds for j in range(per_member)]
         space = self.envs[0].observation_space
         self.raw = np.zeros((len(self.envs), *space.shape), space.dtype if space.dtype == np.int8 else np.float32)
