@@ -22,12 +22,11 @@ def _course_loop(config, max_episodes: int) -> dict[str, float]:
 
     from ablate.agent.policies import create_cartpole_model
     from ablate.agent.reinforce import Memory, discount_rewards, normalize, train_step
-    from ablate.agent.stacking import Adam
 
     torch.manual_seed(config.seed)
     env = gym.make(config.env_id)
     model = create_cartpole_model(hidden_sizes=config.model.hidden_sizes)
-    optimizer = Adam(model.parameters(), lr=config.learning_rate)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)  # the course's own optimizer
     memory, steps, started = Memory(), 0, time.perf_counter()
     for episode in range(max_episodes):
         observation, _ = env.reset(seed=config.seed if episode == 0 else None)
