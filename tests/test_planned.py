@@ -2,7 +2,8 @@
 
 from types import SimpleNamespace
 
-from ablate.reporting.planned import earlier_trials, stage_two
+from ablate.launch.mlflow_store import TrialRun
+from ablate.reporting.planned import answers, earlier_trials, stage_two
 
 TUNING = {"knobs": {"learning_rate": [0.01, 0.1]}, "seeds": [10_000], "base": {"learning_rate": 0.01}}
 GRID = {"trials": [{"key": "lab-s0-new", "variant": "lab", "seed": 0}], "tune_trials": []}
@@ -11,6 +12,22 @@ GRID = {"trials": [{"key": "lab-s0-new", "variant": "lab", "seed": 0}], "tune_tr
 def _run(key, seed, lr, source, stage="eval"):
     params = {"seed": str(seed), "learning_rate": str(lr), "model.factory_hash": source, "gamma": "0.99"}
     return SimpleNamespace(key=key, variant="lab", seed=seed, params=params, tags={"ablate.stage": stage})
+
+
+def test_a_key_is_answered_by_its_newest_finished_run_else_its_newest_run():
+    def run(key, status, start):
+        return TrialRun(f"id-{key}-{start}", key, "v", 0, status, {}, {}, {}, start)
+
+    runs = [run("a", "KILLED", 1), run("a", "FINISHED", 2), run("b", "FAILED", 1), run("b", "RUNNING", 3)]
+    runs += [run("c", "FINISHED", 1), run("c", "KILLED", 2), run("d", "KILLED", 5)]
+    runs += [run("e", "FINISHED", 1), run("e", "FINISHED", 4)]
+    assert {k: r.run_id for k, r in answers(runs).items()} == {
+        "a": "id-a-2",
+        "b": "id-b-3",
+        "c": "id-c-1",
+        "d": "id-d-5",
+        "e": "id-e-4",
+    }
 
 
 def test_stage_two_is_the_recorded_keys_else_the_runs_with_the_planned_settings_but_the_tuned_knobs():

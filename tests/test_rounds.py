@@ -218,9 +218,7 @@ def test_a_planted_difference_is_decided_early_and_a_null_runs_to_max(tmp_path, 
     launch = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'launch'")[0]
     grid = json.loads(tracker.load_text(launch.info.run_id, "grid.json"))
     assert len(grid["trials"]) == 40
-    from ablate.reporting.results import _json_artifact
-
-    assert _json_artifact(tracker, launch.info.run_id, "rounds.json") == document  # as the report reads it
+    assert tracker.load_json(launch.info.run_id, "rounds.json") == document  # as the report reads it
     # Each trial's round is a tag of its run: seeds 10-14 of null ran in round 3.
     trials = tracker.client.search_runs([tracker.experiment_id()], "tags.`ablate.role` = 'trial'", max_results=1000)
     rounds_of = {

@@ -5,8 +5,6 @@ import re
 from ablate.cli import main
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand, select
-from ablate.launch.mlflow_store import TrialRun
-from ablate.reporting.status import trial_states
 
 FAULTY = """
 name = "faulty"
@@ -22,24 +20,6 @@ name = "ok"
 name = "boom"
 fault = "raise"
 """
-
-
-def _run(key, status, start, variant="v"):
-    return TrialRun(f"id-{key}-{start}", key, variant, 0, status, {}, {}, {}, start)
-
-
-def test_a_trial_is_finished_if_any_run_finished_else_its_newest_run_says():
-    runs = [
-        _run("a", "KILLED", 1),
-        _run("a", "FINISHED", 2),
-        _run("b", "FAILED", 1),
-        _run("b", "RUNNING", 3),
-        _run("c", "FINISHED", 1),
-        _run("c", "KILLED", 2),
-        _run("d", "KILLED", 5),
-    ]
-    states = trial_states(runs)
-    assert {k: s for k, (_, s) in states.items()} == {"a": "FINISHED", "b": "RUNNING", "c": "FINISHED", "d": "KILLED"}
 
 
 def test_status_of_a_real_store(run_quiet, tmp_path, tracking_uri, capsys):

@@ -14,6 +14,17 @@ TUNE = "tune"
 """A stage-1 run's ``TAG_STAGE`` (``GridTrial.stage``). This module stays free of pandas: ``ablate status`` reads it."""
 
 
+def answers(runs: Iterable[Any]) -> dict[str, Any]:
+    """Each key's run that answers it (``runs`` oldest first): its newest finished run, else its newest run of any
+    status (a re-run after Ctrl-C or a failure opens a new run under the same key)."""
+    best: dict[str, Any] = {}
+    for run in runs:
+        current = best.get(run.key)
+        if current is None or run.status == "FINISHED" or current.status != "FINISHED":
+            best[run.key] = run
+    return best
+
+
 def planned_trials(grid: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The trials ``grid.json`` lists: the evaluation trials (later rounds' too), then a tuned launch's stage 1."""
     return [*grid["trials"], *grid.get("tune_trials", [])]

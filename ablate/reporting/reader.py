@@ -6,6 +6,7 @@ these and ``mlflow_store`` are the only modules that import MLflow.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -67,6 +68,14 @@ class RunReader(Store):
     def load_text(self, run_id: str, filename: str) -> str:
         """A small text artifact of a run (a launch's ``grid.json``, say)."""
         return Path(self.download(run_id, filename)).read_text()
+
+    def load_json(self, run_id: str, filename: str) -> Any:
+        """A run's JSON artifact (a launch's ``tuning.json``, ``rounds.json``); None where it has none (a launch
+        without ``[tune]``, or one written by hand)."""
+        try:
+            return json.loads(self.load_text(run_id, filename))
+        except Exception:  # noqa: BLE001 - no such artifact
+            return None
 
     def attach_report(self, run_id: str, folder: Path) -> None:
         """Log a written report (``report.md``, ``.html``, ``.pdf``, figures, tables, the videos it recorded) as

@@ -19,6 +19,7 @@ import pandas as pd
 from ablate.config import ConfigError
 from ablate.env_spec import Profile, profile_named, solve_threshold_or_none
 from ablate.experiment import Experiment
+from ablate.launch.mlflow_store import TAG_STAGE
 from ablate.measures import (
     FINAL_RETURN,
     Measure,
@@ -33,9 +34,9 @@ from ablate.measures import (
 from ablate.reporting import settings
 from ablate.reporting.experiment_file import read_from_disk
 from ablate.reporting.networks import layers
-from ablate.reporting.planned import earlier_trials, plan_keys, planned_trials, stage_two
+from ablate.reporting.planned import TUNE, answers, earlier_trials, plan_keys, planned_trials, stage_two
 from ablate.reporting.reader import RunReader, TrackingError, TrialRun
-from ablate.reporting.tuning import EVAL, STAGE_TAG, TUNE, at_values, base_values, chosen_values, tuning_table
+from ablate.reporting.tuning import EVAL, at_values, base_values, chosen_values, tuning_table
 from ablate.reporting.tuning import knobs as tuning_knobs
 
 
@@ -289,7 +290,7 @@ def _read_launch(
     that answer them."""
     launch_id = launch.info.run_id
     grid = json.loads(tracker.load_text(launch_id, "grid.json"))
-    environment = _json_artifact(tracker, launch_id, "environment.json") or {}  # older launches have none
+    environment = tracker.load_json(launch_id, "environment.json") or {}  # older launches have none
     try:
         experiment_text = tracker.load_text(launch_id, "experiment.toml")
     except Exception:  # noqa: BLE001 - a launch written by hand (tests) has no experiment file
@@ -298,15 +299,10 @@ def _read_launch(
     edited = read_from_disk(grid, path, experiment_text)  # changed since, in no trial key: read as it is now
     if edited is not None:
         grid, experiment_text = edited
-    # The answer for a key: its newest finished run, else its newest run of any status.
-    best_run: dict[str, Any] = {}
-    for run in runs:
-        current = best_run.get(run.key)
-        if current is None or run.status == "FINISHED" or current.status != "FINISHED":
-            best_run[run.key] = run
+    best_run = answers(runs)
     levels = _profile(grid).return_levels.get(str(grid.get("base", {}).get("env_id", "")), ())
     # The curve measures the file names beside AUC (its primary, its tuning metric) get columns of their own.
-    tuning = _tuning_document(tracker, launch_id)
+    tuning = tracker.load_json(launch_id, "tuning.json")
     asked = tuple(m for m in (_primary(experiment_text), lookup(str((tuning or {}).get("metric")))) if m is not None)
     names = tuning_knobs(tuning) if tuning else []
     planned = planned_trials(grid)
@@ -324,7 +320,7 @@ def _read_launch(
         run = best_run.get(trial["key"])
         row = {"key": trial["key"], "variant": trial["variant"], "seed": trial["seed"]}
         if tuning:
-            stage = (run.tags.get(STAGE_TAG) if run else None) or trial.get("stage")
+            stage = (run.tags.get(TAG_STAGE) if run else None) or trial.get("stage")
             row["stage"] = stage or (TUNE if trial["seed"] in tuning.get("seeds", []) else EVAL)
             overrides = next((v.get("overrides", {}) for v in grid["variants"] if v["name"] == trial["variant"]), {})
             fallback = base_values(tuning, trial["variant"], overrides)
@@ -337,7 +333,7 @@ def _read_launch(
         row |= {"status": run.status, "run_id": run.run_id, "budget": budget, "error": run.tags.get("ablate.error", "")}
         row |= {k: run.metrics.get(k, np.nan) for k in SUMMARY_COLUMNS}
         if run.status == "FINISHED":
-            curve = _curve(tracker, run, trial, grid)
+            curve = _curve(tracker, run, trial)
             if curve is None:
                 missing.append((trial["variant"], trial["key"]))
             else:
@@ -354,7 +350,7 @@ def _read_launch(
                 row["tracked"] = dict(run.metrics)
         (tune_rows if row.get("stage") == TUNE else rows).append(row)
     launch_info = {
-        "rounds": _json_artifact(tracker, launch_id, "rounds.json"),
+        "rounds": tracker.load_json(launch_id, "rounds.json"),
         "run_id": launch_id,
         "started_ms": launch.info.start_time,
         "tags": dict(launch.data.tags),
@@ -384,52 +380,35 @@ def _read_launch(
     return replace(tuned, tuning=tuning, tuning_trials=tuning_trials, untuned=untuned, missing=missing, earlier=earlier)
 
 
-def _json_artifact(tracker: RunReader, launch_id: str, name: str) -> dict[str, Any] | None:
-    """A launch's JSON artifact (``rounds.json``, ``tuning.json``, ``environment.json``); None where it has none."""
-    try:
-        return json.loads(tracker.load_text(launch_id, name))
-    except Exception:  # noqa: BLE001 - no such artifact
-        return None
-
-
 def _tuning_document(tracker: RunReader, launch_id: str) -> dict[str, Any] | None:
-    """The launch's ``tuning.json``; None for a launch without ``[tune]``."""
-    return _json_artifact(tracker, launch_id, "tuning.json")
+    """The launch's ``tuning.json``; None for a launch without ``[tune]`` (``train_from`` reads it)."""
+    return tracker.load_json(launch_id, "tuning.json")
 
 
-_EPISODE_COLUMNS = ["episode", "episode_return", "wall_s"]
+_EPISODE_COLUMNS = ["episode", "episode_return", "rolling_mean", "wall_s"]
 
 
-def _curve(tracker: RunReader, run: Any, trial: dict[str, Any], grid: dict[str, Any]) -> pd.DataFrame | None:
-    """One finished trial's learning curve; None where the store cannot give its episodes.csv (the run's
-    artifact folder moved or removed). The exact per-episode table is the run's episodes.csv (MLflow holds
-    a bounded curve); the rolling mean is recomputed from the returns with the trial's own window, exactly as
-    the trial computed it."""
+def _curve(tracker: RunReader, run: Any, trial: dict[str, Any]) -> pd.DataFrame | None:
+    """One finished trial's learning curve, its rolling mean as the trial computed it; None where the store cannot
+    give its episodes.csv (the run's artifact folder moved or removed). The exact per-episode table is the run's
+    episodes.csv (MLflow holds a bounded curve)."""
     try:
         table = tracker.read_artifact(run, "episodes.csv", lambda path: pd.read_csv(path, usecols=_EPISODE_COLUMNS))
     except TrackingError:
         return None
-    episodes = table["episode"].to_numpy()
-    if len(episodes) > 1 and not (np.diff(episodes) > 0).all():  # a resumed trial wrote some episodes twice
+    if not table.episode.is_monotonic_increasing or not table.episode.is_unique:  # a resumed trial wrote some twice
         table = table.drop_duplicates("episode", keep="last").sort_values("episode", kind="stable")
-        episodes = table["episode"].to_numpy()
-    window = int(run.params.get("solve_window", grid["base"].get("solve_window", 100)))
-    returns = table["episode_return"].to_numpy(float)
-    # the rolling mean over the last ``window`` episodes (fewer at the start), as the trial computed it
-    sums = np.cumsum(np.concatenate([[0.0], returns]))
-    ends = np.arange(1, len(returns) + 1)
-    starts = np.maximum(ends - window, 0)
     return pd.DataFrame(
         {
             "key": trial["key"],
             "variant": trial["variant"],
             "seed": trial["seed"],
             "solved": run.metrics.get("solved", 0.0) == 1.0,
-            "episode": episodes,
-            "return": returns,
+            "episode": table["episode"].to_numpy(),
+            "return": table["episode_return"].to_numpy(float),
             # the clock is logged when an update ends: each episode gets the time of its update's end
             "wall_s": table["wall_s"].bfill().to_numpy(),
-            "rolling_mean": (sums[ends] - sums[starts]) / (ends - starts),
+            "rolling_mean": table["rolling_mean"].to_numpy(float),
         }
     )
 

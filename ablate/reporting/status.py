@@ -5,34 +5,22 @@ Reads through ``tracking`` and writes nothing (not even an empty SQLite file whe
 
 from __future__ import annotations
 
-import json
 import re
 import time
 from collections import Counter, defaultdict
 from collections.abc import Iterable
-from typing import Any
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment, storage_name
 from ablate.launch.grid import chosen_trials, expand, tuning_trials
-from ablate.launch.mlflow_store import ui_hint
+from ablate.launch.mlflow_store import TAG_GENERATION, TAG_STAGE, ui_hint
 from ablate.launch.secrets import shown_uri
 from ablate.launch.store import resolve_uri
-from ablate.reporting.planned import earlier_trials, plan_keys
+from ablate.reporting.planned import TUNE, answers, earlier_trials, plan_keys
 from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
 """A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""
-
-
-def trial_states(runs: Iterable[TrialRun]) -> dict[str, tuple[str, str]]:
-    """``{key: (variant, state)}``: FINISHED when any run of the key finished, else its newest run's status
-    (a re-run after Ctrl-C or a failure opens a new run under the same key)."""
-    states: dict[str, tuple[str, str]] = {}
-    for run in sorted(runs, key=lambda r: r.start_time_ms):
-        if states.get(run.key, ("", ""))[1] != "FINISHED":
-            states[run.key] = (run.variant, run.status)
-    return states
 
 
 def describe(counts: Counter) -> str:
@@ -49,25 +37,18 @@ def _when(ms: int) -> str:
     return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ms / 1000))
 
 
-def _document(tracker: RunReader, launch: LaunchRun, name: str) -> dict[str, Any] | None:
-    try:
-        return json.loads(tracker.load_text(launch.run_id, name))
-    except Exception:  # noqa: BLE001 - no such artifact (a launch without [tune], or written by hand)
-        return None
-
-
 def current_plan(
     tracker: RunReader, launch: LaunchRun, runs: list[TrialRun], experiment: Experiment | None = None
 ) -> set[str] | None:
     """The keys the plan holds (``reporting.planned``): with ``experiment`` (its file), the file's trials, its
     tuning trials and stage 2 at the choices ``launch`` (the newest) recorded; else what ``launch`` recorded. None
     where it recorded no grid, or a tuned launch no choice yet: every run of the generation counts."""
-    tuning = _document(tracker, launch, "tuning.json")
+    tuning = tracker.load_json(launch.run_id, "tuning.json")
     if experiment is not None and not (experiment.tune and tuning is None):
         choices = {n: c["values"] for n, c in (tuning or {}).get("choices", {}).items() if c.get("tuned")}
         trials = [*expand(experiment, every_round=True), *tuning_trials(experiment)]
         return {t.key for t in [*trials, *chosen_trials(experiment, choices, every_round=True)]}
-    grid = _document(tracker, launch, "grid.json")
+    grid = tracker.load_json(launch.run_id, "grid.json")
     return None if grid is None else plan_keys(grid, tuning, {r.key: r for r in runs})
 
 
@@ -84,7 +65,7 @@ def overview(tracking_uri: str | None) -> str:
         newest = launches[-1]
         runs = tracker.trial_runs(newest.generation)
         counted = current_plan(tracker, newest, runs)
-        counts = Counter(s for key, (_, s) in trial_states(runs).items() if counted is None or key in counted)
+        counts = Counter(run.status for key, run in answers(runs).items() if counted is None or key in counted)
         generations = len({launch.generation for launch in launches})
         rows.append(
             (name, str(len(launches)), str(generations), _when(newest.start_time_ms), newest.status, describe(counts))
@@ -113,10 +94,10 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
     ]
     newest_generation = launches[-1].generation
     for generation in sorted(by_generation, key=lambda g: by_generation[g][-1].start_time_ms, reverse=True):
-        in_generation = [r for r in runs if r.tags.get("ablate.generation") == generation]
-        states = trial_states(in_generation)
+        in_generation = [r for r in runs if r.tags.get(TAG_GENERATION) == generation]
+        states = {key: (run.variant, run.status) for key, run in answers(in_generation).items()}
         newest = generation == newest_generation
-        tuning = {r.key for r in in_generation if r.tags.get("ablate.stage") == "tune"}
+        tuning = {r.key for r in in_generation if r.tags.get(TAG_STAGE) == TUNE}
         earlier: dict[str, int] = {}
         counted = current_plan(tracker, launches[-1], in_generation, experiment) if newest else None
         if counted is not None:  # an edited variant's earlier keys: in the store, not counted
@@ -128,7 +109,7 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
             # Stage 2's trials at the chosen values are known only after tuning: not counted until they run.
             for trial in [*tuning_trials(experiment), *expand(experiment)]:
                 states.setdefault(trial.key, (trial.variant, "PENDING"))
-                if trial.stage == "tune":
+                if trial.stage == TUNE:
                     tuning.add(trial.key)
         counts = Counter(s for _, s in states.values())
         lines.append("")
@@ -162,7 +143,7 @@ def _seeds(runs: Iterable[TrialRun], experiment: Experiment | None) -> dict[str,
         return {}  # fixed seeds: every variant has the same, the states say how many
     finished: dict[str, set[int]] = defaultdict(set)
     for run in runs:
-        if run.status == "FINISHED" and run.tags.get("ablate.stage") != "tune":
+        if run.status == "FINISHED" and run.tags.get(TAG_STAGE) != TUNE:
             finished[run.variant].add(run.seed)
     most = {v.name: len(experiment.max_seeds_of(v)) for v in experiment.variants if experiment.rounds_of(v)}
     return {v: f"{len(seeds)}{f' of {most[v]}' if v in most else ''}" for v, seeds in finished.items()}

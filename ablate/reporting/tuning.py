@@ -15,8 +15,8 @@ import pandas as pd
 
 from ablate.measures import lookup, measure
 
-STAGE_TAG = "ablate.stage"
-TUNE, EVAL = "tune", "eval"
+EVAL = "eval"
+"""An evaluation trial's stage (``GridTrial.stage``); a tuning trial's is ``planned.TUNE``."""
 
 
 def knobs(tuning: dict[str, Any]) -> list[str]:
