@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import json
 import tomllib
+from collections import Counter
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, partial
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -19,7 +20,7 @@ import pandas as pd
 from ablate.config import ConfigError
 from ablate.env_spec import Profile, profile_named, solve_threshold_or_none
 from ablate.experiment import Experiment
-from ablate.launch.mlflow_store import TAG_STAGE
+from ablate.launch.mlflow_store import TAG_GENERATION, TAG_STAGE
 from ablate.measures import (
     FINAL_RETURN,
     Measure,
@@ -194,27 +195,12 @@ class Ablation:
 
 
 def _generation_summary(runs: list[TrialRun], launches: list[Any]) -> list[dict[str, Any]]:
-    """Every generation, newest first: its id, when it started, trials in its grid, trials finished; ``runs``:
-    every trial run of the experiment."""
-    finished: dict[str, set[str]] = {}
-    for run in runs:
-        if run.status == "FINISHED":
-            finished.setdefault(run.tags.get("ablate.generation", ""), set()).add(run.key)
-    seen, out = set(), []
-    for launch in launches:
-        generation = launch.data.tags.get("ablate.generation", "")
-        if generation in seen:
-            continue
-        seen.add(generation)
-        out.append(
-            {
-                "generation": generation,
-                "started_ms": launch.info.start_time,
-                "launch_run_id": launch.info.run_id,
-                "finished": len(finished.get(generation, set())),
-            }
-        )
-    return out
+    """Every generation (of ``launches``, newest first) and how many of its keys have a finished run (of ``runs``:
+    every trial run of the experiment)."""
+    done = {(run.tags.get(TAG_GENERATION, ""), run.key) for run in runs if run.status == "FINISHED"}
+    finished = Counter(generation for generation, _ in done)
+    generations = dict.fromkeys(launch.data.tags.get(TAG_GENERATION, "") for launch in launches)
+    return [{"generation": generation, "finished": finished[generation]} for generation in generations]
 
 
 def check_store(tracking_uri: str | None) -> str:
@@ -277,9 +263,9 @@ def load_ablation(name: str, tracking_uri: str | None = None, generation: str | 
                 f"--generation {generation}: {'no' if not matching else 'more than one'} generation of "
                 f"{name!r} matches; valid: {known}"
             )
-        launch = next(run for run in launches if run.data.tags.get("ablate.generation") == matching[0]["generation"])
-    generation_id = launch.data.tags.get("ablate.generation")
-    runs = [run for run in every_run if run.tags.get("ablate.generation") == generation_id]
+        launch = next(run for run in launches if run.data.tags.get(TAG_GENERATION) == matching[0]["generation"])
+    generation_id = launch.data.tags.get(TAG_GENERATION)
+    runs = [run for run in every_run if run.tags.get(TAG_GENERATION) == generation_id]
     return _read_launch(tracker, name, launch, generations, runs)
 
 
@@ -314,7 +300,8 @@ def _read_launch(
         else []
     )
     counted = plan_keys(grid, tuning, best_run)
-    earlier = earlier_trials(runs, counted, [v["name"] for v in grid["variants"]]) if counted is not None else {}
+    variants = [v["name"] for v in grid["variants"]]
+    earlier = earlier_trials(runs, counted, variants) if counted is not None else {}
     rows, tune_rows, curves, params, missing = [], [], {}, {}, []
     for trial in [*planned, *later]:
         run = best_run.get(trial["key"])
@@ -322,8 +309,7 @@ def _read_launch(
         if tuning:
             stage = (run.tags.get(TAG_STAGE) if run else None) or trial.get("stage")
             row["stage"] = stage or (TUNE if trial["seed"] in tuning.get("seeds", []) else EVAL)
-            overrides = next((v.get("overrides", {}) for v in grid["variants"] if v["name"] == trial["variant"]), {})
-            fallback = base_values(tuning, trial["variant"], overrides)
+            fallback = base_values(tuning, trial["variant"], settings.overrides(grid, trial["variant"]))
             for knob in names:
                 row[knob] = run.params.get(knob, fallback[knob]) if run else trial.get(knob, fallback[knob])
         if run is None:
@@ -359,25 +345,25 @@ def _read_launch(
         "read_from_disk": edited is not None,
         "generations": generations,
     }
+    # The name as written in the experiment file, whichever form (it or its storage name) asked for it.
+    ablation = partial(_ablation, grid.get("experiment", name), grid, launch_info, params=params)
     if not tuning:
-        ablation = _ablation(name, grid, launch_info, pd.DataFrame(rows), list(curves.values()), params)
-        return replace(ablation, missing=missing, earlier=earlier)
+        return ablation(pd.DataFrame(rows), list(curves.values()), missing=missing, earlier=earlier)
     trials = pd.DataFrame(rows)
     for knob in names:
         trials[knob] = pd.to_numeric(trials[knob], errors="coerce")
 
-    def part(mask: pd.Series) -> Ablation:
-        order = {v["name"]: i for i, v in enumerate(grid["variants"])}
-        chosen = trials[mask].sort_values("seed", kind="stable")
-        chosen = chosen.iloc[chosen.variant.map(order).argsort(kind="stable")].reset_index(drop=True)
-        return _ablation(name, grid, launch_info, chosen, [curves[k] for k in chosen.key if k in curves], params)
+    def at(values_of) -> tuple[pd.DataFrame, list[pd.DataFrame]]:
+        """The evaluation trials at ``values_of(variant)``, by variant in the file's order, then by seed."""
+        chosen = trials[at_values(trials, values_of)].sort_values("seed", kind="stable")
+        order = chosen.variant.map({variant: i for i, variant in enumerate(variants)})
+        chosen = chosen.iloc[order.argsort(kind="stable")].reset_index(drop=True)
+        return chosen, [curves[k] for k in chosen.key if k in curves]
 
-    overrides = {v["name"]: v.get("overrides", {}) for v in grid["variants"]}
-    tuned = part(at_values(trials, lambda v: chosen_values(tuning, v)))
-    untuned = part(at_values(trials, lambda v: base_values(tuning, v, overrides.get(v, {}))))
-    variants = [v["name"] for v in grid["variants"]]
+    untuned = ablation(*at(lambda v: base_values(tuning, v, settings.overrides(grid, v))))
     tuning_trials = tuning_table(tune_rows, tuning, variants)
-    return replace(tuned, tuning=tuning, tuning_trials=tuning_trials, untuned=untuned, missing=missing, earlier=earlier)
+    more = dict(tuning=tuning, tuning_trials=tuning_trials, untuned=untuned, missing=missing, earlier=earlier)
+    return ablation(*at(lambda v: chosen_values(tuning, v)), **more)
 
 
 def _tuning_document(tracker: RunReader, launch_id: str) -> dict[str, Any] | None:
@@ -413,7 +399,7 @@ def _curve(tracker: RunReader, run: Any, trial: dict[str, Any]) -> pd.DataFrame 
     )
 
 
-def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.DataFrame], params) -> Ablation:
+def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.DataFrame], **more) -> Ablation:
     for column in (*SUMMARY_COLUMNS, "auc", "budget", "run_id", "error", "initial_return", "improvement"):
         if column not in trials:
             trials[column] = np.nan
@@ -424,8 +410,7 @@ def _ablation(name, grid, launch_info, trials: pd.DataFrame, curves: list[pd.Dat
         if curves
         else pd.DataFrame(columns=["key", "variant", "seed", "solved", "episode", "return", "rolling_mean", "wall_s"])
     )
-    # The name as written in the experiment file, whichever form (it or its storage name) asked for it.
-    return Ablation(grid.get("experiment", name), grid, launch_info, trials, curves_frame, params)
+    return Ablation(name, grid, launch_info, trials, curves_frame, **more)
 
 
 def select(ablation: Ablation, variants: list[str] | None = None, baseline: str | None = None) -> Ablation:
