@@ -108,28 +108,13 @@ class Ablation:
         return settings.changes(self.grid, variant, against or self.baseline)
 
     def reference(self, variant: str) -> str:
-        """The variant ``variant`` is compared with: of the others, the one whose changes from the baseline
-        are the largest part of its own (``mlp-dropout`` against ``mlp`` when ``mlp`` changes only the
-        architecture), so that each comparison isolates what the variant adds; else the baseline. Between
-        two as large, the one of the variant's own architecture family (``mlp-l2``: ``mlp``, not ``cnn-l2``),
-        then the first in the experiment file."""
+        """The variant ``variant`` is compared with (``settings.references``)."""
         return self._references[variant]
 
     @cached_property
     def _references(self) -> dict[str, str]:
-        """``reference`` of every variant, found once: the report asks for them per row and per figure panel."""
-        changes = {v: list(self.changes(v).items()) for v in self.variants}
-        references = {}
-        for variant, mine in changes.items():
-            best, rank = self.baseline, (0, False)
-            for other, theirs in changes.items():
-                if other == variant or not len(theirs) < len(mine) or any(item not in mine for item in theirs):
-                    continue
-                same_architecture = "architecture" not in self.changes(variant, other)
-                if (len(theirs), same_architecture) > rank:
-                    best, rank = other, (len(theirs), same_architecture)
-            references[variant] = best
-        return references
+        """Found once: the report asks for them per row and per figure panel."""
+        return settings.references(self.grid)
 
     @property
     def finished(self) -> pd.DataFrame:

@@ -13,17 +13,8 @@ from ablate.experiment import Experiment
 from ablate.launch.records import grid_document
 from ablate.launch.rounds import Primary
 from ablate.measures import AUC, measure
+from ablate.reporting.settings import references
 from ablate.seeds import added_words
-
-
-def references(experiment: Experiment) -> dict[str, str]:
-    """Each compared variant -> its reference, by the report's own rule (``Ablation.reference``)."""
-    import pandas as pd
-
-    from ablate.reporting.results import Ablation
-
-    ablation = Ablation(experiment.name, grid_document(experiment, []), {}, pd.DataFrame(), pd.DataFrame(), {})
-    return {v.name: ablation.reference(v.name) for v in experiment.variants if v.name != experiment.baseline}
 
 
 def sample(rows: Sequence[Primary], metric: str):
@@ -52,7 +43,8 @@ def judge_for(experiment: Experiment, seeds: Sequence[int] | None = None):
 
     metric = experiment.primary_metric
     question = primary_question(metric, experiment.smallest_effect, float(experiment.base.max_episodes))
-    family = references(experiment)
+    # Each compared variant -> its reference, by the report's own rule.
+    family = {v: r for v, r in references(grid_document(experiment, [])).items() if v != experiment.baseline}
 
     def judge(finished: Mapping[str, Sequence[Primary]]):
         # The comparisons whose two sides have trials: all of them, but in a launch of a part (--only).

@@ -65,6 +65,26 @@ def changes(grid: dict[str, Any], variant: str, against: str) -> dict[str, Any]:
     return {knob: value for knob, value in changed.items() if PART_OF.get(knob) not in changed}
 
 
+def references(grid: dict[str, Any]) -> dict[str, str]:
+    """Each variant -> the variant it is compared with: of the others, the one whose changes from the baseline are the
+    largest part of its own (``mlp-dropout`` against ``mlp`` when ``mlp`` changes only the architecture), so that each
+    comparison isolates what the variant adds; else the baseline. Between two as large, the one of the variant's own
+    architecture family (``mlp-l2``: ``mlp``, not ``cnn-l2``), then the first in the experiment file."""
+    baseline = grid["baseline"]
+    changed = {v["name"]: list(changes(grid, v["name"], baseline).items()) for v in grid["variants"]}
+    found = {}
+    for variant, mine in changed.items():
+        best, rank = baseline, (0, False)
+        for other, theirs in changed.items():
+            if other == variant or not len(theirs) < len(mine) or any(item not in mine for item in theirs):
+                continue
+            same_architecture = "architecture" not in changes(grid, variant, other)
+            if (len(theirs), same_architecture) > rank:
+                best, rank = other, (len(theirs), same_architecture)
+        found[variant] = best
+    return found
+
+
 def own_changes(grid: dict[str, Any], variant: str) -> dict[str, Any]:
     """The knobs ``variant`` writes at a value other than the base's, as written (the variants table's
     "changes" column): a knob written at the base's own value is no change."""
