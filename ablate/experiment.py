@@ -11,7 +11,7 @@ import re
 import tomllib
 import unicodedata
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +30,10 @@ from ablate.config import (
     apply_knobs,
     clipped,
     is_int,
-    is_number,
 )
 from ablate.env_spec import solve_threshold_or_none
 from ablate.measures import claim_names, default_primary_metric, measure, tune_names
+from ablate.schema import knob, number
 from ablate.seeds import SeedRounds, parse_seeds
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9_-]{1,100}")
@@ -91,30 +91,43 @@ class TuneSpec:
 
 @dataclass(frozen=True)
 class Experiment:
-    """An ablation: a base trial config, variants over it, seeds, and the variant the others are compared to."""
+    """An ablation: a base trial config, variants over it, seeds, and the variant the others are compared to. The
+    fields declared with ``schema.knob`` are top-level keys of the file, checked as declared (``parse_experiment``)."""
 
     name: str
     path: str
-    description: str
     base: TrialConfig
     variants: tuple[Variant, ...]
     seeds: tuple[int, ...]
     baseline: str
-    resources_per_trial: float = 1.0
+    description: str = knob("", check=lambda v: isinstance(v, str), valid="a string")
+    resources_per_trial: float = knob(1.0, **number(0, 64, open_low=True), name="cpus_per_trial")
     """CPUs Ray reserves per trial; fractions allowed (e.g. 0.5 packs two trials per core)."""
-    gpus_per_trial: float = 0.0
+    gpus_per_trial: float = knob(0.0, **number(0, 16))
     """GPUs Ray reserves per trial; fractions allowed (0.25 packs four trials per GPU). A trial puts its policy
     on CUDA whenever torch sees one."""
-    smallest_effect: float = 0.1
+    smallest_effect: float = knob(
+        0.1,
+        **number(0, 1, open_low=True, open_high=True)
+        | {"valid": "a fraction in (0, 1), e.g. 0.1 for a difference of 10% of the reference variant's value"},
+    )
     """The smallest difference worth finding, as a fraction of the reference variant's value (0.1: 10% fewer
     or more episodes to solve; a return or AUC 10% of the reference's apart). The report says how many seeds
     per variant would separate a difference this large; it changes no trial."""
-    tune: TuneSpec | None = None
-    """``[tune]``: tune each variant's optimisation knobs on tuning seeds first; ``None``: no tuning stage."""
-    primary: str | None = None
+    primary: str | None = knob(
+        None,
+        check=lambda v: v is None or v in claim_names(),
+        valid=f"one of {', '.join(claim_names())} (or leave it out: episodes_to_solve where the env has a solve "
+        "threshold, else auc)",
+    )
     """The metric the report's claims are made on (``measures.claim_names``); ``None``: episodes to solve
     where the env has a solve threshold, the area under the learning curve where it has none (Pong). The other
     metrics stay in the report as exploratory. Report-level: it changes no trial."""
+    tune: TuneSpec | None = None
+    """``[tune]``: tune each variant's optimisation knobs on tuning seeds first; ``None``: no tuning stage."""
+    rounds: SeedRounds | None = None
+    """``seeds = { start, step, max }``: seeds added in rounds (``seeds`` then holds round 1's); ``None``: the
+    fixed ``seeds``."""
 
     @property
     def primary_metric(self) -> str:
@@ -122,10 +135,6 @@ class Experiment:
         if self.primary is not None:
             return self.primary
         return default_primary_metric([solve_threshold_or_none(v.config) for v in self.variants])
-
-    rounds: SeedRounds | None = None
-    """``seeds = { start, step, max }``: seeds added in rounds (``seeds`` then holds round 1's); ``None``: the
-    fixed ``seeds``."""
 
     def seeds_of(self, variant: Variant) -> tuple[int, ...]:
         """The variant's evaluation seeds of round 1 (every seed, without rounds)."""
@@ -190,26 +199,17 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     if problem:
         raise ConfigError(f"{source}: name = {clipped(name)} is invalid ({problem}); valid: {NAME_RULE}")
     name = unicodedata.normalize("NFC", name)
-    description = data.get("description", "")
-    if not isinstance(description, str):
-        raise ConfigError(f"{source}: description = {description!r} is invalid; valid: a string")
-
+    settings = {}
+    for f in fields(Experiment):
+        declared = f.metadata.get("knob")
+        if declared is None:
+            continue
+        key = declared.name or f.name
+        value = data.get(key, f.default)
+        if not declared.check(value):
+            raise ConfigError(f"{source}: {key} = {clipped(value)} is invalid; valid: {declared.valid}")
+        settings[f.name] = declared.convert(value)
     seeds, rounds = parse_seeds(data.get("seeds", 5), f"{source}: seeds")
-
-    cpus = data.get("cpus_per_trial", 1.0)
-    if not (is_number(cpus) and 0 < cpus <= 64):
-        raise ConfigError(f"{source}: cpus_per_trial = {cpus!r} is invalid; valid: a number in (0, 64]")
-
-    gpus = data.get("gpus_per_trial", 0.0)
-    if not (is_number(gpus) and 0 <= gpus <= 16):
-        raise ConfigError(f"{source}: gpus_per_trial = {gpus!r} is invalid; valid: a number in [0, 16]")
-
-    smallest_effect = data.get("smallest_effect", Experiment.smallest_effect)
-    if not (is_number(smallest_effect) and 0 < smallest_effect < 1):
-        raise ConfigError(
-            f"{source}: smallest_effect = {smallest_effect!r} is invalid; valid: a fraction in (0, 1), e.g. 0.1 for "
-            "a difference of 10% of the reference variant's value"
-        )
 
     base_table = data.get("base", {})
     if not isinstance(base_table, dict):
@@ -274,12 +274,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     every_seed |= {s for v in variants if v.rounds for s in range(v.rounds.max)}
     first_round = len(seeds) if rounds else len(every_seed)  # a tuned variant's base-value trials: round 1's seeds
     tune = _parse_tune(data.get("tune"), source, grid, tuple(variants), tuple(sorted(every_seed)), first_round)
-    primary = data.get("primary")
-    if primary is not None and primary not in claim_names():
-        raise ConfigError(
-            f"{source}: primary = {clipped(primary)} is invalid; valid: one of {', '.join(claim_names())} (or leave "
-            "it out: episodes_to_solve where the env has a solve threshold, else auc)"
-        )
+    primary = settings["primary"]
     needs_threshold = primary is not None and measure(primary).needs_threshold
     if needs_threshold and any(solve_threshold_or_none(v.config) is None for v in variants):
         without = " or ".join(m for m in claim_names() if not measure(m).needs_threshold)
@@ -287,21 +282,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
             f"{source}: primary = {primary!r} is invalid: {base.env_id} has no solve threshold; valid: {without}, or "
             "set solve_threshold in [base]"
         )
-    return Experiment(
-        name,
-        source,
-        description,
-        base,
-        tuple(variants),
-        seeds,
-        baseline,
-        float(cpus),
-        float(gpus),
-        smallest_effect=smallest_effect,
-        tune=tune,
-        primary=primary,
-        rounds=rounds,
-    )
+    return Experiment(name, source, base, tuple(variants), seeds, baseline, tune=tune, rounds=rounds, **settings)
 
 
 def _parse_tune(
