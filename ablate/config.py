@@ -301,6 +301,22 @@ def check_knob(key: str, value: Any, where: str = "") -> Any:
     return knob.convert(value)
 
 
+def declared_values(cls: type, table: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """The value in ``table`` (else the default) of each field of ``cls`` declared with ``schema.knob``, checked and
+    converted, by field name; a bad one is a ``ConfigError`` naming ``where``, the key and what is valid."""
+    values = {}
+    for f in fields(cls):
+        declared = f.metadata.get("knob")
+        if declared is None:
+            continue
+        key = declared.name or f.name
+        value = table.get(key, f.default)
+        if not declared.check(value):
+            raise ConfigError(f"{where}{key} = {clipped(value)} is invalid; valid: {declared.valid}")
+        values[f.name] = declared.convert(value)
+    return values
+
+
 BUILT_IN_MODEL_KNOBS = (*(name for name, k in KNOBS.items() if k.built_in), *SHORTHANDS)
 """Knobs of the built-in networks, which a user's own ``model`` does not read."""
 ARCHITECTURE_KNOBS = frozenset(name for name, k in KNOBS.items() if k.architecture) | set(SHORTHANDS)

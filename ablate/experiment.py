@@ -11,7 +11,7 @@ import re
 import tomllib
 import unicodedata
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ from ablate.config import (
     TrialConfig,
     apply_knobs,
     clipped,
+    declared_values,
     is_int,
 )
 from ablate.env_spec import solve_threshold_or_none
@@ -199,16 +200,7 @@ def parse_experiment(data: Mapping[str, Any], source: str) -> Experiment:
     if problem:
         raise ConfigError(f"{source}: name = {clipped(name)} is invalid ({problem}); valid: {NAME_RULE}")
     name = unicodedata.normalize("NFC", name)
-    settings = {}
-    for f in fields(Experiment):
-        declared = f.metadata.get("knob")
-        if declared is None:
-            continue
-        key = declared.name or f.name
-        value = data.get(key, f.default)
-        if not declared.check(value):
-            raise ConfigError(f"{source}: {key} = {clipped(value)} is invalid; valid: {declared.valid}")
-        settings[f.name] = declared.convert(value)
+    settings = declared_values(Experiment, data, f"{source}: ")
     seeds, rounds = parse_seeds(data.get("seeds", 5), f"{source}: seeds")
 
     base_table = data.get("base", {})

@@ -4,29 +4,48 @@ max = 40 }``) that ``ablate.launch.rounds`` adds seeds by. Standard library only
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, fields
 from typing import Any
 
-from ablate.config import ConfigError, clipped, is_int, is_number
+from ablate.config import ConfigError, clipped, declared_values, is_int, is_number
+from ablate.schema import integer, knob, number, one_of
+
+
+def _count(valid: str) -> dict[str, Any]:
+    return integer(1, 1000) | {"valid": valid}
+
+
+SPENDINGS = ("obrien-fleming", "pocock")
 
 
 @dataclass(frozen=True)
 class SeedRounds:
     """``seeds = { start = 5, step = 5, max = 40 }``: evaluation seeds added in rounds until the primary
     comparisons are decided (``ablate.launch.rounds``). Round 1 runs seeds ``0 .. start - 1``; each later round
-    gives the variants whose comparison is still open (and their references) ``step`` more, up to ``max``."""
+    gives the variants whose comparison is still open (and their references) ``step`` more, up to ``max``. Each
+    field is a key of the table, checked as declared (``parse_seeds``)."""
 
-    start: int
-    step: int
-    max: int
-    max_minutes: float | None = None
+    start: int = knob(MISSING, **_count("a count of seeds in [1, 1000]"))
+    step: int = knob(MISSING, **_count("seeds added per round, in [1, 1000]"))
+    max: int = knob(MISSING, **_count("a count of seeds in [start, 1000]"))
+    max_minutes: float | None = knob(
+        None,
+        check=lambda v: v is None or (is_number(v) and 0 < v <= 100_000),
+        valid="minutes in (0, 100000] by which the rounds end: none starts that would end later at the pace "
+        "measured (or leave it out: no time budget)",
+        convert=lambda v: v if v is None else float(v),
+    )
     """No new round starts once a launch has run this long (minutes); ``None``: no time budget."""
-    growth: float = 1.0
+    growth: float = knob(
+        1.0,
+        **number(1, 10)
+        | {"valid": "a factor in [1, 10] by which each round's added seeds grow (1: step every round; 2: doubling)"},
+    )
     """Each round adds ``growth`` times the seeds the round before added (``step`` first): 1 adds ``step`` every
     round; 2 doubles the seeds per round (start 10, step 10: 10, 20, 40, 80 ...), so a cap in the hundreds costs
     a handful of looks."""
 
-    spending: str = "obrien-fleming"
+    spending: str = knob(SPENDINGS[0], **one_of(SPENDINGS, " or ".join(map(repr, SPENDINGS))))
     """How the error rate is spent across the looks (``claims.Design``): ``obrien-fleming`` keeps almost all of it
     for the last look; ``pocock`` spreads it, so that doubling rounds (whose early looks hold a small share of
     the seeds) can stop a large effect early."""
@@ -57,8 +76,7 @@ SEEDS_RULE = (
     "valid: a count in [1, 1000], a list of distinct non-negative integers, or a table of rounds "
     "{ start = 5, step = 5, max = 40 } (optional max_minutes = 15, growth = 2, spending = 'pocock')"
 )
-ROUND_KEYS = ("start", "step", "max", "max_minutes", "growth", "spending")
-SPENDINGS = ("obrien-fleming", "pocock")
+ROUND_KEYS = tuple(f.name for f in fields(SeedRounds))
 
 
 def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | None]:
@@ -81,35 +99,10 @@ def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | N
     for key in ("start", "max"):
         if key not in value:
             raise ConfigError(f"{where}.{key}: missing; valid: e.g. seeds = {{ start = 5, step = 5, max = 40 }}")
-    start, most = value["start"], value["max"]
-    if not (is_int(start) and 1 <= start <= 1000):
-        raise ConfigError(f"{where}.start = {clipped(start)} is invalid; valid: a count of seeds in [1, 1000]")
-    if not (is_int(most) and start <= most <= 1000):
+    rounds = SeedRounds(**declared_values(SeedRounds, {"step": value["start"], **value}, f"{where}."))
+    if rounds.max < rounds.start:
         raise ConfigError(
-            f"{where}.max = {clipped(most)} is invalid; valid: a count of seeds in [start = {start}, 1000]"
+            f"{where}.max = {rounds.max} is invalid; valid: a count of seeds in [start = {rounds.start}, 1000]"
         )
-    step = value.get("step", start)
-    if not (is_int(step) and 1 <= step <= 1000):
-        raise ConfigError(f"{where}.step = {clipped(step)} is invalid; valid: seeds added per round, in [1, 1000]")
-    minutes = value.get("max_minutes")
-    if minutes is not None and not (is_number(minutes) and 0 < minutes <= 100_000):
-        raise ConfigError(
-            f"{where}.max_minutes = {clipped(minutes)} is invalid; valid: minutes in (0, 100000] by which the rounds "
-            "end: none starts that would end later at the pace measured (or leave it out: no time budget)"
-        )
-    growth = value.get("growth", 1.0)
-    if not (is_number(growth) and 1 <= growth <= 10):
-        raise ConfigError(
-            f"{where}.growth = {clipped(growth)} is invalid; valid: a factor in [1, 10] by which each round's added "
-            "seeds grow (1: step every round; 2: doubling)"
-        )
-    spending = value.get("spending", SPENDINGS[0])
-    if spending not in SPENDINGS:
-        raise ConfigError(
-            f"{where}.spending = {clipped(spending)} is invalid; valid: {' or '.join(repr(s) for s in SPENDINGS)}"
-        )
-    if most == start:  # one round: exactly ``seeds = start`` (its trial keys too)
-        return tuple(range(start)), None
-    return tuple(range(start)), SeedRounds(
-        start, step, most, None if minutes is None else float(minutes), float(growth), spending
-    )
+    # one round: exactly ``seeds = start`` (its trial keys too)
+    return tuple(range(rounds.start)), None if rounds.max == rounds.start else rounds
