@@ -34,7 +34,7 @@ from ablate.config import (
 )
 from ablate.env_spec import solve_threshold_or_none
 from ablate.measures import claim_names, default_primary_metric, measure, tune_names
-from ablate.schema import knob, number
+from ablate.schema import knob, number, one_of
 from ablate.seeds import SeedRounds, parse_seeds
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9_-]{1,100}")
@@ -64,9 +64,11 @@ class TuneSpec:
     """``(knob, candidate values)`` pairs, in file order; a variant tries every combination."""
     seeds: tuple[int, ...]
     """Tuning seeds, from ``TUNE_SEED_START`` up: disjoint from every evaluation seed."""
-    metric: str = "auc"
+    metric: str = knob("auc", **one_of(tune_names()))
     """A tunable measure's name (``measures.tune_names``)."""
-    max_episodes: int | None = None
+    max_episodes: int | None = knob(
+        None, check=lambda v: v is None or KNOBS["max_episodes"].check(v), valid=KNOBS["max_episodes"].valid
+    )
     """Tuning trials' episode budget; ``None``: the evaluation budget (each variant's ``max_episodes``)."""
 
     @property
@@ -330,19 +332,14 @@ def _parse_tune(
             f"{where}.seeds = {clipped(count)} is invalid; valid: a count of tuning seeds in [1, {MAX_TUNE_SEEDS}] "
             f"(they are {TUNE_SEED_START}, {TUNE_SEED_START + 1}, ...)"
         )
-    metric = table.get("metric", "auc")
-    if metric not in tune_names():
-        raise ConfigError(f"{where}.metric = {clipped(metric)} is invalid; valid: one of {', '.join(tune_names())}")
-    budget = table.get("max_episodes")
-    if budget is not None and not KNOBS["max_episodes"].check(budget):
-        raise ConfigError(f"{where}.max_episodes = {clipped(budget)} is invalid; valid: {KNOBS['max_episodes'].valid}")
+    settings = declared_values(TuneSpec, table, f"{where}.")
     high = [s for s in seeds if s >= TUNE_SEED_START]
     if high:
         raise ConfigError(
             f"{source}: seeds: {high[0]} is invalid with [tune]; valid: evaluation seeds below {TUNE_SEED_START:,} "
             f"(tuning seeds are {TUNE_SEED_START:,} up)"
         )
-    spec = TuneSpec(tuple(knobs), tuple(range(TUNE_SEED_START, TUNE_SEED_START + count)), metric, budget)
+    spec = TuneSpec(tuple(knobs), tuple(range(TUNE_SEED_START, TUNE_SEED_START + count)), **settings)
     # Stage 1 (every candidate on every tuning seed) and stage 2 (the choice and the base value per seed).
     tuning = sum(len(spec.candidates(v)) for v in variants if spec.tuned_knobs(v)) * count
     evaluation = len(variants) * (len(seeds) + first_round)  # at the chosen values, and at the base value
