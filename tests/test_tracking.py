@@ -114,8 +114,7 @@ def test_only_the_writer_and_the_reader_import_mlflow_and_run_never_imports_repo
             if relative.startswith("launch/") and any(n.startswith("ablate.reporting") for n in names):
                 upward.add(relative)
     # launch/patches.py: MLflow's one private name changed, for the writer's process (test_patches).
-    # launch/variant_runs.py: the report's variant runs, written with MLflow's entities.
-    writers = {"launch/tracking.py", "launch/mlflow_store.py", "launch/variant_runs.py", "launch/patches.py"}
+    writers = {"launch/tracking.py", "launch/mlflow_store.py", "launch/patches.py"}
     # reporting/reader.py: the report's reader (it reads through mlflow_store.Store's client, importing none).
     assert importers <= writers | {"reporting/reader.py"} and writers <= importers
     assert not upward  # the report after a launch is written by ablate/commands.py, above both layers

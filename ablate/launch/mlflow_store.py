@@ -1,7 +1,7 @@
 """The tracking layer's shared part: an MLflow store opened (every check that can fail, in one line), its
 experiment, its trial runs read back, and the tags both sides use. The writer (``ablate.launch.tracking``),
 the report's variant runs (``ablate.launch.variant_runs``) and the reader (``ablate.reporting.reader``) build on
-it; they are the only modules that import MLflow (with ``launch.patches``).
+it; only it, the writer and ``launch.patches`` import MLflow.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ import json
 import logging
 import os
 import tempfile
+import time
 import unicodedata
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -236,6 +237,28 @@ class Store:
             )
             for r in runs
         ]
+
+    def log_values(
+        self,
+        run_id: str,
+        metrics: dict[str, float] | None = None,
+        params: dict[str, Any] | None = None,
+        tags: dict[str, str] | None = None,
+        series: dict[str, list[tuple[int, float]]] | None = None,
+    ) -> None:
+        """One ``log_batch`` on a run (MLflow splits it into calls its store takes): ``metrics`` at step 0 and
+        ``series`` (``(step, value)`` points) stamped now, ``params`` as ``param_text``, ``tags`` as given."""
+        from mlflow.entities import Metric, Param, RunTag
+
+        now = int(time.time() * 1000)
+        values = [Metric(k, float(v), now, 0) for k, v in (metrics or {}).items()]
+        values += [Metric(k, float(v), now, int(step)) for k, points in (series or {}).items() for step, v in points]
+        self.client.log_batch(
+            run_id,
+            metrics=values,
+            params=[Param(k, param_text(v)) for k, v in (params or {}).items()],
+            tags=[RunTag(k, v) for k, v in (tags or {}).items()],
+        )
 
     def download(self, run_id: str, path: str, destination: str | Path | None = None, artifact_uri: str = "") -> str:
         """An artifact of a run, into ``destination`` or a folder of its own removed when the process ends; a

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,6 @@ from ablate.launch.mlflow_store import (
     TAG_STAGE,
     TAG_VARIANT,
     Store,
-    param_text,
 )
 from ablate.launch.patches import mlflow_answers_kept, mlflow_insert_metrics, mlflow_log_artifacts, mlflow_sql_store
 from ablate.launch.secrets import shown as redact
@@ -56,6 +56,19 @@ START_METRIC, REPORT_METRIC = "start_s", "report_s"
 """On a launch's run: seconds until its first trial started, and spent writing its report (``ablate run``)."""
 
 
+@dataclass
+class OpenRun:
+    """A trial's run while it is open."""
+
+    run_id: str
+    start_ms: int
+    artifact_uri: str
+    """From the run's creation: uploading through MLflow's client would look the run up again first (~16 ms of
+    SQLite CPU, a third of a short trial's tracking cost)."""
+    points: list[Any] = field(default_factory=list)
+    """Its curve points not written yet."""
+
+
 class Tracker(Store):
     """The driver's writer: a parent run per launch, a child run per trial (and what resuming reads back)."""
 
@@ -66,15 +79,10 @@ class Tracker(Store):
         self.client = RetryingClient(self.client, self.shown_uri)
         fail_fast_writes()
         mlflow_answers_kept()
-        self.open_runs: dict[str, str] = {}
+        self.open_runs: dict[str, OpenRun] = {}
         self.attempts: dict[str, int] = {}
-        self._points: dict[str, tuple[list[Any], int]] = {}
-        """Per open trial: its curve points not written yet, its run's start (ms)."""
         self._flushed_at = time.monotonic()
         """When the open trials' points were last written."""
-        self._artifact_uris: dict[str, str] = {}
-        """Artifact URI per open trial run, from its creation: uploading through MLflow's client would look
-        the run up again first (~16 ms of SQLite CPU, a third of a short trial's tracking cost)."""
 
     # --- launches ---------------------------------------------------------------------------------
     def latest_generation(self) -> str | None:
@@ -131,7 +139,7 @@ class Tracker(Store):
 
     def finish_launch(self, run_id: str, status: str, summary: dict[str, float], note: str = "") -> None:
         """Close the launch's run; ``note`` (the run's description in MLflow) says what happened."""
-        self._log_metrics(run_id, summary)
+        self.log_values(run_id, summary)
         note = redact(note)
         if note:
             self.client.set_tag(run_id, TAG_NOTE, note[:5000])
@@ -142,7 +150,7 @@ class Tracker(Store):
     def record_report_time(self, run_id: str, seconds: float) -> None:
         """The seconds ``ablate run`` spent writing the report after launch ``run_id``: what the next ``--dry-run``
         says a report costs (``launch_times``)."""
-        self._log_metrics(run_id, {REPORT_METRIC: round(seconds, 3)})
+        self.log_values(run_id, {REPORT_METRIC: round(seconds, 3)})
 
     def launch_times(self) -> tuple[float | None, float | None]:
         """(start, report) seconds the newest launch took: until its first trial started, and writing its report
@@ -165,8 +173,6 @@ class Tracker(Store):
         commit: str,
         stage: str = "eval",
     ) -> str:
-        from mlflow.entities import Param
-
         self.attempts[key] = self.attempts.get(key, 0) + 1
         run = self.client.create_run(
             self.experiment_id(),
@@ -183,17 +189,14 @@ class Tracker(Store):
                 TAG_STAGE: stage,
             },
         )
-        run_id = run.info.run_id
-        self._artifact_uris[run_id] = run.info.artifact_uri
-        self.client.log_batch(run_id, params=[Param(k, param_text(v)) for k, v in params.items()])
-        self.open_runs[key] = run_id
-        self._points[key] = ([], run.info.start_time)
-        return run_id
+        self.log_values(run.info.run_id, params=params)
+        self.open_runs[key] = OpenRun(run.info.run_id, run.info.start_time, run.info.artifact_uri)
+        return run.info.run_id
 
     def log_points(self, key: str, points: Sequence[Any]) -> None:
         """``POINT_METRICS`` of each curve point (``ablate.launch.curve.CurvePoint``) of an open trial; every open
         trial's written together ``FLUSH_EVERY_S`` at a time (and each trial's when it ends)."""
-        self._points[key][0].extend(points)
+        self.open_runs[key].points.extend(points)
         if time.monotonic() - self._flushed_at >= FLUSH_EVERY_S:
             self._flush_points(list(self.open_runs))
             self._flushed_at = time.monotonic()
@@ -206,12 +209,11 @@ class Tracker(Store):
 
         batches: dict[str, list[Any]] = {}
         for key in keys:
-            pending, start_ms = self._points.get(key, ([], 0))
-            more = (extra or {}).get(key, [])
-            if pending or more:
-                self._points[key] = ([], start_ms)
-                batches[self.open_runs[key]] = [
-                    Metric(metric, float(getattr(p, attr)), start_ms + int(1000 * p.wall_s), int(p.episode))
+            run, more = self.open_runs[key], (extra or {}).get(key, [])
+            if run.points or more:
+                pending, run.points = run.points, []
+                batches[run.run_id] = [
+                    Metric(metric, float(getattr(p, attr)), run.start_ms + int(1000 * p.wall_s), int(p.episode))
                     for p in pending
                     for metric, attr in POINT_METRICS.items()
                 ] + more
@@ -232,18 +234,16 @@ class Tracker(Store):
         with tempfile.TemporaryDirectory(prefix="ablate-checkpoint-") as folder:
             path = Path(folder) / CHECKPOINT_ARTIFACT
             path.write_bytes(blob)
-            self.client.log_artifact(self.open_runs[key], str(path))
+            self.client.log_artifact(self.open_runs[key].run_id, str(path))
 
     def latest_checkpoints(self, generation: str, keys: Iterable[str]) -> dict[str, bytes]:
         """Per key, the checkpoint of its newest interrupted (KILLED) run in ``generation`` that has one."""
-        wanted = set(keys)
+        wanted, found = set(keys), {}
         runs = [r for r in self.trial_runs(generation) if r.key in wanted and r.status == "KILLED"]
-        found: dict[str, bytes] = {}
-        for run in sorted(runs, key=lambda r: r.start_time_ms, reverse=True):
-            if run.key not in found and any(
-                a.path == CHECKPOINT_ARTIFACT for a in self.client.list_artifacts(run.run_id)
-            ):
-                found[run.key] = Path(self.download(run.run_id, CHECKPOINT_ARTIFACT)).read_bytes()
+        for run in reversed(runs):  # newest first
+            paths = [] if run.key in found else [a.path for a in self.client.list_artifacts(run.run_id)]
+            if CHECKPOINT_ARTIFACT in paths:
+                found[run.key] = self.read_artifact(run, CHECKPOINT_ARTIFACT, Path.read_bytes)
         return found
 
     def finish_trial(
@@ -256,50 +256,32 @@ class Tracker(Store):
     ) -> None:
         """Close the trial's run: its summary metrics, ``tags``, and ``params`` known only once it ran (the env
         it ran against)."""
-        from mlflow.entities import Metric, Param, RunTag
+        from mlflow.entities import Metric
 
         now = int(time.time() * 1000)
-        run_id = self._close(key, [Metric(k, float(v), now, 0) for k, v in summary.items()])
+        run = self._close(key, [Metric(k, float(v), now, 0) for k, v in summary.items()])
         if params or tags:
-            self.client.log_batch(
-                run_id,
-                params=[Param(k, param_text(v)) for k, v in (params or {}).items()],
-                tags=[RunTag(k, redact(v)) for k, v in (tags or {}).items()],
-            )
+            self.log_values(run.run_id, params=params, tags={k: redact(v) for k, v in (tags or {}).items()})
         if artifacts is not None:
-            self._log_artifacts(run_id, artifacts)
-        self.client.set_terminated(run_id, "FINISHED")
+            mlflow_log_artifacts(run.artifact_uri, self.uri, artifacts)
+        self.client.set_terminated(run.run_id, "FINISHED")
 
-    def _log_artifacts(self, run_id: str, folder: Path) -> None:
-        uri = self._artifact_uris.pop(run_id, None)
-        if uri is None:
-            self.client.log_artifacts(run_id, str(folder))
-        else:
-            mlflow_log_artifacts(uri, self.uri, folder)
-
-    def _close(self, key: str, last: Sequence[Any] = ()) -> str:
+    def _close(self, key: str, last: Sequence[Any] = ()) -> OpenRun:
         """Write the trial's pending points (and ``last``: its summary metrics, in the same write) and forget it as
-        open; its run id."""
+        open."""
         self._flush_points([key], {key: list(last)})
-        run_id = self.open_runs.pop(key)
-        self._points.pop(key, None)
-        return run_id
+        return self.open_runs.pop(key)
 
     def fail_trial(self, key: str, message: str) -> None:
-        run_id = self._close(key)
-        self._artifact_uris.pop(run_id, None)
-        self.kill_runs([run_id], message, "FAILED")
+        self.kill_runs([self._close(key).run_id], message, "FAILED")
 
     def discard_trial(self, key: str, reason: str) -> None:
         """A trial whose process died restarts from scratch: its partial run is closed and soft-deleted so
         no metric is counted twice; the restart opens a new run (``ablate.attempt`` counts them)."""
-        run_id = self.open_runs.pop(key, None)
-        self._points.pop(key, None)
-        self._artifact_uris.pop(run_id, None)
-        if run_id is not None:
-            self.client.set_tag(run_id, TAG_ERROR, f"process died, retried: {reason}"[:5000])
-            self.client.set_terminated(run_id, "KILLED")
-            self.client.delete_run(run_id)
+        run = self.open_runs.pop(key, None)
+        if run is not None:
+            self.kill_runs([run.run_id], f"process died, retried: {reason}")
+            self.client.delete_run(run.run_id)
 
     def kill_running_trials(self, launch_id: str, reason: str) -> list[str]:
         """Mark every trial run of ``launch_id`` still RUNNING in the store KILLED; returns their keys. Read
@@ -308,8 +290,6 @@ class Tracker(Store):
         with contextlib.suppress(Exception):  # marking the runs KILLED matters more than their last points
             self._flush_points(list(self.open_runs))  # their curves so far (written every FLUSH_EVERY_S)
         self.open_runs.clear()
-        self._artifact_uris.clear()
-        self._points.clear()
         runs = self.running_runs(f" and tags.`{TAG_PARENT}` = '{launch_id}'")
         self.kill_runs([r.info.run_id for r in runs], reason)
         return [r.data.tags.get(TAG_KEY, r.info.run_id) for r in runs]
@@ -322,13 +302,5 @@ class Tracker(Store):
         """End ``run_ids`` as ``status``, with ``reason`` as their error and their note ("Killed: reason")."""
         reason = redact(reason)[:5000]
         for run_id in run_ids:
-            self.client.set_tag(run_id, TAG_ERROR, reason)
-            self.client.set_tag(run_id, TAG_NOTE, f"{status.capitalize()}: {reason}")
+            self.log_values(run_id, tags={TAG_ERROR: reason, TAG_NOTE: f"{status.capitalize()}: {reason}"})
             self.client.set_terminated(run_id, status)
-
-    def _log_metrics(self, run_id: str, values: dict[str, float]) -> None:
-        """Single values on a run, at step 0, stamped now."""
-        from mlflow.entities import Metric
-
-        now = int(time.time() * 1000)
-        self.client.log_batch(run_id, metrics=[Metric(key, float(value), now, 0) for key, value in values.items()])

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import tempfile
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +21,6 @@ from ablate.launch.mlflow_store import (
     TAG_ROLE,
     TAG_VARIANT,
     Store,
-    param_text,
 )
 
 TAG_VERDICT = "ablate.verdict"
@@ -77,13 +75,7 @@ def log_variant_runs(store: Store, launch_id: str, records: Sequence[VariantReco
 
 def _fill(store: Store, run_id: str, record: VariantRecord) -> None:
     """Log ``record``'s params, metrics and files on its new run, and close it."""
-    from mlflow.entities import Metric, Param
-
-    now = int(time.time() * 1000)
-    metrics = [Metric(k, float(v), now, 0) for k, v in record.metrics.items()]
-    metrics += [Metric(k, float(v), now, int(step)) for k, points in record.series.items() for step, v in points]
-    params = [Param(k, param_text(v)) for k, v in record.params.items()]
-    store.client.log_batch(run_id, metrics=metrics, params=params)  # MLflow splits it into calls its store takes
+    store.log_values(run_id, record.metrics, record.params, series=record.series)
     if record.artifacts:
         with tempfile.TemporaryDirectory(prefix="ablate-variant-") as folder:
             for name, content in record.artifacts.items():
