@@ -147,3 +147,12 @@ def test_variant_runs_are_replaced_whole_and_a_failed_write_keeps_the_earlier_on
         log_variant_runs(tracker, launch, [*records, refused])
     assert [r.info.run_id for r in variant_runs(tracker, launch)] == second  # the earlier runs, nothing added
     assert tracker.client.get_run(trial).data.tags["ablate.role"] == "trial"
+
+
+def test_a_launch_whose_files_the_store_refuses_is_left_failed_not_running(tracking_uri, monkeypatch):
+    tracker = Tracker(tracking_uri, "refused")
+    monkeypatch.setattr(tracker.client._client, "log_text", lambda *a: (_ for _ in ()).throw(ValueError("no room")))
+    with pytest.raises(ValueError, match="no room"):
+        tracker.start_launch("g", "launch", {}, {"grid.json": "{}"})
+    (run,) = tracker.client.search_runs([tracker.experiment_id()], "")
+    assert run.info.status == "FAILED" and run.data.tags["ablate.error"] == "no room"

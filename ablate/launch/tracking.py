@@ -128,8 +128,7 @@ class Tracker(Store):
                 self.client.log_text(run.info.run_id, redact(text), filename)
         except Exception as error:
             with contextlib.suppress(Exception):  # a store that stopped answering cannot be told
-                self.client.set_tag(run.info.run_id, TAG_ERROR, redact(error)[:5000])
-                self.client.set_terminated(run.info.run_id, "FAILED")
+                self.kill_runs([run.info.run_id], str(error), "FAILED")
             raise
         return run.info.run_id
 
@@ -139,12 +138,9 @@ class Tracker(Store):
 
     def finish_launch(self, run_id: str, status: str, summary: dict[str, float], note: str = "") -> None:
         """Close the launch's run; ``note`` (the run's description in MLflow) says what happened."""
-        self.log_values(run_id, summary)
-        note = redact(note)
-        if note:
-            self.client.set_tag(run_id, TAG_NOTE, note[:5000])
-        if status != "FINISHED":
-            self.client.set_tag(run_id, TAG_ERROR, note[:5000])
+        note = redact(note)[:5000]
+        tags = ({TAG_NOTE: note} if note else {}) | ({TAG_ERROR: note} if status != "FINISHED" else {})
+        self.log_values(run_id, summary, tags=tags)
         self.client.set_terminated(run_id, status)
 
     def record_report_time(self, run_id: str, seconds: float) -> None:
