@@ -195,6 +195,7 @@ def test_downloaded_artifacts_leave_nothing_in_the_temporary_folder_once_the_pro
         ("API request to endpoint /x failed with error code 401 != 200. Response body: 'Unauthorized'", "auth"),
         ("PermissionError: [Errno 13] Permission denied: '/srv/mlflow/artifacts/1'", "permission"),
         ("sqlite3.OperationalError: attempt to write a readonly database", "permission"),
+        ("sqlalchemy.exc.OperationalError: (sqlite3.OperationalError) database is locked", "lost"),  # SQL: retried
         ("OSError: [Errno 28] No space left on device", "disk"),
         ("500 Server Error: Internal Server Error for url: http://h/api. Response text: Internal Server Error", "5xx"),
         ("HTTPConnectionPool(host='h', port=1): Max retries exceeded (Caused by NewConnectionError)", "lost"),

@@ -259,7 +259,7 @@ class Tracker(Store):
         if params or tags:
             self.log_values(run.run_id, params=params, tags={k: redact(v) for k, v in (tags or {}).items()})
         if artifacts is not None:
-            mlflow_log_artifacts(run.artifact_uri, self.uri, artifacts)
+            self.client.retried(mlflow_log_artifacts, run.artifact_uri, self.uri, artifacts)  # as the client's calls
         self.client.set_terminated(run.run_id, "FINISHED")
 
     def _close(self, key: str, last: Sequence[Any] = ()) -> OpenRun:
