@@ -31,10 +31,8 @@ from ablate.launch.patches import mlflow_answers_kept, mlflow_insert_metrics, ml
 from ablate.launch.secrets import shown as redact
 from ablate.launch.store_writes import RetryingClient, fail_fast_writes
 
-# A trial's curve: one point per bin of episodes (``ablate.launch.curve``: at most ~100 points however many episodes
-# run), step = the bin's last episode. MLflow's SQLite store costs ~4 ms per call plus ~55 us per value of
-# the writer's CPU, and one writer serves every trial: a value per episode capped it at ~10 concurrent
-# trials. The exact per-episode table (every column, every episode) is the run's ``episodes.csv`` artifact.
+# A trial's curve: one point per bin of episodes (``curve.CURVE_POINTS``: why at most ~100), step = the bin's last
+# episode; a value per episode capped the one writer at ~10 concurrent trials.
 POINT_METRICS = {
     "episode/return": "episode_return",  # mean over the bin
     "episode/rolling_mean": "rolling_mean",  # at the bin's last episode
