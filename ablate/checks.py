@@ -18,7 +18,7 @@ def check_configs(named: Iterable[tuple[str, TrialConfig]], source: str) -> None
     """Each distinct env described and each distinct network built and run on a sample observation; the first
     problem is a ``ConfigError`` naming the file, the variant and what is wrong."""
     # Here, not at the top: torch and Gymnasium (~1 s to import) only where there is a network or env to try.
-    from ablate.agent.models import ModelError
+    from ablate.agent.policies import ModelError
     from ablate.envs import EnvError, describe
 
     seen: set = set()
@@ -47,7 +47,7 @@ def check_model(config: TrialConfig, env) -> None:
     (batch, *observation) to (batch, n_actions)."""
     import torch
 
-    from ablate.agent.models import ModelError, build_model, history
+    from ablate.agent.policies import ModelError, build_model, history
 
     network = build_model(config, env)
     steps = history(config.model, env)

@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ablate.agent.models import build_model
-from ablate.agent.models import history as window_of
+from ablate.agent.policies import build_model
+from ablate.agent.policies import history as window_of
 from ablate.agent.records import EpisodeMetrics, TrialResult
 from ablate.agent.reinforce import choose_action
 from ablate.agent.slots import windows

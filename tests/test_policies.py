@@ -44,7 +44,7 @@ def test_layer_norm_knob_builds_a_layer_norm_before_each_hidden_activation_and_a
 
     import numpy as np
 
-    from ablate.agent.models import build_model
+    from ablate.agent.policies import build_model
     from ablate.agent.stacking import Members
     from ablate.config import DEFAULT, apply_knobs
     from ablate.envs import describe

@@ -126,7 +126,7 @@ def test_a_model_with_a_helper_trains_through_train_from(folder, tmp_path):
 NODE = """
 import json, sys
 from ablate.envs import describe
-from ablate.agent.models import build_model
+from ablate.agent.policies import build_model
 from ablate.reporting.networks import summary
 from ablate.config import config_from_document
 config = config_from_document(json.load(open(sys.argv[1])))
@@ -155,7 +155,7 @@ def test_a_node_without_the_experiments_folder_builds_the_network_from_what_ship
 
 
 def test_shipped_files_that_do_not_match_the_hash_are_refused(folder):
-    from ablate.agent.models import ModelError, load_factory
+    from ablate.agent.policies import ModelError, load_factory
 
     config = next(v.config for v in load_experiment(folder / "helpers.toml").variants if v.name == "net2")
     document = json.loads(json.dumps(dataclasses.asdict(config)))  # as config.json holds it

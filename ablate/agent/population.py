@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ablate.agent.models import build_model, history
+from ablate.agent.policies import build_model, history
 from ablate.agent.records import Batch, EpisodeMetrics
 from ablate.agent.reinforce import choose_action, discount_rewards, normalize, train_step
 from ablate.agent.slots import CartPoleSlots, EnvSlots, Episode

@@ -28,7 +28,7 @@ def layers(tracker: RunReader, run_id: str, params: dict[str, str]) -> str | Non
     """The run's network as ``Linear(4→32) LayerNorm ReLU Linear(32→2)``, built as its trial built it (the
     recorded source, its ``model_args``, its env's shapes); None where the run recorded no source or the
     network cannot be built here."""
-    from ablate.agent.models import ModelError, build_model
+    from ablate.agent.policies import ModelError, build_model
     from ablate.config import DEFAULT, ModelConfig, config_from_document
     from ablate.envs import describe
 
