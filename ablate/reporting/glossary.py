@@ -10,29 +10,9 @@ from ablate.reporting.prose import say
 from ablate.reporting.results import Ablation
 from ablate.reporting.statistics import CONFIDENCE, N_RESAMPLES, SEEDS_CAP, SIMULATIONS
 
-TERMS = [
-    "Return",
-    "Rolling mean return",
-    "Solved; episodes to solve",
-    "Censored (≥)",
-    "At least",
-    "IQM (interquartile mean)",
-    f"{percent(CONFIDENCE)} CI (percentile bootstrap)",
-    "AUC (area under the curve)",
-    "Return after E episodes",
-    "Improvement over the untrained policy",
-    "Probability of improvement",
-    "Exploratory: better, worse, not separated, too few seeds",
-    "Seeds needed",
-    "Smallest effect of interest",
-    "Leave-one-seed-out",
-]
-"""The terms the report's sentences use, in the glossary's order; their definitions: ``templates/glossary.j2``."""
-
 _FACTS = dict(level=CONFIDENCE, resamples=N_RESAMPLES, initial=INITIAL_EPISODES, simulations=SIMULATIONS, cap=SEEDS_CAP)
-GLOSSARY = [
-    (term, say("glossary.definition", term=term, effect=Experiment.smallest_effect, **_FACTS)) for term in TERMS
-]
+GLOSSARY = [entry.strip() for entry in say("glossary.entries", effect=Experiment.smallest_effect, **_FACTS).split("\n")]
+"""The terms the report's sentences use, each ``**Term.** definition``, in order (``templates/glossary.j2``)."""
 
 REFERENCES = [
     "Williams, R. J. (1992). Simple statistical gradient-following algorithms for connectionist reinforcement "

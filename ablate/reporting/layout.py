@@ -214,8 +214,5 @@ def build_document(
     every = [text for _, text in limitations(ablation, table, compare, bool(videos), refs)]
     doc += [Heading("Every limitation", 3, True, letters["limitations"]), Items.of(every)]
     doc += [Heading("Reproducibility", 3, True, letters["record"]), *_reproducibility(ablation, command)]
-    doc += [
-        Heading("Glossary", 3, letter=letters["glossary"]),
-        Items.of(f"**{term}.** {text}" for term, text in GLOSSARY),
-    ]
+    doc += [Heading("Glossary", 3, letter=letters["glossary"]), Items.of(GLOSSARY)]
     return number_tables(doc)
