@@ -102,8 +102,9 @@ def ablation_window(ablation: Ablation) -> int:
     return int(ablation.grid["base"].get("solve_window", 100))
 
 
-def _every_variant(ablation: Ablation, x: str, grid: np.ndarray):
-    """Every variant's IQM curve against ``x`` (no bands), the baseline thick, the solve threshold dashed."""
+def _every_variant(ablation: Ablation, x: str, grid: np.ndarray, **axes: str):
+    """Every variant's IQM curve against ``x`` (no bands), the baseline thick, the solve threshold dashed, the
+    legend beside the plot; ``axes``: its scale and labels (``Axes.set``)."""
     fig, ax = plt.subplots(figsize=(10, 5))
     for variant in ablation.variants:
         curves = ablation.curves[ablation.curves.variant == variant]
@@ -114,7 +115,10 @@ def _every_variant(ablation: Ablation, x: str, grid: np.ndarray):
         ax.plot(grid, centre, color=_colour(ablation, variant), linewidth=2.8 if baseline else 1.4, label=variant)
     if ablation.threshold is not None:
         ax.axhline(ablation.threshold, color="black", linestyle="--", linewidth=0.8, label="solved")
-    return fig, ax
+    ax.set(**axes)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig
 
 
 def _panels(count: int, **share: bool):
@@ -153,11 +157,8 @@ def _panel(ax, ablation: Ablation, variant: str) -> None:
 
 
 def figure_overview(ablation: Ablation, folder: Path) -> Figure:
-    fig, ax = _every_variant(ablation, "episode", episode_grid(ablation))
-    ax.set_xlabel("episode")
-    ax.set_ylabel(f"rolling mean return ({ablation_window(ablation)} episodes), IQM over seeds")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ylabel = f"rolling mean return ({ablation_window(ablation)} episodes), IQM over seeds"
+    fig = _every_variant(ablation, "episode", episode_grid(ablation), xlabel="episode", ylabel=ylabel)
     facts = {"baseline": ablation.baseline, "window": ablation_window(ablation), "threshold": ablation.threshold}
 
     def caption(refs: Refs) -> str:
@@ -189,8 +190,7 @@ def variant_band_png(ablation: Ablation, variant: str) -> bytes | None:
         return None
     fig, ax = plt.subplots(figsize=(5.2, 3.4))
     _panel(ax, ablation, variant)
-    ax.set_xlabel("episode")
-    ax.set_ylabel(f"rolling mean return (IQM, {percent(CONFIDENCE)} band)")
+    ax.set(xlabel="episode", ylabel=f"rolling mean return (IQM, {percent(CONFIDENCE)} band)")
     fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=100)
@@ -203,12 +203,14 @@ def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
     wall = wall[wall > 0]
     if wall.empty:
         return None
-    fig, ax = _every_variant(ablation, "wall_s", np.geomspace(float(wall.min()), float(wall.max()), 200))
-    ax.set_xscale("log")  # variants differ ten-fold in speed: a linear axis hides the fast ones
-    ax.set_xlabel("wall-clock seconds since the trial started (log scale; trials shared the CPUs)")
-    ax.set_ylabel("rolling mean return, IQM over seeds")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig = _every_variant(
+        ablation,
+        "wall_s",
+        np.geomspace(float(wall.min()), float(wall.max()), 200),
+        xscale="log",  # variants differ ten-fold in speed: a linear axis hides the fast ones
+        xlabel="wall-clock seconds since the trial started (log scale; trials shared the CPUs)",
+        ylabel="rolling mean return, IQM over seeds",
+    )
 
     def caption(refs: Refs) -> str:
         episodes = refs.figures_of("learning_curves_episodes", "learning_curves_by_variant")
@@ -283,10 +285,9 @@ def figure_improvement(ablation: Ablation, compare: pd.DataFrame, folder: Path) 
     ax.axvline(0.5, color="black", linestyle="--", linewidth=0.8)
     ax.set_yticks(y, table.variant)
     ax.invert_yaxis()
-    ax.set_xlim(-0.02, 1.02)
     varied = set(table.reference) != {ablation.baseline}
     against = "its reference" if varied else ablation.baseline
-    ax.set_xlabel(f"P(a seed of the variant solves in fewer episodes than a seed of {against})")
+    ax.set(xlim=(-0.02, 1.02), xlabel=f"P(a seed of the variant solves in fewer episodes than a seed of {against})")
     ax.grid(axis="x", alpha=0.3)
     caption = say("figures.improvement", against=against, varied=varied)
     return Figure(_save(fig, folder, "probability_of_improvement"), caption, "Probability of improvement")
@@ -305,9 +306,9 @@ def figure_parameters(ablation: Ablation, table: pd.DataFrame, folder: Path) -> 
         ax.annotate(
             row.variant, (row.parameter_count, row.auc_iqm), xytext=(5, 4), textcoords="offset points", fontsize=8
         )
-    ax.set_xscale("log")
-    ax.set_xlabel("trainable parameters (log scale)")
-    ax.set_ylabel("area under the learning curve (IQM over seeds)")
+    ax.set(
+        xscale="log", xlabel="trainable parameters (log scale)", ylabel="area under the learning curve (IQM over seeds)"
+    )
     ax.grid(alpha=0.3)
     caption = say("figures.parameters")
     return Figure(_save(fig, folder, "performance_vs_parameters"), caption, "Performance against parameter count")
