@@ -85,13 +85,8 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
                 else f"{int(row.episodes_run)} episodes, final rolling return {row.final_rolling_mean:.1f}"
             )
             greedy = f"; greedy return {played:.0f} in this one episode" if not pd.isna(played) else ""
-            chosen.append(
-                {
-                    "variant": variant,
-                    "path": f"videos/{target.name}",
-                    "caption": f"{variant}, seed {row.seed}: {why}; {outcome}{greedy}",
-                }
-            )
+            caption = f"{variant}, seed {row.seed}: {why}; {outcome}{greedy}"
+            chosen.append({"path": f"videos/{target.name}", "caption": caption})
     return chosen
 
 
