@@ -171,6 +171,18 @@ def _values(frame: pd.DataFrame, column: str) -> np.ndarray:
     return frame[column].to_numpy(float) if column in frame else np.full(len(frame), np.nan)
 
 
+_POINTS = {
+    "return_at": {"return_iqm": "_iqm", "return_iqm_ci_low": "_iqm_ci_low", "return_iqm_ci_high": "_iqm_ci_high"},
+    "episodes_to": {
+        "episodes_to_level_median": "_median",
+        "reached": "_reached",
+        "episodes_to_level_median_censored": "_median_censored",
+    },
+}
+"""A checkpoint's columns in ``convergence_long`` (after ``episode`` or ``return_level``): the wide column each is
+read from, the checkpoint's column with this suffix."""
+
+
 def convergence_long(table: pd.DataFrame) -> pd.DataFrame:
     """``convergence_table`` in long form, as ``ablate.load(...).convergence`` gives it: the per-variant columns
     repeated on one row per checkpoint, a fixed episode budget (``episode``, with ``return_iqm`` and its interval)
@@ -178,36 +190,16 @@ def convergence_long(table: pd.DataFrame) -> pd.DataFrame:
     ``episodes_to_level_median_censored``), the other's columns empty; a variant with neither keeps one row. No
     column is named by a budget or a level, so ablations with different budgets concatenate."""
     named = {c: lookup(c.rsplit("_", 1)[0]) for c in table.columns if c.endswith(("_iqm", "_median"))}
-    checkpoints = {c: entry for c, entry in named.items() if entry is not None and entry.family}
-    fixed = [c for c in table.columns if not any(c.startswith(f"{m.column}_") for m in checkpoints.values())]
-    rows = []
-    for _, row in table.iterrows():
-        base = {c: row[c] for c in fixed}
-        points = []
-        for entry in checkpoints.values():
-            key = entry.column
-            if entry.family == "return_at":
-                points.append(
-                    {
-                        "episode": int(entry.parameter),
-                        "return_iqm": row[f"{key}_iqm"],
-                        "return_iqm_ci_low": row[f"{key}_iqm_ci_low"],
-                        "return_iqm_ci_high": row[f"{key}_iqm_ci_high"],
-                    }
-                )
-            else:
-                points.append(
-                    {
-                        "return_level": entry.parameter,
-                        "episodes_to_level_median": row[f"{key}_median"],
-                        "reached": row[f"{key}_reached"],
-                        "episodes_to_level_median_censored": row[f"{key}_median_censored"],
-                    }
-                )
-        rows += [base | point for point in points] or [base]
-    columns = [*fixed, "episode", "return_iqm", "return_iqm_ci_low", "return_iqm_ci_high", "return_level"]
-    columns += ["episodes_to_level_median", "reached", "episodes_to_level_median_censored"]
-    frame = pd.DataFrame(rows).reindex(columns=columns)
+    checkpoints = [entry for entry in named.values() if entry is not None and entry.family]
+    fixed = [c for c in table.columns if not any(c.startswith(f"{m.column}_") for m in checkpoints)]
+    table = table.reset_index(drop=True)  # its rows' order, which the points of each keep
+    parts = []
+    for entry in checkpoints:
+        label = {"episode": int(entry.parameter)} if entry.family == "return_at" else {"return_level": entry.parameter}
+        values = {name: table[entry.column + suffix] for name, suffix in _POINTS[entry.family].items()}
+        parts.append(table[fixed].assign(**label, **values))
+    frame = pd.concat(parts).sort_index(kind="stable").reset_index(drop=True) if parts else table[fixed]
+    frame = frame.reindex(columns=[*fixed, "episode", *_POINTS["return_at"], "return_level", *_POINTS["episodes_to"]])
     for column in ("episode", "reached"):
         frame[column] = frame[column].astype("Int64")
     return frame
