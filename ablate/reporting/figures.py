@@ -203,14 +203,11 @@ def figure_wallclock(ablation: Ablation, folder: Path) -> Figure | None:
     wall = wall[wall > 0]
     if wall.empty:
         return None
-    fig = _every_variant(
-        ablation,
-        "wall_s",
-        np.geomspace(float(wall.min()), float(wall.max()), 200),
-        xscale="log",  # variants differ ten-fold in speed: a linear axis hides the fast ones
-        xlabel="wall-clock seconds since the trial started (log scale; trials shared the CPUs)",
-        ylabel="rolling mean return, IQM over seeds",
-    )
+    grid = np.geomspace(float(wall.min()), float(wall.max()), 200)
+    xlabel = "wall-clock seconds since the trial started (log scale; trials shared the CPUs)"
+    ylabel = "rolling mean return, IQM over seeds"
+    # a log axis: variants differ ten-fold in speed, and a linear one hides the fast ones
+    fig = _every_variant(ablation, "wall_s", grid, xscale="log", xlabel=xlabel, ylabel=ylabel)
 
     def caption(refs: Refs) -> str:
         episodes = refs.figures_of("learning_curves_episodes", "learning_curves_by_variant")
