@@ -125,14 +125,15 @@ def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
     """The Results appendix: episodes to solve, returns, episodes to reach return levels, one table each."""
     parts: list[Block] = []
     ran = table[table.seeds_run > 0]
+    ci = f"[{percent(CONFIDENCE)} CI]"  # every interval's column header
     if ablation.threshold is not None and len(ran):
         rows = [
             {
                 "variant": esc(row.variant),
                 "seeds": int(row.seeds_run),
                 "solved": f"{int(row.solved)}/{int(row.seeds_run)}",
-                f"episodes to solve, median [{percent(CONFIDENCE)} CI]": _episodes_cell(row, "median"),
-                f"episodes to solve, IQM [{percent(CONFIDENCE)} CI]": _episodes_cell(row, "iqm"),
+                f"episodes to solve, median {ci}": _episodes_cell(row, "median"),
+                f"episodes to solve, IQM {ci}": _episodes_cell(row, "iqm"),
                 "env steps to solve (median of solved)": fmt(row.env_steps_to_solve_median),
                 "seconds to solve (median of solved)": fmt(row.wall_s_to_solve_median, 1),
             }
@@ -147,13 +148,9 @@ def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
             f"untrained (first {INITIAL_EPISODES} episodes)": fmt(row.get("initial_return_iqm", np.nan), 1),
         }
         for episodes in budgets:
-            entry[f"after {episodes:,} episodes [{percent(CONFIDENCE)} CI]"] = _stat_cell(
-                row, f"return_at_{episodes}_iqm"
-            )
-        entry[f"improvement over untrained [{percent(CONFIDENCE)} CI]"] = _stat_cell(row, "improvement_iqm")
-        entry[f"AUC [{percent(CONFIDENCE)} CI]"] = _stat_cell(
-            row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high"
-        )
+            entry[f"after {episodes:,} episodes {ci}"] = _stat_cell(row, f"return_at_{episodes}_iqm")
+        entry[f"improvement over untrained {ci}"] = _stat_cell(row, "improvement_iqm")
+        entry[f"AUC {ci}"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
         rows.append(entry)
     parts += [
         Paragraph(say("sections.returns", window=ablation_window(ablation))),
