@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from ablate.config import BUILT_IN_ENVS, ConfigError, TrialConfig, env_facts
+from ablate.config import BUILT_IN_ENVS, ConfigError, TrialConfig
 
 
 def needs_check(config: TrialConfig) -> bool:
@@ -19,7 +19,7 @@ def check_configs(named: Iterable[tuple[str, TrialConfig]], source: str) -> None
     problem is a ``ConfigError`` naming the file, the variant and what is wrong."""
     # Here, not at the top: torch and Gymnasium (~1 s to import) only where there is a network or env to try.
     from ablate.agent.policies import ModelError
-    from ablate.envs import EnvError, describe
+    from ablate.envs import EnvError, describe, env_facts
 
     seen: set = set()
     for variant, config in named:

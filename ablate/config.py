@@ -391,12 +391,6 @@ def flatten(config: TrialConfig) -> dict[str, Any]:
     return schema.flatten(config, SCHEMA)
 
 
-def env_facts(config: TrialConfig) -> tuple:
-    """The values of the fields that make ``config``'s env (``ENV_COLUMNS``, top-level fields): configs with equal
-    facts share one."""
-    return tuple(getattr(config, column) for column in ENV_COLUMNS)
-
-
 def key_fields(config: TrialConfig) -> dict[str, Any]:
     """The fields of ``config`` its trial key is made of (``Knob.in_key``)."""
     return {column: value for column, value in flatten(config).items() if SCHEMA[column].in_key(value)}

@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from ablate.config import TrialConfig, env_facts
+from ablate.config import ENV_COLUMNS, TrialConfig
 from ablate.env_spec import EnvError, Profile, profile_of, register, versions  # noqa: F401 - EnvError: what describe raises
 
 # Rendering to RGB arrays needs no window; without this, SDL (pygame, under CartPole's renderer) probes for a
@@ -247,6 +247,12 @@ class Described:
 
 
 _DESCRIBED: dict[tuple, Described] = {}
+
+
+def env_facts(config) -> tuple:
+    """The values of the fields that make ``config``'s env (``config.ENV_COLUMNS``, top-level fields): configs with
+    equal facts share one env, described once (``describe``)."""
+    return tuple(getattr(config, column) for column in ENV_COLUMNS)
 
 
 def describe(config) -> Described:
