@@ -10,7 +10,6 @@ The seeds are a derived experiment, ``<name>-calibrate`` (its file under ``outpu
 from __future__ import annotations
 
 import argparse
-import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -157,19 +156,11 @@ class Share:
         return self.claims / self.reports
 
     def words(self) -> str:
-        low, high = wilson(self.claims, self.reports)
+        from scipy import stats  # not at import: ``ablate --help`` builds this command's parser
+
+        low, high = stats.binomtest(self.claims, self.reports).proportion_ci(CONFIDENCE, method="wilson")
         interval = f"{percent(CONFIDENCE)} CI {low:.1%} to {high:.1%}"
         return f"{self.claims} of {self.reports} reports, {self.rate:.1%} ({interval})"
-
-
-def wilson(successes: int, trials: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    """Wilson's score interval for a binomial share (95% by default)."""
-    if trials == 0:
-        return (0.0, 1.0)
-    p = successes / trials
-    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
-    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
-    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ablate.calibration import Share, aa_reports, derived_text, reference_knobs, wilson
+from ablate.calibration import Share, aa_reports, derived_text, reference_knobs
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand
 from ablate.seeds import SeedRounds
@@ -17,11 +17,9 @@ from ablate.seeds import SeedRounds
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 
 
-def test_wilson_interval_matches_the_formula_at_known_points():
-    low, high = wilson(0, 200)
-    assert low == pytest.approx(0.0, abs=1e-12) and high == pytest.approx(0.01884, abs=1e-4)  # 3.84 / (200 + 3.84)
-    low, high = wilson(108, 200)
-    assert low == pytest.approx(0.4707, abs=1e-3) and high == pytest.approx(0.6078, abs=1e-3)
+def test_shares_carry_wilson_intervals_at_known_points():
+    assert Share(0, 200).words() == "0 of 200 reports, 0.0% (95% CI 0.0% to 1.9%)"  # 3.84 / (200 + 3.84)
+    assert Share(108, 200).words() == "108 of 200 reports, 54.0% (95% CI 47.1% to 60.8%)"
     assert Share(10, 200).words().startswith("10 of 200 reports, 5.0% (95% CI 2.7% to 9.0%)")
 
 
