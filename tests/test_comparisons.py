@@ -60,7 +60,7 @@ def test_an_unsolved_variant_gets_a_lower_bound_not_an_estimate_with_an_upper_en
 def test_both_sides_censored_claim_nothing_on_episodes():
     ablation = _frame({"baseline": [None, None, None, 900, 800], "narrow": [None, None, None, 1000, 1100]})
     comparison = compare_metric(ablation, "narrow", "episodes_to_solve")
-    assert comparison.bound == "censored" and comparison.verdict == "exploratory: not separated"
+    assert comparison["bound"] == "censored" and comparison["verdict"] == "exploratory: not separated"
     assert "cannot separate" in _findings_text(ablation)
 
 
@@ -70,16 +70,16 @@ def test_when_episodes_cannot_separate_the_area_under_the_curve_can():
         {"baseline": BASELINE_4_OF_5, "narrow": [650, None, None, None, 720]},
         metric_values={"baseline": [290, 300, 310, 320, 200], "narrow": [150, 160, 170, 180, 240]},
     )
-    assert compare_metric(ablation, "narrow", "episodes_to_solve").verdict == "exploratory: not separated"
+    assert compare_metric(ablation, "narrow", "episodes_to_solve")["verdict"] == "exploratory: not separated"
     auc = compare_metric(ablation, "narrow", "auc")
-    assert auc.verdict == "exploratory: worse" and auc.high < 0
+    assert auc["verdict"] == "exploratory: worse" and auc["high"] < 0
     assert re.search(r"area under the curve \(AUC\): \*exploratory: worse\*, \*\*lower\*\*", _findings_text(ablation))
 
 
 def test_three_seeds_against_three_support_no_claim():
     assert smallest_p_value(3, 3) == pytest.approx(0.1) and smallest_p_value(5, 5) == pytest.approx(2 / 252)
     ablation = _frame({"a": [10, 11, 12], "b": [50, 60, 70]}, budget=100)
-    assert compare_metric(ablation, "b", "episodes_to_solve").verdict == "exploratory: too few seeds"
+    assert compare_metric(ablation, "b", "episodes_to_solve")["verdict"] == "exploratory: too few seeds"
     assert "no ordering of the seeds can reach 95%" in _findings_text(ablation)
     # ... one verdict a student can repeat, said once for all, and the estimate with no direction words
     # (issue 19 item 6: "no claim" beside "the seeds suggest higher"); 3 seeds: the "IQM" is the mean, so named
@@ -107,24 +107,28 @@ def test_leave_one_seed_out_marks_a_claim_that_rests_on_some_seeds():
         metric_values={"a": [10, 10.5, 11, 11.5, 12], "b": [11, 12, 13, 14, 25]},
     )
     fragile = compare_metric(ablation, "b", "auc")
-    assert fragile.verdict == "exploratory: better" and fragile.fragile_seeds == (1, 2, 3)
+    assert fragile["verdict"] == "exploratory: better" and fragile["fragile_seeds"] == "1 2 3"
     # by hand: without seed 1, b = [11, 13, 14, 25] against a = [10, 11, 11.5, 12]; the claim no longer holds
     without = ablation.trials[ablation.trials.seed != 1]
     again = compare_metric(replace(ablation, trials=without), "b", "auc", stability=False)
-    assert again.verdict != "exploratory: better"
+    assert again["verdict"] != "exploratory: better"
     robust = _frame(
         {"a": [10] * 5, "b": [10] * 5},
         budget=100,
         metric_values={"a": [10, 10.5, 11, 11.5, 12], "b": [20, 21, 22, 23, 24]},
     )
-    assert compare_metric(robust, "b", "auc").fragile_seeds == ()
+    assert compare_metric(robust, "b", "auc")["fragile_seeds"] == ""
     assert "Fragile" in _findings_text(ablation) and "holds leaving out any one seed" in _findings_text(robust)
     assert _findings_text(robust).count("leaving out") == 1  # said once, not on every line
     four = _frame(
         {"a": [10] * 4, "b": [10] * 4}, budget=100, metric_values={"a": [10, 11, 12, 13], "b": [20, 21, 22, 23]}
     )
     comparison = compare_metric(four, "b", "auc")  # 3 and 3 seeds left: no claim could survive, none is checked
-    assert comparison.verdict == "exploratory: better" and comparison.fragile_seeds == () and not comparison.loo_checked
+    assert (
+        comparison["verdict"] == "exploratory: better"
+        and comparison["fragile_seeds"] == ""
+        and not comparison["loo_checked"]
+    )
     assert "Fragile" not in _findings_text(four) and "were not checked that way" in _findings_text(four)
 
 
@@ -137,13 +141,13 @@ def test_leave_one_seed_out_is_not_made_past_fifty_seeds_a_side_and_the_report_s
     values = {"a": rng.normal(10, 1, n), "b": rng.normal(20, 1, n)}
     many = _frame({"a": [10] * n, "b": [10] * n}, budget=100, metric_values=values)
     comparison = compare_metric(many, "b", "auc")
-    assert comparison.verdict == "exploratory: better" and not comparison.loo_checked
+    assert comparison["verdict"] == "exploratory: better" and not comparison["loo_checked"]
     text = _findings_text(many)
     assert f"more than {LOO_MAX_SEEDS} seeds, one seed is under 2%" in text and "were not checked that way" not in text
     fifty = _frame(
         {"a": [10] * (n - 1), "b": [10] * (n - 1)}, budget=100, metric_values={k: v[:-1] for k, v in values.items()}
     )
-    assert compare_metric(fifty, "b", "auc").loo_checked
+    assert compare_metric(fifty, "b", "auc")["loo_checked"]
 
 
 def test_one_seed_gives_no_interval_and_no_crash():
@@ -180,8 +184,8 @@ def test_comparisons_are_against_each_variants_reference():
     variants = {"cnn": {}, "mlp": {"architecture": "mlp"}, "mlp-l2": {"architecture": "mlp", "l2": 0.001}}
     ablation = replace(_grid_ablation(variants, baseline="cnn"), trials=trials)
     mlp_l2 = compare_metric(ablation, "mlp-l2", "auc", stability=False)
-    assert mlp_l2.point == pytest.approx(4.0) and mlp_l2.reference_value == pytest.approx(5.02)
-    assert compare_metric(ablation, "mlp", "auc", stability=False).point == pytest.approx(4.0)
+    assert mlp_l2["point"] == pytest.approx(4.0) and mlp_l2["reference_value"] == pytest.approx(5.02)
+    assert compare_metric(ablation, "mlp", "auc", stability=False)["point"] == pytest.approx(4.0)
     table = comparisons(replace(ablation, grid=ablation.grid | {"seeds": list(range(5))}), stability=False)
     assert dict(zip(table.variant, table.reference, strict=True)) == {"mlp": "cnn", "mlp-l2": "mlp"}
 

@@ -3,7 +3,7 @@ it survives leaving out any one seed (the report's findings and ``tables/compari
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 import numpy as np
 import pandas as pd
@@ -25,29 +25,10 @@ from ablate.reporting.statistics import (
     smallest_p_value,
 )
 
-
-@dataclass(frozen=True)
-class Comparison:
-    """One variant against its reference on one metric: a row of ``results.comparisons`` (docs/python.md
-    describes each column; ``point``/``low``/``high``: positive is better)."""
-
-    variant: str
-    metric: str
-    point: float
-    low: float
-    high: float
-    verdict: str
-    bound: str
-    variant_value: float
-    reference_value: float
-    fragile_seeds: tuple[int, ...] = ()
-    n_variant: int = 0
-    n_reference: int = 0
-    loo_checked: bool = True
-    """False also where a side has more than ``LOO_MAX_SEEDS`` seeds: the check is not made."""
-    seeds_needed: float = np.nan
-    """``statistics.seeds_needed`` (``SEEDS_CAP + 1``: more than the cap, ``inf`` in the table)."""
-    seeds_needed_smallest: float = np.nan
+COLUMNS = ["variant", "metric", "point", "low", "high", "verdict", "bound", "variant_value", "reference_value"]
+COLUMNS += ["fragile_seeds", "n_variant", "n_reference", "loo_checked", "seeds_needed", "seeds_needed_smallest"]
+"""A row of ``results.comparisons`` (docs/python.md describes each column; ``point``/``low``/``high``: positive is
+better); the report's columns follow (``comparisons``)."""
 
 
 LOO_MAX_SEEDS = 50
@@ -55,10 +36,9 @@ LOO_MAX_SEEDS = 50
 of its sample, and the check (a bootstrap per seed: 640 for 640 seeds) cost the report minutes."""
 
 
-def compare_metric(
-    ablation: Ablation, variant: str, metric: str, stability: bool = True, power: bool = True
-) -> Comparison:
-    """``variant`` against its reference on ``metric``, with a leave-one-seed-out check of the verdict."""
+def compare_metric(ablation: Ablation, variant: str, metric: str, stability: bool = True, power: bool = True) -> dict:
+    """``variant`` against its reference on ``metric`` (a row of ``COLUMNS``), with a leave-one-seed-out check of
+    the verdict."""
     done, reference, entry = ablation.finished, ablation.reference(variant), measure(metric)
 
     def samples(frame: pd.DataFrame):
@@ -87,23 +67,23 @@ def compare_metric(
         for seed in sorted(set(done.seed)):
             if judge(done[done.seed != seed])[3] != verdict:
                 fragile.append(int(seed))
-    return Comparison(
-        variant,
-        metric,
-        point,
-        low,
-        high,
-        verdict,
-        bound,
-        float(iqm(x)) if len(x) else np.nan,
-        float(iqm(y)) if len(y) else np.nan,
-        tuple(fragile),
-        len(x),
-        len(y),
-        loo_checked,
-        needed,
-        smallest,
-    )
+    return {
+        "variant": variant,
+        "metric": metric,
+        "point": point,
+        "low": low,
+        "high": high,
+        "verdict": verdict,
+        "bound": bound,
+        "variant_value": float(iqm(x)) if len(x) else np.nan,
+        "reference_value": float(iqm(y)) if len(y) else np.nan,
+        "fragile_seeds": " ".join(map(str, fragile)),
+        "n_variant": len(x),
+        "n_reference": len(y),
+        "loo_checked": loo_checked,  # False also where a side has more than LOO_MAX_SEEDS seeds: no check made
+        "seeds_needed": needed,  # statistics.seeds_needed: SEEDS_CAP + 1 is more than the cap, inf in the table
+        "seeds_needed_smallest": smallest,
+    }
 
 
 def comparison_metrics(ablation: Ablation) -> list[str]:
@@ -138,9 +118,7 @@ def comparisons(
             continue
         for metric in comparison_metrics(ablation):
             claim = claimed.get((variant, ablation.reference(variant))) if metric == ablation.primary_metric else None
-            c = compare_metric(ablation, variant, metric, stability, power and claim is None)
-            row = {k: getattr(c, k) for k in Comparison.__dataclass_fields__}
-            row["fragile_seeds"] = " ".join(map(str, c.fragile_seeds))
+            row = compare_metric(ablation, variant, metric, stability, power and claim is None)
             row["reference"] = ablation.reference(variant)
             row["primary"] = claim is not None
             row["claim"] = claim.verdict if claim is not None else ""
@@ -153,7 +131,7 @@ def comparisons(
                     sample, reference
                 )
             rows.append(row)
-    columns = [*Comparison.__dataclass_fields__, "reference", "primary", "claim", *P_IMPROVEMENT, "seeds_cap"]
+    columns = [*COLUMNS, "reference", "primary", "claim", *P_IMPROVEMENT, "seeds_cap"]
     frame = pd.DataFrame(rows, columns=columns)
     frame["primary"] = frame.primary.astype(bool)
     return in_report_units(frame)
