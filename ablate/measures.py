@@ -21,8 +21,6 @@ import numpy as np
 if TYPE_CHECKING:  # the report passes a curve frame; the trainer never imports pandas for these
     import pandas as pd
 
-SEED_COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 80, 100)
-"""Seeds per variant ``seeds_needed`` tries, smallest first (3 and 3 can never reach 95% with a rank test)."""
 POWER = 0.8
 """The share of resampled experiments in which a comparison must be decided for its seeds to count as enough."""
 
@@ -229,25 +227,6 @@ def default_primary_metric(solve_thresholds: Sequence[float | None]) -> str:
     """The metric claims are made on when an experiment names none: episodes to solve where every trial has a solve
     threshold, else the area under the learning curve (Pong has no threshold)."""
     return "episodes_to_solve" if all(t is not None for t in solve_thresholds) else "auc"
-
-
-def seeds_needed(power: Callable[[int], float], counts: Sequence[int]) -> int | None:
-    """The fewest seeds per variant, of ``counts`` (ascending, a subset of ``SEED_COUNTS``), at which ``power(n)`` (the
-    share of experiments of n seeds each, drawn with replacement from the observed ones, that the comparison's own
-    decision rule decides) reaches ``POWER``; ``None``: not even the largest. Power grows with seeds, so the search
-    bisects. The one definition of seeds needed: the claims' family and the report's exploratory rows differ only in
-    the decision rule their ``power`` applies."""
-    counts = list(counts)
-    if not counts or power(counts[-1]) < POWER:
-        return None
-    low, high = 0, len(counts) - 1
-    while low < high:
-        middle = (low + high) // 2
-        if power(counts[middle]) >= POWER:
-            high = middle
-        else:
-            low = middle + 1
-    return counts[low]
 
 
 INITIAL_EPISODES = 10

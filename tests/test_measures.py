@@ -55,21 +55,6 @@ def test_the_trainers_recorded_auc_is_the_reports_on_the_same_curve():
     assert recorded == trial_measures(curve, budget, (), window)["auc"]
 
 
-def test_seeds_needed_is_the_fewest_count_whose_power_reaches_the_target_and_none_past_the_largest():
-    from ablate.measures import POWER, SEED_COUNTS, seeds_needed
-
-    asked: list[int] = []
-
-    def power(n: int) -> float:
-        asked.append(n)
-        return 1.0 if n >= 12 else POWER - 0.01
-
-    assert seeds_needed(power, SEED_COUNTS) == 12
-    assert len(asked) < len(SEED_COUNTS)  # a bisection, not a scan
-    assert seeds_needed(lambda n: POWER, SEED_COUNTS) == SEED_COUNTS[0]
-    assert seeds_needed(lambda n: 0.0, SEED_COUNTS) is None and seeds_needed(power, []) is None
-
-
 def test_each_name_maps_back_to_one_entry_and_a_parameterised_one_to_its_value():
     from ablate.measures import AUC, EPISODES_TO_SOLVE, FINAL_RETURN, episodes_to, lookup, measure, return_at
 

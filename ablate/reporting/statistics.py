@@ -8,14 +8,16 @@ functions of arrays (and one of a curves frame); nothing here reads the tracking
 
 from __future__ import annotations
 
+from bisect import bisect_left
+
 import numpy as np
 import pandas as pd
 from scipy import stats
 
+from ablate.claims.advice import SEED_COUNTS
 from ablate.claims.permutation import iqm
 from ablate.design import CONFIDENCE, smallest_p_value  # noqa: F401  (the rule --dry-run applies, one copy)
-from ablate.measures import SEED_COUNTS
-from ablate.measures import seeds_needed as fewest_seeds
+from ablate.measures import POWER
 
 N_RESAMPLES = 2000
 SEED = 12345  # bootstrap resampling is seeded: the same runs give the same report
@@ -252,5 +254,6 @@ def seeds_needed(
         return float(separated.mean())
 
     counts = [n for n in SEED_COUNTS if n <= SEEDS_CAP and smallest_p_value(n, n) <= 1 - CONFIDENCE]
-    needed = fewest_seeds(power, counts)
-    return SEEDS_CAP + 1 if needed is None else needed
+    if power(counts[-1]) < POWER:  # power grows with seeds: the fewest count that reaches it, by bisection
+        return SEEDS_CAP + 1
+    return counts[bisect_left(counts, True, 0, len(counts) - 1, key=lambda n: power(n) >= POWER)]
