@@ -28,24 +28,13 @@ def smallest_p_value(n: int, m: int) -> float:
     return min(1.0, 2 / math.comb(n + m, n))
 
 
-def can_claim_in_family(n: int, comparisons: int, alpha: float = 1 - CONFIDENCE) -> bool:
-    """Could any outcome of ``n`` seeds per variant reach a primary claim, with ``comparisons`` in the family
-    (Holm's first step tests at ``alpha / comparisons``)?"""
-    return smallest_permutation_p(n, n) <= alpha / max(comparisons, 1)
-
-
-def smallest_family_seed_count(comparisons: int) -> int:
-    """The fewest seeds per variant with which a family of ``comparisons`` can reach a primary claim."""
-    return next(n for n in range(2, MAX_SEEDS_ASKED) if can_claim_in_family(n, comparisons))
-
-
 def design_warning(seeds_per_variant: int, comparisons: int = 1) -> str | None:
     """One line when ``seeds_per_variant`` seeds per variant can never reach a primary claim in a family of
     ``comparisons`` (the report's rule: a permutation test of the IQM difference, Holm at 5%), else ``None``."""
-    if can_claim_in_family(seeds_per_variant, comparisons):
+    level = (1 - CONFIDENCE) / max(comparisons, 1)  # Holm's first step
+    if smallest_permutation_p(seeds_per_variant, seeds_per_variant) <= level:
         return None
-    needed = smallest_family_seed_count(comparisons)
-    level = (1 - CONFIDENCE) / max(comparisons, 1)
+    needed = next(n for n in range(2, MAX_SEEDS_ASKED) if smallest_permutation_p(n, n) <= level)
     return (
         f"design: with {seeds_per_variant} seeds per variant no primary comparison can reach a claim at the family "
         f"level ({comparisons} comparison{'s' if comparisons != 1 else ''}, Holm at {1 - CONFIDENCE:.0%}: the first "
