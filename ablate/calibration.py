@@ -194,8 +194,7 @@ def aa_reports(
     from ablate.reporting.statistics import (
         EXPLORATORY_BETTER,
         EXPLORATORY_WORSE,
-        _episodes_comparison,
-        _return_comparison,
+        exploratory_comparison,
     )
 
     trials = trials.sort_values("seed").reset_index(drop=True)
@@ -236,10 +235,8 @@ def aa_reports(
         for metric in metric_names:
             values, flags, y = columns[metric], unreached[metric], order[0]
             for x in order[1:]:
-                if entries[metric].censored:
-                    verdict = _episodes_comparison(values[x], values[y], flags[x], flags[y])[3]
-                else:
-                    verdict = _return_comparison(values[x], values[y])[3]
+                censored = (flags[x], flags[y]) if entries[metric].censored else ()
+                verdict = exploratory_comparison(values[x], values[y], *censored)[3]
                 hit = verdict in (EXPLORATORY_BETTER, EXPLORATORY_WORSE)
                 per_metric[metric] += hit
                 claimed |= hit

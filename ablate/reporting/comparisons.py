@@ -16,8 +16,7 @@ from ablate.reporting.statistics import (
     CONFIDENCE,
     SEEDS_CAP,
     SEPARATED,
-    _episodes_comparison,
-    _return_comparison,
+    exploratory_comparison,
     iqm,
     probability_of_improvement,
     probability_of_improvement_interval,
@@ -48,14 +47,8 @@ def compare_metric(ablation: Ablation, variant: str, metric: str, stability: boo
             return x, y, None, None
         return x, y, (v[entry.reached] != 1).to_numpy(), (b[entry.reached] != 1).to_numpy()
 
-    def judge(frame: pd.DataFrame):
-        x, y, x_cens, y_cens = samples(frame)
-        if x_cens is not None:
-            return _episodes_comparison(x, y, x_cens, y_cens)
-        return _return_comparison(x, y)
-
     x, y, x_cens, y_cens = samples(done)
-    point, low, high, verdict, bound = judge(done)
+    point, low, high, verdict, bound = exploratory_comparison(x, y, x_cens, y_cens)
     needed = smallest = np.nan
     if power and verdict not in SEPARATED and bound != "censored" and min(len(x), len(y)) >= 2:
         relative = x_cens is not None
@@ -65,7 +58,7 @@ def compare_metric(ablation: Ablation, variant: str, metric: str, stability: boo
     loo_checked = smallest_p_value(len(x) - 1, len(y) - 1) <= 1 - CONFIDENCE and max(len(x), len(y)) <= LOO_MAX_SEEDS
     if stability and verdict in SEPARATED and loo_checked:
         for seed in sorted(set(done.seed)):
-            if judge(done[done.seed != seed])[3] != verdict:
+            if exploratory_comparison(*samples(done[done.seed != seed]))[3] != verdict:
                 fragile.append(int(seed))
     return {
         "variant": variant,

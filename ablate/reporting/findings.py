@@ -207,7 +207,7 @@ def claim_line(row: pd.Series, primary: Question, pace: float | None = None) -> 
     stat = stat_name(int(row.n_variant), int(row.n_reference))
     digits = 0 if question.relative else 1
     # a one-sided bound supports only the claim it leans towards: worse when the variant's IQM is the bound,
-    # better when the reference's is (statistics: _episodes_comparison)
+    # better when the reference's is (statistics: exploratory_comparison)
     # "censored": both IQMs count unsolved seeds as the budget, so both are bounds, as Table 1 writes them
     x_bound = "≥ " if row.bound == "censored" or (row.bound and row.verdict == WORSE) else ""
     y_bound = "≥ " if row.bound == "censored" or (row.bound and row.verdict == BETTER) else ""

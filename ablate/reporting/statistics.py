@@ -139,14 +139,16 @@ def _verdict(low: float, high: float) -> str:
     return NOT_SEPARATED
 
 
-def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cens: np.ndarray):
-    """Episodes (lower is better) censored at the budget. Returns (point, low, high, verdict, bound). The
-    IQM of a sample whose IQM uses a censored value is a lower bound on the true IQM: with only the variant
-    censored, the variant is at least as slow as measured (a claim "worse" holds, sized "at least"); with only
-    the baseline censored, a claim "better" holds the same way; with both, episodes say nothing."""
-    point, low, high = iqm_change(x, y, relative=True)
-    x_bound = is_censored_statistic(int(x_cens.sum()), len(x), "iqm")
-    y_bound = is_censored_statistic(int(y_cens.sum()), len(y), "iqm")
+def exploratory_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray | None = None, y_cens=None):
+    """The exploratory rule on one comparison: (point, low, high, verdict, bound). ``x_cens`` given: episodes (lower
+    is better) censored at the budget, else returns. The IQM of a sample whose IQM uses a censored value is a
+    lower bound on the true IQM: with only the variant censored, the variant is at least as slow as measured (a
+    claim "worse" holds, sized "at least"); with only the baseline censored, a claim "better" holds the same way;
+    with both, episodes say nothing."""
+    relative = x_cens is not None
+    point, low, high = iqm_change(x, y, relative)
+    x_bound = relative and is_censored_statistic(int(x_cens.sum()), len(x), "iqm")
+    y_bound = relative and is_censored_statistic(int(y_cens.sum()), len(y), "iqm")
     bound = "censored" if x_bound and y_bound else "at least" if x_bound or y_bound else ""
     verdict = _verdict(low, high)
     if verdict == TOO_FEW_SEEDS or min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
@@ -154,13 +156,6 @@ def _episodes_comparison(x: np.ndarray, y: np.ndarray, x_cens: np.ndarray, y_cen
     elif (x_bound and verdict != EXPLORATORY_WORSE) or (y_bound and verdict != EXPLORATORY_BETTER):
         verdict = NOT_SEPARATED  # as the docstring: a bound supports only the claim it leans towards
     return point, low, high, verdict, bound
-
-
-def _return_comparison(x: np.ndarray, y: np.ndarray):
-    point, low, high = iqm_change(x, y, relative=False)
-    if min(len(x), len(y)) < 2 or smallest_p_value(len(x), len(y)) > 1 - CONFIDENCE:
-        return point, low, high, TOO_FEW_SEEDS, ""
-    return point, low, high, _verdict(low, high), ""
 
 
 def curve_band(
@@ -219,7 +214,7 @@ def seeds_needed(
     resampling the observed seeds: draw n seeds of each with replacement, compute the 95% percentile bootstrap
     interval of the difference (``relative``: 1 - IQM(x) / IQM(y), episodes; else IQM(x) - IQM(y), returns),
     count a separation where it excludes 0 on the observed side and censoring allows the claim (as
-    ``_episodes_comparison``). ``effect``: first shift ``x`` so that the difference is ``effect`` times the
+    ``exploratory_comparison``). ``effect``: first shift ``x`` so that the difference is ``effect`` times the
     reference's IQM on the observed side (the smallest effect of interest). ``SEEDS_CAP + 1`` means more
     than ``SEEDS_CAP``."""
     x, y = np.asarray(x, float), np.asarray(y, float)
