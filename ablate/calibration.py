@@ -191,11 +191,7 @@ def aa_reports(
     import numpy as np
 
     from ablate.claims import BETTER, EQUIVALENT, WORSE, Design, Sample, decide, primary_question
-    from ablate.reporting.statistics import (
-        EXPLORATORY_BETTER,
-        EXPLORATORY_WORSE,
-        exploratory_comparison,
-    )
+    from ablate.reporting.statistics import SEPARATED, exploratory_comparison
 
     trials = trials.sort_values("seed").reset_index(drop=True)
     if len(trials) < variants * seeds:
@@ -210,9 +206,9 @@ def aa_reports(
         for m, e in entries.items()
     }
     budget = float(trials.budget.max()) if "budget" in trials else None
-    episodes = entries[primary].censored
     question = primary_question(primary, smallest_effect, budget)
-    auc = trials["auc"].to_numpy(float) if "auc" in trials else None
+    auc = trials["auc"].to_numpy(float) if "auc" in trials and question.fallback else None
+    pool = Sample(columns[primary], unreached[primary] if entries[primary].censored else None, auc)  # every seed
     references = {f"v{i}": "v0" for i in range(1, variants)}
     design = Design.of(rounds) if rounds else Design.fixed(seeds)
     rng = np.random.default_rng(DEAL_SEED)
@@ -220,14 +216,7 @@ def aa_reports(
     per_metric = dict.fromkeys(metric_names, 0)
     for _ in range(reports):
         order = rng.permutation(len(trials))[: variants * seeds].reshape(variants, seeds)
-        samples = {
-            f"v{i}": Sample(
-                columns[primary][order[i]],
-                unreached[primary][order[i]] if episodes else None,
-                auc[order[i]] if episodes and auc is not None else None,
-            )
-            for i in range(variants)
-        }
+        samples = {f"v{i}": pool[order[i]] for i in range(variants)}
         result = decide(samples, references, question, design, intervals=False, estimate_seeds=False)
         new += any(v.verdict in (BETTER, WORSE) for v in result.verdicts)
         equivalent += any(v.verdict == EQUIVALENT for v in result.verdicts)
@@ -237,7 +226,7 @@ def aa_reports(
             for x in order[1:]:
                 censored = (flags[x], flags[y]) if entries[metric].censored else ()
                 verdict = exploratory_comparison(values[x], values[y], *censored)[3]
-                hit = verdict in (EXPLORATORY_BETTER, EXPLORATORY_WORSE)
+                hit = verdict in SEPARATED
                 per_metric[metric] += hit
                 claimed |= hit
         old += claimed

@@ -183,7 +183,7 @@ def decide(
         open_names = [v for v in order if v not in decided]
         for v in open_names:
             item = state[v]
-            x, y = item.sides(question, samples[v].first(n), samples[references[v]].first(n))
+            x, y = item.sides(question, samples[v][:n], samples[references[v]][:n])
             item.x, item.y = x, y
             first_level = design.alpha / max(k, 1)
             count = permutations or permutations_for(nominal_levels(fractions, first_level, design.spending)[-1])

@@ -71,11 +71,12 @@ class Sample:
     fallback: np.ndarray | None = None
     """The same seeds on the question's ``fallback`` measure (the AUC), where it has one."""
 
-    def first(self, n: int) -> Sample:
+    def __getitem__(self, seeds) -> Sample:
+        """The same seeds of all three (a look's first n: ``sample[:n]``)."""
         return Sample(
-            self.values[:n],
-            None if self.censored is None else self.censored[:n],
-            None if self.fallback is None else self.fallback[:n],
+            self.values[seeds],
+            None if self.censored is None else self.censored[seeds],
+            None if self.fallback is None else self.fallback[seeds],
         )
 
     def __len__(self) -> int:
