@@ -9,9 +9,8 @@ answer, ``Round`` a look's. docs/report.md argues each choice; tests/test_claims
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -81,9 +80,7 @@ class Round:
     of open comparisons. Empty when every comparison is decided or the last look was made."""
     done: bool
     """True when nothing is open or the last look (``max``) was made."""
-    levels: tuple[float, ...] = field(default=())
-    """The two-sided nominal level of each look made, at ``alpha / comparisons`` (Holm's first step)."""
-    spent: tuple[tuple[str, int], ...] = field(default=())
+    spent: tuple[tuple[str, int], ...]
     """(variant, seeds it was run on up to the last look made): a variant stops getting seeds once its
     comparison is decided, unless it is the reference of one still open."""
 
@@ -94,10 +91,8 @@ class Round:
 
 def _bounds(sample: Sample) -> bool:
     """Does the sample's IQM use a censored value (so it is a lower bound on the true IQM)?"""
-    if sample.censored is None:
-        return False
-    n = len(sample)
-    return int(np.sum(sample.censored)) > int(math.floor(0.25 * n)) if n else False
+    censored = 0 if sample.censored is None else int(np.sum(sample.censored))
+    return censored > len(sample) // 4  # the IQM trims n // 4 off each end
 
 
 @dataclass
@@ -277,9 +272,7 @@ def decide(
             )
         )
     needs = () if done else tuple(v for v in samples if v in needed(open_names))
-    return Round(
-        made, last_n, tuple(verdicts), needs, done, tuple(levels), tuple((v, spent.get(v, 0)) for v in samples)
-    )
+    return Round(made, last_n, tuple(verdicts), needs, done, tuple((v, spent.get(v, 0)) for v in samples))
 
 
 def _reason(item: _Open, question: Question, level: float, bound: str) -> str:
