@@ -38,7 +38,7 @@ def test_bootstrap_of_a_constant_sample_is_the_value():
 def test_probability_of_improvement():
     same = np.array([10.0, 20.0, 30.0])
     assert probability_of_improvement(same, same) == pytest.approx(0.5)
-    assert probability_of_improvement_interval(np.full(4, 5.0), np.full(4, 5.0)) == (0.5, 0.5)
+    assert probability_of_improvement_interval(np.full(4, 5.0), np.full(4, 5.0)) == (0.5, 0.5, 0.5)
     # every variant seed needs fewer episodes than every reference seed
     assert probability_of_improvement(np.array([1.0, 2.0]), np.array([5.0, 6.0])) == 1.0
     assert probability_of_improvement(np.array([5.0, 6.0]), np.array([1.0, 2.0])) == 0.0
@@ -61,15 +61,15 @@ def test_vectorised_improvement_counts_the_pairs():
     by_hand = (less.sum(axis=(1, 2)) + ties.sum(axis=(1, 2)) / 2) / 35
     assert probability_of_improvement(x, y) == pytest.approx(by_hand)
     assert probability_of_improvement(x[0], y[0]) == pytest.approx(by_hand[0])
-    low, high = probability_of_improvement_interval(np.array([1.0, 2, 3, 4]), np.array([3.0, 4, 5, 6]))
+    _, low, high = probability_of_improvement_interval(np.array([1.0, 2, 3, 4]), np.array([3.0, 4, 5, 6]))
     assert 0 <= low <= probability_of_improvement(np.array([1.0, 2, 3, 4]), np.array([3.0, 4, 5, 6])) <= high <= 1
 
 
 def test_complete_separation_of_five_seeds_is_not_an_interval_of_one_point():
-    low, high = probability_of_improvement_interval(np.array([1.0, 2, 3, 4, 5]), np.array([6.0, 7, 8, 9, 10]))
+    _, low, high = probability_of_improvement_interval(np.array([1.0, 2, 3, 4, 5]), np.array([6.0, 7, 8, 9, 10]))
     assert (low, high) != (1.0, 1.0)
     assert low == pytest.approx(0.025 ** (1 / 5)) and high == 1.0  # exact bound for 5 of 5
-    low, high = probability_of_improvement_interval(np.array([6.0, 7, 8, 9, 10]), np.array([1.0, 2, 3, 4, 5]))
+    _, low, high = probability_of_improvement_interval(np.array([6.0, 7, 8, 9, 10]), np.array([1.0, 2, 3, 4, 5]))
     assert low == 0.0 and high == pytest.approx(1 - 0.025 ** (1 / 5))
 
 

@@ -18,7 +18,6 @@ from ablate.reporting.statistics import (
     SEPARATED,
     exploratory_comparison,
     iqm,
-    probability_of_improvement,
     probability_of_improvement_interval,
     seeds_needed,
     smallest_p_value,
@@ -119,10 +118,7 @@ def comparisons(
                 row["seeds_needed"], row["seeds_needed_smallest"] = claim.seeds_needed, np.nan
                 row["seeds_cap"] = claim.seeds_cap
             if metric == "episodes_to_solve":
-                row["p_improvement"] = probability_of_improvement(sample, reference)
-                row["p_improvement_ci_low"], row["p_improvement_ci_high"] = probability_of_improvement_interval(
-                    sample, reference
-                )
+                row |= zip(P_IMPROVEMENT, probability_of_improvement_interval(sample, reference), strict=True)
             rows.append(row)
     columns = [*COLUMNS, "reference", "primary", "claim", *P_IMPROVEMENT, "seeds_cap"]
     frame = pd.DataFrame(rows, columns=columns)

@@ -61,17 +61,18 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> 
     return stats.mannwhitneyu(y, x, axis=axis).statistic / (x.shape[axis] * y.shape[axis])
 
 
-def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """95% interval of P(X < Y) + P(X = Y) / 2. The percentile bootstrap collapses to a point when every
-    pair is ordered the same way (5 seeds each give "1.00 [1.00, 1.00]"), which only says the sample has no
-    other pair to resample; there the interval is the exact Clopper-Pearson one for ``min(n, m)`` successes
-    in ``min(n, m)`` independent comparisons, as if only that many pairs carried information."""
+def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """P(X < Y) + P(X = Y) / 2 and its 95% interval (NaN with fewer than 2 seeds a side). The percentile bootstrap
+    collapses to a point when every pair is ordered the same way (5 seeds each give "1.00 [1.00, 1.00]"), which only
+    says the sample has no other pair to resample; there the interval is the exact Clopper-Pearson one for
+    ``min(n, m)`` successes in ``min(n, m)`` independent comparisons, as if only that many pairs carried
+    information."""
     x, y = np.asarray(x, float), np.asarray(y, float)
-    if len(x) < 2 or len(y) < 2:
-        return (float("nan"), float("nan"))
     point = probability_of_improvement(x, y)
+    if len(x) < 2 or len(y) < 2:
+        return (point, float("nan"), float("nan"))
     if np.all(np.concatenate([x, y]) == x[0]):
-        return (0.5, 0.5)
+        return (point, 0.5, 0.5)
     low, high = _percentile_bootstrap((x, y), probability_of_improvement)
     n = min(len(x), len(y))
     edge = (1 - CONFIDENCE) / 2
@@ -79,7 +80,7 @@ def probability_of_improvement_interval(x: np.ndarray, y: np.ndarray) -> tuple[f
         low, high = edge ** (1 / n), 1.0
     elif point <= 0.0 or high - low < 1e-12 and point < 0.5:
         low, high = 0.0, 1 - edge ** (1 / n)
-    return (float(low), float(high))
+    return (point, float(low), float(high))
 
 
 def iqm_change(variant: np.ndarray, reference: np.ndarray, relative: bool) -> tuple[float, float, float]:
