@@ -27,6 +27,7 @@ COLUMNS = ["variant", "metric", "point", "low", "high", "verdict", "bound", "var
 COLUMNS += ["fragile_seeds", "n_variant", "n_reference", "loo_checked", "seeds_needed", "seeds_needed_smallest"]
 """A row of ``results.comparisons`` (docs/python.md describes each column; ``point``/``low``/``high``: positive is
 better); the report's columns follow (``comparisons``)."""
+P_IMPROVEMENT = ("p_improvement", "p_improvement_ci_low", "p_improvement_ci_high")
 
 
 LOO_MAX_SEEDS = 50
@@ -59,7 +60,7 @@ def compare_metric(ablation: Ablation, variant: str, metric: str, stability: boo
         for seed in sorted(set(done.seed)):
             if exploratory_comparison(*samples(done[done.seed != seed]))[3] != verdict:
                 fragile.append(int(seed))
-    return {
+    row = {
         "variant": variant,
         "metric": metric,
         "point": point,
@@ -76,6 +77,9 @@ def compare_metric(ablation: Ablation, variant: str, metric: str, stability: boo
         "seeds_needed": needed,  # statistics.seeds_needed: SEEDS_CAP + 1 is more than the cap, inf in the table
         "seeds_needed_smallest": smallest,
     }
+    if metric == EPISODES_TO_SOLVE.name:
+        row |= zip(P_IMPROVEMENT, probability_of_improvement_interval(x, y), strict=True)
+    return row
 
 
 def comparison_metrics(ablation: Ablation) -> list[str]:
@@ -104,9 +108,7 @@ def comparisons(
     for variant in ablation.variants:
         if variant == ablation.baseline:
             continue
-        reference = done[done.variant == ablation.reference(variant)].censored_episodes.to_numpy(float)
-        sample = done[done.variant == variant].censored_episodes.to_numpy(float)
-        if len(sample) == 0 or len(reference) == 0:
+        if not (done.variant == variant).any() or not (done.variant == ablation.reference(variant)).any():
             continue
         for metric in comparison_metrics(ablation):
             claim = claimed.get((variant, ablation.reference(variant))) if metric == ablation.primary_metric else None
@@ -117,16 +119,11 @@ def comparisons(
             if claim is not None:  # the claims' seeds, not a second estimate beside them
                 row["seeds_needed"], row["seeds_needed_smallest"] = claim.seeds_needed, np.nan
                 row["seeds_cap"] = claim.seeds_cap
-            if metric == "episodes_to_solve":
-                row |= zip(P_IMPROVEMENT, probability_of_improvement_interval(sample, reference), strict=True)
             rows.append(row)
     columns = [*COLUMNS, "reference", "primary", "claim", *P_IMPROVEMENT, "seeds_cap"]
     frame = pd.DataFrame(rows, columns=columns)
     frame["primary"] = frame.primary.astype(bool)
     return in_report_units(frame)
-
-
-P_IMPROVEMENT = ("p_improvement", "p_improvement_ci_low", "p_improvement_ci_high")
 
 
 CHANGE_UNITS = {
