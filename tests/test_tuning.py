@@ -134,12 +134,13 @@ def test_a_choice_is_always_one_of_the_candidates(metric):
 
 
 def test_stage_plan_reads_stage_1_from_finished_summaries_and_narrows_stage_2_to_the_seeds_asked_for():
-    from ablate.launch.grid import expand, tuning_trials
-    from ablate.launch.tuning import StagePlan, unique
+    from ablate.launch.grid import expand
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.tuning import unique
 
     experiment = _spec()
     evaluation = [t for t in expand(experiment) if t.seed == 0]  # as --seeds 0 selects
-    plan = StagePlan(experiment, evaluation, tuning_trials(experiment))
+    plan = LaunchPlan(experiment, only=evaluation)
     assert {t.variant for t in plan.tuning} == {"a"} and len(plan.tuning) == 3 * 2
     finished = {t.key: {"auc": 10.0 * t.config.learning_rate} for t in plan.tuning}
     assert plan.choices({}) == {"own": plan.choices({})["own"]}  # nothing finished: only the untuned variant
@@ -152,12 +153,12 @@ def test_stage_plan_reads_stage_1_from_finished_summaries_and_narrows_stage_2_to
 
 
 def test_provisional_stage_2_is_the_best_candidate_so_far_and_stands_in_for_a_variant_not_seen_yet():
-    from ablate.launch.grid import expand, tuning_trials
-    from ablate.launch.tuning import StagePlan
+    from ablate.launch.grid import expand
+    from ablate.launch.plan import LaunchPlan
 
     experiment = _spec()
     evaluation = expand(experiment)
-    plan = StagePlan(experiment, evaluation, tuning_trials(experiment))
+    plan = LaunchPlan(experiment)
     known = {t.key for t in [*plan.tuning, *evaluation]}
     # No tuning trial has finished: "a" stands in with its evaluation trials, as many as its choice would add.
     assert plan.provisional({}, known) == [t for t in evaluation if t.variant == "a"]

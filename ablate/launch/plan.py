@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 from ablate.config import DEFAULT_POPULATION, population_group
 from ablate.experiment import Experiment
-from ablate.launch.grid import GridTrial, expand, select, tuning_trials
+from ablate.launch.grid import GridTrial, chosen_trials, expand, select, tuning_trials
+from ablate.launch.tuning import Choice, choose_all, finished_results, unique
 
 if TYPE_CHECKING:
     from ablate.launch.rounds import Judge
@@ -26,7 +28,9 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class LaunchPlan:
     """One launch as the command line or the API asks for it, handed whole to the runner (``runner.run_plan``):
-    the experiment as loaded and its grid as expanded (each once), the part of it to run, and how."""
+    the experiment as loaded and its grid as expanded (each once), the part of it to run, and how; its stages:
+    stage 1 (tuning) and the evaluation trials known now, the rest of stage 2 (each variant at its chosen
+    values) once stage 1 is done."""
 
     experiment: Experiment
     only: Sequence[GridTrial] | None = None
@@ -65,14 +69,37 @@ class LaunchPlan:
 
     @property
     def trials(self) -> list[GridTrial]:
-        """The trials it evaluates: ``only``, else the whole grid."""
+        """The trials it evaluates: ``only``, else the whole grid; in a tuned launch, the base-value trials."""
         return list(self.grid if self.only is None else self.only)
 
-    @property
+    @cached_property
     def tuning(self) -> list[GridTrial]:
-        """Stage 1's trials (``grid.tuning_trials``) of the variants it evaluates."""
+        """Stage 1's trials (``grid.tuning_trials``) of the variants it evaluates (``--seeds`` never narrows it)."""
         wanted = {t.variant for t in self.trials}
         return [t for t in tuning_trials(self.experiment) if t.variant in wanted]
+
+    def chosen(self, choices: Mapping[str, Choice]) -> list[GridTrial]:
+        """Stage 2 at the chosen values, for the variants and evaluation seeds asked for."""
+        pairs = {(t.variant, t.seed) for t in self.trials}
+        values = {name: c.values for name, c in choices.items() if c.tuned}
+        return [t for t in chosen_trials(self.experiment, values) if (t.variant, t.seed) in pairs]
+
+    def choices(self, finished: Mapping[str, Mapping[str, float]], so_far: bool = False) -> dict[str, Choice]:
+        """Choices of the variants whose stage 1 has finished (``finished``: key -> summary metrics; ``so_far``:
+        see ``tuning.choose_all``)."""
+        if not self.tuning:
+            return {}
+        return choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished), so_far)
+
+    def provisional(self, finished: Mapping[str, Mapping[str, float]], skip: set[str]) -> list[GridTrial]:
+        """Stage 2 as it would be if stage 1 ended now, for the time-left estimate: each tuned variant at its
+        best candidate so far (its choice once its stage 1 is complete), without the trials in ``skip``; a
+        variant with no finished tuning trial yet stands in with its evaluation trials (as many, at the base
+        values)."""
+        choices = self.choices(finished, so_far=True)
+        unseen = [name for name in dict.fromkeys(t.variant for t in self.tuning) if name not in choices]
+        stand_ins = [t for name in unseen for t in self.trials if t.variant == name]
+        return unique(self.chosen(choices), skip) + stand_ins
 
 
 @dataclass(frozen=True)

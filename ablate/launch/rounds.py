@@ -94,7 +94,7 @@ class Rounds:
 
     def primary_trials(self, choices: Mapping[str, Choice]) -> dict[str, list[GridTrial]]:
         """Every variant's primary trials over every seed it may run: at its chosen values where it was tuned
-        (``choices``: ``StagePlan.choices``), else at its own."""
+        (``choices``: ``LaunchPlan.choices``), else at its own."""
         values = {name: c.values for name, c in choices.items() if c.tuned}
         values = {v.name: values.get(v.name, {}) for v in self.experiment.variants}
         trials = chosen_trials(self.experiment, values, every_round=True)
@@ -197,9 +197,9 @@ class Rounds:
         trials = self.primary_trials(choices).values()
         return [t for ts in trials for t in ts if t.key in finished or t.key in self.attempted]
 
-    def announce(self, show: bool) -> str:
-        """Print the line of the round just planned (when ``show``); the progress view's name for it:
-        ``<experiment> round <r>``."""
+    def announce(self, show: bool) -> tuple[str, int]:
+        """Print the line of the round just planned (when ``show``); the progress view's name for it
+        (``<experiment> round <r>``) and its number."""
         last = self.ran[-1]
         if show:
             print(
@@ -207,7 +207,7 @@ class Rounds:
                 f"{', '.join(last['variants'])} (still open: {', '.join(last['open']) or 'none'})",
                 flush=True,
             )
-        return f"{self.experiment.name} round {last['round']}"
+        return f"{self.experiment.name} round {last['round']}", last["round"]
 
     def document(self) -> dict[str, Any]:
         """``rounds.json`` of a launch run: the design, the rounds this launch ran, why they stopped, and each

@@ -33,20 +33,18 @@ from ablate.launch.records import TorchKernels, environment_document, git_commit
 from ablate.launch.rounds import Rounds
 from ablate.launch.state import LaunchState
 from ablate.launch.tracking import START_METRIC, Tracker
-from ablate.launch.tuning import StagePlan, tuning_document, unique
+from ablate.launch.tuning import tuning_document, unique
 
 # ``ablate.launch.scheduler`` (Ray: seconds to import) is imported only once there is a trial to run, so a
 # re-run with nothing left answers from the store alone.
 
 
 class Interrupted(KeyboardInterrupt):
-    """Ctrl-C or SIGTERM: the launch stops cleanly (workers stopped, running trials marked KILLED).
-    ``exit_code`` is the shell's convention for death by that signal: 130 for SIGINT, 143 for SIGTERM."""
+    """Ctrl-C or SIGTERM: the launch stops cleanly (workers stopped, running trials marked KILLED)."""
 
     def __init__(self, signum: int = signal.SIGINT) -> None:
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
-        self.exit_code = 128 + signum
 
 
 signals_received: list[int] = []
@@ -179,14 +177,12 @@ class _Launch:
     """Both set by ``watch``; ``close`` runs whatever step failed before it."""
 
     def __init__(self, plan: LaunchPlan, tracker: Tracker, kernels: TorchKernels) -> None:
-        self.experiment, self.options, self.tracker, self.kernels = plan.experiment, plan, tracker, kernels
+        self.experiment, self.plan, self.tracker, self.kernels = plan.experiment, plan, tracker, kernels
         self.generation = (None if plan.fresh else tracker.latest_generation()) or uuid.uuid4().hex[:12]
         evaluation = plan.trials
         self.wanted = {t.variant for t in evaluation}
-        self.plan = StagePlan(plan.experiment, evaluation, plan.tuning)
         # Selection on resume reads the tuning trials finished by earlier launches back from the store.
         self.finished_runs = {r.key: r.metrics for r in tracker.trial_runs(self.generation) if r.status == "FINISHED"}
-        self.finished_before = set(self.finished_runs)
         self.choices = self.plan.choices(self.finished_runs)
         self.unchosen = {t.variant for t in self.plan.tuning} - set(self.choices)
         self.known = unique([*self.plan.tuning, *evaluation, *self.plan.chosen(self.choices)], set())
@@ -224,7 +220,7 @@ class _Launch:
     def todo(self) -> list[GridTrial]:
         """What this launch runs first: every known trial without a finished run; on a resume after round 1,
         the next round the open comparisons ask for (none: all decided)."""
-        todo = [t for t in self.known if t.key not in self.finished_before]
+        todo = [t for t in self.known if t.key not in self.finished_runs]
         if self.rounds and not todo:
             todo = self.rounds.next_round(self.choices, self.finished_runs)
             self.known += todo
@@ -235,7 +231,7 @@ class _Launch:
         MLflow run with the files the report reads: the experiment, the grid, the machine."""
         from ablate.launch import scheduler
 
-        experiment, options = self.experiment, self.options
+        experiment, options = self.experiment, self.plan
         if options.show_progress:
             print(f"trials to run: {total_words(len(todo), *self.most(todo))}; starting Ray ...", flush=True)
         # The machine's record (its torch kernels asked of a child since the launch began) and git: while Ray starts.
@@ -275,7 +271,7 @@ class _Launch:
     def watch(self, todo: list[GridTrial]) -> list[GridTrial]:
         """The launch's state (stage 2's stand-ins and later rounds counted from the start), its view and the
         recorder that turns scheduler events into MLflow writes and state updates; ``todo`` in start order."""
-        experiment, options = self.experiment, self.options
+        experiment, options = self.experiment, self.plan
         cpus = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
         slots = options.max_concurrent or (None if options.address else cpus)
         # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
@@ -303,16 +299,16 @@ class _Launch:
     def most(self, todo: list[GridTrial]) -> tuple[int, int]:
         """The most trials stage 2 and later rounds can add to ``todo``: a tuned variant not chosen yet runs at
         most one trial per evaluation seed at its chosen values; rounds, every open comparison to ``max`` seeds."""
-        stage = sum(t.variant in self.unchosen for t in self.plan.evaluation)
+        stage = sum(t.variant in self.unchosen for t in self.plan.trials)
         rounds = 0
         if self.rounds is not None:
-            seen = {t.key for t in todo} | self.finished_before
+            seen = {t.key for t in todo} | self.finished_runs.keys()
             rounds = sum(len(ts) for ts in self.rounds.possible(self.choices, seen))
         return stage, rounds
 
     def groups(self, trials: Sequence[GridTrial]) -> list[list[str]]:
         """The keys of each population ``trials`` will run in: how the estimate sees them."""
-        return [p.keys for p in plan_populations(trials, self.options.population, self.cores)]
+        return [p.keys for p in plan_populations(trials, self.plan.population, self.cores)]
 
     def provisional(self, summaries: Mapping[str, Mapping[str, float]]) -> list[GridTrial]:
         """Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
@@ -331,38 +327,37 @@ class _Launch:
     def may_follow(self) -> None:
         """The rounds that may still follow: the most the launch can still run."""
         if self.rounds is not None:
-            possible = self.rounds.possible(self.choices, set(self.state.trials) | self.finished_before)
+            possible = self.rounds.possible(self.choices, set(self.state.trials) | self.finished_runs.keys())
             self.state.set_possible(possible, self.groups([t for ts in possible for t in ts]))
 
     def stages(self, todo: list[GridTrial]) -> None:
         """Stage 1 (tuning, or the grid); stage 2 at each variant's chosen values; then rounds of seeds until the
         primary comparisons are decided."""
-        plan, rounds, tracker, launch = self.plan, self.rounds, self.tracker, self.launch
+        plan, rounds = self.plan, self.rounds
         if plan.tuning and self.wanted <= set(self.choices):
-            tracker.log_file(
-                launch, "tuning.json", json.dumps(tuning_document(self.experiment, self.choices), indent=1)
-            )
+            self.log_json("tuning.json", tuning_document(self.experiment, self.choices))
         if rounds and rounds.ran:  # a resumed launch starts in a later round
-            self.state.name, self.state.round = rounds.announce(self.options.show_progress), rounds.ran[-1]["round"]
+            self.state.name, self.state.round = rounds.announce(self.plan.show_progress)
         self.stage(todo)
         if plan.tuning and not self.wanted <= set(self.choices):
             # Stage 2: every variant whose tuning trials all finished, at its chosen values.
             self.choices = plan.choices(self.finished_runs | self.recorder.summaries)
-            tracker.log_file(
-                launch, "tuning.json", json.dumps(tuning_document(self.experiment, self.choices), indent=1)
-            )
+            self.log_json("tuning.json", tuning_document(self.experiment, self.choices))
             self.later(unique(plan.chosen(self.choices), self.known_keys))
         while rounds is not None:
             later = rounds.next_round(self.choices, self.finished_runs | self.recorder.summaries)
-            tracker.log_file(launch, "rounds.json", json.dumps(rounds.document(), indent=1))
+            self.log_json("rounds.json", rounds.document())
             if not later:
                 self.may_follow()  # none: the upper figure is the launch's end
                 break
             self.grid["trials"] += [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in later]
-            tracker.log_file(launch, "grid.json", json.dumps(self.grid, indent=1))
-            self.state.name, self.state.round = rounds.announce(self.options.show_progress), rounds.ran[-1]["round"]
+            self.log_json("grid.json", self.grid)
+            self.state.name, self.state.round = rounds.announce(self.plan.show_progress)
             self.later(later)
         self.outcome.rounds = rounds.document() if rounds else None
+
+    def log_json(self, name: str, document: object) -> None:
+        self.tracker.log_file(self.launch, name, json.dumps(document, indent=1))
 
     def stage(self, todo: list[GridTrial]) -> None:
         """Run ``todo`` as populations; trials a killed launch left with a checkpoint continue from it."""
@@ -372,10 +367,10 @@ class _Launch:
 
         seeds = plotted_seeds(self.experiment)
         plotted = {t.key for t in todo if t.seed in seeds.get(t.variant, ())}
-        plan = plan_populations(todo, cap=self.options.population, slots=self.cores, plotted=plotted)
+        plan = plan_populations(todo, cap=self.plan.population, slots=self.cores, plotted=plotted)
         populations = self.recorder.planned(plan)
         with self.view:
-            options, experiment = self.options, self.experiment
+            options, experiment = self.plan, self.experiment
             cluster = scheduler.ClusterOptions(
                 options.address, options.max_concurrent, experiment.resources_per_trial, experiment.gpus_per_trial,
                 options.storage_path,
@@ -386,7 +381,7 @@ class _Launch:
     def later(self, trials: list[GridTrial]) -> None:
         """Stage 2, or a round of seeds, after what ran before: seeds interleaved as in stage 1, in the same
         state, so what stage 1 taught of costs carries over."""
-        todo = [t for t in trials if t.key not in self.finished_before]
+        todo = [t for t in trials if t.key not in self.finished_runs]
         self.outcome.total += len(trials)
         self.outcome.skipped += len(trials) - len(todo)
         self.state.already_done = self.outcome.skipped  # the summary's count: this launch's trials run before

@@ -169,42 +169,6 @@ def tuning_document(experiment: Experiment, choices: Mapping[str, Choice]) -> di
     }
 
 
-@dataclass
-class StagePlan:
-    """What a launch runs: stage 1 (tuning) and the evaluation trials known now; the rest of stage 2 (each
-    variant at its chosen values) once stage 1 is done. Without ``[tune]``: the evaluation trials alone."""
-
-    experiment: Experiment
-    evaluation: list[GridTrial]
-    """The untuned trials asked for (``--only``, ``--seeds``): in a tuned launch, the base-value trials."""
-    tuning: list[GridTrial]
-    """Stage 1 of the variants asked for (``--seeds`` never narrows it)."""
-
-    def chosen(self, choices: dict[str, Choice]) -> list[GridTrial]:
-        """Stage 2 at the chosen values, for the variants and evaluation seeds asked for."""
-        pairs = {(t.variant, t.seed) for t in self.evaluation}
-        values = {name: c.values for name, c in choices.items() if c.tuned}
-        return [t for t in chosen_trials(self.experiment, values) if (t.variant, t.seed) in pairs]
-
-    def choices(self, finished: dict[str, dict[str, float]]) -> dict[str, Choice]:
-        """Choices of the variants whose stage 1 has finished (``finished``: key -> summary metrics)."""
-        if not self.tuning:
-            return {}
-        return choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished))
-
-    def provisional(self, finished: Mapping[str, Mapping[str, float]], skip: set[str]) -> list[GridTrial]:
-        """Stage 2 as it would be if stage 1 ended now, for the time-left estimate: each tuned variant at its
-        best candidate so far (its choice once its stage 1 is complete), without the trials in ``skip``; a
-        variant with no finished tuning trial yet stands in with its evaluation trials (as many, at the base
-        values)."""
-        if not self.tuning:
-            return []
-        choices = choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished), so_far=True)
-        unseen = [name for name in dict.fromkeys(t.variant for t in self.tuning) if name not in choices]
-        stand_ins = [t for name in unseen for t in self.evaluation if t.variant == name]
-        return unique(self.chosen(choices), skip) + stand_ins
-
-
 def unique(trials: list[GridTrial], skip: set[str]) -> list[GridTrial]:
     """``trials`` without repeated keys and without the keys in ``skip``, in order (a chosen value equal to the
     base value gives the base-value trial again)."""
