@@ -15,7 +15,8 @@ from ablate.config import DEFAULT_POPULATION
 from ablate.env_spec import profile_named
 from ablate.experiment import Experiment
 from ablate.launch.clock import clock
-from ablate.launch.grid import GridTrial, expand, tuning_trials
+from ablate.launch.grid import GridTrial
+from ablate.launch.plan import LaunchPlan, plan_populations
 from ablate.launch.rounds import Rounds, dry_run_lines
 
 T = TypeVar("T")
@@ -52,21 +53,20 @@ def _rate(env_id: str, env_profile: str) -> tuple[float, bool]:
     return (measured, True) if measured else (episode_seconds(FALLBACK_ENV), False)
 
 
-def time_line(
-    experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, report: bool = True, fresh: bool = False
-) -> str:
+def time_line(plan: LaunchPlan, tracking_uri: str | None, report: bool = True, fresh: bool = False) -> str:
     """The whole command's time, first: the trials' (``trial_time``), the start's and the report's, each with
     how it was estimated: the start and the report as this store's newest launch of the experiment took them
     (``Tracker.launch_times``), else ``START_S`` and ``report_guess``."""
+    experiment = plan.experiment
     start_s, report_s = from_store(experiment, tracking_uri, lambda store: store.launch_times(), (None, None))
     measured = start_s is not None and (report_s is not None or not report)
     start_s = start_s if measured else START_S
-    report_s = (report_s if measured else report_guess(len(trials))) or 0.0
+    report_s = (report_s if measured else report_guess(len(plan.trials))) or 0.0
     overhead = start_s + (report_s if report else 0.0)
     parts = f"~{clock(start_s)} to start" + (f" and ~{clock(report_s)} for the report" if report else "")
     how = "as this store's last launch of it took them" if measured else GUESS
     guess = f"{parts}: {how}"
-    trials_words, left, most = trial_time(experiment, trials, tracking_uri, fresh)
+    trials_words, left, most = trial_time(plan, tracking_uri, fresh)
     total = f"~{clock(left + overhead)}" + (f", at most ~{clock(most + overhead)}" if most is not None else "")
     budget = experiment.rounds.max_minutes if experiment.rounds else None
     if most is not None and budget is not None and most + start_s > 60 * budget:  # ``Rounds.past_budget``
@@ -76,21 +76,18 @@ def time_line(
     return f"time: {total} in all: {trials_words}; {guess}"
 
 
-def trial_time(
-    experiment: Experiment, trials: list[GridTrial], tracking_uri: str | None, fresh: bool = False
-) -> tuple[str, float, float | None]:
+def trial_time(plan: LaunchPlan, tracking_uri: str | None, fresh: bool = False) -> tuple[str, float, float | None]:
     """The trials' time in words, with the two figures a launch's progress line gives, before anything runs: the
     time of round 1 (with its tuning) and the most the launch can take (every comparison to ``max`` seeds, round
     after round; None without rounds), from the store's earlier runs of these trials (and of their variants);
     without any, ``guessed_s``. Trials finished in the newest generation are skipped, as the run skips them
     (``fresh``: none)."""
     from ablate.launch.estimate import estimate
-    from ablate.launch.plan import plan_populations
     from ablate.launch.state import LaunchState
     from ablate.launch.tuning import unique
 
+    experiment, trials, tuning = plan.experiment, plan.trials, plan.tuning
     wanted = {t.variant for t in trials}
-    tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
     done = set() if fresh else from_store(experiment, tracking_uri, finished_keys, set())
     known = {t.key for t in [*tuning, *trials]}
     todo = unique([*tuning, *trials], done)
@@ -190,16 +187,15 @@ def dry_run(
     ``[tune]``: stage 1 (every candidate on the tuning seeds), then stage 2, whose chosen values are known only
     after tuning (listed "after tuning"; the base-value trials are the untuned ones, with their keys)."""
     overrides = {v.name: ", ".join(f"{k}={json.dumps(x)}" for k, x in v.overrides) for v in experiment.variants}
-    total = len(expand(experiment))
-    print(time_line(experiment, trials, tracking_uri, report, fresh))  # first: `| head` keeps it
+    plan = LaunchPlan(experiment, only=trials)
+    total = len(plan.grid)
+    print(time_line(plan, tracking_uri, report, fresh))  # first: `| head` keeps it
     rows = [("variant", "seed", "key", "overrides")]
     if experiment.tune is None:
         print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
         rows += [(t.variant, str(t.seed), t.key, overrides.get(t.variant, "") or "-") for t in trials]
     else:
-        spec = experiment.tune
-        wanted = {t.variant for t in trials}
-        tuning = [t for t in tuning_trials(experiment) if t.variant in wanted]
+        spec, tuning = experiment.tune, plan.tuning
         variants = {v.name: v for v in experiment.variants}
         tuned = {t.variant for t in tuning}
         after = [t for t in trials if t.variant in tuned]
