@@ -5,12 +5,12 @@ tuning trial with ``--stage tune``; the untuned trial at the base values with ``
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from ablate.config import ConfigError, TrialConfig, apply_knobs
 from ablate.experiment import Experiment, load_experiment
-from ablate.launch.grid import GridTrial, expand, trial_key, tuning_trials
+from ablate.launch.grid import GridTrial, chosen_trials, expand, tuning_trials
 
 STAGES = ("eval", "tune", "base")
 """``eval``: the trial the report's claims use (at the chosen values when tuned); ``tune``: a stage-1 trial;
@@ -125,9 +125,7 @@ def trial_from(args: argparse.Namespace, knobs: dict[str, Any], not_in_key: tupl
             "(stage 1); pass --tracking-uri the store it wrote, or --stage base (the base value) or --stage tune"
         )
     values = {k: choices[args.variant].get(k, getattr(base_trial.config, k)) for k in tuned_names}
-    # As grid.chosen_trials builds it, but for any seed the rounds may add (chosen_trials has round 1's only).
-    config = replace(base_trial.config, **values)
-    trial = GridTrial(trial_key(args.variant, config), args.variant, args.seed, config)
+    trial = _one(chosen_trials(experiment, {args.variant: values}, every_round=True), args, experiment)
     words = f"stage 2 (evaluation) at {_values(values)}, the value tuning chose (recorded in {shown})"
     return Chosen(apply_knobs(trial.config, extra), trial, "eval", values, words)
 
