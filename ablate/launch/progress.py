@@ -127,10 +127,11 @@ class ProgressView:
             now = time.monotonic()
             return Group(self.headline(), self._running_table(now), self._variant_table())
 
-    def refresh(self) -> None:
+    def refresh(self, now: bool = False) -> None:
+        """The line, when 10 s have passed since the last (``now``: in any case)."""
         if not self.enabled or self.live is not None:
             return  # the live panel redraws itself four times a second
-        if time.monotonic() - self.last_line >= 10:
+        if now or time.monotonic() - self.last_line >= 10:
             self.last_line = time.monotonic()
             with self.state.lock:
                 line = self.headline()
@@ -178,10 +179,8 @@ class ProgressView:
             self.live.refresh()
             self.live.__exit__(None, None, None)
             self.live = None
-        elif self.enabled:
-            with self.state.lock:
-                line = self.headline()
-            print(line, flush=True)
+        else:
+            self.refresh(now=True)
 
 
 def time_left_words(left: float | None, most: float | None, round_number: int | None) -> str:
