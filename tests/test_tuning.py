@@ -3,7 +3,7 @@
 import pytest
 
 from ablate.experiment import parse_experiment
-from ablate.launch.grid import chosen_trials
+from ablate.launch.grid import chosen_trials, tuning_trials
 from ablate.launch.tuning import TuningResult, choose, choose_all, tuning_document
 from ablate.measures import measure
 
@@ -26,6 +26,12 @@ def _rows(table, budget=100):
         for lr, per_seed in table.items()
         for i, metrics in enumerate(per_seed)
     ]
+
+
+def _finished(experiment, table):
+    """As ``_rows``, as the launch has them: summary metrics by the key of variant ``a``'s tuning trial."""
+    keys = {(t.config.learning_rate, t.seed): t.key for t in tuning_trials(experiment)}
+    return {keys[lr, 10_000 + i]: metrics for lr, per_seed in table.items() for i, metrics in enumerate(per_seed)}
 
 
 def _choose(experiment, table):
@@ -107,13 +113,13 @@ def test_tuning_values_censor_unsolved_episodes_at_the_budget():
 
 def test_choose_all_waits_for_every_tuning_trial_and_keeps_a_variants_own_value():
     experiment = _spec()
-    rows = _rows({0.01: [{"auc": 1}, {"auc": 1}], 0.03: [{"auc": 2}, {"auc": 2}], 0.1: [{"auc": 3}]})
-    choices = choose_all(experiment, rows)
+    table = {0.01: [{"auc": 1}, {"auc": 1}], 0.03: [{"auc": 2}, {"auc": 2}], 0.1: [{"auc": 3}]}
+    choices = choose_all(experiment, tuning_trials(experiment), _finished(experiment, table))
     assert "a" not in choices  # 0.1 on seed 10001 has not finished
     own = choices["own"]
     assert (own.values, own.tuned, own.reason) == ({"learning_rate": 0.001}, False, "set by the variant")
-    rows.append(TuningResult("a", {"learning_rate": 0.1}, 10_001, {"auc": 3}, 100))
-    choices = choose_all(experiment, rows)
+    table[0.1].append({"auc": 3})
+    choices = choose_all(experiment, tuning_trials(experiment), _finished(experiment, table))
     assert choices["a"].values == {"learning_rate": 0.1}
     document = tuning_document(experiment, choices)
     assert document["knobs"] == {"learning_rate": [0.01, 0.03, 0.1]} and document["seeds"] == [10_000, 10_001]

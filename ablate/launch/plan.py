@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from ablate.config import DEFAULT_POPULATION, population_group
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, chosen_trials, expand, select, tuning_trials
-from ablate.launch.tuning import Choice, choose_all, finished_results, unique
+from ablate.launch.tuning import Choice, choose_all, unique
 
 if TYPE_CHECKING:
     from ablate.launch.rounds import Judge
@@ -89,7 +89,7 @@ class LaunchPlan:
         see ``tuning.choose_all``)."""
         if not self.tuning:
             return {}
-        return choose_all(self.experiment, finished_results(self.experiment, self.tuning, finished), so_far)
+        return choose_all(self.experiment, self.tuning, finished, so_far)
 
     def provisional(self, finished: Mapping[str, Mapping[str, float]], skip: set[str]) -> list[GridTrial]:
         """Stage 2 as it would be if stage 1 ended now, for the time-left estimate: each tuned variant at its

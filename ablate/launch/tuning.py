@@ -105,15 +105,25 @@ def base_values(spec: TuneSpec, variant: Variant) -> dict[str, Any]:
     return {k: getattr(variant.config, k) for k in spec.knob_names}
 
 
-def choose_all(experiment: Experiment, results: Iterable[TuningResult], so_far: bool = False) -> dict[str, Choice]:
+def choose_all(
+    experiment: Experiment,
+    trials: Iterable[GridTrial],
+    finished: Mapping[str, Mapping[str, float]],
+    so_far: bool = False,
+) -> dict[str, Choice]:
     """A choice for every variant whose stage 1 is complete (every candidate on every tuning seed finished), or
-    with ``so_far`` has any finished trial (its best candidate so far); the others are left out. Requires
-    ``experiment.tune``."""
+    with ``so_far`` has any finished trial (its best candidate so far); the others are left out. ``trials``: stage
+    1's (``grid.tuning_trials``); ``finished``: trial key -> summary metrics, from this launch or read back from the
+    store. Requires ``experiment.tune``."""
     spec = experiment.tune
     assert spec is not None
+    variants = {v.name: v for v in experiment.variants}
     by_variant: dict[str, list[TuningResult]] = {}
-    for result in results:
-        by_variant.setdefault(result.variant, []).append(result)
+    for t in trials:
+        if t.key in finished:
+            values = {k: getattr(t.config, k) for k in spec.tuned_knobs(variants[t.variant])}
+            result = TuningResult(t.variant, values, t.seed, finished[t.key], t.config.max_episodes)
+            by_variant.setdefault(t.variant, []).append(result)
     choices = {}
     for variant in experiment.variants:
         tuned = spec.tuned_knobs(variant)
@@ -125,25 +135,6 @@ def choose_all(experiment: Experiment, results: Iterable[TuningResult], so_far: 
             continue
         choices[variant.name] = choose(spec, tuned, base_values(spec, variant), rows)
     return choices
-
-
-def finished_results(
-    experiment: Experiment, plan: Iterable[Any], finished: Mapping[str, Mapping[str, float]]
-) -> list[TuningResult]:
-    """The stage-1 trials of ``plan`` (``GridTrial``s of stage ``tune``) that have finished, with their summary
-    metrics from ``finished`` (trial key -> metrics, from this launch or read back from the store)."""
-    spec = experiment.tune
-    assert spec is not None
-    variants = {v.name: v for v in experiment.variants}
-    results = []
-    for trial in plan:
-        if trial.key in finished:
-            tuned = spec.tuned_knobs(variants[trial.variant])
-            values = {k: getattr(trial.config, k) for k in tuned}
-            results.append(
-                TuningResult(trial.variant, values, trial.seed, finished[trial.key], trial.config.max_episodes)
-            )
-    return results
 
 
 def tuning_document(experiment: Experiment, choices: Mapping[str, Choice]) -> dict[str, Any]:
