@@ -39,21 +39,14 @@ from ablate.launch.tuning import tuning_document, unique
 # re-run with nothing left answers from the store alone.
 
 
-class Interrupted(KeyboardInterrupt):
-    """Ctrl-C or SIGTERM: the launch stops cleanly (workers stopped, running trials marked KILLED)."""
-
-    def __init__(self, signum: int = signal.SIGINT) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
 signals_received: list[int] = []
-"""Signals ``raise_interrupted`` turned into ``Interrupted``: Tune re-raises a plain ``KeyboardInterrupt``."""
+"""Signals ``raise_interrupted`` turned into a ``KeyboardInterrupt`` (Tune re-raises a plain one): which stopped
+the launch, cleanly (workers stopped, running trials marked KILLED)."""
 
 
 def raise_interrupted(signum: int, frame: object) -> None:
     signals_received.append(signum)
-    raise Interrupted(signum)
+    raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
 @contextlib.contextmanager
@@ -206,10 +199,9 @@ class _Launch:
         self.start(todo)
         try:
             self.stages(self.watch(todo))
-        except KeyboardInterrupt as interrupt:
+        except KeyboardInterrupt:
             self.outcome.interrupted = True
-            received = signals_received[-1] if signals_received else signal.SIGINT
-            self.outcome.signal_name = signal.Signals(getattr(interrupt, "signum", None) or received).name
+            self.outcome.signal_name = signal.Signals(signals_received[-1] if signals_received else signal.SIGINT).name
         except Exception as error:  # noqa: BLE001 - any scheduler or Ray error: the launch is recorded FAILED
             first = str(error).strip().splitlines()[0] if str(error).strip() else ""
             self.outcome.error = f"{type(error).__name__}: {first}"
