@@ -223,13 +223,13 @@ class _Launch:
         MLflow run with the files the report reads: the experiment, the grid, the machine."""
         from ablate.launch import scheduler
 
-        experiment, options = self.experiment, self.plan
-        if options.show_progress:
+        experiment, plan = self.experiment, self.plan
+        if plan.show_progress:
             print(f"trials to run: {total_words(len(todo), *self.most(todo))}; starting Ray ...", flush=True)
         # The machine's record (its torch kernels asked of a child since the launch began) and git: while Ray starts.
         with ThreadPoolExecutor(1, thread_name_prefix="ablate-record") as pool:
             machine, commit = pool.submit(environment_document, self.kernels), pool.submit(git_commit)
-            self.started_ray = scheduler.ensure_ray(options.address)
+            self.started_ray = scheduler.ensure_ray(plan.address)
             environment, self.commit = machine.result(), commit.result()
         self.biggest = scheduler.largest_node_cpus()
         if experiment.resources_per_trial > self.biggest:  # a joined cluster: no node could ever start a trial
@@ -241,13 +241,13 @@ class _Launch:
                 f"{self.biggest:g}"
             )
         extra = self.rounds.finished_trials(self.choices, self.finished_runs) if self.rounds else []  # later rounds'
-        self.grid = grid_document(experiment, unique([*options.grid, *extra], set()))
+        self.grid = grid_document(experiment, unique([*plan.grid, *extra], set()))
         self.launch = self.tracker.start_launch(
             self.generation,
             name=f"{experiment.name} {time.strftime('%Y-%m-%d %H:%M:%S')}",
             tags={
                 "mlflow.source.git.commit": self.commit,
-                "ablate.command": options.command,
+                "ablate.command": plan.command,
                 "ablate.experiment_file": experiment.path,
                 TAG_HOST: socket.gethostname(),
                 TAG_PID: str(os.getpid()),
@@ -263,9 +263,9 @@ class _Launch:
     def watch(self, todo: list[GridTrial]) -> list[GridTrial]:
         """The launch's state (stage 2's stand-ins and later rounds counted from the start), its view and the
         recorder that turns scheduler events into MLflow writes and state updates; ``todo`` in start order."""
-        experiment, options = self.experiment, self.plan
+        experiment, plan = self.experiment, self.plan
         cpus = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
-        slots = options.max_concurrent or (None if options.address else cpus)
+        slots = plan.max_concurrent or (None if plan.address else cpus)
         # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
         prior, prior_episodes = self.tracker.earlier_runs(t.key for t in todo)
         todo = schedule_order(todo, prior)
@@ -274,11 +274,11 @@ class _Launch:
         self.known_keys = {t.key for t in self.known}  # what stage 2 adds is what is not among them
         stand_ins = self.provisional({}) if self.unchosen else []
         self.state = LaunchState(
-            experiment.name, todo, self.outcome.skipped, slots, options.started_at, prior, prior_episodes,
+            experiment.name, todo, self.outcome.skipped, slots, plan.started_at, prior, prior_episodes,
             self.groups(todo), stand_ins, self.groups(stand_ins), stage_coming=bool(self.unchosen),
             later_most=self.most(todo)[0],
         )  # fmt: skip
-        self.view = ProgressView(self.state, options.show_progress, options.log_estimates)
+        self.view = ProgressView(self.state, plan.show_progress, plan.log_estimates)
         self.outcome.view = self.view
         trials = {t.key: t for t in todo}
         self.recorder = Recorder(
@@ -359,13 +359,12 @@ class _Launch:
 
         seeds = plotted_seeds(self.experiment)
         plotted = {t.key for t in todo if t.seed in seeds.get(t.variant, ())}
-        plan = plan_populations(todo, cap=self.plan.population, slots=self.cores, plotted=plotted)
-        populations = self.recorder.planned(plan)
+        populations = self.recorder.planned(plan_populations(todo, self.plan.population, self.cores, plotted))
         with self.view:
-            options, experiment = self.plan, self.experiment
+            plan, experiment = self.plan, self.experiment
             cluster = scheduler.ClusterOptions(
-                options.address, options.max_concurrent, experiment.resources_per_trial, experiment.gpus_per_trial,
-                options.storage_path,
+                plan.address, plan.max_concurrent, experiment.resources_per_trial, experiment.gpus_per_trial,
+                plan.storage_path,
             )  # fmt: skip
             run_name = tune_run_name(self.tracker.experiment_name, self.launch)
             scheduler.run_trials(populations, self.recorder, cluster, run_name=run_name, resume=resume)
