@@ -876,3 +876,16 @@ def test_rerunning_a_finished_ablation_answers_from_the_store_without_importing_
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "all 4 trials of tiny already finished" in proc.stdout and "starting" not in proc.stdout
     assert proc.stdout.splitlines()[-1] == "NO RAY"
+
+
+def test_a_tuned_launch_counts_stage_2s_stand_ins_from_its_start(tmp_path, tracking_uri, monkeypatch):
+    """Before any tuning trial ends, each tuned variant's evaluation trials stand in for its stage 2."""
+    from ablate.launch.plan import LaunchPlan
+    from ablate.launch.runner import run_plan
+
+    seen = []
+    _fake_scheduler(monkeypatch, lambda trials, events: seen.append([t.trial.variant for t in events.state.later]))
+    tuned = _experiment(tmp_path, TINY + TUNE, name="tuned.toml")
+    run_plan(LaunchPlan(tuned, tracking_uri=tracking_uri, show_progress=False))
+    evaluation = sorted(t.variant for t in expand(tuned))
+    assert [sorted(variants) for variants in seen] == [evaluation]  # stage 1 (no trial finished: no stage 2)

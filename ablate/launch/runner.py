@@ -13,7 +13,7 @@ import signal
 import socket
 import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -272,11 +272,9 @@ class _Launch:
         # Populations: each holds a slot until its last member ends, which the estimate sees through their groups.
         self.cores = slots or max(int(self.biggest), 1)
         self.known_keys = {t.key for t in self.known}  # what stage 2 adds is what is not among them
-        stand_ins = self.provisional({}) if self.unchosen else []
         self.state = LaunchState(
             experiment.name, todo, self.outcome.skipped, slots, plan.started_at, prior, prior_episodes,
-            self.groups(todo), stand_ins, self.groups(stand_ins), stage_coming=bool(self.unchosen),
-            later_most=self.most(todo)[0],
+            self.groups(todo), stage_coming=bool(self.unchosen), later_most=self.most(todo)[0],
         )  # fmt: skip
         self.view = ProgressView(self.state, plan.show_progress, plan.log_estimates)
         self.outcome.view = self.view
@@ -285,6 +283,7 @@ class _Launch:
             self.tracker, self.launch, self.generation, trials, self.commit, self.state, self.view, self.outcome
         )
         self.recorder.tuned = self.restage if self.unchosen else None
+        self.restage()
         self.may_follow()
         return todo
 
@@ -302,18 +301,15 @@ class _Launch:
         """The keys of each population ``trials`` will run in: how the estimate sees them."""
         return [p.keys for p in plan_populations(trials, self.plan.population, self.cores)]
 
-    def provisional(self, summaries: Mapping[str, Mapping[str, float]]) -> list[GridTrial]:
-        """Stage 2 of the tuned variants not chosen yet, for the estimate: as the finished tuning trials would
-        choose now (each variant's best candidate so far)."""
-        trials = self.plan.provisional({**self.finished_runs, **summaries}, self.known_keys)
-        return [t for t in trials if t.variant in self.unchosen]
-
     def restage(self) -> None:
-        """A tuning trial ended: stage 2's stand-ins as the choice would be now."""
+        """The launch began or a tuning trial ended: stage 2's stand-ins for the estimate, the tuned variants not
+        chosen yet as the finished tuning trials would choose now (each variant's best candidate so far)."""
         try:
-            later = self.provisional(self.recorder.summaries) if self.state.stage_coming else []
+            finished = {**self.finished_runs, **self.recorder.summaries}
+            trials = self.plan.provisional(finished, self.known_keys) if self.state.stage_coming else []
         except Exception:  # noqa: BLE001 - an estimate never stops a launch: keep the stand-ins
             return
+        later = [t for t in trials if t.variant in self.unchosen]
         self.state.set_later(later, self.groups(later))
 
     def may_follow(self) -> None:
