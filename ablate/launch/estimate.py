@@ -272,37 +272,31 @@ class TimeLeft:
             (running_left if any(t.state == "running" for t in unit) else costs).append(
                 self._unit_left(unit, now, seen)
             )
-        later = self._stage_s(self.state.later, self.state.later_population_of, now, seen)
-        if later is None or any(x is None for x in [*running_left, *costs]):
+        later = [self._unit_left(u, now, seen) for u in self.units(self.state.later, self.state.later_population_of)]
+        if any(x is None for x in [*running_left, *costs, *later]):
             return None
+        slots = self.state.slots or max(self.state.max_running, 1)
+        gap = self.dispatch_s()
         # Pending trials start in the order the scheduler was given them (``grid.schedule_order``); the later
         # stage once every one of them has ended.
-        return makespan(running_left, [c + self.dispatch_s() for c in costs], self.slots()) + later  # type: ignore[misc, operator]
-
-    def slots(self) -> int:
-        return self.state.slots or max(self.state.max_running, 1)
-
-    def _stage_s(
-        self, trials: Sequence[TrialProgress], plan: Mapping[str, tuple[str, ...]], now: float, seen: CostsSeen
-    ) -> float | None:
-        """Seconds ``trials`` (not started) take from a time every slot is free; ``None``: a cost not known yet."""
-        costs = [self._unit_left(u, now, seen) for u in self.units(trials, plan)]
-        if any(c is None for c in costs):
-            return None
-        return makespan([], [c + self.dispatch_s() for c in costs], self.slots())  # type: ignore[operator]
+        now_stage = makespan(running_left, [c + gap for c in costs], slots)  # type: ignore[misc, operator]
+        return now_stage + (makespan([], [c + gap for c in later], slots) if later else 0.0)  # type: ignore[misc, operator]
 
     def figures(self, now: float | None = None) -> tuple[float | None, float | None]:
         """(``seconds_left``, that plus each round later rounds may still add, one after another)."""
         now = time.monotonic() if now is None else now
         seen = self._costs_seen(now)
-        left = most = self.seconds_left(now, seen)
-        if left is None:
-            return None, None
+        left = self.seconds_left(now, seen)
+        if left is None or not self.state.possible:
+            return left, left
+        most = left
+        slots = self.state.slots or max(self.state.max_running, 1)
+        gap = self.dispatch_s()
         for trials in self.state.possible:
-            stage = self._stage_s(trials, self.state.possible_population_of, now, seen)
-            if stage is None:
+            costs = [self._unit_left(u, now, seen) for u in self.units(trials, self.state.possible_population_of)]
+            if any(c is None for c in costs):
                 return left, None
-            most += stage  # type: ignore[operator]
+            most += makespan([], [c + gap for c in costs], slots)  # type: ignore[operator]
         return left, most
 
 
