@@ -3,19 +3,17 @@ seeds of the experiment's reference variant, deals them into reports of the expe
 every "variant" is that same configuration, and prints the share of those reports that claim any difference,
 under the primary-claims rule (ablate/claims/) and under the rule the findings used before it.
 
-The seeds are a derived experiment, ``<name>-calibrate`` (its file under ``outputs/calibrate/``), run through
+The seeds are a derived experiment, ``<name>-calibrate`` (built in memory from the experiment), run through
 ``ablate.run``: the baseline at the value tuning chose where the experiment tunes, seeds from 20,000 up.
 """
 
 from __future__ import annotations
 
 import argparse
-import tomllib
-from dataclasses import dataclass
-from pathlib import Path
+from dataclasses import dataclass, replace
 from typing import Any
 
-from ablate.config import ConfigError
+from ablate.config import ConfigError, apply_knobs
 from ablate.design import ALPHA, CONFIDENCE, percent
 from ablate.experiment import Experiment, load_experiment
 from ablate.measures import FINAL_RETURN, measure, return_at
@@ -66,48 +64,26 @@ def add_parser(commands: Any) -> None:
 # --- the derived experiment ---------------------------------------------------------------------------------
 
 
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise ConfigError(f"calibrate: cannot write {value!r} into an experiment file")
-
-
-def reference_knobs(experiment: Experiment, tuned: dict[str, Any]) -> dict[str, Any]:
-    """The reference variant's knobs as a ``[base]`` table: the file's ``[base]``, the variant's own, ``tuned``."""
-    data = tomllib.loads(Path(experiment.path).read_text(encoding="utf-8-sig"))
-    variant = next(v for v in experiment.variants if v.name == experiment.baseline)
-    return dict(data.get("base", {})) | dict(variant.overrides) | tuned
-
-
-def derived_text(experiment: Experiment, knobs: dict[str, Any], pool: int) -> str:
-    """The calibration's experiment file: the reference alone, on ``pool`` seeds that collide with none of the
-    experiment's own (evaluation or tuning)."""
+def derived_experiment(experiment: Experiment, tuned: dict[str, Any], pool: int) -> Experiment:
+    """The calibration's experiment, built in memory: the reference variant alone at the ``tuned`` values, on
+    ``pool`` seeds that collide with none of the experiment's own (evaluation or tuning). Its path stays the
+    experiment's file, which the launch records beside it."""
     own = [*experiment.seeds, *(experiment.tune.seeds if experiment.tune else ())]
     own += [s for v in experiment.variants for s in experiment.max_seeds_of(v)]  # every seed rounds may add
     start = max(SEED_START, max(own) + 1)
-    lines = [
-        f"# A/A calibration of {experiment.path}: its reference variant {experiment.baseline!r} alone, written by",
-        "# `ablate calibrate`. Every trial is the same configuration; only the seed changes.",
-        f"name = {_toml_value(experiment.name + '-calibrate')}",
-        f"description = {_toml_value('A/A calibration: ' + experiment.baseline + ' of ' + experiment.name)}",
-        f"seeds = {_toml_value(list(range(start, start + pool)))}",
-        f"baseline = {_toml_value(experiment.baseline)}",
-        f"cpus_per_trial = {_toml_value(experiment.resources_per_trial)}",
-        "",
-        "[base]",
-        *(f"{key} = {_toml_value(value)}" for key, value in knobs.items()),
-        "",
-        "[[variants]]",
-        f"name = {_toml_value(experiment.baseline)}",
-        "",
-    ]
-    return "\n".join(lines)
+    variant = next(v for v in experiment.variants if v.name == experiment.baseline)
+    config = apply_knobs(variant.config, tuned, f"{experiment.path}: tuned ")
+    return replace(
+        experiment,
+        name=experiment.name + "-calibrate",
+        description=f"A/A calibration: {experiment.baseline} of {experiment.name}",
+        variants=(
+            replace(variant, overrides=(*variant.overrides, *tuned.items()), config=config, seeds=None, rounds=None),
+        ),
+        seeds=tuple(range(start, start + pool)),
+        tune=None,
+        rounds=None,
+    )
 
 
 def tuned_values(experiment: Experiment, tracking_uri: str, run_kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -253,20 +229,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.population < 1:
         raise ConfigError(f"--population = {args.population} is invalid; valid: an integer >= 1")
     run_kwargs = {"address": args.address, "max_concurrent": args.max_concurrent}
-    knobs = reference_knobs(experiment, tuned_values(experiment, args.tracking_uri, run_kwargs))
-    folder = Path("outputs") / "calibrate"
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{experiment.storage_name}.toml"
-    path.write_text(derived_text(experiment, knobs, pool), encoding="utf-8")
-    derived = load_experiment(path)
+    tuned = tuned_values(experiment, args.tracking_uri, run_kwargs)
+    derived = derived_experiment(experiment, tuned, pool)
     import ablate.api as api
 
-    shown = ", ".join(
-        f"{k} {v}" for k, v in knobs.items() if k in dict(experiment.tune.knobs if experiment.tune else ())
-    )
+    shown = ", ".join(f"{k} {v}" for k, v in tuned.items())
     print(
         f"calibrate {experiment.name}: {pool} seeds of {experiment.baseline}"
-        f"{' at ' + shown if shown else ''} ({path}, seeds {derived.seeds[0]}-{derived.seeds[-1]})",
+        f"{' at ' + shown if shown else ''} (seeds {derived.seeds[0]}-{derived.seeds[-1]})",
         flush=True,
     )
     outcome = api.run(derived, tracking_uri=args.tracking_uri, report=False, population=args.population, **run_kwargs)

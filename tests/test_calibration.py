@@ -3,13 +3,14 @@ shares and their Wilson intervals. The end-to-end figure for CartPole is in docs
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from ablate.calibration import Share, aa_reports, derived_text, reference_knobs
+from ablate.calibration import Share, aa_reports, derived_experiment
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand
 from ablate.seeds import SeedRounds
@@ -23,18 +24,26 @@ def test_shares_carry_wilson_intervals_at_known_points():
     assert Share(10, 200).words().startswith("10 of 200 reports, 5.0% (95% CI 2.7% to 9.0%)")
 
 
-def test_the_derived_experiment_is_the_tuned_baseline_on_seeds_of_its_own(tmp_path):
+def test_the_derived_experiment_is_the_tuned_baseline_on_seeds_of_its_own():
     experiment = load_experiment(EXPERIMENTS / "cartpole.toml")
-    knobs = reference_knobs(experiment, {"learning_rate": 0.1})
-    assert knobs["learning_rate"] == 0.1 and knobs["hidden_sizes"] == [32] and knobs["max_episodes"] == 1500
-    path = tmp_path / "cartpole-calibrate.toml"
-    path.write_text(derived_text(experiment, knobs, 60))
-    derived = load_experiment(path)
+    derived = derived_experiment(experiment, {"learning_rate": 0.1}, 60)
     assert derived.name == "cartpole-calibrate" and [v.name for v in derived.variants] == ["baseline"]
-    assert len(derived.seeds) == 60 and min(derived.seeds) == 20_000
+    assert len(derived.seeds) == 60 and min(derived.seeds) == 20_000 and derived.tune is derived.rounds is None
     assert not set(derived.seeds) & {*experiment.seeds, *experiment.tune.seeds}
     (trial,) = {t.config for t in expand(derived) if t.seed == 20_000}
     assert trial.learning_rate == 0.1 and trial.model.hidden_sizes == (32,) and trial.episodes_per_update == 32
+    assert trial.max_episodes == 1500 and expand(derived)[0].key == "baseline-s20000-5566a51d3b"  # the file's key
+
+
+def test_a_reference_with_its_own_network_and_model_args_is_calibrated_as_its_file_says():
+    experiment = replace(load_experiment(EXPERIMENTS / "your-model.toml"), baseline="layernorm")
+    derived = derived_experiment(experiment, {"learning_rate": 0.01}, 60)
+    (trial,) = {t.config for t in expand(derived) if t.seed == 20_000}
+    reference = next(v.config for v in experiment.variants if v.name == "layernorm")
+    assert trial == replace(
+        reference, learning_rate=0.01, seed=20_000
+    )  # model_args = { width = 32 }, its factory beside it
+    assert trial.model.factory_args == (("width", 32),) and trial.model.factory_hash
 
 
 def _pool(rng, n=60, budget=1500):
