@@ -16,6 +16,7 @@ from typing import Any
 from ablate.config import ConfigError, apply_knobs
 from ablate.design import ALPHA, CONFIDENCE, percent
 from ablate.experiment import Experiment, load_experiment
+from ablate.launch.store import resolve_uri
 from ablate.measures import FINAL_RETURN, measure, return_at
 from ablate.seeds import SeedRounds
 
@@ -25,8 +26,8 @@ MIN_SEEDS, MIN_REPORTS = 60, 200
 DEAL_SEED = 2025
 
 
-def add_parser(commands: Any) -> None:
-    """``ablate calibrate``'s arguments (called by ``ablate.cli.build_parser``)."""
+def add_parser(commands: Any) -> argparse.ArgumentParser:
+    """``ablate calibrate``'s own arguments (``ablate.cli.build_parser`` adds the launch flags it shares with run)."""
     calibrate = commands.add_parser(
         "calibrate",
         help="A/A test: how often a report of identical variants claims a difference, new rule and old",
@@ -37,28 +38,12 @@ def add_parser(commands: Any) -> None:
         f"{percent(CONFIDENCE)} intervals. Its seeds are the experiment <name>-calibrate, seeds 20000 up.",
     )
     calibrate.add_argument("experiment", help="experiment file, e.g. experiments/cartpole.toml")
-    calibrate.add_argument(
-        "--tracking-uri",
-        dest="tracking_uri",
-        default="sqlite:///mlflow.db",
-        help="MLflow store the seeds are run into and reused from (default: sqlite:///mlflow.db)",
-    )
-    calibrate.add_argument("--address", help="an existing Ray cluster (host:port); default: start a local one")
     calibrate.add_argument("--pool", type=int, default=MIN_SEEDS, help="seeds of the reference to run (>= 60)")
     calibrate.add_argument("--reports", type=int, default=MIN_REPORTS, help="A/A reports to deal (>= 200)")
     calibrate.add_argument(
         "--seeds", dest="design_seeds", type=int, help="seeds per variant in each report (default: the experiment's)"
     )
-    calibrate.add_argument(
-        "--max-concurrent", dest="max_concurrent", type=int, help="at most this many trials at once (default: CPUs)"
-    )
-    calibrate.add_argument(
-        "--population",
-        type=int,
-        default=8,
-        help="train up to M seeds together as one batched population, as make ablation-cartpole does (default 8; "
-        "1: each alone); members' runs are their single trials' bit for bit on a CPU",
-    )
+    return calibrate
 
 
 # --- the derived experiment ---------------------------------------------------------------------------------
@@ -229,7 +214,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.population < 1:
         raise ConfigError(f"--population = {args.population} is invalid; valid: an integer >= 1")
     run_kwargs = {"address": args.address, "max_concurrent": args.max_concurrent}
-    tuned = tuned_values(experiment, args.tracking_uri, run_kwargs)
+    tracking_uri = resolve_uri(args.tracking_uri)
+    tuned = tuned_values(experiment, tracking_uri, run_kwargs)
     derived = derived_experiment(experiment, tuned, pool)
     import ablate.api as api
 
@@ -239,13 +225,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         f"{' at ' + shown if shown else ''} (seeds {derived.seeds[0]}-{derived.seeds[-1]})",
         flush=True,
     )
-    outcome = api.run(derived, tracking_uri=args.tracking_uri, report=False, population=args.population, **run_kwargs)
+    outcome = api.run(derived, tracking_uri=tracking_uri, report=False, population=args.population, **run_kwargs)
     if outcome.interrupted or outcome.error or outcome.failed:
         print(f"calibrate: the seeds did not all finish ({outcome.error or 'interrupted or failed'})")
         return 1
     from ablate.reporting.comparisons import comparison_metrics
 
-    ablation = api.load(derived, tracking_uri=args.tracking_uri).ablation
+    ablation = api.load(derived, tracking_uri=tracking_uri).ablation
     metrics = comparison_metrics(ablation)
     primary = experiment.primary_metric
     if measure(primary) is FINAL_RETURN:

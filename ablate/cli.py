@@ -174,6 +174,24 @@ def add_knob_flags(parser: argparse.ArgumentParser) -> None:
         )
 
 
+def add_launch_flags(command: argparse.ArgumentParser) -> None:
+    """The flags of a command that launches trials (``run``, ``calibrate``): the same words, the same defaults."""
+    command.add_argument(
+        "--address", help="join this Ray cluster, host:port or auto (default: RAY_ADDRESS, else a new local Ray)"
+    )
+    command.add_argument("--tracking-uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
+    command.add_argument("--max-concurrent", type=int, help="trials at once (default: CPUs)")
+    command.add_argument(
+        "--population",
+        type=int,
+        default=config_module.DEFAULT_POPULATION,
+        metavar="M",
+        help="train up to M trials of a variant together in one process, as one batched population (default "
+        f"{config_module.DEFAULT_POPULATION}; 1: each alone); on a CPU a member is its trial alone "
+        "(CartPole: bit for bit)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="ablate", description=DESCRIPTION, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -224,26 +242,13 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     run.add_argument("experiment", type=Path, help="e.g. experiments/cartpole.toml")
-    run.add_argument(
-        "--address", help="join this Ray cluster, host:port or auto (default: RAY_ADDRESS, else a new local Ray)"
-    )
+    add_launch_flags(run)
     run.add_argument(
         "--storage-path",
         default="ray_results",
         help="Tune's bookkeeping folder, on the driver (an NFS path or s3:// if you have one; artifacts never use it)",
     )
-    run.add_argument("--tracking-uri", help="MLflow tracking URI (default: sqlite:///mlflow.db)")
     run.add_argument("--fresh", action="store_true", help="start over under a new parent run (a new generation)")
-    run.add_argument("--max-concurrent", type=int, help="trials at once (default: CPUs)")
-    run.add_argument(
-        "--population",
-        type=int,
-        default=config_module.DEFAULT_POPULATION,
-        metavar="M",
-        help="train up to M trials of a variant together in one process, as one batched population (default "
-        f"{config_module.DEFAULT_POPULATION}; 1: each alone); on a CPU a member is its trial alone "
-        "(CartPole: bit for bit)",
-    )
     run.add_argument("--no-report", dest="report", action="store_false", help="skip the report at the end")
     run.add_argument(
         "--only",
@@ -301,7 +306,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     from ablate.calibration import add_parser as add_calibrate
 
-    add_calibrate(commands)
+    add_launch_flags(add_calibrate(commands))
     for command in commands.choices.values():  # each opens an MLflow store
         command.add_argument(
             "--allow-insecure-http",

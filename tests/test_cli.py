@@ -167,6 +167,19 @@ def test_every_option_of_every_command_has_a_help_text():
     assert not missing, missing
 
 
+def test_run_and_calibrate_launch_with_the_same_flags_and_defaults():
+    from ablate.cli import build_parser
+
+    commands = _subparsers(build_parser())
+    flags = ("--address", "--tracking-uri", "--max-concurrent", "--population")
+    run, calibrate = (
+        {a.option_strings[0]: a for a in commands[c]._actions if a.option_strings} for c in ("run", "calibrate")
+    )
+    for flag in flags:
+        assert (run[flag].default, run[flag].help) == (calibrate[flag].default, calibrate[flag].help), flag
+    assert calibrate["--tracking-uri"].default is None  # MLFLOW_TRACKING_URI, else sqlite:///mlflow.db, as run reads it
+
+
 def test_top_level_help_describes_the_tool_not_the_module():
     proc = subprocess.run([sys.executable, "-m", "ablate.cli", "--help"], capture_output=True, text=True)
     assert proc.returncode == 0
