@@ -116,10 +116,6 @@ def is_censored_statistic(n_censored: int, n: int, statistic: str) -> bool:
     return n_censored > int(np.floor(0.25 * n))
 
 
-def _median(values: np.ndarray, axis: int = -1) -> np.ndarray:
-    return np.median(values, axis=axis)
-
-
 # --- comparisons --------------------------------------------------------------------------------------------
 # The exploratory rule's verdicts (each comparison on its own 95% bootstrap interval, unadjusted), worded so that
 # no one reads them as the primary claims' (``ablate.claims``: better, worse, equivalent, undetermined).

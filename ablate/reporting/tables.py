@@ -12,7 +12,7 @@ from ablate.config import KNOBS, SETTING_KNOBS, freeze
 from ablate.measures import episodes_to, is_censored, lookup, measure, return_at
 from ablate.reporting.results import Ablation
 from ablate.reporting.settings import DERIVED, setting
-from ablate.reporting.statistics import _median, bootstrap_interval, iqm, is_censored_statistic
+from ablate.reporting.statistics import bootstrap_interval, iqm, is_censored_statistic
 from ablate.reporting.tuning import EVAL
 
 INTEGER_COLUMNS = ("seed", "budget", "solved", "episodes_to_solve", "env_steps_to_solve", "episodes_run", "env_steps")
@@ -134,7 +134,7 @@ def convergence_table(ablation: Ablation) -> pd.DataFrame:
         }
         if len(done):
             row["episodes_median"] = float(np.median(episodes))
-            row["episodes_median_ci_low"], row["episodes_median_ci_high"] = bootstrap_interval(episodes, _median)
+            row["episodes_median_ci_low"], row["episodes_median_ci_high"] = bootstrap_interval(episodes, np.median)
             row["episodes_iqm"] = float(iqm(episodes))
             row["episodes_iqm_ci_low"], row["episodes_iqm_ci_high"] = bootstrap_interval(episodes)
             row["median_censored"] = is_censored_statistic(n_censored, len(done), "median")
