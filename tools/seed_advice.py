@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -42,6 +42,7 @@ from ablate.claims import (  # noqa: E402
 )
 from ablate.claims.family import _claim, _estimate, _Open  # noqa: E402
 from ablate.claims.permutation import p_values, permutations_for  # noqa: E402
+from ablate.design import CONFIDENCE  # noqa: E402
 from ablate.experiment import load_experiment  # noqa: E402
 from ablate.measures import area_under_curve  # noqa: E402
 
@@ -157,13 +158,12 @@ def advice_table(experiment_path: str, folder: Path, variants: list[str], draws:
         )
 
 
-def wilson(hits: int, n: int, z: float = 1.96) -> tuple[float, float]:
+def wilson(hits: int, n: int) -> tuple[float, float]:
+    """The 95% Wilson interval of ``hits`` in ``n`` (SciPy's, as ``ablate calibrate`` gives it); NaN for none."""
     if n == 0:
         return float("nan"), float("nan")
-    p = hits / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return centre - half, centre + half
+    interval = stats.binomtest(hits, n).proportion_ci(CONFIDENCE, method="wilson")
+    return interval.low, interval.high
 
 
 def aa_share(experiment_path: str, folder: Path, reports: int) -> None:
