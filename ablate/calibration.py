@@ -213,7 +213,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise ConfigError(f"--reports = {args.reports} is invalid; valid: at least {MIN_REPORTS}")
     if args.population < 1:
         raise ConfigError(f"--population = {args.population} is invalid; valid: an integer >= 1")
-    run_kwargs = {"address": args.address, "max_concurrent": args.max_concurrent}
+    run_kwargs = {"address": args.address, "max_concurrent": args.max_concurrent, "population": args.population}
     tracking_uri = resolve_uri(args.tracking_uri)
     tuned = tuned_values(experiment, tracking_uri, run_kwargs)
     derived = derived_experiment(experiment, tuned, pool)
@@ -225,7 +225,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         f"{' at ' + shown if shown else ''} (seeds {derived.seeds[0]}-{derived.seeds[-1]})",
         flush=True,
     )
-    outcome = api.run(derived, tracking_uri=tracking_uri, report=False, population=args.population, **run_kwargs)
+    outcome = api.run(derived, tracking_uri=tracking_uri, report=False, **run_kwargs)
     if outcome.interrupted or outcome.error or outcome.failed:
         print(f"calibrate: the seeds did not all finish ({outcome.error or 'interrupted or failed'})")
         return 1

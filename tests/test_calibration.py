@@ -88,3 +88,24 @@ def test_a_pool_too_small_for_the_design_is_one_line_exit_2(tmp_path):
     )
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1
     assert "--reports = 10 is invalid; valid: at least 200" in proc.stderr and not (tmp_path / "mlflow.db").exists()
+
+
+def test_population_reaches_the_tuning_run_as_well_as_the_seeds_run(tmp_path, monkeypatch):
+    import ablate.api as api
+    from ablate.cli import main
+    from ablate.reporting.results import NoResults
+
+    calls = []
+
+    def run(experiment, **kwargs):
+        calls.append(kwargs)
+        raise KeyboardInterrupt  # the first launch's arguments are what this test reads
+
+    def load(*args, **kwargs):
+        raise NoResults("an empty store")
+
+    monkeypatch.setattr(api, "run", run)
+    monkeypatch.setattr(api, "load", load)
+    monkeypatch.chdir(tmp_path)
+    assert main(["calibrate", str(EXPERIMENTS / "cartpole.toml"), "--population", "3"]) == 130  # interrupted
+    assert calls[0]["only"] == ["baseline"] and calls[0]["population"] == 3  # the tuning stage of the reference
