@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from ablate.config import DEFAULT_POPULATION, ConfigError
 from ablate.experiment import Experiment, load_experiment
+from ablate.launch.store import StoreNotFound  # noqa: F401 - public: `ablate.api.StoreNotFound` (docs/python.md)
 
 if TYPE_CHECKING:  # only for the annotations: the real imports are inside the functions
     import pandas as pd
@@ -23,10 +24,6 @@ if TYPE_CHECKING:  # only for the annotations: the real imports are inside the f
 
     from ablate.launch.runner import RunOutcome
     from ablate.reporting.results import Ablation
-
-
-class StoreNotFound(ConfigError):
-    """``load`` or ``report`` was pointed at a local MLflow store that does not exist."""
 
 
 def _name(name_or_file: str | Path | Experiment) -> str:
@@ -37,21 +34,6 @@ def _name(name_or_file: str | Path | Experiment) -> str:
     if text.endswith(".toml") or Path(text).is_file():
         return load_experiment(text).name
     return text
-
-
-def _check_store(tracking_uri: str | None) -> str:
-    """Refuse a local store that does not exist, in words for a Python caller (the CLI's says ``--tracking-uri``):
-    reading must never create an empty database where a path was mistyped or the notebook runs elsewhere."""
-    from ablate.launch.store import resolve_uri, sqlite_path
-
-    uri = resolve_uri(tracking_uri)
-    path = sqlite_path(uri)
-    if path is not None and not path.exists():
-        raise StoreNotFound(
-            f"tracking_uri={uri!r}: no MLflow store at {path.resolve()} (relative paths are read from "
-            f"{Path.cwd()}); pass tracking_uri= the store `ablate.run` wrote, e.g. 'sqlite:////abs/path/mlflow.db'"
-        )
-    return uri
 
 
 def run(
@@ -138,11 +120,10 @@ def report(
     from ablate.launch.store import insecure_http
     from ablate.reporting.document import build_report
 
-    uri = _check_store(tracking_uri)
     with insecure_http(allow_insecure_http):
         result = build_report(
             _name(name_or_file),
-            tracking_uri=uri,
+            tracking_uri=tracking_uri,
             out_root=Path(reports_folder),
             generation=generation,
             variants=list(variants) if variants else None,
@@ -181,9 +162,8 @@ def load(
     from ablate.launch.store import insecure_http
     from ablate.reporting.results import load_ablation, select
 
-    uri = _check_store(tracking_uri)
     with insecure_http(allow_insecure_http):
-        ablation = load_ablation(_name(name_or_file), uri, generation)
+        ablation = load_ablation(_name(name_or_file), tracking_uri, generation)
     return Results(select(ablation, list(variants) if variants else None, baseline))
 
 

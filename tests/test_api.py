@@ -39,13 +39,13 @@ def test_public_functions_have_docstrings():
         assert function.__doc__ and len(function.__doc__.split()) > 20, function
 
 
-def test_load_from_a_missing_store_names_the_python_parameter(tmp_path, monkeypatch):
+def test_load_from_a_missing_store_names_the_uri_and_the_path_it_looked_at(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(StoreNotFound) as error:
         ablate.load("smoke")
     message = str(error.value)
-    assert "tracking_uri='sqlite:///mlflow.db'" in message and str(tmp_path / "mlflow.db") in message
-    assert "--tracking-uri" not in message and "\n" not in message
+    assert "'sqlite:///mlflow.db'" in message and str(tmp_path / "mlflow.db") in message
+    assert "\n" not in message
     assert not (tmp_path / "mlflow.db").exists()  # reading never creates an empty store
 
 

@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from urllib.parse import urlparse
 
+from ablate.config import ConfigError
 from ablate.launch.secrets import encoded_uri, mlflow_credential, shown, split_userinfo, without_userinfo
 
 DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
@@ -53,6 +54,27 @@ def sqlite_path(uri: str) -> Path | None:
     if not uri.startswith("sqlite:///"):
         return None
     return Path(uri.removeprefix("sqlite:///").split("?", 1)[0])
+
+
+class StoreNotFound(ConfigError):
+    """A reader (``ablate report``, ``ablate.load``) was pointed at a local MLflow store that does not exist."""
+
+
+def check_store(tracking_uri: str | None) -> str:
+    """The store's URI; a local store (SQLite file or folder) that does not exist is ``StoreNotFound``, so that
+    reading never creates an empty database where a path was mistyped or a notebook runs elsewhere."""
+    uri = resolve_uri(tracking_uri)
+    path = sqlite_path(uri)
+    if uri.startswith("file:"):
+        path = Path(uri.removeprefix("file://").removeprefix("file:"))
+    elif "://" not in uri:
+        path = Path(uri)
+    if path is not None and not path.exists():
+        raise StoreNotFound(
+            f"tracking URI {uri!r}: no MLflow store at {path.resolve()} (relative paths are read from "
+            f"{Path.cwd()}); valid: the store `ablate run` wrote, e.g. 'sqlite:////abs/path/mlflow.db'"
+        )
+    return uri
 
 
 def login_user() -> str | None:

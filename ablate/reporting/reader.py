@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ablate.launch.mlflow_store import TAG_GENERATION, TAG_ROLE, Store, TrialRun
-from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
+from ablate.launch.store import StoreNotFound, TrackingError, check_store
 
 __all__ = ["LaunchRun", "RunReader", "TrackingError", "TrialRun", "ablation_names"]
 
@@ -36,8 +36,9 @@ def ablation_names(tracking_uri: str | None) -> list[str]:
     """Names of the MLflow experiments holding at least one launch of ``ablate run``, sorted; none where a local
     SQLite file does not exist yet (opening one would create it). A store that cannot be read is a one-line
     ``TrackingError`` within seconds: ``Store`` opens it as it opens the writer's."""
-    db = sqlite_path(resolve_uri(tracking_uri))
-    if db is not None and not db.is_file():
+    try:
+        check_store(tracking_uri)
+    except StoreNotFound:
         return []
     client = Store(tracking_uri, None, write=False).client
     experiments = client.search_experiments()

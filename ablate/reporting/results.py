@@ -10,7 +10,6 @@ import tomllib
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from functools import cached_property, partial
-from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -21,6 +20,7 @@ from ablate.config import ConfigError
 from ablate.env_spec import Profile, profile_named, solve_threshold_or_none
 from ablate.experiment import Experiment
 from ablate.launch.mlflow_store import TAG_GENERATION, TAG_STAGE
+from ablate.launch.store import check_store
 from ablate.measures import (
     FINAL_RETURN,
     Measure,
@@ -186,25 +186,6 @@ def _generation_summary(runs: list[TrialRun], launches: list[Any]) -> list[dict[
     finished = Counter(generation for generation, _ in done)
     generations = dict.fromkeys(launch.data.tags.get(TAG_GENERATION, "") for launch in launches)
     return [{"generation": generation, "finished": finished[generation]} for generation in generations]
-
-
-def check_store(tracking_uri: str | None) -> str:
-    """The store's URI; a local store (SQLite file or folder) that does not exist is a ``ConfigError``, so
-    that reading never creates an empty database where a user mistyped a path."""
-    from ablate.launch.store import resolve_uri
-
-    uri = resolve_uri(tracking_uri)
-    if uri.startswith("sqlite:///"):
-        path = Path(uri.removeprefix("sqlite:///"))
-    elif uri.startswith("file:"):
-        path = Path(uri.removeprefix("file://").removeprefix("file:"))
-    elif "://" not in uri:
-        path = Path(uri)
-    else:
-        return uri
-    if not path.exists():
-        raise ConfigError(f"--tracking-uri {uri}: no MLflow store at {path}; valid: the store `ablate run` wrote")
-    return uri
 
 
 def _primary(experiment_text: str | None) -> Measure | None:
