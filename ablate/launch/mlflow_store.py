@@ -14,7 +14,7 @@ import tempfile
 import time
 import unicodedata
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 from urllib.parse import urlparse
@@ -98,7 +98,6 @@ class TrialRun:
     metrics: dict[str, float]
     tags: dict[str, str]
     start_time_ms: int
-    artifacts: list[str] = field(default_factory=list)
     artifact_uri: str = ""
     """Where its artifacts are (``download`` reads them from here without looking the run up again)."""
 
@@ -215,7 +214,7 @@ class Store:
             if not token:
                 return runs
 
-    def trial_runs(self, generation: str | None = None, with_artifacts: bool = False) -> list[TrialRun]:
+    def trial_runs(self, generation: str | None = None) -> list[TrialRun]:
         """Trial runs of this experiment (of one generation, if given), oldest first."""
         query = f"tags.`{TAG_ROLE}` = 'trial'"
         if generation is not None:
@@ -232,7 +231,6 @@ class Store:
                 metrics=dict(r.data.metrics),
                 tags=dict(r.data.tags),
                 start_time_ms=r.info.start_time,
-                artifacts=[a.path for a in self.client.list_artifacts(r.info.run_id)] if with_artifacts else [],
                 artifact_uri=r.info.artifact_uri or "",
             )
             for r in runs
