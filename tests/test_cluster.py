@@ -524,7 +524,8 @@ def test_a_password_planted_in_every_uri_form_shows_nowhere(cluster):
     name = f"planted-{secrets.token_hex(4)}"
     code, output = _finish(cluster, _ablate(cluster, name, episodes=10, env=no_login, uri=raw))
     assert code == 0, output
-    assert f"--tracking-uri http://{USER}:***@{host}/" in RunReader(cluster["uri"], name).launch_runs()[0].command
+    command = RunReader(cluster["uri"], name).launches()[0].data.tags["ablate.command"]
+    assert f"--tracking-uri http://{USER}:***@{host}/" in command
     done = []
     for command, env in (
         (["status", "--tracking-uri", encoded], no_login),

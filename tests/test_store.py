@@ -66,8 +66,11 @@ def test_what_the_writer_records_has_no_password_or_token(tracking_uri, monkeypa
     tracker.fail_trial("t-s0-abc", f"the store said: password {SECRET} refused")
     tracker.finish_launch(launch, "FAILED", {}, note=f"failed with {SECRET}")
     reader = RunReader(tracking_uri, "secrets")
-    (recorded,) = reader.launch_runs()
-    assert recorded.command == "ablate run x.toml --tracking-uri postgresql+psycopg://mlflow:***@127.0.0.1/mlflow"
+    (recorded,) = reader.launches()
+    assert (
+        recorded.data.tags["ablate.command"]
+        == "ablate run x.toml --tracking-uri postgresql+psycopg://mlflow:***@127.0.0.1/mlflow"
+    )
     assert SECRET not in reader.load_text(launch, "environment.json")
     runs = reader.client.search_runs([reader.experiment_id()])
     for run in runs:

@@ -7,29 +7,15 @@ these and ``mlflow_store`` are the only modules that import MLflow.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ablate.launch.mlflow_store import TAG_GENERATION, TAG_ROLE, Store, TrialRun
+from ablate.launch.mlflow_store import TAG_ROLE, Store, TrialRun
 from ablate.launch.store import StoreNotFound, TrackingError, check_store
 
-__all__ = ["LaunchRun", "RunReader", "TrackingError", "TrialRun", "ablation_names"]
+__all__ = ["RunReader", "TrackingError", "TrialRun", "ablation_names"]
 
 LAUNCHES = f"tags.`{TAG_ROLE}` = 'launch'"
-
-
-@dataclass
-class LaunchRun:
-    """A tracked launch (one ``ablate run``), as ``ablate status`` needs it."""
-
-    run_id: str
-    generation: str
-    status: str
-    """MLflow status: FINISHED, FAILED, KILLED, RUNNING (still going, or its process died)."""
-    start_time_ms: int
-    command: str
-    """The command line that started it."""
 
 
 def ablation_names(tracking_uri: str | None) -> list[str]:
@@ -52,19 +38,6 @@ class RunReader(Store):
     def launches(self) -> list[Any]:
         """Every launch (parent) run of this experiment, newest first (the report picks a generation from them)."""
         return self.all_runs(LAUNCHES, "attributes.start_time DESC")
-
-    def launch_runs(self) -> list[LaunchRun]:
-        """Every launch of this experiment, oldest first."""
-        return [
-            LaunchRun(
-                run_id=r.info.run_id,
-                generation=r.data.tags.get(TAG_GENERATION, ""),
-                status=r.info.status,
-                start_time_ms=r.info.start_time,
-                command=r.data.tags.get("ablate.command", ""),
-            )
-            for r in self.all_runs(LAUNCHES)
-        ]
 
     def load_text(self, run_id: str, filename: str) -> str:
         """A small text artifact of a run (a launch's ``grid.json``, say)."""

@@ -9,6 +9,7 @@ import re
 import time
 from collections import Counter, defaultdict
 from collections.abc import Iterable
+from typing import Any
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment, storage_name
@@ -17,7 +18,7 @@ from ablate.launch.mlflow_store import TAG_GENERATION, TAG_STAGE, ui_hint
 from ablate.launch.secrets import shown_uri
 from ablate.launch.store import resolve_uri
 from ablate.reporting.planned import TUNE, answers, earlier_trials, plan_keys
-from ablate.reporting.reader import LaunchRun, RunReader, TrialRun, ablation_names
+from ablate.reporting.reader import RunReader, TrialRun, ablation_names
 
 STATES = ("FINISHED", "FAILED", "KILLED", "RUNNING", "PENDING")
 """A trial's states: MLflow's run statuses, and PENDING for a trial of the experiment file with no run yet."""
@@ -33,22 +34,26 @@ def _count(n: int, noun: str) -> str:
     return f"{n} {noun}{'' if n == 1 else 'es' if noun.endswith('ch') else 's'}"
 
 
+def _generation(launch: Any) -> str:
+    return launch.data.tags.get(TAG_GENERATION, "")
+
+
 def _when(ms: int) -> str:
     return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(ms / 1000))
 
 
 def current_plan(
-    tracker: RunReader, launch: LaunchRun, runs: list[TrialRun], experiment: Experiment | None = None
+    tracker: RunReader, launch_id: str, runs: list[TrialRun], experiment: Experiment | None = None
 ) -> set[str] | None:
     """The keys the plan holds (``reporting.planned``): with ``experiment`` (its file), the file's trials, its
-    tuning trials and stage 2 at the choices ``launch`` (the newest) recorded; else what ``launch`` recorded. None
-    where it recorded no grid, or a tuned launch no choice yet: every run of the generation counts."""
-    tuning = tracker.load_json(launch.run_id, "tuning.json")
+    tuning trials and stage 2 at the choices the launch ``launch_id`` (the newest) recorded; else what that launch
+    recorded. None where it recorded no grid, or a tuned launch no choice yet: every run of the generation counts."""
+    tuning = tracker.load_json(launch_id, "tuning.json")
     if experiment is not None and not (experiment.tune and tuning is None):
         choices = {n: c["values"] for n, c in (tuning or {}).get("choices", {}).items() if c.get("tuned")}
         trials = [*expand(experiment, every_round=True), *tuning_trials(experiment)]
         return {t.key for t in [*trials, *chosen_trials(experiment, choices, every_round=True)]}
-    grid = tracker.load_json(launch.run_id, "grid.json")
+    grid = tracker.load_json(launch_id, "grid.json")
     return None if grid is None else plan_keys(grid, tuning, {r.key: r for r in runs})
 
 
@@ -61,15 +66,14 @@ def overview(tracking_uri: str | None) -> str:
     rows = [("experiment", "launches", "generations", "newest launch", "", "trials of the newest generation")]
     for name in names:
         tracker = RunReader(tracking_uri, name)
-        launches = tracker.launch_runs()
-        newest = launches[-1]
-        runs = tracker.trial_runs(newest.generation)
-        counted = current_plan(tracker, newest, runs)
+        launches = tracker.launches()
+        newest = launches[0]
+        runs = tracker.trial_runs(_generation(newest))
+        counted = current_plan(tracker, newest.info.run_id, runs)
         counts = Counter(run.status for key, run in answers(runs).items() if counted is None or key in counted)
-        generations = len({launch.generation for launch in launches})
-        rows.append(
-            (name, str(len(launches)), str(generations), _when(newest.start_time_ms), newest.status, describe(counts))
-        )
+        generations = len({_generation(launch) for launch in launches})
+        when = _when(newest.info.start_time)
+        rows.append((name, str(len(launches)), str(generations), when, newest.info.status, describe(counts)))
     return f"MLflow store: {uri}\n" + _table(rows, right=(1, 2))
 
 
@@ -82,24 +86,24 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
         valid = f"valid: {', '.join(known)}" if known else "the store holds no ablation yet"
         raise ConfigError(f"{name!r} is not an ablation in the MLflow store {uri}; {valid}")
     tracker = RunReader(tracking_uri, name)
-    launches = tracker.launch_runs()
-    by_generation: dict[str, list[LaunchRun]] = defaultdict(list)
-    for launch in launches:
-        by_generation[launch.generation].append(launch)
+    launches = tracker.launches()  # newest first
+    by_generation: dict[str, list[Any]] = defaultdict(list)
+    for launch in reversed(launches):
+        by_generation[_generation(launch)].append(launch)
     runs = tracker.trial_runs()
     counts = f"{_count(len(launches), 'launch')} in {_count(len(by_generation), 'generation')}"
     lines = [
         f"{name}: {counts} (MLflow store: {uri})",
         f"MLflow, the variants compared (the last report's): {tracker.ui_link()}{ui_hint(tracker.serves_ui)}",
     ]
-    newest_generation = launches[-1].generation
-    for generation in sorted(by_generation, key=lambda g: by_generation[g][-1].start_time_ms, reverse=True):
+    newest_generation = _generation(launches[0])
+    for generation in sorted(by_generation, key=lambda g: by_generation[g][-1].info.start_time, reverse=True):
         in_generation = [r for r in runs if r.tags.get(TAG_GENERATION) == generation]
         states = {key: (run.variant, run.status) for key, run in answers(in_generation).items()}
         newest = generation == newest_generation
         tuning = {r.key for r in in_generation if r.tags.get(TAG_STAGE) == TUNE}
         earlier: dict[str, int] = {}
-        counted = current_plan(tracker, launches[-1], in_generation, experiment) if newest else None
+        counted = current_plan(tracker, launches[0].info.run_id, in_generation, experiment) if newest else None
         if counted is not None:  # an edited variant's earlier keys: in the store, not counted
             names = list(dict.fromkeys(r.variant for r in in_generation))
             earlier = earlier_trials(in_generation, counted, names)
@@ -124,7 +128,8 @@ def detail(tracking_uri: str | None, name: str, experiment: Experiment | None = 
                 "of the settings or code"
             )
         for launch in by_generation[generation]:
-            lines.append(f"  launch {_when(launch.start_time_ms)}  {launch.status:<8}  {launch.command}".rstrip())
+            command = launch.data.tags.get("ablate.command", "")
+            lines.append(f"  launch {_when(launch.info.start_time)}  {launch.info.status:<8}  {command}".rstrip())
         if newest:
             order = [v.name for v in experiment.variants] if experiment is not None else []
             lines.append(_variant_table(states, order, _seeds(in_generation, experiment)))
