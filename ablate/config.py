@@ -262,8 +262,7 @@ class TrialConfig:
 
 
 SCHEMA: dict[str, Knob] = schema.fields_of(TrialConfig)
-"""Every field of a trial's config by column (``model.hidden_sizes``), declared once above: the source of every
-list below and of the keys (``launch.grid``), populations (``config.population_group``), flags (``cli``) and docs."""
+"""Every field of a trial's config by column (``model.hidden_sizes``), declared once above."""
 KNOBS: dict[str, Knob] = {k.key_name: k for k in SCHEMA.values() if k.user}
 """The knobs a user writes, by the experiment file's key."""
 TUNABLE_KNOBS = tuple(name for name, k in KNOBS.items() if k.tunable)
@@ -422,9 +421,8 @@ def config_from_document(document: Mapping[str, Any]) -> TrialConfig:
 
 
 def population_group(config: TrialConfig) -> tuple:
-    """Configs with one group share a population: one env (and its settings), one network, one batch shape (the
-    fields the schema marks ``population``); everything else (seed, learning rate, L2, discount, budget, stop rule)
-    is per member. The launch groups trials by it (``launch.plan``)."""
+    """Configs with one group share a population: the fields the schema marks ``population`` (one env, one
+    network, one batch shape); everything else (seed, learning rate, L2, discount, budget, stop rule) is per member."""
     return tuple(schema.value_of(config, column) for column in POPULATION_COLUMNS)
 
 

@@ -167,8 +167,7 @@ _REGISTERED_BY: dict[str, list[str]] = {}
 def solve_threshold(config: EnvConfig) -> float | None:
     """The rolling mean over ``solve_window`` episodes at which a trial counts as solved and stops: its own
     ``solve_threshold``, else its env spec's ``reward_threshold`` (``None``: Pong has none; an unknown env is an
-    ``EnvError``). The one rule: the trainer stops at it, the launch estimates with it, the experiment's default
-    primary metric and the report's fallback for trials that did not record theirs ask it."""
+    ``EnvError``)."""
     import gymnasium as gym
 
     if config.solve_threshold is not None:

@@ -1,7 +1,6 @@
 """Environments: any Gymnasium env with discrete actions, as the trainer makes and describes it, through its
-profile (``env_spec.PROFILES``): the course's Pong pipeline (``pre_process``, the frame difference), for any Atari
-game; other Atari games' standard one; any other env as Gymnasium makes it. Then an env's state, saved and restored
-for a checkpoint, and, fenced at the end, every write to an env's internals that no public API offers.
+profile (``env_spec.PROFILES``); an env's state for a checkpoint; fenced at the end, every write to an env's
+internals that no public API offers.
 """
 
 from __future__ import annotations
@@ -116,11 +115,8 @@ class PongFrameDifference(gym.Wrapper):
 
 
 def make_pong(config: TrialConfig, render: bool = False) -> gym.Env:
-    """The Pong profile's env of a trial: ale-py's ``AtariEnv`` of ``env_id`` (Pong, or any other game) made by
-    Gymnasium (``frameskip`` frames a step, sticky actions at ``repeat_action_probability``, the game's minimal action
-    set, truncated by ``TimeLimit`` after ``max_episode_steps`` steps, 0: never) giving ``PongFrameDifference``'s
-    observations; its actions those ``action_set`` picks. ``render``: ``env.render()`` gives the RGB screen
-    (videos)."""
+    """The Pong profile's env of a trial: ale-py's ``AtariEnv`` of ``env_id`` (Pong, or any other game) giving
+    ``PongFrameDifference``'s observations. ``render``: ``env.render()`` gives the RGB screen (videos)."""
     register(config)
     kwargs = {"max_episode_steps": config.max_episode_steps} if config.max_episode_steps > 0 else {}
     env = gym.make(
@@ -211,8 +207,7 @@ def _gym_kwargs(config, render: bool) -> dict[str, Any]:
 
 
 def make_atari_trial_env(config, render: bool = False) -> gym.Env:
-    """The Atari profile's env: ``AtariPreprocessing`` (``frameskip`` frames a step, sticky actions at
-    ``repeat_action_probability``), its frames differenced."""
+    """The Atari profile's env: ``AtariPreprocessing``, its frames differenced."""
     kwargs = _gym_kwargs(config, render)
     kwargs.setdefault("repeat_action_probability", config.repeat_action_probability)
     env = gym.make(config.env_id, frameskip=1, **kwargs)

@@ -1,11 +1,8 @@
-"""Each measure of a trial, defined once: the registry (``MEASURES``; ``measure`` maps a name back to its entry),
-the area under its learning curve, its episodes to solve (censored at the budget), the primary metric an
-experiment's claims default to, and what the report reads off a whole curve (``trial_measures``: the untrained
-return, the return at fixed budgets, episodes to a return level). Pure (numpy; a curve frame's columns), below
-every layer.
+"""Each measure of a trial, defined once: the registry (``MEASURES``; ``measure`` maps a name back to its entry).
+Pure (numpy; a curve frame's columns), below every layer.
 
-The trainer records them, the launch's rounds and tuning judge on them and the report recomputes them from the
-curve: all through this registry, so they agree to the bit on the same curve.
+The trainer, the launch's rounds and tuning and the report all read them through this registry, so they agree to
+the bit on the same curve.
 """
 
 from __future__ import annotations
@@ -247,9 +244,8 @@ def trial_measures(
     asked: Sequence[Measure] = (),
 ) -> dict[str, float]:
     """What one trial's curve says beyond its summary metrics: AUC, the untrained return, the improvement
-    over it, the rolling return after each fixed budget, the first episode the rolling mean (over a full
-    window, or a quarter of the budget if shorter) reaches each return level (censored at the budget), and each
-    measure of ``asked`` computed from the curve (its column, and where censored its ``reached``)."""
+    over it, the rolling return after each fixed budget, ``episodes_to`` each return level, and each measure of
+    ``asked`` computed from the curve (``curve_columns``)."""
     rolling = curve.rolling_mean.to_numpy(float)
     returns = curve["return"].to_numpy(float)
     measures: dict[str, float] = {}
