@@ -3,9 +3,8 @@ members (or any subset), whatever the network; what acting and the update (``rei
 
 The user's module keeps its own ``forward``, its standard layers swapped for stacked ones (``stacked_layers``). A
 module whose forward mixes batch rows, or that holds other parameters or buffers, goes through
-``torch.func.vmap(functional_call)`` instead; both read the same stacked parameters, so the update is one either
-way. Checked once per population against each member's own forward (``Members.check``). Each member's own Adam
-steps its row (``Adam``).
+``torch.func.vmap(functional_call)`` instead (``Members.check``); both read the same stacked parameters, so the
+update is one either way.
 """
 
 from __future__ import annotations
