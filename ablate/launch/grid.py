@@ -81,8 +81,8 @@ def tuning_trials(experiment: Experiment) -> list[GridTrial]:
     """Stage 1 of a ``[tune]`` experiment: every tuned variant x tuning seed x candidate, variant-major, each
     seed's candidates together (a quarter in, every candidate has a result, so the time-left estimate's guess
     at the choice is an informed one); ``[]`` without ``[tune]``. A variant that sets every tuned knob itself
-    has no stage 1. Tuning trials record no video (nobody watches them) and use the tuning budget; their
-    seeds (10,000 up) keep their keys apart from every evaluation trial's."""
+    has no stage 1. Tuning trials record no video (nobody watches them) and use the tuning budget and seeds
+    (``config.TUNE_SEED_START``)."""
     spec = experiment.tune
     if spec is None:
         return []

@@ -126,9 +126,8 @@ def check_resources(experiment: Experiment, address: str | None) -> None:
 
 def reap_stale_runs(tracker: Tracker, storage_path: str) -> int:
     """Mark KILLED the runs a dead launch of this experiment left RUNNING (kill -9, a power cut) and remove
-    its Tune folder; returns how many runs. Called with the launch lock held (the file beside an SQLite store,
-    the store's own lease for a server or a database: ``lock.held_launch``), so no other launch of this
-    experiment is alive on this store, from any machine: every RUNNING launch of it is a dead one's."""
+    its Tune folder; returns how many runs. Called with the launch lock held (``lock.held_launch``), so no other
+    launch of this experiment is alive on this store, from any machine: every RUNNING launch of it is a dead one's."""
     running = tracker.running_runs()
     launches = [r for r in running if r.data.tags.get(TAG_ROLE) == "launch"]
     stale = {r.info.run_id for r in launches}
@@ -160,10 +159,8 @@ def run_plan(plan: LaunchPlan) -> RunOutcome:
 
 
 class _Launch:
-    """One launch, with the experiment's lock held, as its plan runs: what is left to run (``todo``); Ray and
-    the launch's MLflow run (``start``); its state, view and recorder (``watch``); stage 1, stage 2 at the
-    chosen values, then rounds of seeds (``stages``), each a ``stage`` of populations; the launch closed with
-    what happened (``close``), whatever happened."""
+    """One launch, with the experiment's lock held, as its plan runs: its methods are the plan's steps, in
+    the order ``run`` takes them."""
 
     recorder: Recorder | None = None
     state: LaunchState | None = None

@@ -239,8 +239,7 @@ def run_trials(
 
 
 def trial_resources(options: ClusterOptions) -> dict[str, float]:
-    """What Ray Tune reserves for each trial: ``cpus_per_trial`` CPUs and, when set, ``gpus_per_trial`` GPUs
-    (the trial puts its policy on CUDA whenever torch sees one)."""
+    """What Ray Tune reserves for each trial: ``cpus_per_trial`` CPUs and, when set, ``gpus_per_trial`` GPUs."""
     resources = {"cpu": options.cpus_per_trial}
     if options.gpus_per_trial:
         resources["gpu"] = options.gpus_per_trial
