@@ -1,10 +1,8 @@
-"""The report's primary claims as one family: a permutation test of the IQM difference per comparison, Holm's
-step-down over the comparisons at a family-wise 5%, equivalence by two one-sided tests (TOST), and the
-group-sequential looks (seeds added in rounds) with an alpha-spending boundary. Pure (numpy and SciPy, no
-store): below the launch layer, so the runner's rounds and the report call the same rule.
+"""The report's primary claims as one family: Holm's step-down over the comparisons at a family-wise 5%,
+equivalence by two one-sided tests (TOST), and the group-sequential looks (seeds added in rounds).
 
 ``decide`` judges a family at one look (or replays every look the data reach); ``Verdict`` is one comparison's
-answer, ``Round`` a look's. docs/report.md argues each choice; tests/test_claims.py checks the error rates.
+answer, ``Round`` a look's.
 """
 
 from __future__ import annotations
