@@ -3,8 +3,7 @@ populations (``agent.trainer``), the unit the scheduler runs.
 
 A population is one Ray task that trains its members together; each member is still a trial, with its own
 key, MLflow run, curve, checkpoints and result. Members share a population when their configs allow it
-(``stacked.population_group``: one network and batch shape; seeds and tuning candidates that differ only in
-optimisation knobs) and they are in the same stage. Pure: no Ray, no MLflow.
+(``config.population_group``) and they are in the same stage. Pure: no Ray, no MLflow.
 """
 
 from __future__ import annotations
