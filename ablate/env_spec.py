@@ -1,7 +1,6 @@
 """What an env family needs, declared once as its profile (the wrappers that make a trial's env, the knobs it
 honours, its return rule, its videos, its words in the report), and what Gymnasium's registry says of a config's
-env without building it: registering it (a user's module, ale-py's games), its spec's reward threshold, the solve
-threshold a trial stops at.
+env without building it.
 
 Below the agent (stdlib; Gymnasium and ale-py imported lazily), so the experiment, the launch's driver and the
 report ask the same functions the trainer does. The one place that reads an env's name: ``profile_of`` picks a

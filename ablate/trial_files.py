@@ -1,7 +1,5 @@
 """What a finished trial leaves in its folder (``write_artifacts``), and its video recorded later from those files
-(``replay_video``). The trainer returns a result; its caller writes it here (a launch's worker before the tracker
-logs the folder, ``ablate train`` into its ``--out``). Matplotlib with the Agg backend: it draws on a headless
-machine or a Ray worker.
+(``replay_video``). Matplotlib with the Agg backend: it draws on a headless machine or a Ray worker.
 """
 
 from __future__ import annotations
@@ -75,8 +73,7 @@ def write_artifacts(result: TrialResult, folder: Path, video: bool = True, curve
     """Per-episode table, weights, config, learning curve and (``record_video`` and ``video``) a video of the agent
     into ``folder``, each added to ``result.artifacts``; for Pong also ``observation.png`` (one observation raw,
     pre-processed and as a frame difference). ``video=False``: the video is left to ``replay_video`` (a launch's
-    report records its picks'). ``curve=False``: no ``learning_curve.png`` (matplotlib takes ~0.14 s a figure, about
-    what a CartPole member's training costs: a launch draws a few seeds per variant, ``launch.grid.PLOTTED_SEEDS``)."""
+    report records its picks'). ``curve=False``: no ``learning_curve.png`` (why: ``launch.grid.PLOTTED_SEEDS``)."""
     folder.mkdir(parents=True, exist_ok=True)
     config = result.config
     table = folder / "episodes.csv"
