@@ -92,8 +92,7 @@ def _videos(ablation: Ablation, tracker: RunReader, folder: Path) -> list[dict[s
 
 def _video(tracker: RunReader, run_id: str, target: Path, which: str, recorded: float) -> float | None:
     """The trained policy's video of a run into ``target``: the run's own ``video.mp4`` (``ablate train``, or a
-    launch before the report recorded them), else recorded now from its ``config.json`` and ``weights.pt``
-    (``trial_files.replay_video``: a launch leaves the video to the seeds the report shows). Returns the greedy
+    launch before the report recorded them), else recorded now (``trial_files.replay_video``). Returns the greedy
     return the video played (``recorded``, the run's own, for its own video; NaN: none, as on Pong), or ``None``
     where there is no video: ``record_video = false``, or a network or env this machine cannot build (said on
     stderr)."""
