@@ -351,10 +351,7 @@ def _stateful_wrappers(env) -> list:
     return [w for w in _wrappers(env) if callable(getattr(type(w), "set_state", None))]
 
 
-# --- an env's internals, fenced ---
-# Every change ablate makes to an env's internals lives here: Gymnasium's ``CartPoleVectorEnv``'s ``state``,
-# ``steps``, ``prev_done`` and ``action_space``, and ``TimeLimit``'s step count, which no public API lets one set.
-#
+# --- an env's internals, fenced: every write ablate makes to what no public API lets one set ---
 # Why: a vector env resets all its envs from one stream, so a member's start states would depend on which other
 # members share its process; ablate draws each member's start states from that member's own stream and writes
 # them in (``set_start_states``). A population that drops members goes on with a smaller vector env holding the

@@ -20,10 +20,8 @@ SPENDINGS = ("obrien-fleming", "pocock")
 
 @dataclass(frozen=True)
 class SeedRounds:
-    """``seeds = { start = 5, step = 5, max = 40 }``: evaluation seeds added in rounds until the primary
-    comparisons are decided (``ablate.launch.rounds``). Round 1 runs seeds ``0 .. start - 1``; each later round
-    gives the variants whose comparison is still open (and their references) ``step`` more, up to ``max``. Each
-    field is a key of the table, checked as declared (``parse_seeds``)."""
+    """``seeds = { start = 5, step = 5, max = 40 }``: evaluation seeds added in rounds (``ablate.launch.rounds``),
+    round 1 running seeds ``0 .. start - 1``. Each field is a key of the table, checked as declared."""
 
     start: int = knob(MISSING, **_count("a count of seeds in [1, 1000]"))
     step: int = knob(MISSING, **_count("seeds added per round, in [1, 1000]"))

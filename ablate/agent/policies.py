@@ -179,7 +179,6 @@ def build_model(config: TrialConfig, env: Described) -> nn.Module:
         factory, sizes = create_pong_model, {"observation_shape": env.observation_shape}
     else:
         factory, sizes = create_cartpole_model, {"observation_size": math.prod(env.observation_shape)}
-    # The built-in knobs by name, as the schema declares them; each factory takes those its signature names.
     taken = inspect.signature(factory).parameters
     knobs = {k.attr: getattr(model, k.attr) for k in SCHEMA.values() if k.built_in and k.attr in taken}
     return factory(n_actions=env.n_actions, **sizes, **knobs)
