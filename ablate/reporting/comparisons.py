@@ -233,14 +233,12 @@ def claims_table(ablation: Ablation, result: Round | None = None) -> pd.DataFram
     samples = _claim_samples(ablation, primary)
     rows = []
     for v in result.verdicts:
-        # a comparison most of whose seeds are censored was judged on the fallback measure (claims.CENSORED_SHARE)
         question = primary if v.metric == primary.metric else primary.fallback
         scale = 100.0 if question.relative else 1.0
         side = (lambda s: s.values) if question is primary else (lambda s: s.fallback)
         x = np.asarray(side(samples[v.variant]), float)[: v.n_variant]
         y = np.asarray(side(samples[v.reference]), float)[: v.n_reference]
         needed = np.nan if not v.seeds_estimated else np.inf if v.seeds_needed is None else float(v.seeds_needed)
-        # the verdict's own fields as they are, its effect and margin in the report's units beside them
         changes = {"change": v.estimate, "change_low": v.low, "change_high": v.high, "margin": v.margin}
         row = asdict(v) | {name: scale * value for name, value in changes.items()}
         row["change_unit"] = CHANGE_UNITS[question.relative]

@@ -76,7 +76,6 @@ def question(ablation: Ablation) -> str:
         others=others,
         varied=any(ablation.reference(v) != ablation.baseline for v in others),
         baseline=ablation.baseline,
-        # The claims' own metric (``Ablation.primary_metric``), and their rule for censored comparisons.
         primary_metric=ablation.primary_metric,
         censored=is_censored(ablation.primary_metric),
     )

@@ -43,7 +43,6 @@ def judge_for(experiment: Experiment, seeds: Sequence[int] | None = None):
 
     metric = experiment.primary_metric
     question = primary_question(metric, experiment.smallest_effect, float(experiment.base.max_episodes))
-    # Each compared variant -> its reference, by the report's own rule.
     family = {v: r for v, r in references(grid_document(experiment, [])).items() if v != experiment.baseline}
 
     def judge(finished: Mapping[str, Sequence[Primary]]):
