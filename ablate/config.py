@@ -87,7 +87,6 @@ def _table(valid: str) -> dict[str, Any]:
     return {"check": lambda v: isinstance(v, dict), "valid": valid, "convert": freeze}
 
 
-# A built-in network's knob: it separates populations, and a user's own network does not read it.
 _NET = {"population": True, "built_in": True}
 
 
@@ -148,7 +147,6 @@ class ModelConfig:
     ``factory_hash``); not a tracked parameter."""
 
 
-# A knob of the env a trial is built against: it separates populations and changes what ``describe`` finds.
 _ENV = {"population": True, "env": True}
 _ATARI = tuple(name for name, profile in PROFILES.items() if profile.atari)
 
@@ -269,11 +267,8 @@ TUNABLE_KNOBS = tuple(name for name, k in KNOBS.items() if k.tunable)
 """Optimisation knobs ``[tune]`` may search; architecture and regularisation knobs are what an ablation
 compares, so tuning them would tune away the effect being measured."""
 SETTING_KNOBS = tuple(name for name, k in KNOBS.items() if k.setting)
-"""Training settings every network reads: columns of every trial's row and of the report's base values."""
 POPULATION_COLUMNS = tuple(column for column, k in SCHEMA.items() if k.population)
-"""The fields trials must share to train as one population."""
 ENV_COLUMNS = tuple(column for column, k in SCHEMA.items() if k.env)
-"""The fields that make a trial's env."""
 
 
 # Shorthands an experiment may use instead of hidden_sizes: ``depth`` layers of ``width`` units.
@@ -317,9 +312,7 @@ def declared_values(cls: type, table: Mapping[str, Any], where: str) -> dict[str
 
 
 BUILT_IN_MODEL_KNOBS = (*(name for name, k in KNOBS.items() if k.built_in), *SHORTHANDS)
-"""Knobs of the built-in networks, which a user's own ``model`` does not read."""
 ARCHITECTURE_KNOBS = frozenset(name for name, k in KNOBS.items() if k.architecture) | set(SHORTHANDS)
-"""Knobs that together make one architecture (``depth``/``width`` expand to ``hidden_sizes``)."""
 
 
 def _check_profile(config: TrialConfig, where: str) -> None:
