@@ -347,7 +347,6 @@ def set_env_state(env, saved: dict) -> None:
 
 
 def _stateful_wrappers(env) -> list:
-    """``env``'s wrappers, outermost first, that hold state of their own (a ``state``/``set_state`` pair)."""
     return [w for w in _wrappers(env) if callable(getattr(type(w), "set_state", None))]
 
 
@@ -408,7 +407,6 @@ def skip_action_check(env):
 
 
 def _time_limit(env) -> gym.wrappers.TimeLimit | None:
-    """The ``TimeLimit`` among ``env``'s wrappers, if any."""
     return next((w for w in _wrappers(env) if isinstance(w, gym.wrappers.TimeLimit)), None)
 
 
