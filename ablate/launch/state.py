@@ -148,9 +148,7 @@ class LaunchState:
         that earlier launches took (``Tracker.earlier_runs``). ``groups``: the populations the trials run in
         (a population holds a slot until its last member ends). ``later``: stand-ins for the trials of a stage
         not known yet, which start once every trial here has ended (a tuned ablation's trials at the chosen
-        values), in ``later_groups``; ``stage_coming``: such a stage comes even while no stand-in stands for
-        it (``set_later`` replaces them as tuning trials end, ``add_trials`` puts the real ones in);
-        ``later_most``: the most trials that stage can add (default: as many as ``later``)."""
+        values), in ``later_groups``; ``stage_coming``, ``later_most``: as the attributes of those names."""
         self.name = name
         self.trials = {t.key: TrialProgress(t) for t in trials}
         self.variants = list(dict.fromkeys(t.variant for t in trials))
@@ -172,15 +170,15 @@ class LaunchState:
         self.later_population_of: dict[str, tuple[str, ...]] = {}
         self.set_later(later, later_groups)
         self.stage_coming = stage_coming or bool(later)
-        """A later stage stands in ``later`` (or will): its trials join this phase."""
+        """A later stage stands in ``later`` (or will, even while no stand-in stands for it): its trials join
+        this phase."""
         self.later_most = len(later) if later_most is None else later_most
         """The most trials the later stage can add: the progress line's bound, which stand-ins never move."""
         self.phases: list[list[str]] = [[t.key for t in trials]]
         """The keys of each set of trials known together: the launch's, with the later stage that replaces its
         stand-ins; then each round of seeds."""
         self.possible: list[list[TrialProgress]] = []
-        """Stand-ins for the trials later rounds may still add, round by round (every open comparison to its
-        ``max`` seeds): the most the launch can still run (``set_possible``)."""
+        """Stand-ins for the trials later rounds may still add, round by round (``set_possible``)."""
         self.possible_population_of: dict[str, tuple[str, ...]] = {}
         self.round = 1
         """The round of seeds the trials running now belong to (1 without rounds)."""
@@ -218,8 +216,7 @@ class LaunchState:
     def finished(
         self, key: str, solved: bool, wall_s: float | None = None, summary: Mapping[str, float] | None = None
     ) -> None:
-        """``wall_s``: the trial's own training time (its summary's), which tells its worker's start apart.
-        ``summary``: its summary metrics (episodes run)."""
+        """``wall_s``, ``summary``: its summary's training time and metrics (``TrialProgress`` keeps what it reads)."""
         trial = self.trials[key]
         trial.wall_s = wall_s
         if summary and summary.get("episodes_run") is not None:
