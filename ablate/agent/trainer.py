@@ -78,11 +78,10 @@ def run_population(
     """Train ``configs`` (``config.can_share``) together; member i behaves as ``run_trial(configs[i], ...)``.
 
     ``on_episodes(i, rows)``: member i's new episodes after each update (a resumed member's saved history first,
-    in one call). ``artifacts_dirs[i]``: member i's folder, for the videos it records as it trains (``video_every``;
-    ``trial_files.write_artifacts`` writes a result's files). Every ``checkpoint_interval`` episodes,
-    ``on_checkpoint(i, blob)`` gets member i's whole state, which ``resume_from[i]`` restores (the resumed run is
-    the unbroken one). ``on_outcome(i, outcome)`` as each member ends. ``device``: where the networks act and
-    learn (``None``: CUDA whenever torch sees a device, else the CPU). Returns every member's outcome, in order."""
+    in one call). ``artifacts_dirs[i]``: member i's folder, for the videos it records as it trains (``video_every``).
+    Every ``checkpoint_interval`` episodes, ``on_checkpoint(i, blob)`` gets member i's whole state, which
+    ``resume_from[i]`` restores. ``on_outcome(i, outcome)`` as each member ends. ``device``: where the networks act
+    and learn (``None``: CUDA whenever torch sees a device, else the CPU). Returns every member's outcome, in order."""
     for config in configs:
         _inject_fault(config)
     if not can_share(configs):
