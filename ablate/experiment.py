@@ -107,8 +107,7 @@ class Experiment:
     resources_per_trial: float = knob(1.0, **number(0, 64, open_low=True), name="cpus_per_trial")
     """CPUs Ray reserves per trial; fractions allowed (e.g. 0.5 packs two trials per core)."""
     gpus_per_trial: float = knob(0.0, **number(0, 16))
-    """GPUs Ray reserves per trial; fractions allowed (0.25 packs four trials per GPU). A trial puts its policy
-    on CUDA whenever torch sees one."""
+    """GPUs Ray reserves per trial; fractions allowed (0.25 packs four trials per GPU)."""
     smallest_effect: float = knob(
         0.1,
         **number(0, 1, open_low=True, open_high=True)
@@ -123,9 +122,8 @@ class Experiment:
         valid=f"one of {', '.join(claim_names())} (or leave it out: episodes_to_solve where the env has a solve "
         "threshold, else auc)",
     )
-    """The metric the report's claims are made on (``measures.claim_names``); ``None``: episodes to solve
-    where the env has a solve threshold, the area under the learning curve where it has none (Pong). The other
-    metrics stay in the report as exploratory. Report-level: it changes no trial."""
+    """The metric the report's claims are made on (``measures.claim_names``); ``None``: as
+    ``measures.default_primary_metric`` picks. The other metrics stay exploratory. It changes no trial."""
     tune: TuneSpec | None = None
     """``[tune]``: tune each variant's optimisation knobs on tuning seeds first; ``None``: no tuning stage."""
     rounds: SeedRounds | None = None

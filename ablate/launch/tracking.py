@@ -61,8 +61,7 @@ class OpenRun:
     run_id: str
     start_ms: int
     artifact_uri: str
-    """From the run's creation: uploading through MLflow's client would look the run up again first (~16 ms of
-    SQLite CPU, a third of a short trial's tracking cost)."""
+    """From the run's creation, for ``patches.mlflow_log_artifacts`` (which says why)."""
     points: list[Any] = field(default_factory=list)
     """Its curve points not written yet."""
 
