@@ -88,9 +88,8 @@ def _reproducibility(ablation: Ablation, command: Shown) -> list[Block]:
 
 def changed_file_note(ablation: Ablation, cwd: str | Path | None = None) -> str:
     """One line where the experiment file the launch ran (its copy in the store) differs from the file at the
-    same path now. Where no trial key changed, the report reads the file as it is now (``experiment_file``);
-    otherwise it describes the launch's copy, and an edit since (a knob removed, a variant renamed) is not in
-    it. ``""`` where they match, or where either is missing."""
+    same path now (which of the two the report reads: ``experiment_file``). ``""`` where they match, or where
+    either is missing."""
     path = ablation.launch["tags"].get("ablate.experiment_file", "")
     changed = f"**The experiment file {esc(path)} has changed since this launch ran it**"
     if ablation.launch.get("read_from_disk"):
