@@ -102,8 +102,7 @@ def trial_time(plan: LaunchPlan, tracking_uri: str | None, fresh: bool = False) 
     if experiment.rounds is not None:
         possible = Rounds(experiment, wanted, judge=lambda samples: None).possible({}, known)  # type: ignore[arg-type, return-value]
     every = [*todo, *later, *(t for r in possible for t in r)]
-    # Seconds each took when an earlier launch, of any generation, finished it (the ones skipped here too: they
-    # cost their variant's others).
+    # The skipped ones' earlier runs too: they cost their variant's others.
     looked_up = [*known, *(t.key for t in every)]
     earlier = from_store(experiment, tracking_uri, lambda store: store.earlier_runs(looked_up)[0], {})
     prior = costed(every, earlier) or {t.key: guessed_s(t) for t in every}

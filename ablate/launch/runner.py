@@ -299,8 +299,8 @@ class _Launch:
         return [p.keys for p in plan_populations(trials, self.plan.population, self.cores)]
 
     def restage(self) -> None:
-        """The launch began or a tuning trial ended: stage 2's stand-ins for the estimate, the tuned variants not
-        chosen yet as the finished tuning trials would choose now (each variant's best candidate so far)."""
+        """The launch began or a tuning trial ended: stage 2's stand-ins (``LaunchPlan.provisional``) for the
+        estimate."""
         try:
             finished = {**self.finished_runs, **self.recorder.summaries}
             trials = self.plan.provisional(finished, self.known_keys) if self.state.stage_coming else []
