@@ -1,6 +1,5 @@
-"""``ablate run --dry-run``: the trials a run would start, listed with their keys; nothing started or written.
-Its cost comes first: the trials' (the two figures the progress line gives: round 1's time and the most the
-launch can take), the start's and the report's.
+"""``ablate run --dry-run``: the trials a run would start, listed with their keys after their cost (``time_line``);
+nothing started or written.
 """
 
 from __future__ import annotations

@@ -31,8 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 def record_episode(config: TrialConfig, model: nn.Module, on_frame: Callable[[np.ndarray], None]) -> float:
     """Play one episode of ``model`` on a seed training never used, frames to ``on_frame`` as they come (every
     ``video_stride``-th step, downscaled, up to ``video_max_frames``); returns its return. Greedy (argmax), except
-    on Pong, where a greedy agent that has not learnt much presses one button for the whole video: there the
-    sampling policy plays."""
+    where the env's profile plays the sampling policy (``Profile.sampling_video``)."""
     info, max_frames = describe(config), config.video_max_frames
     history = window_of(config.model, info)
     env = make_trial_env(config, render=True)
