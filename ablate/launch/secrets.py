@@ -39,8 +39,7 @@ SECRET_ENV = (
 MIN_SECRET = 4
 """Secrets shorter than this are not replaced in free text: they would mask ordinary words."""
 
-# scheme://USERINFO@host: the userinfo runs to the LAST '@' of the token (a raw '@' or '/' in a password
-# included); a URI whose authority is empty (sqlite:///path, file:///path) has none.
+# scheme://USERINFO@host; a URI whose authority is empty (sqlite:///path, file:///path) has none.
 _USERINFO = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://)(?P<userinfo>[^\s'\"/@][^\s'\"]*)@")
 _KEY = r"[A-Za-z0-9_.-]*(?:password|passwd|pwd|secret|token|api[_-]?key|access[_-]?key|credential)[A-Za-z0-9_.-]*"
 _KEYWORD = re.compile(rf"(?P<head>(?:^|[?&;\s,])(?i:{_KEY})=)(?P<value>'[^']*'|\"[^\"]*\"|[^&\s'\";,#]*)")
@@ -64,8 +63,7 @@ def remember_uri(uri: str | None) -> None:
 
 def split_userinfo(uri: str) -> tuple[str, str | None, str | None, str]:
     """``scheme://user:password@rest`` as (``scheme://``, user, password, rest), user and password decoded
-    (percent-encoding undone); (``uri``, None, None, "") when there is no userinfo. The userinfo runs to the
-    last ``@`` before the host, so a raw ``@``, ``/`` or ``:`` in a password is read as part of it."""
+    (percent-encoding undone); (``uri``, None, None, "") when there is no userinfo."""
     match = _USERINFO.match(uri)
     if match is None:
         return uri, None, None, ""

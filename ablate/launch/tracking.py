@@ -187,8 +187,8 @@ class Tracker(Store):
         return run.info.run_id
 
     def log_points(self, key: str, points: Sequence[Any]) -> None:
-        """``POINT_METRICS`` of each curve point (``ablate.launch.curve.CurvePoint``) of an open trial; every open
-        trial's written together ``FLUSH_EVERY_S`` at a time (and each trial's when it ends)."""
+        """``POINT_METRICS`` of each curve point (``ablate.launch.curve.CurvePoint``) of an open trial, written as
+        ``FLUSH_EVERY_S`` says."""
         self.open_runs[key].points.extend(points)
         if time.monotonic() - self._flushed_at >= FLUSH_EVERY_S:
             self._flush_points(list(self.open_runs))
