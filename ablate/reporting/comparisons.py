@@ -151,8 +151,7 @@ def in_report_units(frame: pd.DataFrame) -> pd.DataFrame:
 
 
 def primary_question(ablation: Ablation) -> Question:
-    """What the primary claims ask: on the ablation's primary metric, effects as ratios of episodes (censored at
-    the budget) or as differences of AUC or return, with the experiment's ``smallest_effect`` as the margin."""
+    """What the primary claims ask (``claims.primary_question``), censored at the longest budget that finished."""
     budget = float(ablation.finished.budget.max()) if len(ablation.finished) else None
     return claims_question(ablation.primary_metric, ablation.smallest_effect, budget)
 
