@@ -138,9 +138,8 @@ def choose_all(
 
 
 def tuning_document(experiment: Experiment, choices: Mapping[str, Choice]) -> dict[str, Any]:
-    """``tuning.json`` of a launch run (the contract other modules read): candidates, seeds, metric, rule,
-    base values, each variant's choice and ``trials``, stage 2 by key (each tuned variant on every evaluation seed
-    at its choice): what the report counts, where runs of earlier keys (an edited network) are not."""
+    """``tuning.json`` of a launch run: the contract other modules read (docs/tuning.md lists its fields and
+    what the report counts by its ``trials``)."""
     spec = experiment.tune
     assert spec is not None
     stage_two = chosen_trials(experiment, {name: c.values for name, c in choices.items() if c.tuned})
