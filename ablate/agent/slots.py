@@ -61,8 +61,7 @@ class CartPoleSlots:
     """Every slot in one ``CartPoleVectorEnv`` (Gymnasium's physics, next-step autoreset). Resets draw each
     member's start states from that member's own stream, as its own vector env would: one stream seeded with
     the member's seed (``CartPoleVectorEnv``, 3 envs or more a member), or one per env seeded ``seed + j``
-    (a ``SyncVectorEnv`` of ``CartPoleEnv``, below 3). The vector env's own draws are overwritten, through
-    ``envs``' fenced internals (the one place that touches a vector env's internals)."""
+    (a ``SyncVectorEnv`` of ``CartPoleEnv``, below 3), overwriting the vector env's own (``envs.set_start_states``)."""
 
     low, high = -0.05, 0.05
 
