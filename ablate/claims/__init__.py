@@ -2,10 +2,6 @@
 at the looks its seeds reach and says which variants need more. Pure (numpy and SciPy, no store), below the
 launch layer, so the runner's rounds and the report call the same rule. docs/report.md#primary-claims argues
 each choice; tests/test_claims.py measures the error rates.
-
-- ``permutation``: the permutation test of the IQM difference, its TOST form, the interval it inverts to.
-- ``boundaries``: the design's looks and the alpha-spending boundary across them.
-- ``family``: Holm's step-down over the comparisons, the four verdicts, the seeds an open one would need.
 """
 
 from ablate.claims.boundaries import ALPHA, Design, nominal_levels
