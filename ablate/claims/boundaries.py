@@ -17,9 +17,8 @@ from ablate.seeds import seed_looks
 
 @dataclass(frozen=True)
 class Design:
-    """The seeds per variant at each look: ``start``, ``start + step``, ... up to ``max`` (``growth`` > 1: each look
-    adds more than the one before; a fixed design: one look, ``start == max``), and the spending function that
-    shares ``alpha`` among the looks."""
+    """The seeds per variant at each look, ``start`` to ``max`` (a fixed design: one look, ``start == max``), and
+    the spending function that shares ``alpha`` among the looks."""
 
     start: int
     step: int = 0
