@@ -55,8 +55,7 @@ class TrialResult:
     state_dict: dict[str, torch.Tensor] = field(default_factory=dict)
     artifacts: dict[str, Path] = field(default_factory=dict)
     env: dict[str, str] = field(default_factory=dict)
-    """What it ran against (``envs.record``: the env's spec, shapes, solve threshold, library versions): its
-    run's ``env.*`` params."""
+    """What it ran against (``envs.record``): its run's ``env.*`` params."""
 
     @property
     def returns(self) -> list[float]:
