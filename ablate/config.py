@@ -40,8 +40,6 @@ MAX_TRIALS = 10_000
 intent, and expanding it would take minutes and gigabytes before the first trial starts."""
 # --- the Pong profile's knobs (issue 9) ---
 ACTION_SETS = ("all", "move")
-"""``all``: the game's minimal action set (Pong's 6); ``move``: its RIGHT and LEFT (or UP and DOWN) only, as in
-Karpathy's pg-pong (``envs.MOVES``)."""
 # --- tuning (issue 19) ---
 TUNE_SEED_START = 10_000
 """Tuning seeds are ``TUNE_SEED_START``, ``+1``, ...; evaluation seeds must stay below it, so the comparison
