@@ -20,19 +20,16 @@ from ablate.schema import Knob, boolean, derived, integer, is_int, is_number, kn
 __all__ = ["Knob", "is_int", "is_number"]  # re-exported: older callers import them from here
 
 BUILT_IN_ENVS = ("CartPole-v0", "CartPole-v1", "ALE/Pong-v5")
-"""The course's envs; ``env_id`` may name any registered Gymnasium env with discrete actions and a Box observation
-(``checks`` refuses the others before a launch)."""
+"""The course's envs; ``env_id`` may name others (its docstring says which)."""
 ARCHITECTURES = ("mlp", "cnn")
 ACTIVATIONS = ("relu", "tanh", "elu", "gelu")
 DEFAULT_POPULATION = 8
-"""At most this many trials of a variant train together as one population unless ``--population`` says otherwise:
-on a CPU each member is its trial alone, bit for bit, so a population changes speed, not results; ``launch.plan``
-sizes them smaller where that keeps every CPU busy."""
+"""At most this many trials of a variant train together as one population unless ``--population`` says otherwise
+(``launch.plan.population_size``; on a CPU a population changes speed, not results: ``agent.trainer``)."""
 
 FAULTS = ("", "crash_once", "crash_after_checkpoint", "raise", "block")
 MAX_NAME_LENGTH = 100
-"""Characters in an experiment's name (any script). Where it names a folder, an MLflow experiment or a lock
-file, ``storage_name`` stands in for it: a component of at most 57 ASCII bytes."""
+"""Characters in an experiment's name (any script); ``experiment.storage_name`` is its form on disk."""
 MAX_VARIANT_NAME_LENGTH = 200
 """Characters in a variant's name: it starts every trial key, which names a folder of its own."""
 MAX_TRIALS = 10_000
