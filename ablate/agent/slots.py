@@ -1,9 +1,7 @@
 """A population's environments: ``members x per_member`` slots, each slot one env of one member, stepped together.
 
 ``CartPoleSlots`` runs every slot in one Gymnasium ``CartPoleVectorEnv`` (one numpy call steps them all);
-``EnvSlots`` holds one Gymnasium env per slot (any env: Acrobot, LunarLander, Atari, Pong, a user's own). Either
-way a member's resets draw only from its own streams, so a member's episodes never depend on who shares its
-process. Each slot records the episode it plays (``Memory``) until the trainer takes it.
+``EnvSlots`` holds one Gymnasium env per slot (any env: Acrobot, LunarLander, Atari, Pong, a user's own).
 """
 
 from __future__ import annotations

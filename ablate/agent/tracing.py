@@ -1,9 +1,7 @@
 """A population's acting forward as one traced function (``torch.fx``): the swapped network's forward with every
-layer's weight views and their reshapes read once, at the trace, and no module call per layer; specialised to the
-acting batch's shape (its shape arithmetic done once, a reshape that gives back its input's shape dropped, also
-across an activation); the same arithmetic in the same order as the module. When members leave, the same code reads
-the new stack's views (``Traced.rebind``); ``stacking.Members`` checks it against the module bit for bit at the first
-call after every trace or rebinding, and traces again where it no longer fits.
+layer's weight views and their reshapes read once, at the trace, and no module call per layer, specialised to the
+acting batch's shape (``_specialise``): the same arithmetic in the same order as the module, which
+``stacking.Members`` checks bit for bit after every trace or ``Traced.rebind``.
 """
 
 from __future__ import annotations
