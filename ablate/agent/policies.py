@@ -1,8 +1,7 @@
 """A trial's network: observation in, action logits out (no softmax inside). The built-in ones,
-``create_cartpole_model`` and ``create_pong_model`` (the course's names: the course's CartPole MLP and 1-D CNN, its
-Pong CNN, an MLP over pixels), or the user's own factory (``model = "FILE.py:FUNCTION"`` or
-``"package.module:FUNCTION"``); ``build_model`` picks one, and a population trains a user's as it trains the
-built-in ones (``stacking``).
+``create_cartpole_model`` and ``create_pong_model`` (the course's names), or the user's own factory
+(``model = "FILE.py:FUNCTION"`` or ``"package.module:FUNCTION"``); ``build_model`` picks one, and a population
+trains a user's as it trains the built-in ones (``stacking``).
 
 A factory is called with those of ``observation_shape``, ``n_actions`` and its ``model_args`` that its signature
 accepts, and must return an ``nn.Module`` mapping a float32 batch of observations to (batch, n_actions) logits.
