@@ -1,6 +1,5 @@
 """Typeset the report as a paper: the report's blocks (``blocks.py``) become report.typ (Typst markup) and
-report.pdf, compiled by the ``typst`` wheel (the Typst compiler with its fonts inside: no browser, no system package,
-any machine pip reaches).
+report.pdf, compiled by the ``typst`` wheel (why that wheel: docs/design.md).
 
 Markdown (a block's inline markup, the student's own ``discussion.md``) is read by markdown-it (``blocks.MARKUP``)
 and its syntax tree written as Typst. Every run of text becomes a Typst string literal, never markup, so no variant
