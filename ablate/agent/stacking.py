@@ -302,8 +302,7 @@ class Adam:
     rate, its step count): a row of ``params`` (M, P), every member's parameters one after another
     (``Members.flat``), stepping only the members an update serves; the update ``torch.optim.Adam`` makes, member
     by member (tests/test_stacking.py). Not ``torch.optim.Adam``: it steps every row of a stacked tensor with one
-    step count and one learning rate, and constructing any ``torch.optim`` optimizer imports ``torch._dynamo``
-    (~1.3 s of CPU in every fresh process, paid again by every Ray worker)."""
+    step count and one learning rate, and its import costs 1.3 s a process (docs/design.md)."""
 
     beta1, beta2, eps = 0.9, 0.999, 1e-8  # torch.optim.Adam's defaults
 
