@@ -1,6 +1,5 @@
-"""The report as a hand-in: a body of about four printed pages (the question, the method in a paragraph, the
-claims, two figures, the limitations that matter for this run, the student's discussion, the references), then
-an appendix with everything else (every table, every comparison, the tuning, the glossary, the record)."""
+"""The report as a hand-in: a body of about four printed pages, then an appendix with everything else (the order:
+``build_document`` and docs/design.md's layout row)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
-"""Seeds in rounds, the report's side: the judge the runner calls after each round (the family's sequential
-rule of ``claims.decide`` on the primary metric, each variant against the reference the report compares it
-with), and the report's words on each variant's seeds and why it stopped (``rounds.json`` of the launch).
+"""Seeds in rounds, the report's side: the judge the runner calls after each round (``judge_for``), and the
+report's words on each variant's seeds and why it stopped (``rounds_section``).
 """
 
 from __future__ import annotations
