@@ -264,8 +264,7 @@ class Population:
         return [positions] if self.device.type == "cuda" else [[p] for p in positions]
 
     def update(self, batches: dict[int, Batch]) -> dict[int, tuple[float, float]]:
-        """The members at ``batches``' positions each take their own Adam step on their own batch, all in one
-        forward and backward (batches padded to the longest); (loss, entropy) by position."""
+        """Each member at ``batches``' positions takes its own step (``reinforce.train_step``): (loss, entropy)."""
         positions = sorted(batches)
         lengths = np.array([len(batches[p].actions) for p in positions], np.int64)
         steps = int(lengths.max())
