@@ -263,10 +263,8 @@ class _Launch:
         experiment, plan = self.experiment, self.plan
         cpus = max(int((os.cpu_count() or 1) / experiment.resources_per_trial), 1)
         slots = plan.max_concurrent or (None if plan.address else cpus)
-        # What each trial took when an earlier launch ran it: the estimate's first guess, and the order's.
         prior, prior_episodes = self.tracker.earlier_runs(t.key for t in todo)
         todo = schedule_order(todo, prior)
-        # Populations: each holds a slot until its last member ends, which the estimate sees through their groups.
         self.cores = slots or max(int(self.biggest), 1)
         self.known_keys = {t.key for t in self.known}  # what stage 2 adds is what is not among them
         self.state = LaunchState(
