@@ -323,7 +323,6 @@ class _Launch:
             self.state.name, self.state.round = rounds.announce(self.plan.show_progress)
         self.stage(todo)
         if plan.tuning and not self.wanted <= set(self.choices):
-            # Stage 2: every variant whose tuning trials all finished, at its chosen values.
             self.choices = plan.choices(self.finished_runs | self.recorder.summaries)
             self.log_json("tuning.json", tuning_document(self.experiment, self.choices))
             self.later(unique(plan.chosen(self.choices), self.known_keys))

@@ -129,7 +129,6 @@ def _train(params: dict[str, Any], populations: dict[str, Population], checkpoin
             if isinstance(outcome, Exception):
                 outcome_of[keys[i]] = {"failed": f"{type(outcome).__name__}: {outcome}"}
             else:
-                # The report records the videos of the seeds it shows (``trial_files.replay_video``).
                 curve = population.plotted is None or keys[i] in population.plotted
                 write_artifacts(outcome, folders[i], video=False, curve=curve)
                 files = _read_folder(folders[i])
