@@ -64,6 +64,7 @@ def check_store(tracking_uri: str | None) -> str:
     """The store's URI; a local store (SQLite file or folder) that does not exist is ``StoreNotFound``, so that
     reading never creates an empty database where a path was mistyped or a notebook runs elsewhere."""
     uri = resolve_uri(tracking_uri)
+    check_uri(uri)  # a server's host:port without its scheme is that, not a missing folder of that name
     path = sqlite_path(uri)
     if uri.startswith("file:"):
         path = Path(uri.removeprefix("file://").removeprefix("file:"))
