@@ -25,7 +25,7 @@ class SeedRounds:
 
     start: int = knob(MISSING, **_count("a count of seeds in [1, 1000]"))
     step: int = knob(MISSING, **_count("seeds added per round, in [1, 1000]"))
-    max: int = knob(MISSING, **_count("a count of seeds in [start, 1000]"))
+    max: int = knob(MISSING, check=lambda v: True, valid="")  # its range starts at start: parse_seeds checks it
     max_minutes: float | None = knob(
         None,
         check=lambda v: v is None or (is_number(v) and 0 < v <= 100_000),
@@ -98,9 +98,9 @@ def parse_seeds(value: Any, where: str) -> tuple[tuple[int, ...], SeedRounds | N
         if key not in value:
             raise ConfigError(f"{where}.{key}: missing; valid: e.g. seeds = {{ start = 5, step = 5, max = 40 }}")
     rounds = SeedRounds(**declared_values(SeedRounds, {"step": value["start"], **value}, f"{where}."))
-    if rounds.max < rounds.start:
+    if not (is_int(rounds.max) and rounds.start <= rounds.max <= 1000):
         raise ConfigError(
-            f"{where}.max = {rounds.max} is invalid; valid: a count of seeds in [start = {rounds.start}, 1000]"
+            f"{where}.max = {clipped(rounds.max)} is invalid; valid: a count of seeds in [start = {rounds.start}, 1000]"
         )
     # one round: exactly ``seeds = start`` (its trial keys too)
     return tuple(range(rounds.start)), None if rounds.max == rounds.start else rounds

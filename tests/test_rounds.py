@@ -69,6 +69,8 @@ BAD_SEEDS = [
     ("seeds = { start = 5, step = 5 }", "seeds.max: missing"),
     ("seeds = { start = 0, max = 10 }", "seeds.start = 0 is invalid; valid: a count of seeds in [1, 1000]"),
     ("seeds = { start = 5, max = 3 }", "seeds.max = 3 is invalid; valid: a count of seeds in [start = 5, 1000]"),
+    ("seeds = { start = 5, max = 2000 }", "seeds.max = 2000 is invalid; valid: a count of seeds in [start = 5, 1000]"),
+    ("seeds = { start = 5, max = 'x' }", "seeds.max = 'x' is invalid; valid: a count of seeds in [start = 5, 1000]"),
     ("seeds = { start = 5, step = 0, max = 10 }", "seeds.step = 0 is invalid"),
     ("seeds = { start = 5, max = 10, max_minutes = -1 }", "seeds.max_minutes = -1 is invalid"),
     ("seeds = { start = 5, max = 10, stop = 3 }", "seeds.stop: unknown key; valid keys of a seeds table"),
