@@ -11,7 +11,7 @@ import re
 import tomllib
 import unicodedata
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -158,20 +158,10 @@ class Experiment:
         return storage_name(self.name)
 
 
-EXPERIMENT_KEYS = (
-    "name",
-    "description",
-    "seeds",
-    "baseline",
-    "cpus_per_trial",
-    "gpus_per_trial",
-    "smallest_effect",
-    "primary",
-    "base",
-    "variants",
-    "grid",
-    "tune",
-)
+_SETTINGS = (f.metadata["knob"].name or f.name for f in fields(Experiment) if "knob" in f.metadata)
+EXPERIMENT_KEYS = ("name", "seeds", "baseline", *_SETTINGS, "base", "variants", "grid", "tune")
+"""The top-level keys; the settings among them (``description``, ``cpus_per_trial`` ...) as ``Experiment``
+declares them."""
 
 
 def load_experiment(path: str | Path) -> Experiment:
