@@ -6,15 +6,16 @@ Importing this module is light: torch, Ray and MLflow load only when a function 
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import tempfile
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ablate.config import DEFAULT_POPULATION, ConfigError
+from ablate.config import DEFAULT_POPULATION
 from ablate.experiment import Experiment, load_experiment
 from ablate.launch.store import StoreNotFound  # noqa: F401 - public: `ablate.api.StoreNotFound` (docs/python.md)
 
@@ -22,11 +23,13 @@ if TYPE_CHECKING:  # only for the annotations: the real imports are inside the f
     import pandas as pd
     from matplotlib.figure import Figure as MplFigure
 
+    from ablate.launch.plan import LaunchPlan
     from ablate.launch.runner import RunOutcome
+    from ablate.reporting.document import ReportResult
     from ablate.reporting.results import Ablation
 
 
-def _name(name_or_file: str | Path | Experiment) -> str:
+def experiment_name(name_or_file: str | Path | Experiment) -> str:
     """An experiment's name from itself, its file (``*.toml`` or an existing path) or its plain name."""
     if isinstance(name_or_file, Experiment):
         return name_or_file.name
@@ -72,26 +75,56 @@ def run(
     """
     from ablate.checks import check_experiment
     from ablate.launch.plan import LaunchPlan
-    from ablate.launch.runner import run_plan
     from ablate.launch.store import insecure_http
-    from ablate.reporting.rounds import judge_for
 
     loaded = experiment if isinstance(experiment, Experiment) else load_experiment(experiment)
     check_experiment(loaded)
-    if max_concurrent is not None and max_concurrent < 1:
-        raise ConfigError(f"max_concurrent={max_concurrent} is invalid; valid: an integer >= 1")
-    if population < 1:
-        raise ConfigError(f"population={population} is invalid; valid: an integer >= 1")
     plan = LaunchPlan.of(
         loaded, list(only) if only is not None else None, list(seeds) if seeds else None,
         tracking_uri=tracking_uri, address=address, fresh=fresh, max_concurrent=max_concurrent,
         storage_path=storage_path, show_progress=progress, population=population,
-        command=f"ablate.run({loaded.path!r})", judge=judge_for(loaded, seeds),
+        command=f"ablate.run({loaded.path!r})",
     )  # fmt: skip
     with insecure_http(allow_insecure_http):  # the store is opened, and the report written, inside
-        outcome = run_plan(plan)
-        if report and not outcome.interrupted and not outcome.error and (outcome.finished or outcome.skipped):
-            outcome.report_folder = _report(loaded, tracking_uri=tracking_uri, reports_folder=reports_folder)
+        outcome = launch(plan, seeds, report, reports_folder)
+    if outcome.report:
+        _notes(outcome.report, pdf=True)
+    return outcome
+
+
+def launch(
+    plan: LaunchPlan,
+    seeds: Sequence[int] | None = None,
+    report: bool = True,
+    reports_folder: str | Path = "reports",
+    said: Callable[[RunOutcome], object] = lambda outcome: None,
+) -> RunOutcome:
+    """``run``'s work and ``ablate run``'s: ``plan``'s trials (``said`` is told their outcome), then the report,
+    its seconds recorded for the next ``--dry-run``."""
+    from ablate.launch.clock import stage
+    from ablate.launch.runner import run_plan
+    from ablate.reporting.document import NoResults, build_report
+    from ablate.reporting.rounds import judge_for
+
+    experiment = plan.experiment
+    outcome = run_plan(replace(plan, judge=judge_for(experiment, seeds)))
+    said(outcome)
+    if not report or outcome.interrupted or outcome.error:
+        return outcome
+    try:
+        with stage(f"writing the report into {reports_folder}/{experiment.storage_name}/") as seconds:
+            outcome.report = build_report(
+                experiment.name, plan.tracking_uri, Path(reports_folder), command=plan.command
+            )
+    except NoResults as error:  # every trial failed: say so, and leave the last good report in place
+        outcome.report_note = f"no report: {error}"
+        return outcome
+    outcome.report_folder, outcome.report_seconds = outcome.report.folder, seconds[0]
+    if outcome.launch_run_id:
+        from ablate.launch.tracking import Tracker
+
+        with contextlib.suppress(Exception):  # a courtesy for the next --dry-run: the report stands without it
+            Tracker(plan.tracking_uri, experiment.name).record_report_time(outcome.launch_run_id, seconds[0])
     return outcome
 
 
@@ -122,7 +155,7 @@ def report(
 
     with insecure_http(allow_insecure_http):
         result = build_report(
-            _name(name_or_file),
+            experiment_name(name_or_file),
             tracking_uri=tracking_uri,
             out_root=Path(reports_folder),
             generation=generation,
@@ -131,14 +164,16 @@ def report(
             pdf=pdf,
             command=shown(f"ablate.report({str(getattr(name_or_file, 'path', name_or_file))!r})"),
         )
-    if result.missing_note:  # written without some trials' files: say which, in one line
-        print(result.missing_note, file=sys.stderr)
-    if result.pdf_note and pdf:  # asked for a PDF and got none: say why, in one line, where a notebook shows it
-        print(result.pdf_note, file=sys.stderr)
+    _notes(result, pdf)
     return result.folder
 
 
-_report = report  # what ``run`` calls: its parameter ``report`` hides the function
+def _notes(result: ReportResult, pdf: bool) -> None:
+    """A report's notes on stderr, where a notebook shows them: the trials left out, and why no PDF if asked."""
+    if result.missing_note:  # written without some trials' files: say which, in one line
+        print(result.missing_note, file=sys.stderr)
+    if result.pdf_note and pdf:  # asked for a PDF and got none: say why, in one line
+        print(result.pdf_note, file=sys.stderr)
 
 
 def load(
@@ -163,7 +198,7 @@ def load(
     from ablate.reporting.results import load_ablation, select
 
     with insecure_http(allow_insecure_http):
-        ablation = load_ablation(_name(name_or_file), tracking_uri, generation)
+        ablation = load_ablation(experiment_name(name_or_file), tracking_uri, generation)
     return Results(select(ablation, list(variants) if variants else None, baseline))
 
 

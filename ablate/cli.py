@@ -433,7 +433,7 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
             from ablate.commands import cmd_run
 
             return cmd_run(args, plan)
-        from ablate.reporting.document import cmd_report
+        from ablate.commands import cmd_report
 
         return cmd_report(args)
     except (ConfigError, TrackingError, LaunchLocked) as error:

@@ -265,9 +265,10 @@ def test_a_variant_draws_the_curves_of_its_first_seeds_and_the_plan_carries_them
 def test_ablate_run_hands_one_plan_its_experiment_read_and_its_grid_expanded_once(tmp_path, monkeypatch):
     """The command line's options reach the runner as one ``LaunchPlan``: the experiment file read once, its grid
     expanded once, the part to run selected from that grid."""
-    from ablate import cli, commands
+    from ablate import cli
     from ablate import experiment as experiment_module
     from ablate.launch import plan as plan_module
+    from ablate.launch import runner
     from ablate.launch.runner import RunOutcome
 
     calls = {"load": 0, "expand": 0}
@@ -289,7 +290,7 @@ def test_ablate_run_hands_one_plan_its_experiment_read_and_its_grid_expanded_onc
         handed.append(plan)
         return RunOutcome(plan.experiment.name, "g", None, skipped=len(plan.trials), total=len(plan.trials), ui_link="")
 
-    monkeypatch.setattr(commands, "run_plan", run_plan)
+    monkeypatch.setattr(runner, "run_plan", run_plan)  # what ablate.api.launch calls
     path = tmp_path / "pops.toml"
     path.write_text(SEEDS)
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import TYPE_CHECKING
 
-from ablate.config import DEFAULT_POPULATION, population_group
+from ablate.config import DEFAULT_POPULATION, ConfigError, population_group
 from ablate.experiment import Experiment
 from ablate.launch.grid import GridTrial, chosen_trials, expand, select, tuning_trials
 from ablate.launch.tuning import Choice, choose_all, unique
@@ -57,6 +57,9 @@ class LaunchPlan:
     """Every trial of the experiment (variants x seeds): expanded here, once, unless given."""
 
     def __post_init__(self) -> None:
+        for option, value in (("max-concurrent", self.max_concurrent), ("population", self.population)):
+            if value is not None and value < 1:  # one check for `ablate run` and `ablate.run`
+                raise ConfigError(f"--{option} = {value} is invalid; valid: an integer >= 1")
         if not self.grid:
             object.__setattr__(self, "grid", tuple(expand(self.experiment)))
 

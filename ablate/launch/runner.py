@@ -17,6 +17,7 @@ from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ablate.config import ConfigError
 from ablate.experiment import Experiment
@@ -89,6 +90,11 @@ class RunOutcome:
     """The launch's progress view (its clock and stage times), when trials ran."""
     report_folder: Path | None = None
     """Where ``ablate.run`` wrote the report afterwards (``None``: no report)."""
+    report: Any = field(default=None, repr=False)
+    """That report (``reporting.document.ReportResult``, from ``api.launch``); ``report_note``: why none;
+    ``report_seconds``: its time."""
+    report_note: str = ""
+    report_seconds: float | None = None
     rounds: dict | None = None
     """With seeds in rounds: ``rounds.json`` (``Rounds.document``): the rounds, why they stopped, seeds per variant."""
 

@@ -7,9 +7,7 @@ report is built in a temporary folder and swapped in whole: a failed build never
 
 from __future__ import annotations
 
-import argparse
 import contextlib
-import html
 import json
 import re
 import shutil
@@ -22,7 +20,7 @@ from pathlib import Path
 import pandas as pd
 
 from ablate.config import ConfigError
-from ablate.experiment import NAME_RULE, load_experiment, name_problem, storage_name
+from ablate.experiment import NAME_RULE, name_problem, storage_name
 from ablate.launch.secrets import Shown, shown_command
 from ablate.launch.variant_runs import log_variant_runs
 from ablate.reporting import discussion, render
@@ -295,57 +293,3 @@ def terminal_summary(folder: Path) -> str:
         solved = f"{int(row.solved)}/{seeds}"
         lines.append(f"{row.variant:<{width}} {solved:>7} {median:>26} {fmt(row.final_rolling_mean_iqm, 1):>24}")
     return "\n".join(lines)
-
-
-def report_command(args: argparse.Namespace) -> Shown:
-    """``ablate report`` as the user typed it: the experiment as given (``experiments/activations.toml``, not
-    its name) and every option that was set, so the reproducibility record can be pasted back into a shell;
-    masked (a password in ``--tracking-uri`` is ``***``)."""
-    words = ["ablate", "report", args.experiment]
-    for flag, value in (
-        ("--generation", getattr(args, "generation", None)),
-        ("--variants", getattr(args, "variants", None)),
-        ("--baseline", getattr(args, "baseline", None)),
-        ("--tracking-uri", getattr(args, "tracking_uri", None)),
-        ("--out", None if Path(getattr(args, "out", "reports")) == Path("reports") else args.out),
-    ):
-        if value:
-            words += [flag, str(value)]
-    if not getattr(args, "pdf", True):
-        words.append("--no-pdf")
-    return shown_command(words)
-
-
-def cmd_report(args: argparse.Namespace) -> int:
-    """``ablate report``: exit 0 with the report written; 1 with nothing to report; 2 for bad input. Nothing
-    is written (and no store created) unless the whole report could be built; finished trials whose files the
-    store cannot give are a warning line, the report written from their tracked metrics (exit 0)."""
-    name = args.experiment
-    if name.endswith(".toml"):
-        name = load_experiment(name).name  # a bad file is a ConfigError: one line, exit 2
-    command = report_command(args)
-    try:
-        result = build_report(
-            name,
-            args.tracking_uri,
-            args.out,
-            generation=getattr(args, "generation", None),
-            variants=[v.strip() for v in args.variants.split(",") if v.strip()] if args.variants else None,
-            baseline=getattr(args, "baseline", None),
-            pdf=getattr(args, "pdf", True),
-            command=command,
-        )
-    except NoResults as error:
-        sys.stderr.write(f"ablate report: nothing to report: {error}; nothing written\n")
-        return 1
-    except OSError as error:  # a read-only or full reports folder: an environment problem, not a bug
-        where = error.filename or args.out
-        sys.stderr.write(f"ablate report: cannot write the report under {args.out}: {error.strerror} ({where})\n")
-        return 1
-    if result.missing_note:  # the report stands without them: a warning, exit 0
-        sys.stderr.write(f"ablate report: {result.missing_note}\n")
-    print(f"wrote {result.folder}/: {result.written()}")
-    for note in (result.generation_note, result.file_note, result.pdf_note, result.attach_note):
-        if note and note != "no PDF (--no-pdf)":
-            print(re.sub(r"</?code>", "", html.unescape(note)))
-    return 0
