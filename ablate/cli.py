@@ -423,7 +423,7 @@ def _main(args: argparse.Namespace, started_at: float) -> int:
                 command=shown_command(["ablate", *sys.argv[1:]]),  # as it is recorded and shown
             )  # fmt: skip
             if args.dry_run:
-                code = dry_run(experiment, plan.trials, args.tracking_uri, args.report, args.fresh)
+                code = dry_run(plan, args.report)
                 warn_design(experiment)
                 return code
             warn_design(experiment)  # before any compute

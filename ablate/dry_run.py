@@ -12,7 +12,6 @@ from typing import Any, TypeVar
 
 from ablate.config import DEFAULT_POPULATION
 from ablate.env_spec import profile_named
-from ablate.experiment import Experiment
 from ablate.launch.clock import clock
 from ablate.launch.grid import GridTrial
 from ablate.launch.plan import LaunchPlan, plan_populations
@@ -52,12 +51,12 @@ def _rate(env_id: str, env_profile: str) -> tuple[float, bool]:
     return (measured, True) if measured else (episode_seconds(FALLBACK_ENV), False)
 
 
-def time_line(plan: LaunchPlan, tracking_uri: str | None, report: bool = True, fresh: bool = False) -> str:
+def time_line(plan: LaunchPlan, report: bool = True) -> str:
     """The whole command's time, first: the trials' (``trial_time``), the start's and the report's, each with
     how it was estimated: the start and the report as this store's newest launch of the experiment took them
     (``Tracker.launch_times``), else ``START_S`` and ``report_guess``."""
     experiment = plan.experiment
-    start_s, report_s = from_store(experiment, tracking_uri, lambda store: store.launch_times(), (None, None))
+    start_s, report_s = from_store(plan, lambda store: store.launch_times(), (None, None))
     measured = start_s is not None and (report_s is not None or not report)
     start_s = start_s if measured else START_S
     report_s = (report_s if measured else report_guess(len(plan.trials))) or 0.0
@@ -65,7 +64,7 @@ def time_line(plan: LaunchPlan, tracking_uri: str | None, report: bool = True, f
     parts = f"~{clock(start_s)} to start" + (f" and ~{clock(report_s)} for the report" if report else "")
     how = "as this store's last launch of it took them" if measured else GUESS
     guess = f"{parts}: {how}"
-    trials_words, left, most = trial_time(plan, tracking_uri, fresh)
+    trials_words, left, most = trial_time(plan)
     total = f"~{clock(left + overhead)}" + (f", at most ~{clock(most + overhead)}" if most is not None else "")
     budget = experiment.rounds.max_minutes if experiment.rounds else None
     if most is not None and budget is not None and most + start_s > 60 * budget:  # ``Rounds.past_budget``
@@ -75,19 +74,19 @@ def time_line(plan: LaunchPlan, tracking_uri: str | None, report: bool = True, f
     return f"time: {total} in all: {trials_words}; {guess}"
 
 
-def trial_time(plan: LaunchPlan, tracking_uri: str | None, fresh: bool = False) -> tuple[str, float, float | None]:
+def trial_time(plan: LaunchPlan) -> tuple[str, float, float | None]:
     """The trials' time in words, with the two figures a launch's progress line gives, before anything runs: the
     time of round 1 (with its tuning) and the most the launch can take (every comparison to ``max`` seeds, round
     after round; None without rounds), from the store's earlier runs of these trials (and of their variants);
     without any, ``guessed_s``. Trials finished in the newest generation are skipped, as the run skips them
-    (``fresh``: none)."""
+    (``plan.fresh``: none)."""
     from ablate.launch.estimate import estimate
     from ablate.launch.state import LaunchState
     from ablate.launch.tuning import unique
 
     experiment, trials, tuning = plan.experiment, plan.trials, plan.tuning
     wanted = {t.variant for t in trials}
-    done = set() if fresh else from_store(experiment, tracking_uri, finished_keys, set())
+    done = set() if plan.fresh else from_store(plan, finished_keys, set())
     known = {t.key for t in [*tuning, *trials]}
     todo = unique([*tuning, *trials], done)
     tuned = {t.variant for t in tuning}
@@ -103,7 +102,7 @@ def trial_time(plan: LaunchPlan, tracking_uri: str | None, fresh: bool = False) 
     every = [*todo, *later, *(t for r in possible for t in r)]
     # The skipped ones' earlier runs too: they cost their variant's others.
     looked_up = [*known, *(t.key for t in every)]
-    earlier = from_store(experiment, tracking_uri, lambda store: store.earlier_runs(looked_up)[0], {})
+    earlier = from_store(plan, lambda store: store.earlier_runs(looked_up)[0], {})
     prior = costed(every, earlier) or {t.key: guessed_s(t) for t in every}
     state = LaunchState(experiment.name, todo, 0, slots, 0.0, prior, groups=groups(todo), later=later,
                         later_groups=groups(later))  # fmt: skip
@@ -158,36 +157,30 @@ def guess_words(trials: list[GridTrial]) -> str:
     return f"no earlier run in the store: a guess at {words} of budget, measured once on 2 cores"
 
 
-def from_store(experiment: Experiment, tracking_uri: str | None, read: Callable[[Any], T], nothing: T) -> T:
+def from_store(plan: LaunchPlan, read: Callable[[Any], T], nothing: T) -> T:
     """``read`` of the experiment's store opened to read (its ``Tracker``), or ``nothing`` where the store does not
     exist yet (MLflow not imported for nothing) or cannot be read."""
     from ablate.launch.store import TrackingError, resolve_uri, sqlite_path
 
-    path = sqlite_path(resolve_uri(tracking_uri))
+    path = sqlite_path(resolve_uri(plan.tracking_uri))
     if path is not None and not path.exists():
         return nothing
     from ablate.launch.tracking import Tracker
 
     try:
-        return read(Tracker(tracking_uri, experiment.name, write=False))
+        return read(Tracker(plan.tracking_uri, plan.experiment.name, write=False))
     except TrackingError:
         return nothing
 
 
-def dry_run(
-    experiment: Experiment,
-    trials: list[GridTrial],
-    tracking_uri: str | None = None,
-    report: bool = True,
-    fresh: bool = False,
-) -> int:
+def dry_run(plan: LaunchPlan, report: bool = True) -> int:
     """``ablate run --dry-run``: the trials a run would consider, and nothing started or written. With
     ``[tune]``: stage 1 (every candidate on the tuning seeds), then stage 2, whose chosen values are known only
     after tuning (listed "after tuning"; the base-value trials are the untuned ones, with their keys)."""
+    experiment, trials = plan.experiment, plan.trials
     overrides = {v.name: ", ".join(f"{k}={json.dumps(x)}" for k, x in v.overrides) for v in experiment.variants}
-    plan = LaunchPlan(experiment, only=trials)
     total = len(plan.grid)
-    print(time_line(plan, tracking_uri, report, fresh))  # first: `| head` keeps it
+    print(time_line(plan, report))  # first: `| head` keeps it
     rows = [("variant", "seed", "key", "overrides")]
     if experiment.tune is None:
         print(f"{experiment.name}: {len(trials)} of {total} trials (dry run: nothing started or written)")
