@@ -283,9 +283,7 @@ def summary(
             entry["solved"] = f"{int(row.solved)}/{int(row.seeds_run)}"
         if ablation.any_solved:
             entry[f"episodes to solve, IQM [{percent(CONFIDENCE)} CI]"] = _episodes_cell(row, "iqm")
-        entry[f"AUC, IQM [{percent(CONFIDENCE)} CI]"] = _stat_cell(
-            row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high"
-        )
+        entry[f"AUC, IQM [{percent(CONFIDENCE)} CI]"] = _stat_cell(row, "auc_iqm", ci="auc")
         entry["primary claim"] = verdict
         rows.append(entry)
     return [

@@ -115,10 +115,10 @@ def _episodes_cell(row: pd.Series, stat: str) -> str:
     return f"{bound}{fmt(value)} {_interval(low, high, 0, int(row.seeds_run))}"
 
 
-def _stat_cell(row: pd.Series, prefix: str, digits: int = 1, low_key: str = "", high_key: str = "") -> str:
-    low = row.get(low_key or f"{prefix}_ci_low", np.nan)
-    high = row.get(high_key or f"{prefix}_ci_high", np.nan)
-    return f"{fmt(row.get(prefix, np.nan), digits)} {_interval(low, high, digits, int(row.seeds_run))}"
+def _stat_cell(row: pd.Series, prefix: str, ci: str = "") -> str:
+    low = row.get(f"{ci or prefix}_ci_low", np.nan)
+    high = row.get(f"{ci or prefix}_ci_high", np.nan)
+    return f"{fmt(row.get(prefix, np.nan), 1)} {_interval(low, high, 1, int(row.seeds_run))}"
 
 
 def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
@@ -150,7 +150,7 @@ def convergence_blocks(ablation: Ablation, table: pd.DataFrame) -> list[Block]:
         for episodes in budgets:
             entry[f"after {episodes:,} episodes {ci}"] = _stat_cell(row, f"return_at_{episodes}_iqm")
         entry[f"improvement over untrained {ci}"] = _stat_cell(row, "improvement_iqm")
-        entry[f"AUC {ci}"] = _stat_cell(row, "auc_iqm", low_key="auc_ci_low", high_key="auc_ci_high")
+        entry[f"AUC {ci}"] = _stat_cell(row, "auc_iqm", ci="auc")
         rows.append(entry)
     parts += [
         Paragraph(say("sections.returns", window=ablation_window(ablation))),
