@@ -263,6 +263,7 @@ def test_tracking_uri_from_the_environment_is_checked_too(tmp_path, capsys, monk
 
 
 def test_a_second_launch_is_refused_naming_the_first(tmp_path, seeded_store, capsys, monkeypatch):
+    from ablate.launch.store import lock_file
     from ablate.launch.tracking import Tracker
 
     store = tmp_path / "store"
@@ -270,7 +271,8 @@ def test_a_second_launch_is_refused_naming_the_first(tmp_path, seeded_store, cap
     monkeypatch.chdir(tmp_path)
     (tmp_path / "tiny.toml").write_text(GOOD)
     uri = f"sqlite:///{store / 'mlflow.db'}"
-    lock = Tracker(uri, "tiny").lock_path()
+    tracker = Tracker(uri, "tiny")
+    lock = lock_file(tracker.uri, tracker.experiment_name)
     holder = os.open(lock, os.O_RDWR | os.O_CREAT)  # a second open file: flock conflicts even in one process
     try:
         fcntl.flock(holder, fcntl.LOCK_EX)

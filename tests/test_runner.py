@@ -19,6 +19,7 @@ from stores import fresh_store
 
 from ablate.experiment import load_experiment
 from ablate.launch.grid import expand
+from ablate.launch.store import lock_file
 from ablate.launch.tracking import POINT_METRICS, Tracker
 from ablate.reporting.reader import RunReader
 
@@ -637,7 +638,7 @@ def test_a_name_in_any_script_runs_under_its_storage_name_and_its_costs_are_read
     mlflow_experiment = tracker.client.get_experiment(tracker.experiment_id())
     assert mlflow_experiment.name == stored and mlflow_experiment.tags["ablate.name"] == "实验é"
     assert (tmp_path / "mlartifacts" / stored).is_dir()
-    assert tracker.lock_path().name == f"mlflow.db.{stored}.lock"
+    assert lock_file(tracker.uri, tracker.experiment_name).name == f"mlflow.db.{stored}.lock"
     # What the trial took, for the next launch's time-left estimate and order.
     key = expand(experiment)[0].key
     costs, episodes = tracker.earlier_runs([key, "not-a-key"])

@@ -152,15 +152,12 @@ class Store:
             self._experiment_id = existing.experiment_id
 
     # --- experiment -------------------------------------------------------------------------------
-    def lock_path(self) -> Path:
-        """This machine's launch lock of this experiment on this store (``store.lock_file``)."""
-        return lock_file(self.uri, self.experiment_name)
-
     def hold_launch(self, what: str, command: str) -> contextlib.AbstractContextManager[None]:
         """One launch of this experiment at a time on this store (``lock.held_launch``): this machine's lock,
         and for a store other machines reach (not an SQLite file) the store's own lease."""
         shared = sqlite_path(self.uri) is None
-        return held_launch(self.lock_path(), what, command, self.client if shared else None, self.experiment_name)
+        lock = lock_file(self.uri, self.experiment_name)
+        return held_launch(lock, what, command, self.client if shared else None, self.experiment_name)
 
     def ui_link(self, port: int | None = None) -> str:
         """The MLflow UI's comparison of this experiment's variants: its variant runs (one per variant, the last
