@@ -4,6 +4,7 @@ machine (the launch run's tags and files). Pure reads of git and the host; no Ra
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import subprocess
@@ -62,14 +63,15 @@ def package_versions(config) -> dict:
 
 
 def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
-    """What the report needs to know of the launch without reading the experiment file again."""
+    """What the report needs to know of the launch without reading the experiment file again, in ``grid.json``'s
+    form (lists, not tuples) whether it is stored or not."""
     document = {
         "experiment": experiment.name,
         "description": experiment.description,
         "baseline": experiment.baseline,
         "seeds": list(experiment.seeds),
         "variants": [{"name": v.name, "overrides": dict(v.overrides)} for v in experiment.variants],
-        "base": {k: list(v) if isinstance(v, tuple) else v for k, v in flatten(experiment.base).items()},
+        "base": flatten(experiment.base),
         "trials": [{"key": t.key, "variant": t.variant, "seed": t.seed} for t in trials],
     }
     if experiment.tune:
@@ -77,7 +79,7 @@ def grid_document(experiment: Experiment, trials: list[GridTrial]) -> dict:
         document["tune_trials"] = [
             {"key": t.key, "variant": t.variant, "seed": t.seed, "stage": t.stage} for t in tuning
         ]
-    return document
+    return json.loads(json.dumps(document))
 
 
 PACKAGES = ("torch", "gymnasium", "ale-py", "ray", "mlflow", "numpy", "pandas", "scipy", "matplotlib", "imageio")

@@ -10,15 +10,6 @@ DERIVED = {"depth": lambda sizes: len(sizes), "width": lambda sizes: sizes[0] if
 """Shorthands a trial's config holds only as ``model.hidden_sizes``."""
 
 
-def _plain(value: Any) -> Any:
-    """Tuples as lists (grid.json's form), recursively, so that written and stored values compare equal."""
-    if isinstance(value, tuple | list):
-        return [_plain(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    return value
-
-
 def overrides(grid: dict[str, Any], variant: str) -> dict[str, Any]:
     """The knobs ``variant`` writes in the experiment file, as written."""
     return next((dict(v.get("overrides", {})) for v in grid["variants"] if v["name"] == variant), {})
@@ -29,7 +20,7 @@ def base_value(grid: dict[str, Any], knob: str) -> Any:
     base = grid.get("base", {})
     for key in (knob, f"model.{knob}"):
         if key in base:
-            return _plain(base[key])
+            return base[key]
     sizes = base.get("model.hidden_sizes")
     return DERIVED[knob](list(sizes)) if knob in DERIVED and sizes is not None else None
 
@@ -38,7 +29,7 @@ def setting(grid: dict[str, Any], variant: str, knob: str) -> Any:
     """The value ``variant`` runs ``knob`` at: its own, else the base's."""
     own = overrides(grid, variant)
     if knob in own:
-        return _plain(own[knob])
+        return own[knob]
     if knob == "hidden_sizes" and ("depth" in own or "width" in own):  # config.apply_knobs' expansion
         sizes = base_value(grid, "hidden_sizes") or []
         return [own.get("width", sizes[0] if sizes else 32)] * own.get("depth", len(sizes))
@@ -88,4 +79,4 @@ def references(grid: dict[str, Any]) -> dict[str, str]:
 def own_changes(grid: dict[str, Any], variant: str) -> dict[str, Any]:
     """The knobs ``variant`` writes at a value other than the base's, as written (the variants table's
     "changes" column): a knob written at the base's own value is no change."""
-    return {k: v for k, v in overrides(grid, variant).items() if base_value(grid, k) != _plain(v)}
+    return {k: v for k, v in overrides(grid, variant).items() if base_value(grid, k) != v}
