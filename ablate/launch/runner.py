@@ -359,8 +359,7 @@ class _Launch:
         with self.view:
             plan, experiment = self.plan, self.experiment
             cluster = scheduler.ClusterOptions(
-                plan.address, plan.max_concurrent, experiment.resources_per_trial, experiment.gpus_per_trial,
-                plan.storage_path,
+                plan.max_concurrent, experiment.resources_per_trial, experiment.gpus_per_trial, plan.storage_path
             )  # fmt: skip
             run_name = tune_run_name(self.tracker.experiment_name, self.launch)
             scheduler.run_trials(populations, self.recorder, cluster, run_name=run_name, resume=resume)

@@ -51,9 +51,6 @@ class ClusterUnavailable(RuntimeError):
 
 @dataclass(frozen=True)
 class ClusterOptions:
-    address: str | None = None
-    """``None``: ``RAY_ADDRESS`` if set, else a fresh local Ray with this machine's cores. Else ``auto``,
-    ``host:port`` of a head node's GCS, or ``ray://host:port``."""
     max_concurrent: int | None = None
     """Trials at once; ``None``: as many as the cluster's CPUs allow."""
     cpus_per_trial: float = 1.0
@@ -168,7 +165,8 @@ def run_trials(
 ) -> None:
     """Run the trials of ``plan`` (``launch.plan``: each population one Ray task) to completion with Ray Tune,
     calling ``events`` per trial (member) on this process as they progress. ``resume``: checkpoint blobs by
-    trial key (from a killed launch); those trials continue from them.
+    trial key (from a killed launch); those trials continue from them. Ray is started or joined (``ensure_ray``)
+    before.
 
     Raises ``KeyboardInterrupt`` on Ctrl-C after Ray's workers are stopped.
     """
@@ -177,7 +175,6 @@ def run_trials(
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ["TUNE_DISABLE_SIGINT_HANDLER"] = "1"
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
-    started_here = ensure_ray(options.address)
     ray_raylet_errors_to(log_raylet_errors)  # a dead worker: one line
     by_key = {p.key: p for p in plan}
     checkpoints = None
@@ -231,8 +228,6 @@ def run_trials(
     finally:
         if storage is not None:
             shutil.rmtree(storage / run_name, ignore_errors=True)  # everything is in the tracker by now
-        if started_here:
-            stop_ray()
     if problem is not None:  # raised outside the except: one line, not the chain of exceptions behind it
         raise problem
 
